@@ -1,0 +1,55 @@
+"""Load the ``agv_core`` package bundled beside a slave script (part of every FMU).
+
+pythonfmu appends each FMU's ``resources/`` to ``sys.path`` and imports modules by file
+name once per process, so a plain ``import agv_core`` would take whichever copy came
+first: the host's installed package, or another FMU's older bundle. This loader instead
+imports the bundle that sits next to the given slave script under the name
+``agv_core_<tag>``, where ``<tag>`` is the content hash the build wrote into
+``agv_core/BUILD_ID``. FMUs built from the same sources share one module; FMUs built from
+different sources each get their own.
+
+Which bundle: pythonfmu 0.7 inserts the instantiated FMU's ``resources/`` folder at
+``sys.path[0]`` immediately before it executes the slave script (the builder does the same
+with its staging folder), and it re-executes the script with the globals of the first
+import, so the script's ``__file__`` may name another FMU's (even a deleted) folder.
+``sys.path[0]`` is therefore the reliable pointer to this FMU's bundle.
+
+This file is itself imported once per process from whichever FMU comes first, so its
+behaviour must depend on ``sys.path[0]`` and its arguments only. Never change it without
+changing BOOT_ABI.
+"""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+BOOT_ABI = 1
+
+
+def load_core(*submodules):
+    """Import the ``agv_core`` bundled in the FMU being instantiated, with ``submodules``.
+
+    Returns the package; each named submodule is imported and is an attribute of it.
+    """
+    root = Path(sys.path[0]) / "agv_core"
+    build_id = root / "BUILD_ID"
+    if not build_id.is_file():
+        raise ImportError(f"agv_boot: '{root}' holds no BUILD_ID; slave scripts run only "
+                          "inside an FMU made by 'agv-cosim build'")
+    tag = build_id.read_text().strip()
+    name = f"agv_core_{tag}"
+    module = sys.modules.get(name)
+    if module is None:
+        spec = importlib.util.spec_from_file_location(
+            name, root / "__init__.py", submodule_search_locations=[str(root)]
+        )
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        try:
+            spec.loader.exec_module(module)
+        except BaseException:
+            del sys.modules[name]
+            raise
+    for submodule in submodules:
+        importlib.import_module(f"{name}.{submodule}")
+    return module

@@ -1,0 +1,52 @@
+"""FMU slave: kinematic single-track vehicle (agv_core.vehicle)."""
+
+from agv_boot import load_core
+
+core = load_core("fmi_slave", "vehicle")
+
+
+class AgvVehicle(core.fmi_slave.AgvSlave):
+    """Vehicle kinematics, seed 000 eqs (1)-(3) / seed 004 eq (2), integrated exactly."""
+
+    description = ("Kinematic single-track AGV: steered-wheel angle and speed in, pose out "
+                   "(exact arc integration for inputs held over a step)")
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.input("alpha", 0.0, "rad", "Steered-wheel angle, positive turns left")
+        self.input("v", 0.0, "m/s", "Speed of the rear-axle centre; v0 is used until set")
+        self.parameter("v0", 1.0, "m/s", "Speed used while input v has not been set")
+        self.parameter("wheelbase", 1.0, "m", "Wheelbase L, rear-axle centre to front wheel")
+        self.parameter("x0", 0.0, "m", "Initial x of the reference point")
+        self.parameter("y0", 0.0, "m", "Initial y of the reference point")
+        self.parameter("heading0", 0.0, "rad", "Initial heading, counter-clockwise from x")
+        self.parameter("reference_point", "front", None,
+                       "Point reported as x, y: 'front' (wheel centre, seed 000) or 'rear' "
+                       "(axle centre, seed 004)", kind=core.fmi_slave.String)
+        self.parameter("linear", False, None,
+                       "Small-angle linear kinematics (seed 000 models b and c)",
+                       kind=core.fmi_slave.Boolean)
+        self.output("x", "m", "x of the reference point")
+        self.output("y", "m", "y of the reference point")
+        self.output("heading", "rad", "Heading beta, counter-clockwise from the x axis")
+        self.output("x_rear", "m", "x of the rear-axle centre")
+        self.output("y_rear", "m", "y of the rear-axle centre")
+        self.output("x_front", "m", "x of the front-wheel centre")
+        self.output("y_front", "m", "y of the front-wheel centre")
+        self.output("distance", "m", "Distance travelled by the rear-axle centre")
+
+    def make_core(self):
+        return core.vehicle.Vehicle(self.wheelbase, self.x0, self.y0, self.heading0,
+                                    self.reference_point, self.linear)
+
+    def advance(self, t, h):
+        speed = self.v if self.was_set("v") else self.v0
+        self.core.step(self.alpha, speed, h)
+
+    def publish(self):
+        c = self.core
+        self.x, self.y, self.heading = c.x, c.y, c.heading
+        self.x_rear, self.y_rear = c.rear()
+        self.x_front, self.y_front = c.front()
+        self.distance = c.distance
+        self.finite_or_fail(x=self.x, y=self.y, heading=self.heading)
