@@ -1,0 +1,72 @@
+"""The FMU build: deterministic GUIDs, rebuild-only-changed, bundle isolation, errors."""
+
+import shutil
+import subprocess
+import sys
+
+import fmpy
+from fmpy.fmi1 import FMICallException
+import pytest
+
+from agv_cosim.build import build_fmus, build_one, default_components_dir, fmu_guid_of
+
+VEHICLE = default_components_dir() / "slaves" / "agv_vehicle.py"
+
+
+def test_unchanged_rebuild_is_skipped_and_keeps_the_guid(tmp_path):
+    first = build_fmus(tmp_path, [VEHICLE])[0]
+    second = build_fmus(tmp_path, [VEHICLE])[0]
+    assert first.rebuilt and not second.rebuilt
+    assert fmu_guid_of(first.fmu) == fmu_guid_of(second.fmu) == first.guid
+    forced = build_one(VEHICLE, tmp_path / "again", force=True)
+    assert forced.guid == first.guid  # the GUID comes from the sources, not the clock
+
+
+def test_changed_source_changes_the_guid(tmp_path):
+    original = build_one(VEHICLE, tmp_path / "a")
+    core = tmp_path / "core"
+    shutil.copytree(default_components_dir() / "agv_core", core,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    with open(core / "vehicle.py", "a") as handle:
+        handle.write("\n# a changed line\n")
+    changed = build_one(VEHICLE, tmp_path / "b", core_dir=core)
+    assert changed.guid != original.guid
+
+
+def test_two_builds_of_one_fmu_in_a_process_are_refused_clearly(tmp_path):
+    """pythonfmu loads a slave module once per process: the second build must not run
+    silently with the first one's code."""
+    old = build_one(VEHICLE, tmp_path / "old").fmu
+    core = tmp_path / "core"
+    shutil.copytree(default_components_dir() / "agv_core", core,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    with open(core / "vehicle.py", "a") as handle:
+        handle.write("\n# another build\n")
+    new = build_one(VEHICLE, tmp_path / "new", core_dir=core).fmu
+    code = (
+        "import fmpy\n"
+        "def log(c, i, status, category, message): print(message.decode())\n"
+        f"fmpy.simulate_fmu({str(old)!r}, stop_time=0.1)\n"
+        "try:\n"
+        f"    fmpy.simulate_fmu({str(new)!r}, stop_time=0.1, logger=log, debug_logging=True)\n"
+        "except Exception as error:\n"
+        "    print('refused:', error)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "refused:" in done.stdout
+    assert "another build" in done.stdout + done.stderr
+
+
+def test_bad_parameter_fails_initialisation_naming_it(tmp_path):
+    fmu = build_one(VEHICLE, tmp_path).fmu
+    messages = []
+
+    def logger(component, instance, status, category, message):
+        messages.append(message.decode())
+
+    with pytest.raises(FMICallException, match="ExitInitializationMode"):
+        fmpy.simulate_fmu(str(fmu), stop_time=0.1, start_values={"wheelbase": -2.0}, debug_logging=True,
+                          logger=logger)
+    assert any("wheelbase" in m and "-2.0" in m for m in messages), messages
