@@ -39,7 +39,12 @@ def load_core(*submodules):
     tag = build_id.read_text().strip()
     name = f"agv_core_{tag}"
     module = sys.modules.get(name)
-    if module is None:
+    if module is not None:
+        # Same tag, same content: point the package at this bundle, since the folder it was
+        # first loaded from may be gone (hosts delete extracted FMUs), and a submodule
+        # that no earlier FMU needed is imported from here.
+        module.__path__[:] = [str(root)]
+    else:
         spec = importlib.util.spec_from_file_location(
             name, root / "__init__.py", submodule_search_locations=[str(root)]
         )

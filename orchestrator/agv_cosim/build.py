@@ -149,7 +149,9 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None):
                              f"{type(error).__name__}: {error}") from error
         finally:
             sys.path[:] = saved_path
-            sys.modules.pop(script.stem, None)
+            for module in [m for m in sys.modules
+                           if m == script.stem or m.startswith("agv_core_")]:
+                del sys.modules[module]
         _validate(fmu_path)
         target = out_dir / fmu_path.name
         partial = target.with_suffix(".fmu.partial")

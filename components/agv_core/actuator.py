@@ -1,0 +1,337 @@
+"""Steering actuators of seed 000: models a (eq 8), b (K/s) and c (eq 7).
+
+All three map the stepper-motor control voltage ``u`` [V] onto the steered-wheel angle
+``alpha`` [rad] (positive steers left, see components/README.md):
+
+a. ``G_a(s) = K e^(-tau s) / s``  (seed 000 eq 8; tau = 0.05 s, K = 0.6 rad/(V.s))
+b. ``G_b(s) = K / s``             (eq 8 without the delay; seed 000 model b)
+c. ``G_c(s) = (K / G0) (100 / s) (8.91 s + 506.3) / (s^2 + 15.7926 s + 195.23)``
+   (seed 000 eq 7), where ``G0 = 100 * 506.3 / 195.23 = 259.335`` is the DC gain of the
+   identified *rate* transfer function (eq 6). The identification was done in the rig's
+   own units; scaling by ``K / G0`` gives model c the same steady rate gain K as eq 8, so
+   the three models agree for slow commands and differ only in their transients.
+
+Integration is exact for a command held over each step (zero-order hold):
+
+* a and b: the (delayed) command is piecewise constant, so alpha is piecewise linear.
+  Model a keeps a history of ``(time, u)`` breakpoints; inside a step the delayed command
+  changes at ``t_i + tau`` and each piece is integrated exactly, whether or not the step
+  divides tau. The command before the first step is 0 (actuator at rest).
+* c: the state-space realisation of eq 7 is discretised exactly (matrix exponential, zero-
+  order hold) for each distinct step size, cached.
+
+Limits (each off when 0): ``rate_max`` [rad/s] clips the wheel rate, ``alpha_max`` [rad]
+clamps the angle (the wheel stops at the end stop). For a and b the rate is constant
+within each piece, so both limits are applied exactly. For c the unlimited angle increment
+is clipped per internal sub-step of at most ``servo_period`` (an approximation at that
+resolution; exact when the limits are off).
+
+Angle mode (``mode="angle"``): an inner position loop, like the steering servo of seed
+004, turns a wheel-angle set-point ``alpha_ref`` [rad] into the command
+``u = servo_gain * (alpha_ref - alpha)``. The loop is a digital servo sampled every
+``servo_period`` [s] (default 1 ms, the step is split into equal sub-steps no longer than
+that), with its output held between samples, so every sub-step is again integrated
+exactly by the command-mode rules above. The default ``servo_gain = 10 V/rad`` gives a
+loop crossover of ``K * servo_gain = 6 rad/s`` and, with the 0.05 s delay of model a,
+a phase margin of 90 deg - 6 rad/s * (0.05 + 0.0005) s = 72.6 deg (gain margin 5.2); on
+model c the phase margin is 63 deg (gain margin 3.6).
+"""
+
+import math
+
+import numpy as np
+import scipy.linalg
+import scipy.signal
+
+from .errors import ParameterError
+
+MODES = ("command", "angle")
+
+#: Identified rate transfer function of seed 000 eq 6 (numerator, denominator), rig units.
+EQ6_NUM = (100.0 * 8.91, 100.0 * 506.3)
+EQ6_DEN = (1.0, 15.7926, 195.23)
+#: DC gain of eq 6 [rig units], used to scale model c to gain K.
+EQ6_DC_GAIN = EQ6_NUM[1] / EQ6_DEN[2]
+
+
+def _finite(name, value):
+    if not math.isfinite(value):
+        raise ParameterError(name, f"must be finite, got {value}")
+    return float(value)
+
+
+class SteeringActuator:
+    """Common part of the three steering actuators (use a subclass).
+
+    Parameters
+    ----------
+    K : float
+        Steady rate gain [rad/(V.s)], > 0 (seed 000: 0.6).
+    alpha0 : float
+        Initial wheel angle [rad].
+    alpha_max : float
+        Wheel-angle limit [rad], >= 0; 0 = no limit.
+    rate_max : float
+        Wheel-rate limit [rad/s], >= 0; 0 = no limit.
+    mode : {"command", "angle"}
+        ``command``: the input is the voltage ``u`` [V]; ``angle``: the input is the
+        set-point ``alpha_ref`` [rad] of an inner position loop.
+    servo_gain : float
+        Position-loop gain [V/rad] of angle mode, > 0.
+    servo_period : float
+        Sample period [s] of the digital position loop (and the sub-step of model c's
+        limiter), > 0.
+    """
+
+    #: True when ``alpha_rate`` depends directly on the current command.
+    feedthrough = False
+
+    def __init__(self, K=0.6, alpha0=0.0, alpha_max=0.0, rate_max=0.0, mode="command",
+                 servo_gain=10.0, servo_period=1e-3):
+        K = _finite("K", K)
+        if K <= 0.0:
+            raise ParameterError("K", f"must be > 0 rad/(V.s), got {K}")
+        alpha_max = _finite("alpha_max", alpha_max)
+        if alpha_max < 0.0:
+            raise ParameterError("alpha_max", f"must be >= 0 rad (0 = off), got {alpha_max}")
+        rate_max = _finite("rate_max", rate_max)
+        if rate_max < 0.0:
+            raise ParameterError("rate_max", f"must be >= 0 rad/s (0 = off), got {rate_max}")
+        alpha0 = _finite("alpha0", alpha0)
+        if alpha_max > 0.0 and abs(alpha0) > alpha_max:
+            raise ParameterError("alpha0", f"|{alpha0}| exceeds alpha_max = {alpha_max} rad")
+        if mode not in MODES:
+            raise ParameterError("mode", f"must be one of {MODES}, got '{mode}'")
+        servo_gain = _finite("servo_gain", servo_gain)
+        if servo_gain <= 0.0:
+            raise ParameterError("servo_gain", f"must be > 0 V/rad, got {servo_gain}")
+        servo_period = _finite("servo_period", servo_period)
+        if servo_period <= 0.0:
+            raise ParameterError("servo_period", f"must be > 0 s, got {servo_period}")
+        self.K = K
+        self.alpha_max = alpha_max
+        self.rate_max = rate_max
+        self.mode = mode
+        self.servo_gain = servo_gain
+        self.servo_period = servo_period
+        self.alpha = alpha0
+        #: time [s] the state refers to (end of the last step)
+        self.time = 0.0
+
+    # ------------------------------------------------------------------ limits
+    def _limit_rate(self, rate, alpha):
+        """Rate after the rate limit and the end stops at angle ``alpha`` [rad/s]."""
+        if self.rate_max > 0.0:
+            rate = min(max(rate, -self.rate_max), self.rate_max)
+        if self.alpha_max > 0.0:
+            if (alpha >= self.alpha_max and rate > 0.0) or (alpha <= -self.alpha_max
+                                                            and rate < 0.0):
+                rate = 0.0
+        return rate
+
+    def _clamp(self, alpha):
+        if self.alpha_max > 0.0:
+            return min(max(alpha, -self.alpha_max), self.alpha_max)
+        return alpha
+
+    def _advance_constant_rate(self, rate, d):
+        """Advance alpha by ``d`` [s] at constant unlimited rate ``rate`` (exact)."""
+        if self.rate_max > 0.0:
+            rate = min(max(rate, -self.rate_max), self.rate_max)
+        self.alpha = self._clamp(self.alpha + rate * d)
+
+    # ------------------------------------------------------------------ stepping
+    def command(self, u, alpha_ref):
+        """Command [V] the actuator receives now: ``u``, or the servo's in angle mode."""
+        if self.mode == "angle":
+            return self.servo_gain * (alpha_ref - self.alpha)
+        return u
+
+    def step(self, t, h, u=0.0, alpha_ref=0.0):
+        """Advance from ``t`` to ``t + h`` [s] with ``u`` [V] and ``alpha_ref`` [rad] held."""
+        if h <= 0.0:
+            return
+        self.time = t + h
+        if self.mode == "angle" or self._needs_substeps():
+            n = max(1, math.ceil(h / self.servo_period - 1e-9))
+            d = h / n
+            for i in range(n):
+                self._step_command(t + i * d, d, self.command(u, alpha_ref))
+        else:
+            self._step_command(t, h, u)
+
+    def _needs_substeps(self):
+        return False
+
+    def _step_command(self, t, h, u):
+        raise NotImplementedError
+
+    def rate(self, u=0.0, alpha_ref=0.0):
+        """Wheel rate d(alpha)/dt [rad/s] now, after the limits."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ state
+    def get_state(self):
+        """JSON-safe snapshot of the state."""
+        return {"alpha": self.alpha, "time": self.time}
+
+    def set_state(self, state):
+        """Restore a snapshot from :meth:`get_state`."""
+        self.alpha = float(state["alpha"])
+        self.time = float(state["time"])
+
+
+class IntegratorActuator(SteeringActuator):
+    """Model b: ``alpha' = K u`` (seed 000 eq 8 without delay). See :class:`SteeringActuator`."""
+
+    feedthrough = True
+
+    def _step_command(self, t, h, u):
+        self._advance_constant_rate(self.K * u, h)
+
+    def rate(self, u=0.0, alpha_ref=0.0):
+        return self._limit_rate(self.K * self.command(u, alpha_ref), self.alpha)
+
+
+class DelayedIntegratorActuator(SteeringActuator):
+    """Model a: ``alpha'(t) = K u(t - tau)`` (seed 000 eq 8), exact for held commands.
+
+    Parameters
+    ----------
+    tau : float
+        Dead time [s], > 0 (seed 000: 0.05).
+    **kwargs
+        See :class:`SteeringActuator`.
+    """
+
+    def __init__(self, tau=0.05, **kwargs):
+        super().__init__(**kwargs)
+        tau = _finite("tau", tau)
+        if tau <= 0.0:
+            raise ParameterError("tau", f"must be > 0 s, got {tau}")
+        self.tau = tau
+        #: breakpoints [[time [s], command [V]], ...], ascending; command 0 before the first
+        self.history = []
+
+    def _eps(self, h):
+        return 1e-12 + 1e-9 * h
+
+    def _delayed(self, s):
+        """Command that was applied at time ``s`` (right-continuous) [V]."""
+        value = 0.0
+        for time, u in self.history:
+            if time <= s:
+                value = u
+            else:
+                break
+        return value
+
+    def _step_command(self, t, h, u):
+        eps = self._eps(h)
+        if self.history and self.history[-1][0] >= t - eps:
+            self.history[-1] = [t, float(u)]
+            if len(self.history) > 1 and self.history[-2][1] == float(u):
+                self.history.pop()
+        elif not self.history or self.history[-1][1] != float(u):
+            self.history.append([t, float(u)])
+        t_end = t + h
+        # pieces: the delayed command changes at t_i + tau inside (t, t_end)
+        cuts = [time + self.tau for time, _ in self.history
+                if t + eps < time + self.tau < t_end - eps]
+        start = t
+        for stop in cuts + [t_end]:
+            self._advance_constant_rate(self.K * self._delayed(start - self.tau + eps),
+                                        stop - start)
+            start = stop
+        self._prune(t_end - self.tau + eps)
+
+    def _prune(self, s):
+        """Drop breakpoints no longer needed after delayed time ``s``."""
+        keep = 0
+        for i, (time, _) in enumerate(self.history):
+            if time <= s:
+                keep = i
+        del self.history[:keep]
+
+    def rate(self, u=0.0, alpha_ref=0.0):
+        # the delayed command at the current time was applied at least tau earlier: it is
+        # in the history already and never depends on the present u / alpha_ref
+        s = self.time - self.tau + self._eps(self.tau)
+        return self._limit_rate(self.K * self._delayed(s), self.alpha)
+
+    def get_state(self):
+        state = super().get_state()
+        state["history"] = [list(p) for p in self.history]
+        return state
+
+    def set_state(self, state):
+        super().set_state(state)
+        self.history = [[float(t), float(u)] for t, u in state["history"]]
+
+
+class IdentifiedActuator(SteeringActuator):
+    """Model c: seed 000 eq 7 scaled to steady rate gain K, exact zero-order hold.
+
+    The wheel rate is ``G_r(s) u`` with ``G_r(s) = (K / G0) * 100 (8.91 s + 506.3) /
+    (s^2 + 15.7926 s + 195.23)``, ``G0 = 259.335`` (:data:`EQ6_DC_GAIN`), and alpha is its
+    integral. The rate starts at rest. See :class:`SteeringActuator` for the parameters.
+    """
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        scale = self.K / EQ6_DC_GAIN
+        a, b, c, d = scipy.signal.tf2ss([scale * n for n in EQ6_NUM], EQ6_DEN)
+        self._a, self._b, self._c = a, b.ravel(), c.ravel()
+        self.x = np.zeros(len(self._b))
+        self._cache = {}
+
+    def _discrete(self, h):
+        """Exact ZOH maps of [x; alpha]: (Ad [n+1 x n+1], Bd [n+1]) for step ``h``."""
+        found = self._cache.get(h)
+        if found is None:
+            n = len(self._b)
+            m = np.zeros((n + 2, n + 2))
+            m[:n, :n] = self._a
+            m[n, :n] = self._c          # alpha' = C x (the rate)
+            m[:n, n + 1] = self._b      # input column
+            e = scipy.linalg.expm(m * h)
+            found = (e[:n + 1, :n + 1], e[:n + 1, n + 1])
+            if len(self._cache) > 16:
+                self._cache.clear()
+            self._cache[h] = found
+        return found
+
+    def _needs_substeps(self):
+        return self.alpha_max > 0.0 or self.rate_max > 0.0
+
+    def _step_command(self, t, h, u):
+        ad, bd = self._discrete(h)
+        z = ad @ np.append(self.x, 0.0) + bd * u
+        self.x = z[:-1]
+        increment = z[-1]
+        if self.rate_max > 0.0:
+            increment = min(max(increment, -self.rate_max * h), self.rate_max * h)
+        self.alpha = self._clamp(self.alpha + increment)
+
+    def rate(self, u=0.0, alpha_ref=0.0):
+        return self._limit_rate(float(self._c @ self.x), self.alpha)
+
+    def get_state(self):
+        state = super().get_state()
+        state["x"] = [float(v) for v in self.x]
+        return state
+
+    def set_state(self, state):
+        super().set_state(state)
+        self.x = np.array(state["x"], dtype=float)
+
+
+#: model letter (seed 000) -> actuator class
+MODELS = {"a": DelayedIntegratorActuator, "b": IntegratorActuator, "c": IdentifiedActuator}
+
+
+def make_actuator(model, **parameters):
+    """Build steering actuator ``model`` ("a", "b" or "c") with ``parameters``."""
+    if model not in MODELS:
+        raise ParameterError("model", f"must be one of {tuple(MODELS)}, got '{model}'")
+    return MODELS[model](**parameters)

@@ -1,0 +1,233 @@
+"""Seed-000 state-feedback steering controller (eqs 9-10) and its LQR design on model b.
+
+Control law (seed 000 eq 9, signs per components/README.md, negative feedback)::
+
+    u = -(Ka alpha + Kb heading_error + Ke lateral_error)        [V]
+
+with the paper's gains (eq 10) ``[Ka, Kb, Ke] = [4.828, 3.767, 4.472]`` in
+[V/rad, V/rad, V/m]. ``lateral_error`` is the signed distance of the front-wheel centre
+from the path, ``heading_error`` the heading relative to the path.
+
+Design model (seed 000 model b), states ``(alpha, beta, e)``::
+
+    alpha' = K u,   beta' = (V0 / L) alpha,   e' = V0 (alpha + beta)
+
+For ``Q = diag(0, 0, q)``, ``R = r`` the LQR gain on e is exactly ``Ke = sqrt(q / r)``
+for every V0, L and K: the loop transfer function from u to e is
+``V0 K (s + V0/L) / s^3``, the closed-loop characteristic polynomial under the gains is
+``s^3 + K Ka s^2 + K (Kb V0/L + Ke V0) s + K Ke V0^2/L``, and the spectral factorisation
+``s^6 + (q/r) V0^2 K^2 (s^2 - (V0/L)^2)`` fixes its constant term to
+``sqrt(q/r) V0^2 K / L``. So the paper's ``Ke = 4.472 = sqrt(20)`` gives ``q/r = 20``;
+the wheelbase L then moves Ka and Kb only (:func:`find_wheelbase`).
+"""
+
+import math
+
+import numpy as np
+
+from .errors import ParameterError
+
+#: seed 000 eq 10: [Ka [V/rad], Kb [V/rad], Ke [V/m]]
+PAPER_GAINS = (4.828, 3.767, 4.472)
+
+
+def _finite(name, value):
+    if not math.isfinite(value):
+        raise ParameterError(name, f"must be finite, got {value}")
+    return float(value)
+
+
+class StateFeedback:
+    """``u = -(Ka alpha + Kb heading_error + Ke lateral_error)``, optional hold and limit.
+
+    Parameters
+    ----------
+    Ka : float
+        Gain on the wheel angle [V/rad].
+    Kb : float
+        Gain on the heading error [V/rad].
+    Ke : float
+        Gain on the lateral error [V/m].
+    sample_period : float
+        Sample period [s], >= 0. 0: the law is evaluated at every communication point.
+        Otherwise the output is sampled at multiples ``k * sample_period`` of absolute
+        time and held; a sample instant inside a communication step is taken at the first
+        communication point at or after it (the inputs are only known there), and the
+        sample count never drifts because k is computed from time, not accumulated.
+    u_max : float
+        Output limit [V], >= 0; 0 = off.
+    """
+
+    def __init__(self, Ka=PAPER_GAINS[0], Kb=PAPER_GAINS[1], Ke=PAPER_GAINS[2],
+                 sample_period=0.0, u_max=0.0):
+        self.gains = np.array([_finite("Ka", Ka), _finite("Kb", Kb), _finite("Ke", Ke)])
+        self.sample_period = _finite("sample_period", sample_period)
+        if self.sample_period < 0.0:
+            raise ParameterError("sample_period", f"must be >= 0 s (0 = every step), got "
+                                 f"{sample_period}")
+        self.u_max = _finite("u_max", u_max)
+        if self.u_max < 0.0:
+            raise ParameterError("u_max", f"must be >= 0 V (0 = off), got {u_max}")
+        self.u = 0.0
+        self._sample_index = None   # float k of the last sample (JSON-safe)
+        self._sample_time = None    # communication time [s] the last sample was taken at
+
+    def law(self, alpha, heading_error, lateral_error):
+        """The control law without sampling [V] (limited by ``u_max`` if set)."""
+        u = -float(self.gains @ np.array([alpha, heading_error, lateral_error]))
+        if self.u_max > 0.0:
+            u = min(max(u, -self.u_max), self.u_max)
+        return u
+
+    def update(self, t, alpha, heading_error, lateral_error):
+        """Output [V] at time ``t`` [s] for the current inputs (samples when due)."""
+        if self.sample_period == 0.0:
+            self.u = self.law(alpha, heading_error, lateral_error)
+            return self.u
+        k = float(math.floor(t / self.sample_period + 1e-9))
+        if self._sample_index is None or k > self._sample_index or t == self._sample_time:
+            # a new sample, or the same instant again with newer inputs
+            self.u = self.law(alpha, heading_error, lateral_error)
+            self._sample_index = k
+            self._sample_time = t
+        return self.u
+
+    def get_state(self):
+        """JSON-safe snapshot of the state."""
+        return {"u": self.u, "sample_index": self._sample_index,
+                "sample_time": self._sample_time}
+
+    def set_state(self, state):
+        """Restore a snapshot from :meth:`get_state`."""
+        self.u = float(state["u"])
+        self._sample_index = state["sample_index"]
+        self._sample_time = state["sample_time"]
+
+
+# ---------------------------------------------------------------------- design
+def model_b(V0, L, K):
+    """State-space matrices of seed 000 model b, states (alpha, beta, e).
+
+    Parameters
+    ----------
+    V0 : float
+        Speed [m/s].
+    L : float
+        Wheelbase [m], > 0.
+    K : float
+        Actuator gain [rad/(V.s)].
+
+    Returns
+    -------
+    A : ndarray, shape (3, 3)
+    B : ndarray, shape (3, 1)
+    """
+    if not L > 0.0:
+        raise ParameterError("L", f"must be > 0 m, got {L}")
+    A = np.array([[0.0, 0.0, 0.0],
+                  [V0 / L, 0.0, 0.0],
+                  [V0, V0, 0.0]])
+    B = np.array([[K], [0.0], [0.0]])
+    return A, B
+
+
+def lqr_gains(V0, L, K, Q, R):
+    """LQR gains [Ka [V/rad], Kb [V/rad], Ke [V/m]] for model b (python-control).
+
+    Parameters
+    ----------
+    V0, L, K : float
+        Speed [m/s], wheelbase [m], actuator gain [rad/(V.s)].
+    Q : array_like, shape (3, 3) or (3,)
+        State weight (a vector is a diagonal).
+    R : float or array_like, shape (1, 1)
+        Input weight.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        Gains with ``u = -gains @ (alpha, beta, e)``.
+    """
+    import control
+
+    A, B = model_b(V0, L, K)
+    Q = np.asarray(Q, dtype=float)
+    if Q.ndim == 1:
+        Q = np.diag(Q)
+    R = np.atleast_2d(np.asarray(R, dtype=float))
+    gains, _, _ = control.lqr(A, B, Q, R)
+    return np.asarray(gains, dtype=float).ravel()
+
+
+def find_wheelbase(target=PAPER_GAINS, V0=1.0, K=0.6, q=20.0, r=1.0, bounds=(0.2, 5.0)):
+    """The wheelbase L for which LQR on model b reproduces ``target`` gains.
+
+    Uses ``Q = diag(0, 0, q)``, ``R = r``; ``q = 20`` reproduces the paper's
+    ``Ke = 4.472 = sqrt(20)`` (``Ke = sqrt(q / r)`` exactly, see the module docstring;
+    ``q=None`` takes ``q = r * Ke^2`` from ``target``). It then minimises the squared error of (Ka, Kb) over L with
+    :func:`scipy.optimize.minimize_scalar`.
+
+    Parameters
+    ----------
+    target : sequence of 3 float
+        [Ka [V/rad], Kb [V/rad], Ke [V/m]] to reproduce.
+    V0 : float
+        Design speed [m/s].
+    K : float
+        Actuator gain [rad/(V.s)].
+    q : float or None
+        Weight on e in Q.
+    r : float
+        Input weight R.
+    bounds : (float, float)
+        Search interval for L [m].
+
+    Returns
+    -------
+    dict
+        ``L`` [m], ``Q`` (3x3 list), ``R`` (float), ``gains`` (list of 3), ``residual``
+        (max abs gain error).
+    """
+    from scipy.optimize import minimize_scalar
+
+    target = np.asarray(target, dtype=float)
+    if q is None:
+        q = r * target[2] ** 2
+    Q = np.diag([0.0, 0.0, q])
+
+    def cost(L):
+        return float(np.sum((lqr_gains(V0, L, K, Q, r)[:2] - target[:2]) ** 2))
+
+    result = minimize_scalar(cost, bounds=bounds, method="bounded",
+                             options={"xatol": 1e-10})
+    L = float(result.x)
+    gains = lqr_gains(V0, L, K, Q, r)
+    return {"L": L, "Q": Q.tolist(), "R": float(r), "gains": gains.tolist(),
+            "residual": float(np.max(np.abs(gains - target)))}
+
+
+def closed_loop(gains, V0, L, K):
+    """Closed-loop poles of model b under ``u = -gains @ (alpha, beta, e)``.
+
+    Parameters
+    ----------
+    gains : sequence of 3 float
+        [Ka [V/rad], Kb [V/rad], Ke [V/m]].
+    V0, L, K : float
+        Speed [m/s], wheelbase [m], actuator gain [rad/(V.s)].
+
+    Returns
+    -------
+    dict
+        ``poles`` (complex ndarray [1/s], sorted by real part), ``damping`` (ndarray,
+        -Re(p)/|p| per pole), ``natural_frequency`` (ndarray [rad/s], |p|),
+        ``min_damping`` (float) and ``stable`` (bool).
+    """
+    A, B = model_b(V0, L, K)
+    acl = A - B @ np.atleast_2d(np.asarray(gains, dtype=float))
+    poles = np.linalg.eigvals(acl)
+    poles = poles[np.argsort(poles.real)]
+    wn = np.abs(poles)
+    damping = np.where(wn > 0.0, -poles.real / np.where(wn > 0.0, wn, 1.0), -1.0)
+    return {"poles": poles, "damping": damping, "natural_frequency": wn,
+            "min_damping": float(np.min(damping)), "stable": bool(np.all(poles.real < 0.0))}

@@ -1,0 +1,40 @@
+"""FMU slave: seed-000 state-feedback steering controller (agv_core.state_feedback)."""
+
+from agv_boot import load_core
+
+core = load_core("fmi_slave", "state_feedback")
+
+
+class AgvStateFeedback(core.fmi_slave.AgvSlave):
+    """u = -(Ka alpha + Kb heading_error + Ke lateral_error), seed 000 eqs (9)-(10)."""
+
+    description = ("Seed-000 state-feedback steering controller: wheel angle, heading error "
+                   "and lateral error in, actuator voltage out")
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.input("alpha", 0.0, "rad", "Steered-wheel angle, positive steers left")
+        self.input("heading_error", 0.0, "rad",
+                   "Vehicle heading minus path heading, positive pointing left of the path")
+        self.input("lateral_error", 0.0, "m",
+                   "Signed distance of the front-wheel centre from the path, positive left")
+        self.parameter("Ka", 4.828, "V/rad", "Gain on the wheel angle (seed 000 eq 10)")
+        self.parameter("Kb", 3.767, "V/rad", "Gain on the heading error (seed 000 eq 10)")
+        self.parameter("Ke", 4.472, "V/m", "Gain on the lateral error (seed 000 eq 10)")
+        self.parameter("sample_period", 0.0, "s",
+                       "Sample-and-hold period, at multiples of it (0 = every step)")
+        self.parameter("u_max", 0.0, "V", "Output limit (0 = off)")
+        self.output("u", "V", "Actuator command, positive drives alpha positive",
+                    depends_on=("alpha", "heading_error", "lateral_error"))
+
+    def make_core(self):
+        return core.state_feedback.StateFeedback(self.Ka, self.Kb, self.Ke,
+                                                 self.sample_period, self.u_max)
+
+    def advance(self, t, h):
+        pass  # memoryless between samples: the output is formed in publish()
+
+    def publish(self):
+        self.u = self.core.update(self.time, self.alpha, self.heading_error,
+                                  self.lateral_error)
+        self.finite_or_fail(u=self.u)
