@@ -1,0 +1,388 @@
+"""Plots of one or more runs' recorded signals (matplotlib, Agg, no display).
+
+The orchestrator calls :func:`plot_runs` with the runs to overlay (each a :class:`RunData`)
+and the manifest's ``[plots]`` table, and :func:`referenced_signals` beforehand to know
+what it must record. Figures are drawn on an Agg canvas without ``pyplot`` (no global
+backend state, no window), and saved without a ``Software`` tag and with fixed metadata,
+so the same data give the same PNG bytes.
+
+The ``[plots]`` table
+---------------------
+Every key is optional; a figure is written only when its key is present.
+
+``signals`` : list of str
+    Signals ``"component.variable"`` drawn in ``signals.png``, one subplot per signal,
+    stacked with a shared x axis, every run overlaid with a legend of the run labels.
+``x`` : str, default ``"time"``
+    The x axis of ``signals.png``: ``"time"`` [s] or a signal, e.g. ``"vehicle.distance"``
+    to plot against the distance travelled.
+``units`` : table of str to str
+    Unit shown in brackets after a signal's name on its axis label, by signal name.
+``title`` : str
+    Title of every figure (the trajectory figure gets it too).
+``trajectory`` : table
+    ``{x = "<signal>", y = "<signal>", path = "<path string, optional>"}``: an x-y plot
+    ``trajectory.png`` of every run, with equal axis scales, over the reference path
+    drawn from ``agv_core.paths.parse_path(path).polyline`` (the whole path when it is
+    bounded, otherwise the stretch the runs cover).
+``dpi`` : int, default 120
+    Resolution of the PNG files.
+
+Runs marked ``partial`` (stopped early) are drawn dashed and labelled ``"<label> (partial)"``.
+
+Complete example::
+
+    [plots]
+    title = "Sine path, gain sweep"
+    signals = ["sensor.lateral_error", "vehicle.heading", "act.alpha", "ctrl.u"]
+    x = "time"
+    dpi = 120
+    trajectory = { x = "vehicle.x", y = "vehicle.y", path = "sine:amplitude=2,wavelength=18.85" }
+
+    [plots.units]
+    "sensor.lateral_error" = "m"
+    "vehicle.heading" = "rad"
+    "act.alpha" = "rad"
+    "ctrl.u" = "V"
+"""
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+#: File names of the figures (stable, so that a rerun overwrites them).
+SIGNALS_FILE = "signals.png"
+TRAJECTORY_FILE = "trajectory.png"
+DEFAULT_DPI = 120
+
+_KEYS = ("signals", "x", "units", "title", "trajectory", "dpi")
+_TRAJECTORY_KEYS = ("x", "y", "path")
+#: Points of the drawn reference path.
+_PATH_POINTS = 2000
+#: Points per run projected onto an unbounded path to find the stretch to draw.
+_PROJECTED_POINTS = 400
+
+
+@dataclass
+class RunData:
+    """The recorded result of one run, as plotted.
+
+    Parameters
+    ----------
+    label : str
+        Legend label of the run.
+    time : numpy.ndarray
+        Sample times [s], shape (n,).
+    signals : dict of str to numpy.ndarray
+        Recorded signals by name ``"component.variable"``, each of shape (n,).
+    partial : bool
+        True when the run stopped before its stop time (drawn dashed).
+    """
+
+    label: str
+    time: np.ndarray
+    signals: dict = field(default_factory=dict)
+    partial: bool = False
+
+
+# --------------------------------------------------------------------------- validation
+
+def _check_signal_name(key, value):
+    if not isinstance(value, str):
+        raise ValueError(f"plots.{key}: expected a signal name 'component.variable', "
+                         f"got {value!r}")
+    component, dot, variable = value.partition(".")
+    if not dot or not component or not variable:
+        raise ValueError(f"plots.{key}: signal name {value!r} is not 'component.variable'")
+    return value
+
+
+def _validate(spec):
+    """Check ``spec`` and return it normalised (defaults filled in)."""
+    if spec is None:
+        spec = {}
+    if not isinstance(spec, Mapping):
+        raise ValueError(f"plots: expected a table, got {type(spec).__name__}")
+    for key in spec:
+        if key not in _KEYS:
+            raise ValueError(f"plots.{key}: unknown key (allowed: {', '.join(_KEYS)})")
+    out = {"x": "time", "units": {}, "title": None, "dpi": DEFAULT_DPI}
+    if "signals" in spec:
+        signals = spec["signals"]
+        if isinstance(signals, str) or not isinstance(signals, (list, tuple)) or not signals:
+            raise ValueError(f"plots.signals: expected a non-empty list of signal names, "
+                             f"got {signals!r}")
+        out["signals"] = [_check_signal_name(f"signals[{i}]", name)
+                          for i, name in enumerate(signals)]
+    if "x" in spec:
+        out["x"] = spec["x"] if spec["x"] == "time" else _check_signal_name("x", spec["x"])
+    if "units" in spec:
+        units = spec["units"]
+        if not isinstance(units, Mapping):
+            raise ValueError(f"plots.units: expected a table of signal name to unit, "
+                             f"got {units!r}")
+        for name, unit in units.items():
+            if not isinstance(unit, str):
+                raise ValueError(f"plots.units.{name}: expected a unit string, got {unit!r}")
+        out["units"] = dict(units)
+    if "title" in spec:
+        if not isinstance(spec["title"], str):
+            raise ValueError(f"plots.title: expected a string, got {spec['title']!r}")
+        out["title"] = spec["title"]
+    if "dpi" in spec:
+        dpi = spec["dpi"]
+        if isinstance(dpi, bool) or not isinstance(dpi, int) or not 10 <= dpi <= 1200:
+            raise ValueError(f"plots.dpi: expected an integer in [10, 1200], got {dpi!r}")
+        out["dpi"] = dpi
+    if "trajectory" in spec:
+        traj = spec["trajectory"]
+        if not isinstance(traj, Mapping):
+            raise ValueError(f"plots.trajectory: expected a table, got {traj!r}")
+        for sub in traj:
+            if sub not in _TRAJECTORY_KEYS:
+                raise ValueError(f"plots.trajectory.{sub}: unknown key (allowed: "
+                                 f"{', '.join(_TRAJECTORY_KEYS)})")
+        for sub in ("x", "y"):
+            if sub not in traj:
+                raise ValueError(f"plots.trajectory.{sub}: missing")
+        path = traj.get("path")
+        if path is not None and (not isinstance(path, str) or not path.strip()):
+            raise ValueError(f"plots.trajectory.path: expected a path string, got {path!r}")
+        out["trajectory"] = {"x": _check_signal_name("trajectory.x", traj["x"]),
+                             "y": _check_signal_name("trajectory.y", traj["y"]),
+                             "path": path}
+    return out
+
+
+def referenced_signals(spec):
+    """Every signal ``"component.variable"`` that the ``[plots]`` table names.
+
+    Parameters
+    ----------
+    spec : dict
+        The ``[plots]`` table (see the module docstring).
+
+    Returns
+    -------
+    list of str
+        The names, each once, in the order the table defines them (``signals``, ``x``,
+        ``trajectory``).
+
+    Raises
+    ------
+    ValueError
+        If the table is malformed (the message names the key).
+    """
+    spec = _validate(spec)
+    names = list(spec.get("signals", []))
+    if spec["x"] != "time":
+        names.append(spec["x"])
+    if "trajectory" in spec:
+        names += [spec["trajectory"]["x"], spec["trajectory"]["y"]]
+    return list(dict.fromkeys(names))
+
+
+# --------------------------------------------------------------------------- drawing
+
+def _values(run, name, key):
+    if name not in run.signals:
+        raise ValueError(f"plots.{key}: run {run.label!r} has no signal {name!r}")
+    values = np.asarray(run.signals[name], dtype=float)
+    if values.shape != np.shape(run.time):
+        raise ValueError(f"plots.{key}: signal {name!r} of run {run.label!r} has shape "
+                         f"{values.shape}, its time grid {np.shape(run.time)}")
+    return values
+
+
+def _label(name, units):
+    unit = units.get(name)
+    return f"{name} [{unit}]" if unit else name
+
+
+def _style(run):
+    return {"label": f"{run.label} (partial)" if run.partial else run.label,
+            "linestyle": "--" if run.partial else "-", "linewidth": 1.2}
+
+
+def _legend(figure, ax):
+    # outside the axes, below them: never hides data, and no costly 'best' placement
+    handles, labels = ax.get_legend_handles_labels()
+    if handles:
+        figure.legend(handles, labels, loc="outside lower center", fontsize="small",
+                      ncols=min(len(handles), 4), frameon=False)
+
+
+def _save(figure, path, dpi):
+    figure.savefig(path, dpi=dpi, format="png", metadata={"Software": None})
+    return path
+
+
+def signals_figure(runs, spec):
+    """The figure of ``signals.png``: one subplot per signal, every run overlaid.
+
+    Parameters
+    ----------
+    runs : list of RunData
+        The runs to draw, in legend order.
+    spec : dict
+        The ``[plots]`` table; it must have ``signals``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure, on an Agg canvas.
+    """
+    spec = _validate(spec)
+    if "signals" not in spec:
+        raise ValueError("plots.signals: missing")
+    names = spec["signals"]
+    units = dict(spec["units"])
+    units.setdefault("time", "s")
+    figure = Figure(figsize=(8.0, 1.0 + 2.0 * len(names)), layout="constrained")
+    axes = figure.subplots(len(names), 1, sharex=True, squeeze=False)[:, 0]
+    for run in runs:
+        if spec["x"] == "time":
+            x = np.asarray(run.time, dtype=float)
+        else:
+            x = _values(run, spec["x"], "x")
+        for i, (ax, name) in enumerate(zip(axes, names)):
+            ax.plot(x, _values(run, name, f"signals[{i}]"), **_style(run))
+    for ax, name in zip(axes, names):
+        ax.set_ylabel(_label(name, units))
+        ax.grid(True, linewidth=0.4, alpha=0.6)
+    axes[-1].set_xlabel(_label(spec["x"], units))
+    if spec["title"]:
+        figure.suptitle(spec["title"])
+    _legend(figure, axes[0])
+    FigureCanvasAgg(figure)
+    return figure
+
+
+def _reference_polyline(path, runs, traj):
+    """x, y [m] of the reference ``path`` (a ReferencePath) over the stretch worth drawing."""
+    length = float(getattr(path, "length", math.inf))
+    if math.isfinite(length):
+        s0, s1 = 0.0, length
+    else:
+        # unbounded path: from its start to the furthest projection of any run's point
+        s1 = 0.0
+        for run in runs:
+            x = _values(run, traj["x"], "trajectory.x")
+            y = _values(run, traj["y"], "trajectory.y")
+            keep = np.isfinite(x) & np.isfinite(y)
+            x, y = x[keep], y[keep]
+            step = max(1, len(x) // _PROJECTED_POINTS)
+            s_hint = None
+            for xi, yi in zip(x[::step], y[::step]):
+                projection = path.project(float(xi), float(yi), s_hint)
+                s_hint = projection.s
+                s1 = max(s1, projection.s)
+        s0 = 0.0
+        if s1 <= 0.0:
+            return None
+    return path.polyline(s0, s1, (s1 - s0) / _PATH_POINTS)
+
+
+def trajectory_figure(runs, spec, geometry=None):
+    """The figure of ``trajectory.png``: x-y of every run over the reference path.
+
+    Parameters
+    ----------
+    runs : list of RunData
+        The runs to draw, in legend order.
+    spec : dict
+        The ``[plots]`` table; it must have ``trajectory``.
+    geometry : agv_core.paths.ReferencePath, optional
+        The reference path to draw (parsed from ``trajectory.path`` by :func:`plot_runs`).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure, on an Agg canvas.
+    """
+    spec = _validate(spec)
+    if "trajectory" not in spec:
+        raise ValueError("plots.trajectory: missing")
+    traj = spec["trajectory"]
+    units = spec["units"]
+    figure = Figure(figsize=(8.0, 6.0), layout="constrained")
+    ax = figure.add_subplot()
+    if geometry is not None:
+        polyline = _reference_polyline(geometry, runs, traj)
+        if polyline is not None:
+            ax.plot(polyline[0], polyline[1], color="0.55", linewidth=2.5, alpha=0.7,
+                    label="reference path", zorder=1)
+    for run in runs:
+        ax.plot(_values(run, traj["x"], "trajectory.x"),
+                _values(run, traj["y"], "trajectory.y"), zorder=2, **_style(run))
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel(_label(traj["x"], units))
+    ax.set_ylabel(_label(traj["y"], units))
+    ax.grid(True, linewidth=0.4, alpha=0.6)
+    if spec["title"]:
+        figure.suptitle(spec["title"])
+    _legend(figure, ax)
+    FigureCanvasAgg(figure)
+    return figure
+
+
+def plot_runs(runs, spec, out_dir, *, base_dir=None):
+    """Draw the figures the ``[plots]`` table asks for, every run overlaid.
+
+    Parameters
+    ----------
+    runs : list of RunData
+        The runs to draw, in legend order.
+    spec : dict
+        The ``[plots]`` table (see the module docstring).
+    out_dir : pathlib.Path
+        Folder the PNG files are written to (created if missing).
+    base_dir : str or pathlib.Path, optional
+        Folder that relative file names in ``trajectory.path`` are relative to (the
+        manifest's folder); the working directory when None.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The files written: ``signals.png`` and/or ``trajectory.png``, in that order.
+
+    Raises
+    ------
+    ValueError
+        If the table is malformed, or a run lacks a signal it names (the message names
+        the key).
+    """
+    raw, spec = spec, _validate(spec)
+    runs = list(runs)
+    for run in runs:
+        if not isinstance(run, RunData):
+            raise TypeError(f"plot_runs: expected RunData, got {type(run).__name__}")
+        # every signal checked before any file is written
+        for i, name in enumerate(spec.get("signals", [])):
+            _values(run, name, f"signals[{i}]")
+        if spec["x"] != "time" and "signals" in spec:
+            _values(run, spec["x"], "x")
+        if "trajectory" in spec:
+            for sub in ("x", "y"):
+                _values(run, spec["trajectory"][sub], f"trajectory.{sub}")
+    geometry = None
+    if "trajectory" in spec and spec["trajectory"]["path"] is not None:
+        from .metrics import load_path
+
+        geometry = load_path(spec["trajectory"]["path"], "plots.trajectory.path", base_dir)
+    out_dir = Path(out_dir)
+    written = []
+    if "signals" in spec or "trajectory" in spec:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    if "signals" in spec:
+        written.append(_save(signals_figure(runs, raw), out_dir / SIGNALS_FILE,
+                             spec["dpi"]))
+    if "trajectory" in spec:
+        written.append(_save(trajectory_figure(runs, raw, geometry),
+                             out_dir / TRAJECTORY_FILE, spec["dpi"]))
+    return written
