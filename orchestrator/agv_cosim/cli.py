@@ -1,9 +1,19 @@
-"""The ``agv-cosim`` command line."""
+"""The ``agv-cosim`` command line.
+
+Exit codes: 0 success; 1 a run that failed or is partial (or a failed build); 2 bad input
+(one line ``agv-cosim: error: <manifest>: <key>: <problem>`` on stderr, no traceback
+unless ``--debug``).
+"""
 
 import argparse
 import sys
 
 from . import __version__
+
+
+def _error(text):
+    print(f"agv-cosim: error: {text}", file=sys.stderr)
+    return 2
 
 
 def _cmd_build(args):
@@ -20,24 +30,130 @@ def _cmd_build(args):
     return 0
 
 
+def _warn(warnings, quiet=False):
+    for warning in warnings:
+        print(f"agv-cosim: warning: {warning}", file=sys.stderr)
+
+
+def _cmd_validate(args):
+    from .runner import prepare
+
+    manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set)
+    _warn(warnings)
+    print(f"{manifest.path}: ok: {len(jobs)} run(s), {len(manifest.components)} "
+          f"component(s), {len(manifest.connections)} connection(s), "
+          f"{manifest.algorithm}")
+    return 0
+
+
+def _cmd_run(args):
+    from .runner import execute, prepare
+
+    if args.jobs is not None and args.jobs < 1:
+        return _error("--jobs: must be >= 1")
+    manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set)
+    _warn(warnings)
+    target, results = execute(manifest, jobs, args.out, args.jobs, args.quiet)
+    bad = [r for r in results if r["status"] != "complete"]
+    for result in bad:
+        print(f"agv-cosim: run {result['label']} {result['status']}: {result['error']}",
+              file=sys.stderr)
+    if not args.quiet:
+        print(f"{target}: {len(results) - len(bad)}/{len(results)} run(s) complete")
+    return 1 if bad else 0
+
+
+def _cmd_list(args):
+    from pathlib import Path
+
+    from .model import ModelError, describe, find_fmus, read_model
+
+    path = Path(args.path)
+    if not path.exists():
+        return _error(f"{path}: not found")
+    fmus = find_fmus(path)
+    if not fmus:
+        return _error(f"{path}: no *.fmu files")
+    status = 0
+    for i, fmu in enumerate(fmus):
+        try:
+            info = read_model(fmu)
+        except ModelError as error:
+            print(f"agv-cosim: error: {fmu}: {error}", file=sys.stderr)
+            status = 2
+            continue
+        if i:
+            print()
+        print(describe(info))
+    return status
+
+
 def make_parser():
     """The argument parser of ``agv-cosim`` with all its subcommands."""
-    parser = argparse.ArgumentParser(prog="agv-cosim", description=__doc__)
+    parser = argparse.ArgumentParser(prog="agv-cosim", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"agv-cosim {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    debug = argparse.ArgumentParser(add_help=False)
+    debug.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                       help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    build = sub.add_parser("build", help="build the component FMUs (only what changed)")
+    build = sub.add_parser("build", help="build the component FMUs (only what changed)",
+                           parents=[debug])
     build.add_argument("--out", default="fmus", help="output folder (default: fmus)")
     build.add_argument("--force", action="store_true", help="rebuild every FMU")
     build.set_defaults(func=_cmd_build)
+
+    selection = argparse.ArgumentParser(add_help=False)
+    selection.add_argument("manifest", help="experiment manifest (TOML)")
+    selection.add_argument("--variant", action="append", metavar="NAME",
+                           help="run only this variant (repeatable; default: all)")
+    selection.add_argument("--set", action="append", default=[], metavar="COMP.PARAM=VALUE",
+                           help="override a parameter in every run (VALUE is a TOML value; "
+                                "repeatable)")
+
+    run = sub.add_parser("run", help="validate and run a manifest, write results",
+                         parents=[selection, debug],
+                         description="Run every variant x sweep point of a manifest and "
+                                     "write DIR/<run>/{timeseries.csv,metrics.json,run.json}, "
+                                     "DIR/summary.csv and plots. Exit 0 if all runs are "
+                                     "complete, 1 if any failed or is partial, 2 on bad "
+                                     "input.")
+    run.add_argument("--out", metavar="DIR",
+                     help="output folder (default: results/<manifest name>)")
+    run.add_argument("--quiet", action="store_true", help="no progress bars or summary")
+    run.add_argument("--jobs", type=int, metavar="N",
+                     help="worker processes (default: one per core; 1 = serial)")
+    run.set_defaults(func=_cmd_run)
+
+    check = sub.add_parser("validate", help="check a manifest against its FMUs, run nothing",
+                           parents=[selection, debug])
+    check.set_defaults(func=_cmd_validate)
+
+    listing = sub.add_parser("list", help="list FMUs and their variables", parents=[debug])
+    listing.add_argument("path", nargs="?", default="fmus",
+                         help="an FMU or a folder of FMUs (default: fmus)")
+    listing.set_defaults(func=_cmd_list)
     return parser
 
 
 def main(argv=None):
-    """Entry point of the ``agv-cosim`` console script."""
+    """Entry point of the ``agv-cosim`` console script; returns the exit code."""
+    from .manifest import ManifestError
+
     args = make_parser().parse_args(argv)
-    return args.func(args)
+    try:
+        return args.func(args)
+    except ManifestError as error:
+        if args.debug:
+            raise
+        return _error(str(error))
+    except KeyboardInterrupt:
+        if args.debug:
+            raise
+        print("agv-cosim: interrupted (no result folder was completed)", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -1,0 +1,130 @@
+"""Writing and reading results: streamed CSV time series, JSON files, the summary.
+
+Floats are written with ``repr`` (shortest text that round-trips exactly), so a CSV read
+back gives the bit-identical doubles. Output folders are assembled under a temporary name
+and renamed into place at the end (:class:`AtomicDir`): an interrupted run never leaves a
+folder that looks complete.
+"""
+
+import csv
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+
+class CsvSink:
+    """Stream rows of floats to ``path`` (header: ``time`` then the column names).
+
+    Parameters
+    ----------
+    path : Path
+    columns : list of str
+        Names after ``time``.
+    """
+
+    def __init__(self, path, columns):
+        self.path = Path(path)
+        self.stream = open(self.path, "w", encoding="utf-8", newline="")
+        self.stream.write(",".join(["time"] + list(columns)) + "\n")
+
+    def write(self, row):
+        """Append one row (sequence of float)."""
+        self.stream.write(",".join(map(repr, map(float, row))) + "\n")
+
+    def close(self):
+        self.stream.close()
+
+
+def read_timeseries(path, columns=None):
+    """Read a ``timeseries.csv`` back.
+
+    Returns
+    -------
+    (numpy.ndarray, dict of str -> numpy.ndarray)
+        Time [s] and the requested (default: all) columns.
+    """
+    path = Path(path)
+    with open(path, encoding="utf-8") as stream:
+        header = stream.readline().strip().split(",")
+    wanted = header[1:] if columns is None else list(columns)
+    index = [0] + [header.index(c) for c in wanted]
+    data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=index, ndmin=2)
+    if data.shape[0] == 0:
+        data = np.zeros((0, len(index)))
+    return data[:, 0].copy(), {c: data[:, i + 1].copy() for i, c in enumerate(wanted)}
+
+
+def write_json(path, data):
+    """Write ``data`` as indented, key-sorted JSON (NaN/inf written as null)."""
+    Path(path).write_text(json.dumps(_json_safe(data), indent=1, sort_keys=True) + "\n",
+                          encoding="utf-8")
+
+
+def _json_safe(value):
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        value = float(value)
+        return value if np.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def write_summary(path, rows):
+    """Write ``summary.csv``: one row per run (dicts; columns = union in first-seen order)."""
+    columns = []
+    for row in rows:
+        for key in row:
+            if key not in columns:
+                columns.append(key)
+    with open(path, "w", encoding="utf-8", newline="") as stream:
+        writer = csv.DictWriter(stream, fieldnames=columns)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: (repr(v) if isinstance(v, float) else v)
+                             for k, v in row.items()})
+
+
+class AtomicDir:
+    """Build a folder under a temporary name beside ``target``; rename it in at the end.
+
+    ``commit()`` replaces an existing ``target``; ``discard()`` deletes the temporary
+    folder. Used as a context manager it discards on an exception.
+    """
+
+    def __init__(self, target):
+        self.target = Path(target).resolve()
+        self.target.parent.mkdir(parents=True, exist_ok=True)
+        self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.incomplete-",
+                                          dir=self.target.parent))
+
+    def commit(self):
+        old = None
+        if self.target.exists():
+            old = self.target.with_name(f".{self.target.name}.old-{os.getpid()}")
+            shutil.rmtree(old, ignore_errors=True)
+            self.target.rename(old)
+        self.path.rename(self.target)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+        return self.target
+
+    def discard(self):
+        shutil.rmtree(self.path, ignore_errors=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, value, traceback):
+        if kind is not None:
+            self.discard()
+        return False
