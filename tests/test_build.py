@@ -70,3 +70,23 @@ def test_bad_parameter_fails_initialisation_naming_it(tmp_path):
         fmpy.simulate_fmu(str(fmu), stop_time=0.1, start_values={"wheelbase": -2.0}, debug_logging=True,
                           logger=logger)
     assert any("wheelbase" in m and "-2.0" in m for m in messages), messages
+
+
+def test_many_instantiations_in_one_process(component_fmus):
+    """pythonfmu 0.7 drops a reference to the slave module's globals at every
+    instantiation (agv_boot pins one back). Model b's slave script defines no function, so
+    without the pin its globals are freed by the second instantiation. Run in a
+    subprocess: the failure mode is a crash of the host."""
+    fmu = str(component_fmus["agv_steering_b"])
+    code = (
+        "import fmpy\n"
+        "for k in range(40):\n"
+        f"    r = fmpy.simulate_fmu({fmu!r}, stop_time=0.05, step_size=0.01,\n"
+        "                          start_values={'u': 1.0})\n"
+        "print('alpha', repr(float(r['alpha'][-1])))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-1500:]
+    # alpha = K u t = 0.6 * 1 * 0.05 after 40 fresh instances (1e-12: exact ramp)
+    assert float(done.stdout.split()[-1]) == pytest.approx(0.03, abs=1e-12)

@@ -25,12 +25,23 @@ from pathlib import Path
 
 BOOT_ABI = 1
 
+# pythonfmu 0.7's findClass executes the slave script again at every instantiation, with
+# the module's globals, and then calls Py_DECREF on that globals dict although it only
+# borrowed it (PyModule_GetDict). Each instantiation thus drops one reference the module
+# owns: a slave module whose dict has few other references (no functions of its own) has
+# its globals freed after one or two instantiations, and the host fails or crashes. Every
+# execution of a slave script calls load_core, which keeps one more reference here, so the
+# stray decrement is balanced (one list slot per instantiation).
+_PINNED_GLOBALS = []
+
 
 def load_core(*submodules):
     """Import the ``agv_core`` bundled in the FMU being instantiated, with ``submodules``.
 
     Returns the package; each named submodule is imported and is an attribute of it.
+    Call it at module level of the slave script (it pins the caller's globals, see above).
     """
+    _PINNED_GLOBALS.append(sys._getframe(1).f_globals)
     root = Path(sys.path[0]) / "agv_core"
     build_id = root / "BUILD_ID"
     if not build_id.is_file():

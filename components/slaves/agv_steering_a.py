@@ -2,42 +2,19 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "actuator")
+core = load_core("actuator_fmi")
 
 
-class AgvSteeringA(core.fmi_slave.AgvSlave):
+class AgvSteeringA(core.actuator_fmi.ActuatorSlave):
     """Steering actuator, seed 000 model a: K exp(-tau s)/s."""
 
     description = ("Steering actuator (seed 000 model a, K exp(-tau s)/s): control voltage u or "
                    "wheel-angle set-point alpha_ref in, wheel angle and rate out")
+    model = "a"
+    rate_depends_on = ()  # the dead time (tau > 0) separates the rate from the inputs
 
-    def __init__(self, **kwargs):
-        super().__init__(**kwargs)
-        self.input("u", 0.0, "V", "Motor control voltage (mode 'command'); positive drives "
-                   "alpha positive")
-        self.input("alpha_ref", 0.0, "rad", "Wheel-angle set-point (mode 'angle')")
-        self.parameter("mode", "command", None,
-                       "'command': input u drives the motor; 'angle': inner position loop "
-                       "u = servo_gain*(alpha_ref - alpha)", kind=core.fmi_slave.String)
-        self.parameter("K", 0.6, "rad/(V.s)", "Steady rate gain (seed 000 eq 8)")
+    def declare_model_parameters(self):
         self.parameter("tau", 0.05, "s", "Dead time (seed 000 eq 8), > 0")
-        self.parameter("alpha0", 0.0, "rad", "Initial wheel angle")
-        self.parameter("alpha_max", 0.0, "rad", "Wheel-angle limit (0 = off)")
-        self.parameter("rate_max", 0.0, "rad/s", "Wheel-rate limit (0 = off)")
-        self.parameter("servo_gain", 10.0, "V/rad", "Position-loop gain of mode 'angle'")
-        self.output("alpha", "rad", "Steered-wheel angle, positive steers left")
-        self.output("alpha_rate", "rad/s", "Wheel rate d(alpha)/dt",
-                    depends_on=())
 
-    def make_core(self):
-        return core.actuator.DelayedIntegratorActuator(
-            K=self.K, alpha0=self.alpha0, alpha_max=self.alpha_max, rate_max=self.rate_max,
-            mode=self.mode, servo_gain=self.servo_gain, tau=self.tau)
-
-    def advance(self, t, h):
-        self.core.step(t, h, self.u, self.alpha_ref)
-
-    def publish(self):
-        self.alpha = self.core.alpha
-        self.alpha_rate = self.core.rate(self.u, self.alpha_ref)
-        self.finite_or_fail(alpha=self.alpha, alpha_rate=self.alpha_rate)
+    def model_parameters(self):
+        return {"tau": self.tau}

@@ -1,0 +1,58 @@
+"""The FMI adapter shared by the three steering-actuator FMUs (models a, b, c).
+
+The three FMUs have identical interfaces so that a manifest can swap one for another; only
+the model, its extra parameters and the direct dependencies of ``alpha_rate`` differ. A
+slave script subclasses :class:`ActuatorSlave` and sets ``model``, ``description``,
+``rate_depends_on`` and, where needed, ``declare_model_parameters``.
+"""
+
+from .actuator import make_actuator
+from .fmi_slave import AgvSlave, String
+
+
+class ActuatorSlave(AgvSlave):
+    """Common FMU interface of the steering actuators (see agv_core.actuator)."""
+
+    #: "a", "b" or "c" (agv_core.actuator.MODELS)
+    model = None
+    #: inputs that ``alpha_rate`` depends on directly
+    rate_depends_on = ()
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.input("u", 0.0, "V", "Motor control voltage (mode 'command'); positive drives "
+                   "alpha positive")
+        self.input("alpha_ref", 0.0, "rad", "Wheel-angle set-point (mode 'angle')")
+        self.parameter("mode", "command", None,
+                       "'command': input u drives the motor; 'angle': inner position loop "
+                       "u = servo_gain*(alpha_ref - alpha)", kind=String)
+        self.parameter("K", 0.6, "rad/(V.s)", "Steady rate gain (seed 000 eq 8)")
+        self.declare_model_parameters()
+        self.parameter("alpha0", 0.0, "rad", "Initial wheel angle")
+        self.parameter("alpha_max", 0.0, "rad", "Wheel-angle limit (0 = off)")
+        self.parameter("rate_max", 0.0, "rad/s", "Wheel-rate limit (0 = off)")
+        self.parameter("servo_gain", 10.0, "V/rad", "Position-loop gain of mode 'angle'")
+        self.output("alpha", "rad", "Steered-wheel angle, positive steers left")
+        self.output("alpha_rate", "rad/s", "Wheel rate d(alpha)/dt",
+                    depends_on=self.rate_depends_on)
+
+    def declare_model_parameters(self):
+        """Declare the parameters only this model has (override)."""
+
+    def model_parameters(self):
+        """Values of the parameters only this model has, as keyword arguments."""
+        return {}
+
+    def make_core(self):
+        return make_actuator(self.model, K=self.K, alpha0=self.alpha0,
+                             alpha_max=self.alpha_max, rate_max=self.rate_max,
+                             mode=self.mode, servo_gain=self.servo_gain,
+                             **self.model_parameters())
+
+    def advance(self, t, h):
+        self.core.step(t, h, self.u, self.alpha_ref)
+
+    def publish(self):
+        self.alpha = self.core.alpha
+        self.alpha_rate = self.core.rate(self.u, self.alpha_ref)
+        self.finite_or_fail(alpha=self.alpha, alpha_rate=self.alpha_rate)
