@@ -1,0 +1,353 @@
+"""Sensors: vision (seed 000), robotic total station, fibre-optic gyro, steering angle (seed 004).
+
+Timing semantics shared by the sampled sensors (vision, total station)
+---------------------------------------------------------------------
+The master holds every input constant over a communication step [t, t + h). A sample
+(camera frame, total-station fix) is *captured* at its instant t_k from the input held
+at that instant: a capture instant belongs to the step [t, t + h) when
+t - EPS <= t_k < t + h - EPS, with EPS = 1e-9 s, so an instant that coincides with a
+communication point (within EPS) is captured from the inputs set at that point,
+whatever the step size. The sample becomes the output at t_k + latency; after a step to
+T the outputs hold the newest sample with t_k + latency <= T + EPS. Nothing needs the
+step to divide the sampling period or the latency: both are exact to EPS.
+
+Direct feedthrough: with zero latency a sample captured at a communication point T is
+the output at T, computed from the inputs the master has just set at T (a tentative
+sample, redrawn with the same random numbers until the step from T commits it). An
+output that can do this for some parameter value depends on its input; the FMUs declare
+it so (vision: all outputs on x, y, heading; total station: x_meas, y_meas on x, y;
+gyro, steering sensor: always).
+
+Before the first sample arrives (t0 <= T < t0 + latency) the outputs hold the noise-free
+value of the pose at t0: the vehicle is assumed to have stood at its initial pose before
+the start, so earlier frames saw it there.
+
+Randomness: one ``numpy.random.default_rng(seed)`` per sensor; its
+``bit_generator.state`` is part of ``get_state()``. Draw order per sample is fixed
+(documented per class), so the same seed gives the same outputs.
+"""
+
+import math
+from collections import deque
+
+import numpy as np
+
+from .errors import ParameterError
+from .paths import heading_error
+
+#: Time tolerance [s] for matching sample instants to communication points.
+EPS = 1e-9
+
+
+def _nonneg(name, value):
+    if not (value >= 0.0 and math.isfinite(value)):
+        raise ParameterError(name, f"must be finite and >= 0, got {value}")
+    return float(value)
+
+
+def _seed(seed):
+    if int(seed) != seed or seed < 0:
+        raise ParameterError("seed", f"must be a non-negative integer, got {seed}")
+    return int(seed)
+
+
+def _quantize(value, resolution):
+    """Round ``value`` to the nearest multiple of ``resolution`` (none when 0)."""
+    if resolution <= 0.0:
+        return value
+    return math.floor(value / resolution + 0.5) * resolution
+
+
+class _Sampled:
+    """Capture schedule, latency line and random generator of a sampled sensor."""
+
+    def __init__(self, latency, seed, t0):
+        self.latency = _nonneg("latency", latency)
+        self.rng = np.random.default_rng(_seed(seed))
+        self.t0 = float(t0)
+        self.pending = deque()       # (t_available, t_capture, values)
+        self.current = None          # (t_capture, values) of the newest available sample
+        self.initial = None
+
+    # hooks -----------------------------------------------------------------
+    def _next_time(self):
+        raise NotImplementedError
+
+    def _advance_schedule(self):
+        raise NotImplementedError
+
+    def _sample(self, inputs, noisy, commit=False):
+        """Sample values for ``inputs``; ``commit`` for a captured (not tentative) one."""
+        raise NotImplementedError
+
+    # timing ----------------------------------------------------------------
+    def _due(self, t):
+        return abs(self._next_time() - t) <= EPS
+
+    def step(self, t, h, *inputs):
+        """Advance from ``t`` to ``t + h`` [s] with ``inputs`` held."""
+        if self.initial is None:
+            self.initial = (self.t0, self._sample(inputs, noisy=False))
+        end = t + h
+        while self._next_time() < end - EPS:
+            t_k = self._next_time()
+            if t_k >= t - EPS:
+                self.pending.append((t_k + self.latency, t_k,
+                                     self._sample(inputs, True, commit=True)))
+            self._advance_schedule()
+        while self.pending and self.pending[0][0] <= end + EPS:
+            _, t_k, values = self.pending.popleft()
+            self.current = (t_k, values)
+
+    def output(self, t, *inputs):
+        """(t_capture, values) the sensor shows at ``t`` [s] for the current inputs."""
+        if self.latency <= EPS and self._due(t):
+            state = self.rng.bit_generator.state
+            values = self._sample(inputs, noisy=True)
+            self.rng.bit_generator.state = state      # the step draws them again
+            return t, values
+        if self.current is not None:
+            return self.current
+        if self.initial is not None:
+            return self.initial
+        return self.t0, self._sample(inputs, noisy=False)
+
+    # state -----------------------------------------------------------------
+    def get_state(self):
+        """JSON-safe snapshot of the internal state."""
+        return {"rng": self.rng.bit_generator.state,
+                "pending": [[a, c, list(v)] for a, c, v in self.pending],
+                "current": None if self.current is None else [self.current[0],
+                                                              list(self.current[1])],
+                "initial": None if self.initial is None else [self.initial[0],
+                                                              list(self.initial[1])]}
+
+    def set_state(self, state):
+        """Restore a snapshot from :meth:`get_state`."""
+        self.rng.bit_generator.state = state["rng"]
+        self.pending = deque((a, c, tuple(v)) for a, c, v in state["pending"])
+        self.current = None if state["current"] is None else (state["current"][0],
+                                                              tuple(state["current"][1]))
+        self.initial = None if state["initial"] is None else (state["initial"][0],
+                                                              tuple(state["initial"][1]))
+
+
+class VisionSensor(_Sampled):
+    """Camera measuring lateral deviation and heading error from a reference path.
+
+    Parameters
+    ----------
+    path : agv_core.paths.ReferencePath
+        The reference path.
+    frame_period : float
+        Capture period [s]; frames at multiples of it; 0 captures at every
+        communication point. Default 0.04 s: a PAL camera's 25 frames/s.
+    latency : float
+        Image processing delay [s] from capture to output. Default 0.04 s: one frame
+        time for a 1990s frame grabber plus PC to find the guide line.
+    noise_lateral : float
+        Standard deviation of the lateral-error noise [m]. Default 0.002 m: about one
+        to two pixels of a 768-pixel PAL line seeing a ~1 m wide field.
+    noise_heading : float
+        Standard deviation of the heading-error noise [rad]. Default 0.004 rad: 2 mm
+        over a ~0.5 m long visible line segment.
+    seed : int
+        Random seed (>= 0).
+    t0 : float
+        Start time [s].
+
+    Notes
+    -----
+    Per frame the generator draws the lateral noise, then the heading noise.
+    ``s``, ``curvature`` and ``curvature_rate`` are those of the projection of the
+    captured pose (noise-free); projections after the first use the previous frame's s
+    as hint.
+    """
+
+    def __init__(self, path, frame_period=0.04, latency=0.04, noise_lateral=0.002,
+                 noise_heading=0.004, seed=0, t0=0.0):
+        self.path = path
+        self.frame_period = _nonneg("frame_period", frame_period)
+        self.noise_lateral = _nonneg("noise_lateral", noise_lateral)
+        self.noise_heading = _nonneg("noise_heading", noise_heading)
+        super().__init__(latency, seed, t0)
+        p = self.frame_period
+        self.next_k = 0 if p == 0.0 else math.ceil((self.t0 - EPS) / p)
+        self.next_t = self.t0
+        self.s_hint = None
+
+    def _next_time(self):
+        return self.next_t if self.frame_period == 0.0 else self.next_k * self.frame_period
+
+    def _advance_schedule(self):
+        if self.frame_period == 0.0:
+            self.next_t = math.inf      # one capture per step; step() sets the next one
+        else:
+            self.next_k += 1
+
+    def step(self, t, h, x, y, heading):
+        """Advance from ``t`` to ``t + h`` [s] with the pose held."""
+        if self.frame_period == 0.0:
+            self.next_t = t
+            super().step(t, h, x, y, heading)
+            self.next_t = t + h
+        else:
+            super().step(t, h, x, y, heading)
+
+    def _sample(self, inputs, noisy, commit=False):
+        x, y, heading = inputs
+        p = self.path.project(x, y, self.s_hint)
+        if commit:
+            self.s_hint = p.s
+        lateral, head = p.offset, heading_error(heading, p.heading)
+        if noisy:
+            lateral += self.noise_lateral * self.rng.standard_normal()
+            head += self.noise_heading * self.rng.standard_normal()
+        return (lateral, head, p.s, p.curvature, p.curvature_rate)
+
+    def measure(self, t, x, y, heading):
+        """Outputs at ``t`` [s]: (lateral_error [m], heading_error [rad], s [m],
+        curvature [1/m], curvature_rate [1/m^2])."""
+        return self.output(t, x, y, heading)[1]
+
+    def get_state(self):
+        state = super().get_state()
+        state.update(next_k=self.next_k, next_t=self.next_t, s_hint=self.s_hint)
+        return state
+
+    def set_state(self, state):
+        super().set_state(state)
+        self.next_k, self.next_t, self.s_hint = state["next_k"], state["next_t"], \
+            state["s_hint"]
+
+
+class TotalStation(_Sampled):
+    """Robotic total station: position fixes at jittered intervals, sent with latency.
+
+    Parameters
+    ----------
+    mean_interval : float
+        Mean time between fixes [s] (> 0). Default 0.65 s (seed 004).
+    jitter : float
+        Each interval is ``mean_interval + U(-jitter, +jitter)`` [s], < mean_interval.
+        Default 0.15 s (tracking-mode update times of a robotic station vary by a few
+        tenths of a second; the paper gives only the mean).
+    latency : float
+        Radio-modem transmission delay [s]. Default 0.1 s.
+    noise : float
+        Standard deviation of each coordinate's noise [m]. Default 0.003 m (mm-level,
+        a few mm for a moving prism).
+    seed : int
+        Random seed (>= 0).
+    t0 : float
+        Start time [s]; the first fix is captured at t0.
+
+    Notes
+    -----
+    Per fix the generator draws the x noise, the y noise, then the next interval.
+    """
+
+    def __init__(self, mean_interval=0.65, jitter=0.15, latency=0.1, noise=0.003, seed=0,
+                 t0=0.0):
+        if not (mean_interval > 0.0 and math.isfinite(mean_interval)):
+            raise ParameterError("mean_interval", f"must be positive, got {mean_interval}")
+        self.mean_interval = float(mean_interval)
+        self.jitter = _nonneg("jitter", jitter)
+        if self.jitter >= self.mean_interval:
+            raise ParameterError("jitter", f"must be < mean_interval ({mean_interval} s), "
+                                           f"got {jitter}")
+        self.noise = _nonneg("noise", noise)
+        super().__init__(latency, seed, t0)
+        self.next_t = self.t0
+
+    def _next_time(self):
+        return self.next_t
+
+    def _advance_schedule(self):
+        self.next_t += self.mean_interval + self.jitter * (2.0 * self.rng.random() - 1.0)
+
+    def _sample(self, inputs, noisy, commit=False):
+        x, y = inputs
+        if noisy:
+            x += self.noise * self.rng.standard_normal()
+            y += self.noise * self.rng.standard_normal()
+        return (x, y)
+
+    def measure(self, t, x, y):
+        """Outputs at ``t`` [s]: (x_meas [m], y_meas [m], fix_age [s]).
+
+        ``fix_age`` is ``t`` minus the capture time of the fix shown.
+        """
+        t_k, (xm, ym) = self.output(t, x, y)
+        return xm, ym, max(t - t_k, 0.0)
+
+    def get_state(self):
+        state = super().get_state()
+        state["next_t"] = self.next_t
+        return state
+
+    def set_state(self, state):
+        super().set_state(state)
+        self.next_t = state["next_t"]
+
+
+class InstantSensor:
+    """Sensor sampled at every communication point: drift, noise, quantisation.
+
+    measured = quantize(true + drift (t - t0) + noise, resolution)
+
+    Parameters
+    ----------
+    drift : float
+        Drift rate of the reading [unit/s] (gyro: 0.5 deg/h = 2.4241e-6 rad/s).
+    noise : float
+        Standard deviation of white noise per sample [unit].
+    resolution : float
+        Quantisation step [unit]; 0 for none.
+    seed : int
+        Random seed (>= 0).
+    t0 : float
+        Start time [s].
+
+    Notes
+    -----
+    The sample at a communication point t uses the generator's next normal draw; the
+    reading shown at t (for the inputs set at t) is redrawn identically until the step
+    from t commits the draw, so repeated reads give the same value.
+    """
+
+    def __init__(self, drift=0.0, noise=0.0, resolution=0.0, seed=0, t0=0.0):
+        if not math.isfinite(drift):
+            raise ParameterError("drift", f"must be finite, got {drift}")
+        self.drift = float(drift)
+        self.noise = _nonneg("noise", noise)
+        self.resolution = _nonneg("resolution", resolution)
+        self.rng = np.random.default_rng(_seed(seed))
+        self.t0 = float(t0)
+
+    def measure(self, t, value):
+        """Reading at ``t`` [s] of the true ``value`` (without advancing the generator)."""
+        noise = 0.0
+        if self.noise > 0.0:
+            state = self.rng.bit_generator.state
+            noise = self.noise * self.rng.standard_normal()
+            self.rng.bit_generator.state = state
+        return _quantize(value + self.drift * (t - self.t0) + noise, self.resolution)
+
+    def step(self, t, h):
+        """Commit the sample taken at ``t`` and move on to ``t + h`` [s]."""
+        if self.noise > 0.0:
+            self.rng.standard_normal()
+
+    def get_state(self):
+        """JSON-safe snapshot of the internal state."""
+        return {"rng": self.rng.bit_generator.state}
+
+    def set_state(self, state):
+        """Restore a snapshot from :meth:`get_state`."""
+        self.rng.bit_generator.state = state["rng"]
+
+
+#: Defaults of the seed-004 fibre-optic gyro: drift 0.5 deg/h, resolution 0.01 deg.
+GYRO_DRIFT = math.radians(0.5) / 3600.0
+GYRO_RESOLUTION = math.radians(0.01)

@@ -1,0 +1,34 @@
+"""FMU slave: fibre-optic gyro heading (agv_core.sensors.InstantSensor)."""
+
+from agv_boot import load_core
+
+core = load_core("fmi_slave", "sensors")
+
+
+class AgvGyro(core.fmi_slave.AgvSlave):
+    """Fibre-optic gyro heading of seed 004: drift, resolution, optional noise."""
+
+    description = ("Fibre-optic gyro heading: drift 0.5 deg/h, resolution 0.01 deg, "
+                   "optional white noise, sampled at every communication point")
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.input("heading", 0.0, "rad", "True heading, counter-clockwise from x")
+        self.parameter("drift", core.sensors.GYRO_DRIFT, "rad/s",
+                       "Heading drift rate (0.5 deg/h)")
+        self.parameter("resolution", core.sensors.GYRO_RESOLUTION, "rad",
+                       "Quantisation step of the reading (0.01 deg); 0 for none")
+        self.parameter("noise", 0.0, "rad", "Std. dev. of white noise per sample")
+        self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi_slave.Integer)
+        self.output("heading_meas", "rad", "Measured heading", depends_on=("heading",))
+
+    def make_core(self):
+        return core.sensors.InstantSensor(self.drift, self.noise, self.resolution, self.seed,
+                                          self.time)
+
+    def advance(self, t, h):
+        self.core.step(t, h)
+
+    def publish(self):
+        self.heading_meas = self.core.measure(self.time, self.heading)
+        self.finite_or_fail(heading_meas=self.heading_meas)

@@ -1,0 +1,33 @@
+"""FMU slave: steering-angle sensor (agv_core.sensors.InstantSensor)."""
+
+from agv_boot import load_core
+
+core = load_core("fmi_slave", "sensors")
+
+
+class AgvSteerSensor(core.fmi_slave.AgvSlave):
+    """Steered-wheel angle displacement sensor (seeds 000 and 004): noise, resolution."""
+
+    description = ("Steering-angle sensor: white noise and quantisation, sampled at every "
+                   "communication point")
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.input("alpha", 0.0, "rad", "True steered-wheel angle, positive left")
+        self.parameter("noise", 0.001, "rad", "Std. dev. of white noise per sample")
+        self.parameter("resolution", 0.001745329251994, "rad",
+                       "Quantisation step of the reading (0.1 deg); 0 for none")
+        self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi_slave.Integer)
+        self.output("alpha_meas", "rad", "Measured steered-wheel angle",
+                    depends_on=("alpha",))
+
+    def make_core(self):
+        return core.sensors.InstantSensor(0.0, self.noise, self.resolution, self.seed,
+                                          self.time)
+
+    def advance(self, t, h):
+        self.core.step(t, h)
+
+    def publish(self):
+        self.alpha_meas = self.core.measure(self.time, self.alpha)
+        self.finite_or_fail(alpha_meas=self.alpha_meas)

@@ -1,0 +1,37 @@
+"""FMU slave: robotic total station (agv_core.sensors.TotalStation)."""
+
+from agv_boot import load_core
+
+core = load_core("fmi_slave", "sensors")
+
+
+class AgvTotalStation(core.fmi_slave.AgvSlave):
+    """Robotic total station of seed 004: jittered position fixes sent by radio modem."""
+
+    description = ("Robotic total station: position fixes every 0.65 s on average with "
+                   "jitter, radio latency and mm-level noise")
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.input("x", 0.0, "m", "x of the prism (tracked point)")
+        self.input("y", 0.0, "m", "y of the prism (tracked point)")
+        self.parameter("mean_interval", 0.65, "s", "Mean time between fixes")
+        self.parameter("jitter", 0.15, "s",
+                       "Half-width of the uniform spread of each interval (< mean_interval)")
+        self.parameter("latency", 0.1, "s", "Radio-modem transmission delay")
+        self.parameter("noise", 0.003, "m", "Std. dev. of the noise of each coordinate")
+        self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi_slave.Integer)
+        self.output("x_meas", "m", "Measured x of the newest fix", depends_on=("x",))
+        self.output("y_meas", "m", "Measured y of the newest fix", depends_on=("y",))
+        self.output("fix_age", "s", "Time since the shown fix was measured")
+
+    def make_core(self):
+        return core.sensors.TotalStation(self.mean_interval, self.jitter, self.latency,
+                                         self.noise, self.seed, self.time)
+
+    def advance(self, t, h):
+        self.core.step(t, h, self.x, self.y)
+
+    def publish(self):
+        self.x_meas, self.y_meas, self.fix_age = self.core.measure(self.time, self.x, self.y)
+        self.finite_or_fail(x_meas=self.x_meas, y_meas=self.y_meas)

@@ -1,0 +1,54 @@
+"""FMU slave: camera measuring path deviation (agv_core.sensors.VisionSensor)."""
+
+from agv_boot import load_core
+
+core = load_core("fmi_slave", "paths", "sensors")
+
+_POSE = ("x", "y", "heading")
+
+
+class AgvVisionSensor(core.fmi_slave.AgvSlave):
+    """Vision sensor of seed 000: lateral deviation and heading error from a path."""
+
+    description = ("Camera measuring lateral deviation and heading error of the tracked "
+                   "point from a reference path, with frame period, latency and noise")
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.input("x", 0.0, "m", "x of the tracked point")
+        self.input("y", 0.0, "m", "y of the tracked point")
+        self.input("heading", 0.0, "rad", "Vehicle heading, counter-clockwise from x")
+        self.parameter("path", "line", None,
+                       "Reference path 'kind:key=value,...' (see components/README.md); a "
+                       "waypoint file is relative to the host's working folder",
+                       kind=core.fmi_slave.String)
+        self.parameter("frame_period", 0.04, "s",
+                       "Frame capture period (PAL 25 frames/s); 0 = every communication "
+                       "point")
+        self.parameter("latency", 0.04, "s", "Image processing delay from capture to output")
+        self.parameter("noise_lateral", 0.002, "m", "Std. dev. of the lateral-error noise")
+        self.parameter("noise_heading", 0.004, "rad", "Std. dev. of the heading-error noise")
+        self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi_slave.Integer)
+        self.output("lateral_error", "m", "Lateral deviation from the path, positive left",
+                    depends_on=_POSE)
+        self.output("heading_error", "rad",
+                    "Heading minus path heading, wrapped to (-pi, pi]", depends_on=_POSE)
+        self.output("s", "m", "Arc length of the closest path point", depends_on=_POSE)
+        self.output("curvature", "1/m", "Path curvature at s, positive turning left",
+                    depends_on=_POSE)
+        self.output("curvature_rate", "1/m2", "Path curvature derivative dc/ds at s",
+                    depends_on=_POSE)
+
+    def make_core(self):
+        path = core.paths.parse_path(self.path)
+        return core.sensors.VisionSensor(path, self.frame_period, self.latency,
+                                         self.noise_lateral, self.noise_heading, self.seed,
+                                         self.time)
+
+    def advance(self, t, h):
+        self.core.step(t, h, self.x, self.y, self.heading)
+
+    def publish(self):
+        (self.lateral_error, self.heading_error, self.s, self.curvature,
+         self.curvature_rate) = self.core.measure(self.time, self.x, self.y, self.heading)
+        self.finite_or_fail(lateral_error=self.lateral_error, s=self.s)
