@@ -90,3 +90,48 @@ def test_many_instantiations_in_one_process(component_fmus):
     assert done.returncode == 0, done.stderr[-1500:]
     # alpha = K u t = 0.6 * 1 * 0.05 after 40 fresh instances (1e-12: exact ramp)
     assert float(done.stdout.split()[-1]) == pytest.approx(0.03, abs=1e-12)
+
+
+def test_failing_instances_do_not_corrupt_the_host(component_fmus):
+    """pythonfmu 0.7 releases the slave's class, instance and log queue twice after a
+    Python exception (once in its error handler, once in fmi2FreeInstance); the adapter
+    keeps a reference to balance it. Without that, a host that frees a failed instance
+    (as it should) corrupts its heap and crashes later. Run in a subprocess."""
+    fmu = str(component_fmus["agv_steering_b"])
+    code = (
+        "import gc, shutil, fmpy\n"
+        "from fmpy.fmi2 import FMU2Slave\n"
+        f"md = fmpy.read_model_description({fmu!r})\n"
+        f"folder = fmpy.extract({fmu!r})\n"
+        "vr = {v.name: v.valueReference for v in md.modelVariables}\n"
+        "def instance():\n"
+        "    s = FMU2Slave(guid=md.guid, unzipDirectory=folder,\n"
+        "                  modelIdentifier=md.coSimulation.modelIdentifier, instanceName='i')\n"
+        "    s.instantiate()\n"
+        "    s.setupExperiment(startTime=0.0)\n"
+        "    s.enterInitializationMode()\n"
+        "    return s\n"
+        "for k in range(20):\n"
+        "    s = instance()\n"
+        "    s.setReal([vr['K']], [-1.0])\n"
+        "    try:\n"
+        "        s.exitInitializationMode()\n"
+        "    except Exception:\n"
+        "        pass\n"
+        "    s.freeInstance()\n"
+        "    gc.collect()\n"
+        "s = instance()\n"
+        "s.exitInitializationMode()\n"
+        "s.setReal([vr['u']], [1.0])\n"
+        "for k in range(5):\n"
+        "    s.doStep(k * 0.01, 0.01)\n"
+        "alpha = s.getReal([vr['alpha']])[0]\n"
+        "s.terminate(); s.freeInstance(); gc.collect()\n"
+        "shutil.rmtree(folder)\n"
+        "print('alpha', repr(alpha))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-1500:]
+    # alpha = K u t = 0.6 * 1 * 0.05 (1e-12: an exact ramp)
+    assert float(done.stdout.split()[-1]) == pytest.approx(0.03, abs=1e-12)

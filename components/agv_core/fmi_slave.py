@@ -43,6 +43,13 @@ BUILD_INFO = "agv_build.json"
 
 _PYTYPE = {Real: float, Integer: int, Boolean: bool, String: str}
 
+# pythonfmu 0.7: when a Python exception escapes a slave method, its C++ handler releases
+# the slave's class, instance and log queue (cleanPyObject) without forgetting them, and
+# fmi2FreeInstance releases the same three again. Before any exception leaves this adapter
+# one extra reference to each is kept here, so the second release cannot free live objects
+# (a failed instance is then never freed: a small leak instead of a corrupted heap).
+_KEPT_FOR_PYTHONFMU = []
+
 
 class AgvSlave(Fmi2Slave):
     """Base class of every agv-cosim FMU slave (see the module docstring).
@@ -163,24 +170,31 @@ class AgvSlave(Fmi2Slave):
         self._stale = False
         return True
 
+    def _guarded(self, call, *args):
+        try:
+            return call(*args)
+        except Exception:
+            self._keep_for_pythonfmu()
+            raise
+
     def _mark_set(self, vrs):
         self._was_set.update(self.vars[vr].name for vr in vrs)
         self._stale = True
 
     def set_real(self, vrs, values):
-        super().set_real(vrs, values)
+        self._guarded(super().set_real, vrs, values)
         self._mark_set(vrs)
 
     def set_integer(self, vrs, values):
-        super().set_integer(vrs, values)
+        self._guarded(super().set_integer, vrs, values)
         self._mark_set(vrs)
 
     def set_boolean(self, vrs, values):
-        super().set_boolean(vrs, values)
+        self._guarded(super().set_boolean, vrs, values)
         self._mark_set(vrs)
 
     def set_string(self, vrs, values):
-        super().set_string(vrs, values)
+        self._guarded(super().set_string, vrs, values)
         self._mark_set(vrs)
 
     def was_set(self, name):
@@ -189,14 +203,19 @@ class AgvSlave(Fmi2Slave):
 
     def get_real(self, vrs):
         if self._stale and self.core is not None:
-            self.publish()
+            self._guarded(self.publish)
             self._stale = False
-        return super().get_real(vrs)
+        return self._guarded(super().get_real, vrs)
 
     def _fail(self, message):
         text = f"{self.modelName} '{self.instance_name}': {message}"
         self.log(text, Fmi2Status.error)
+        self._keep_for_pythonfmu()
         raise RuntimeError(text)
+
+    def _keep_for_pythonfmu(self):
+        """Balance pythonfmu's double release before an exception leaves (see above)."""
+        _KEPT_FOR_PYTHONFMU.extend((type(self), self, self.log_queue))
 
     # ------------------------------------------------------------------ state
     def _get_fmu_state(self):
@@ -206,6 +225,9 @@ class AgvSlave(Fmi2Slave):
                 "was_set": sorted(self._was_set)}
 
     def _set_fmu_state(self, state):
+        self._guarded(self._restore, state)
+
+    def _restore(self, state):
         for name, value in state["variables"].items():
             setattr(self, name, value)
         self.time = state["time"]
