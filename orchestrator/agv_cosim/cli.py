@@ -9,6 +9,8 @@ import argparse
 import sys
 
 from . import __version__
+from .ssp import add_cli as add_ssp_cli
+from .ssp import ssp_manifest
 
 
 def _error(text):
@@ -135,6 +137,7 @@ def make_parser():
     listing.add_argument("path", nargs="?", default="fmus",
                          help="an FMU or a folder of FMUs (default: fmus)")
     listing.set_defaults(func=_cmd_list)
+    add_ssp_cli(sub)
     return parser
 
 
@@ -144,7 +147,11 @@ def main(argv=None):
 
     args = make_parser().parse_args(argv)
     try:
-        return args.func(args)
+        # a .ssp package given as the manifest runs through a manifest made from it
+        with ssp_manifest(getattr(args, "manifest", None)) as path:
+            if path is not None:
+                args.manifest = path
+            return args.func(args)
     except ManifestError as error:
         if args.debug:
             raise
