@@ -1,5 +1,6 @@
 """The FMU build: deterministic GUIDs, rebuild-only-changed, bundle isolation, errors."""
 
+import os
 import shutil
 import subprocess
 import sys
@@ -135,3 +136,42 @@ def test_failing_instances_do_not_corrupt_the_host(component_fmus):
     assert done.returncode == 0, done.stderr[-1500:]
     # alpha = K u t = 0.6 * 1 * 0.05 (1e-12: an exact ramp)
     assert float(done.stdout.split()[-1]) == pytest.approx(0.03, abs=1e-12)
+
+
+def test_failing_runs_do_not_corrupt_the_orchestrator(tmp_path):
+    """The reproducer of the third release (see agv_core/fmi_slave.py): FMUs built in the
+    process, then two runs whose FMU fails, then a garbage collection, with CPython's
+    debug allocator (freed memory is overwritten, so a use after free crashes at once)."""
+    source = default_components_dir().parent / "tests" / "fmu_src"
+    manifest = tmp_path / "fails.toml"
+    code = f"""
+import gc
+from pathlib import Path
+from agv_cosim import cli
+from agv_cosim.build import build_one
+out = Path({str(tmp_path)!r})
+fail = build_one(Path({str(source / "agv_test_fail.py")!r}), out / "fmus").fmu
+src = build_one(Path({str(source / "agv_test_source.py")!r}), out / "fmus").fmu
+Path({str(manifest)!r}).write_text(f'''
+[simulation]
+stop = 1.0
+step = 0.1
+[components.src]
+fmu = "{{src}}"
+[components.bad]
+fmu = "{{fail}}"
+parameters = {{{{ fail_time = 0.5 }}}}
+[[connections]]
+from = "src.y"
+to = "bad.u"
+''')
+for k in range(2):
+    print("exit", cli.main(["run", {str(manifest)!r}, "--out", str(out / f"run{{k}}"),
+                            "--quiet", "--jobs", "1"]))
+    gc.collect()
+print("survived")
+"""
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300, env={**os.environ, "PYTHONMALLOC": "debug"})
+    assert done.returncode == 0, done.stderr[-1500:]
+    assert done.stdout.split() == ["exit", "1", "exit", "1", "survived"]

@@ -46,8 +46,12 @@ _PYTYPE = {Real: float, Integer: int, Boolean: bool, String: str}
 # pythonfmu 0.7: when a Python exception escapes a slave method, its C++ handler releases
 # the slave's class, instance and log queue (cleanPyObject) without forgetting them, and
 # fmi2FreeInstance releases the same three again. Before any exception leaves this adapter
-# one extra reference to each is kept here, so the second release cannot free live objects
-# (a failed instance is then never freed: a small leak instead of a corrupted heap).
+# one extra reference to each is kept here, so the second release cannot free live
+# objects (a failed instance is then never freed: a small leak instead of a corrupted
+# heap). This balances the double release visible in pythonfmu's source. A host that runs
+# several failing instances of one FMU can still see its heap damaged (measured with
+# PYTHONMALLOC=debug, cause not located), which is why the orchestrator runs every
+# simulation in a child process of its own (agv_cosim/runner.py).
 _KEPT_FOR_PYTHONFMU = []
 
 

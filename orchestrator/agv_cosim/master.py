@@ -7,7 +7,10 @@ Gauss-Seidel (default)
     graph (an edge only through outputs that depend directly on inputs). Each FMU gets
     its inputs from its sources' current outputs (one batched ``fmi2SetReal``), then its
     outputs are read (one batched ``fmi2GetReal``; our FMUs recompute feedthrough outputs
-    on a get after a set). Every input therefore holds the value of the same instant t_k.
+    on a get after a set). An FMU whose outputs feed an FMU visited before it (a loop
+    closed through an output without direct feedthrough, e.g. actuator -> vehicle) has
+    those outputs read at the start of the pass. Every input therefore holds the value
+    of the same instant t_k.
     The row of t_k is recorded, then every FMU steps from t_k to t_k + h.
 Jacobi (what libcosim does)
     After the step to t_k, every FMU's outputs are read first (one batched get each);
@@ -221,7 +224,20 @@ def simulate(plan, write_row, progress=None):
                     u.get_real, u.out_vr, u.n_out, u.out_val, u) for u in
                    (units[c] for c in plan.order)]
 
+        # Units whose outputs feed a unit visited before them (or themselves): their
+        # outputs are read first, so that unit sees the value of this instant and not the
+        # one read in the previous pass. Such an output cannot depend directly on an input
+        # (the order puts every feedthrough source first), so reading it early is exact.
+        position = {name: i for i, name in enumerate(plan.order)}
+        pre_read = [units[name] for name in plan.order
+                    if any(position[src.name] >= position[unit.name]
+                           for unit in all_units for _, src, _ in unit.sources
+                           if src.name == name)]
+
         def gs_pass(t):
+            for unit in pre_read:
+                state["unit"] = unit.name
+                unit.get()
             for (name, comp, set_real, in_vr, n_in, in_val, links, get_real, out_vr, n_out,
                  out_val, unit) in gs_plan:
                 state["unit"] = name

@@ -26,14 +26,22 @@ class CsvSink:
         Names after ``time``.
     """
 
+    #: Rows between flushes to disk: a run whose process dies keeps what was flushed.
+    FLUSH_EVERY = 1000
+
     def __init__(self, path, columns):
         self.path = Path(path)
         self.stream = open(self.path, "w", encoding="utf-8", newline="")
         self.stream.write(",".join(["time"] + list(columns)) + "\n")
+        self.pending = 0
 
     def write(self, row):
         """Append one row (sequence of float)."""
         self.stream.write(",".join(map(repr, map(float, row))) + "\n")
+        self.pending += 1
+        if self.pending >= self.FLUSH_EVERY:
+            self.stream.flush()
+            self.pending = 0
 
     def close(self):
         self.stream.close()

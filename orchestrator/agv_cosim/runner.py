@@ -1,8 +1,8 @@
 """Runs, variants, sweeps and parallel workers.
 
 :func:`prepare` loads and validates a manifest into a list of :class:`Job` (one per
-variant x sweep point); :func:`execute` runs them serially or in worker processes
-(``ProcessPoolExecutor`` with the ``spawn`` context) and writes the output folder::
+variant x sweep point); :func:`execute` runs each of them in a child process of its own
+(``forkserver`` context; up to ``workers`` at once) and writes the output folder::
 
     DIR/<run label>/timeseries.csv   time, then component.variable (repr floats)
     DIR/<run label>/metrics.json     metrics.compute_metrics(...) of the run
@@ -12,6 +12,11 @@ variant x sweep point); :func:`execute` runs them serially or in worker processe
 
 Each run is independent and deterministic, so the parallel and the serial results are
 byte-identical. ``DIR`` is assembled under a temporary name and renamed into place.
+
+Why a process per run: an FMU runs inside the process that loads it, and a failing
+pythonfmu 0.7 FMU can damage its host's heap (see agv_core/fmi_slave.py). In a child of
+its own, the damage ends with the run; a child that dies is reported as that run's
+failure (partial if it had recorded rows), and the other runs go on.
 """
 
 import importlib
@@ -19,7 +24,7 @@ import os
 import platform
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+import queue as queue_module
 from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
@@ -146,6 +151,11 @@ def run_job(job, run_dir, progress=None):
                                                   base_dir=Path(job.manifest_path).parent))
         except Exception as failure:  # noqa: BLE001 - reported in run.json
             metrics_error = f"{type(failure).__name__}: {failure}"
+    return _finish(job, run_dir, rows, status, error, wall, values, metrics_error)
+
+
+def _finish(job, run_dir, rows, status, error, wall, values, metrics_error):
+    """Write metrics.json and run.json of a run; return its summary dict."""
     write_json(run_dir / "metrics.json", values)
     write_json(run_dir / "run.json", {
         "label": job.label, "variant": job.variant, "sweep_point": job.point,
@@ -162,8 +172,82 @@ def run_job(job, run_dir, progress=None):
             "variant": job.variant}
 
 
-def _worker(job, run_dir):
-    return run_job(job, run_dir)
+def _child(index, job, run_dir, messages):
+    """Body of a run's child process: run it, report progress and the result."""
+    def progress(steps):
+        messages.put(("progress", index, steps))
+
+    result = run_job(job, run_dir, progress)
+    messages.put(("done", index, result))
+    messages.close()
+    messages.join_thread()
+    # Leave without interpreter shutdown: the result is delivered, and a heap that a
+    # failed FMU damaged would only crash the collector now.
+    os._exit(0)
+
+
+def _died(job, run_dir, exitcode):
+    """The summary of a run whose child process died before it reported."""
+    csv = Path(run_dir) / "timeseries.csv"
+    rows = max(0, len(csv.read_text().splitlines()) - 1) if csv.is_file() else 0
+    how = f"signal {-exitcode}" if exitcode < 0 else f"exit code {exitcode}"
+    error = f"the run's process died ({how}) after {rows} recorded rows"
+    Path(run_dir).mkdir(parents=True, exist_ok=True)
+    return _finish(job, run_dir, rows, "partial" if rows else "failed", error, None, {}, None)
+
+
+def _run_isolated(jobs, root, workers, on_progress, on_done):
+    """Run every job in a child process of its own, ``workers`` at a time."""
+    context = get_context("forkserver")
+    context.set_forkserver_preload([__name__])
+    messages = context.Queue()
+    results = [None] * len(jobs)
+    waiting = list(range(len(jobs)))
+    running = {}
+
+    def handle(message):
+        kind, index, payload = message
+        if kind == "progress":
+            on_progress(payload)
+        else:
+            results[index] = payload
+            on_done()
+
+    def drain(timeout):
+        try:
+            handle(messages.get(timeout=timeout))
+            while True:
+                handle(messages.get_nowait())
+        except queue_module.Empty:
+            pass
+
+    try:
+        while waiting or running:
+            while waiting and len(running) < workers:
+                index = waiting.pop(0)
+                job = jobs[index]
+                process = context.Process(target=_child, name=f"agv-cosim {job.label}",
+                                          args=(index, job, root / job.label, messages))
+                process.start()
+                running[index] = process
+            drain(0.1)
+            for index, process in list(running.items()):
+                if results[index] is None and process.is_alive():
+                    continue
+                process.join()
+                if results[index] is None:
+                    drain(0.5)  # a result sent just before the process ended
+                if results[index] is None:
+                    results[index] = _died(jobs[index], root / jobs[index].label,
+                                           process.exitcode)
+                    on_done()
+                del running[index]
+    finally:
+        for process in running.values():
+            process.kill()
+            process.join()
+        messages.close()
+    return results
 
 
 def default_out_dir(manifest):
@@ -181,7 +265,7 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet=False):
     out_dir : path, optional
         Default :func:`default_out_dir`.
     workers : int, optional
-        Worker processes (default: one per core); 1 runs serially in this process.
+        Runs at once, each in its own process (default: one per core).
     quiet : bool
         No progress bars.
 
@@ -197,23 +281,18 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet=False):
     workers = max(1, min(workers, len(jobs)))
     results = [None] * len(jobs)
     with AtomicDir(out_dir) as folder:
-        bar = tqdm(total=len(jobs), desc=manifest.name, unit="run", delay=2.0,
-                   disable=quiet or len(jobs) < 2, file=sys.stderr)
-        if workers == 1:
-            for i, job in enumerate(jobs):
-                n_steps = int(round((job.plan.stop - job.plan.start) / job.plan.step))
-                with tqdm(total=n_steps, desc=job.label, unit="step", delay=3.0, leave=False,
-                          disable=quiet, file=sys.stderr, mininterval=0.5) as steps:
-                    results[i] = run_job(job, folder.path / job.label, steps.update)
-                bar.update(1)
-        else:
-            with ProcessPoolExecutor(max_workers=workers,
-                                     mp_context=get_context("spawn")) as pool:
-                futures = {pool.submit(_worker, job, folder.path / job.label): i
-                           for i, job in enumerate(jobs)}
-                for future in as_completed(futures):
-                    results[futures[future]] = future.result()
-                    bar.update(1)
+        total = sum(int(round((job.plan.stop - job.plan.start) / job.plan.step))
+                    for job in jobs)
+        bar = tqdm(total=total, desc=manifest.name, unit="step", delay=2.0, disable=quiet,
+                   file=sys.stderr, mininterval=0.5, postfix={"runs": f"0/{len(jobs)}"})
+        finished = 0
+
+        def run_done():
+            nonlocal finished
+            finished += 1
+            bar.set_postfix(runs=f"{finished}/{len(jobs)}")
+
+        results = _run_isolated(jobs, folder.path, workers, bar.update, run_done)
         bar.close()
         rows = []
         for result in results:

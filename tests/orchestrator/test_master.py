@@ -1,6 +1,7 @@
 """Execution semantics: Gauss-Seidel vs Jacobi (closed form), failures, NaN, cleanup."""
 
 import json
+from pathlib import Path
 import tempfile
 
 import numpy as np
@@ -73,21 +74,14 @@ parameters = {{ {param} = {when} }}
     return path
 
 
-def test_failing_fmu_leaves_partial_results(fmus, tmp_path, capsys, monkeypatch):
+def test_failing_fmu_leaves_partial_results(fmus, tmp_path, capsys):
     """doStep from t = 0.5 fails: rows t = 0 .. 0.5 (6) are kept, status partial, exit 1,
-    and every extraction folder is gone afterwards."""
-    scratch = tmp_path / "scratch"
-    scratch.mkdir()
-    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
-    seen = []
-    original = model.FmuInstance.close
+    and every extraction folder is gone afterwards (the run happens in a child process:
+    its folders, agv_cosim_<instance>_*, are looked for in the temp folder)."""
+    def leftovers():
+        return {p.name for p in Path(tempfile.gettempdir()).glob("agv_cosim_*_*")}
 
-    def spy(self):
-        if self.unzip_dir:
-            seen.append(self.unzip_dir)
-        original(self)
-
-    monkeypatch.setattr(model.FmuInstance, "close", spy)
+    before = leftovers()
     path = _fail_manifest(fmus, tmp_path, "agv_test_fail", "fail_time", 0.5)
     assert _run(path, tmp_path / "out") == 1
     err = capsys.readouterr().err
@@ -100,7 +94,7 @@ def test_failing_fmu_leaves_partial_results(fmus, tmp_path, capsys, monkeypatch)
     t, sig = read_timeseries(run_dir / "timeseries.csv")
     np.testing.assert_allclose(t, np.arange(6) * 0.1, atol=1e-12)
     np.testing.assert_allclose(sig["bad.y"], np.arange(6) * 0.1, atol=1e-12)  # y = u = t
-    assert len(seen) == 2 and list(scratch.iterdir()) == []
+    assert leftovers() == before
 
 
 def test_nan_names_component_variable_time(fmus, tmp_path):
@@ -129,7 +123,32 @@ def test_interrupted_run_leaves_no_complete_folder(chain, tmp_path, monkeypatch)
     def boom(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(runner, "run_job", boom)
+    monkeypatch.setattr(runner, "_run_isolated", boom)
     assert _run(chain(), tmp_path / "out") == 130
     assert not (tmp_path / "out").exists()
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".out")] == []
+
+
+def test_a_crashing_fmu_fails_its_run_only(fmus, tmp_path, capsys):
+    """An FMU that kills its host at t = 2.5 s (step 1 ms): the run, in its own process,
+    is reported partial with the rows flushed before (every 1000: 2000 of 2500), the
+    other run completes, exit code 1."""
+    path = tmp_path / "crash.toml"
+    path.write_text(f"""
+name = "crash"
+[simulation]
+stop = 3.0
+step = 0.001
+[components.dut]
+fmu = "{fmus['agv_test_crash']}"
+[sweep]
+"dut.crash_time" = [2.5, 10.0]
+""")
+    assert _run(path, tmp_path / "out") == 1
+    runs = sorted(p for p in (tmp_path / "out").iterdir() if p.is_dir())
+    infos = [json.loads((run / "run.json").read_text()) for run in runs]
+    crashed = [i for i in infos if i["status"] != "complete"]
+    assert len(crashed) == 1 and len(infos) == 2
+    assert crashed[0]["status"] == "partial"
+    assert "process died (signal 6)" in crashed[0]["error"]
+    assert crashed[0]["rows"] == 2000
