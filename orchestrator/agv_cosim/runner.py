@@ -24,9 +24,9 @@ import os
 import platform
 import sys
 import time
-import queue as queue_module
 from dataclasses import dataclass
 from multiprocessing import get_context
+from multiprocessing.connection import wait
 from pathlib import Path
 
 from . import __version__, metrics, plots
@@ -172,15 +172,14 @@ def _finish(job, run_dir, rows, status, error, wall, values, metrics_error):
             "variant": job.variant}
 
 
-def _child(index, job, run_dir, messages):
+def _child(job, run_dir, channel):
     """Body of a run's child process: run it, report progress and the result."""
     def progress(steps):
-        messages.put(("progress", index, steps))
+        channel.send(("progress", steps))
 
     result = run_job(job, run_dir, progress)
-    messages.put(("done", index, result))
-    messages.close()
-    messages.join_thread()
+    channel.send(("done", result))
+    channel.close()
     # Leave without interpreter shutdown: the result is delivered, and a heap that a
     # failed FMU damaged would only crash the collector now.
     os._exit(0)
@@ -197,56 +196,52 @@ def _died(job, run_dir, exitcode):
 
 
 def _run_isolated(jobs, root, workers, on_progress, on_done):
-    """Run every job in a child process of its own, ``workers`` at a time."""
+    """Run every job in a child process of its own, ``workers`` at a time.
+
+    Each child reports through a pipe of its own, so a child that dies mid-message
+    cannot block the others (a shared queue's lock can stay held by a dead process).
+    """
     context = get_context("forkserver")
     context.set_forkserver_preload([__name__])
-    messages = context.Queue()
     results = [None] * len(jobs)
     waiting = list(range(len(jobs)))
-    running = {}
-
-    def handle(message):
-        kind, index, payload = message
-        if kind == "progress":
-            on_progress(payload)
-        else:
-            results[index] = payload
-            on_done()
-
-    def drain(timeout):
-        try:
-            handle(messages.get(timeout=timeout))
-            while True:
-                handle(messages.get_nowait())
-        except queue_module.Empty:
-            pass
-
+    running = {}  # job index -> (process, reading end of its pipe)
     try:
         while waiting or running:
             while waiting and len(running) < workers:
                 index = waiting.pop(0)
                 job = jobs[index]
+                reader, writer = context.Pipe(duplex=False)
                 process = context.Process(target=_child, name=f"agv-cosim {job.label}",
-                                          args=(index, job, root / job.label, messages))
+                                          args=(job, root / job.label, writer))
                 process.start()
-                running[index] = process
-            drain(0.1)
-            for index, process in list(running.items()):
-                if results[index] is None and process.is_alive():
+                writer.close()
+                running[index] = (process, reader)
+            ready = wait([reader for _, reader in running.values()], timeout=1.0)
+            for index, (process, reader) in list(running.items()):
+                if reader not in ready:
                     continue
-                process.join()
-                if results[index] is None:
-                    drain(0.5)  # a result sent just before the process ended
-                if results[index] is None:
-                    results[index] = _died(jobs[index], root / jobs[index].label,
-                                           process.exitcode)
+                try:
+                    kind, payload = reader.recv()
+                except EOFError:  # the child has ended, with or without its result
+                    process.join()
+                    reader.close()
+                    del running[index]
+                    if results[index] is None:
+                        results[index] = _died(jobs[index], root / jobs[index].label,
+                                               process.exitcode)
+                        on_done()
+                    continue
+                if kind == "progress":
+                    on_progress(payload)
+                else:
+                    results[index] = payload
                     on_done()
-                del running[index]
     finally:
-        for process in running.values():
+        for process, reader in running.values():
             process.kill()
             process.join()
-        messages.close()
+            reader.close()
     return results
 
 
