@@ -1,0 +1,456 @@
+"""Seed 002 (issue 6) reproduced as orchestrator experiments, and the results page figures.
+
+The experiments are the manifests ``experiments/seed002_step.toml``,
+``experiments/seed002_sine.toml`` and ``experiments/cross_seed_controllers.toml``. The
+tests copy them into ``tmp_path`` pointed at the session-built FMUs (``component_fmus``),
+run a subset of their runs through :func:`agv_cosim.runner.run_manifest`, and check the
+numbers quoted on ``experiments/seed002.md``.
+
+Regenerate the figures and the tables of the results page (runs every run of the three
+manifests into ``results/``, about 2 minutes on 2 cores)::
+
+    python tests/test_seed002.py
+
+Known master behaviour these numbers include: the Gauss-Seidel pass of
+``agv_cosim.master`` copies a non-feedthrough source's output (vehicle pose, actuator
+angle) into an input *before* that source's buffer is read at the new time when the
+source is visited later in the order, so every loop here carries one extra
+communication step of delay (10 ms). The bounds below hold with and without it.
+"""
+
+import math
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agv_core.paths import parse_path
+from agv_cosim.results import read_timeseries
+from agv_cosim.runner import run_manifest
+
+ROOT = Path(__file__).resolve().parents[1]
+EXPERIMENTS = ROOT / "experiments"
+KMH = (2, 4, 6, 8, 10, 12, 14)
+STEP = 0.01            # [s] communication step of the three manifests
+KP, KD = 0.09, 0.6     # seed 002 gains [1/m2], [1/m]
+SINE = "sine:amplitude=3,wavelength=30"
+LOOPS = {"i": "ideal actuator, exact pose", "d": "delayed actuator, exact pose",
+         "ic": "ideal actuator, camera", "dc": "delayed actuator, camera"}
+
+
+# --------------------------------------------------------------------------- helpers
+
+def step_closed_form(s, step=2.0):
+    """Eq (22) response to a lateral step ``step`` [m] at arc length ``s`` [m].
+
+    Kd = 0.6, Kp = 0.09 give a double root -0.3 1/m: with a2(0) = -step, a3(0) = 0 the
+    offset is a2(s) = -step (1 + 0.3 s) e^(-0.3 s), so the rear-axle y is step + a2.
+    """
+    s = np.asarray(s, float)
+    return step - step * (1.0 + 0.3 * s) * np.exp(-0.3 * s)
+
+
+def localise(manifest, fmu_dir, out, replace=()):
+    """Copy ``manifest`` to ``out`` with its FMUs taken from ``fmu_dir``.
+
+    ``replace``: (old, new) text substitutions, each of which must match once.
+    """
+    text = Path(manifest).read_text()
+    text = text.replace('"../fmus/', f'"{Path(fmu_dir).as_posix()}/')
+    for old, new in replace:
+        assert text.count(old) == 1, old
+        text = text.replace(old, new)
+    Path(out).write_text(text)
+    return Path(out)
+
+
+def load(out_dir, label):
+    """(time [s], signals) of one run."""
+    t, signals = read_timeseries(Path(out_dir) / label / "timeseries.csv")
+    return t, signals
+
+
+def on_grid(distance, values, grid):
+    """``values`` interpolated onto the distance ``grid`` [m] (distance is increasing)."""
+    return np.interp(grid, distance, values)
+
+
+def spread(curves):
+    """Largest difference between the curves at one grid point, and that point's index."""
+    curves = np.asarray(curves)
+    gap = curves.max(axis=0) - curves.min(axis=0)
+    return float(gap.max()), int(gap.argmax())
+
+
+def settle_distance(grid, y, target, band=0.02):
+    """First distance [m] after which |y - target| <= band for good."""
+    outside = np.nonzero(np.abs(np.asarray(y) - target) > band)[0]
+    if len(outside) == 0:
+        return 0.0
+    if outside[-1] + 1 >= len(grid):
+        return math.inf
+    return float(grid[outside[-1] + 1])
+
+
+def path_offset(path, x, y):
+    """True signed offset [m] of the points (x, y) from ``path`` and their arc lengths."""
+    offsets, arcs, hint = [], [], None
+    for px, py in zip(x, y):
+        p = path.project(float(px), float(py), s_hint=hint)
+        hint = p.s
+        offsets.append(p.offset)
+        arcs.append(p.s)
+    return np.array(offsets), np.array(arcs)
+
+
+def sine_peaks(x, offset, x_from=40.0, wavelength=30.0, amplitude_sign=None):
+    """Peaks of |offset| after ``x_from`` [m]: per half period, (x of the peak, |peak|).
+
+    Half periods are [x_c - W/4, x_c + W/4] around each crest/trough x_c = W/4 + k W/2,
+    so the peak's distance from the nearest crest or trough is x_peak - x_c.
+    """
+    out = []
+    k = 0
+    while True:
+        xc = wavelength / 4 + k * wavelength / 2
+        lo, hi = xc - wavelength / 4, xc + wavelength / 4
+        k += 1
+        if lo < x_from:
+            continue
+        if hi > x[-1]:
+            break
+        sel = (x >= lo) & (x < hi)
+        j = int(np.argmax(np.abs(offset[sel])))
+        out.append((float(x[sel][j] - xc), float(abs(offset[sel][j]))))
+    return out
+
+
+# --------------------------------------------------------------------------- fixtures
+
+@pytest.fixture(scope="module")
+def fmu_dir(component_fmus):
+    return Path(next(iter(component_fmus.values()))).parent
+
+
+@pytest.fixture(scope="module")
+def step_runs(fmu_dir, tmp_path_factory):
+    """The step manifest at 2, 8 and 14 km/h (the extremes and one in between)."""
+    tmp = tmp_path_factory.mktemp("seed002_step")
+    manifest = localise(EXPERIMENTS / "seed002_step.toml", fmu_dir, tmp / "step.toml")
+    out, results, _ = run_manifest(manifest, tmp / "out", variants=["v02kmh", "v08kmh",
+                                                                   "v14kmh"], quiet=True)
+    assert [r["status"] for r in results] == ["complete"] * 3
+    return out
+
+
+@pytest.fixture(scope="module")
+def sine_runs(fmu_dir, tmp_path_factory):
+    """The sine manifest, exact pose, over 70 m (2.3 periods)."""
+    tmp = tmp_path_factory.mktemp("seed002_sine")
+    manifest = localise(EXPERIMENTS / "seed002_sine.toml", fmu_dir, tmp / "sine.toml",
+                        replace=[("stop = 60.0 ", "stop = 42.0 ")])
+    out, results, _ = run_manifest(manifest, tmp / "out", variants=["pose"], quiet=True)
+    assert results[0]["status"] == "complete"
+    return out
+
+
+@pytest.fixture(scope="module")
+def cross_runs(fmu_dir, tmp_path_factory):
+    """The cross-seed manifest at 1 and 4 m/s over 30 s."""
+    tmp = tmp_path_factory.mktemp("cross_seed")
+    manifest = localise(EXPERIMENTS / "cross_seed_controllers.toml", fmu_dir,
+                        tmp / "cross.toml",
+                        replace=[("stop = 60.0 ", "stop = 30.0 "),
+                                 ('"vehicle.v0" = [0.5, 1.0, 2.0, 3.0, 4.0]',
+                                  '"vehicle.v0" = [1.0, 4.0]')])
+    out, results, _ = run_manifest(manifest, tmp / "out", quiet=True)
+    assert [r["status"] for r in results] == ["complete"] * 4
+    return out, {r["label"]: r["metrics"] for r in results}
+
+
+# --------------------------------------------------------------------------- tests
+
+def test_step_closed_form_numbers():
+    # eq (22) with the double root -0.3 1/m: 2 cm band reached at s = 22.13 m (README: "a
+    # 2 m step is down to 2 cm after about 22 m"); largest slope 0.18 s e^(-0.3 s) at
+    # s = 1/0.3 m is 0.6 / e = 0.2207. Tolerances are rounding of the quoted digits.
+    s = np.linspace(0, 40, 400001)
+    y = step_closed_form(s)
+    assert settle_distance(s, y, 2.0) == pytest.approx(22.128, abs=0.001)
+    assert np.gradient(y, s).max() == pytest.approx(0.6 / math.e, abs=1e-6)
+
+
+def test_step_ideal_follows_closed_form(step_runs):
+    # With an ideal actuator the only departure from eq (22) is the time lag of the
+    # loop: half a step of zero-order hold plus the master's one step (see the module
+    # docstring), 1.5 h in time = 1.5 v h in distance; times the largest slope 0.2207
+    # that is 0.33 v h. Bound 0.40 v h (20 % margin for the loop's own reaction to it).
+    for kmh in (2, 8, 14):
+        v = kmh / 3.6
+        _, sig = load(step_runs, f"v{kmh:02d}kmh")
+        err = np.abs(sig["veh_i.y_rear"] - step_closed_form(sig["veh_i.x_rear"])).max()
+        assert err <= 0.40 * v * STEP, (kmh, err)
+        assert err >= 0.05 * v * STEP, (kmh, err)   # the lag is there: not a vacuous run
+
+
+def test_step_ideal_coincides_across_speeds(step_runs):
+    # Against distance travelled the ideal-actuator runs coincide up to the speed
+    # dependent lag 0.33 v h: spread <= 0.40 (v_14 - v_2) h = 13.3 mm, half the paper's
+    # 2.7 cm. Measured 11.3 mm (about 3.7 mm once the master's extra step is removed).
+    grid = np.linspace(0, 40, 4001)
+    curves = []
+    for kmh in (2, 8, 14):
+        _, sig = load(step_runs, f"v{kmh:02d}kmh")
+        curves.append(on_grid(sig["veh_i.distance"], sig["veh_i.y_rear"], grid))
+    gap, _ = spread(curves)
+    assert gap <= 0.40 * (14 - 2) / 3.6 * STEP
+    # and all settle into the 2 cm band at the same distance, within 0.1 m: 22.3 m, eq
+    # (22)'s 22.13 m of path plus the 0.15 m by which the distance travelled exceeds s
+    dists = [settle_distance(grid, c, 2.0) for c in curves]
+    assert max(dists) - min(dists) <= 0.1
+    assert dists[0] == pytest.approx(22.3, abs=0.15)
+
+
+def test_step_delayed_actuator_drifts_apart(step_runs):
+    # The servo (crossover K g = 6 rad/s) plus tau = 0.05 s lag the wheel by about
+    # tau + 1/(K g) = 0.217 s, i.e. 0.12 m at 2 km/h but 0.84 m at 14 km/h of path: the
+    # response is no longer speed independent. Measured spread 7.96 cm (at 2 m travelled),
+    # the 14 km/h run 9.2 cm from eq (22). Bounds +-20 % around the measurement: a lag
+    # model, not a closed form.
+    grid = np.linspace(0, 40, 4001)
+    curves, devs = [], []
+    for kmh in (2, 8, 14):
+        _, sig = load(step_runs, f"v{kmh:02d}kmh")
+        curves.append(on_grid(sig["veh_i.distance"], sig["veh_d.y_rear"], grid))
+        devs.append(np.abs(sig["veh_d.y_rear"] - step_closed_form(sig["veh_i.x_rear"])).max())
+    gap, where = spread(curves)
+    assert 0.064 <= gap <= 0.096
+    assert 1.0 <= grid[where] <= 3.0
+    assert devs[0] < devs[1] < devs[2]
+    assert 0.074 <= devs[2] <= 0.111
+    # the lag delays the response without overshoot beyond 1 mm, and settles (2 cm)
+    # within 1.5 m of the ideal 22.3 m at every speed
+    for c in curves:
+        assert c.max() <= 2.001
+        assert settle_distance(grid, c, 2.0) <= 23.8
+
+
+def test_sine_exact_pose(sine_runs):
+    # Exact pose, 6 km/h. Ideal actuator: |y| after 40 m <= 6 mm (measured 4.4 mm: the
+    # chained-form core alone gives 1.45 mm with only the half-step hold; the master's
+    # extra step triples the lag). Delayed actuator: measured 5.5 cm, bound 4-7 cm.
+    # Both far below the paper's 25 cm.
+    path = parse_path(SINE)
+    _, sig = load(sine_runs, "pose")
+    x = sig["veh_i.x_rear"]
+    yi, _ = path_offset(path, sig["veh_i.x_rear"], sig["veh_i.y_rear"])
+    yd, _ = path_offset(path, sig["veh_d.x_rear"], sig["veh_d.y_rear"])
+    late = x >= 40.0
+    assert late.sum() > 100
+    assert np.abs(yi[late]).max() <= 0.006
+    assert 0.04 <= np.abs(yd[late]).max() <= 0.07
+    # (ctl_i.a2 is NOT compared with yi sample by sample: with the current master it is
+    # the offset one step earlier, and 0 at t = 0, see the module docstring)
+    # initial offset 0.5 m (start on the normal), right of the path
+    assert yi[0] == pytest.approx(-0.5, abs=1e-9)
+
+
+def test_cross_seed_speed_dependence(cross_runs):
+    out, metrics = cross_runs
+    sf1 = metrics["state_feedback__vehicle.v0=1.0"]
+    sf4 = metrics["state_feedback__vehicle.v0=4.0"]
+    cf1 = metrics["chained_form__vehicle.v0=1.0"]
+    cf4 = metrics["chained_form__vehicle.v0=4.0"]
+    # chained form on the same delayed actuator: settling distance (rear axle, 2 cm band)
+    # 16.8 m at 1 m/s, 17.0 m at 4 m/s (the actuator lag, 0.22 s, costs v * 0.22 s of
+    # path): within 0.5 m; no overshoot at either speed (< 1 mm).
+    assert cf1["path_error_settling_time"] * 1.0 == pytest.approx(16.8, abs=0.3)
+    assert abs(cf4["path_error_settling_time"] * 4.0
+               - cf1["path_error_settling_time"] * 1.0) <= 0.5
+    assert cf1["path_error_overshoot"] < 1e-3 and cf4["path_error_overshoot"] < 1e-3
+    # state feedback (gains fixed at 1 m/s): front-wheel overshoot 2.3 cm at 1 m/s,
+    # 38 cm at 4 m/s; at 4 m/s the rear axle is not inside +-2 cm before 100 m
+    assert sf1["lateral_error_overshoot"] == pytest.approx(0.023, abs=0.005)
+    assert sf4["lateral_error_overshoot"] == pytest.approx(0.38, abs=0.05)
+    assert sf4["path_error_settling_time"] is None or sf4["path_error_settling_time"] >= 25
+    assert sf4["path_error_overshoot"] >= 0.15
+
+
+# --------------------------------------------------------------------------- figures
+
+def _figure(rows, cols, size, **kwargs):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=size)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(rows, cols, squeeze=False, **kwargs)
+    return fig, axes
+
+
+def _save(fig, path):
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, metadata={"Software": None})
+    print("wrote", path)
+
+
+def make_figures(results=ROOT / "results", figures=EXPERIMENTS / "figures", fmu_dir=None):
+    """Run the three manifests into ``results`` and write the figures and tables."""
+    import csv
+    import matplotlib
+    figures.mkdir(parents=True, exist_ok=True)
+    colors = matplotlib.colormaps["viridis"](np.linspace(0, 0.9, len(KMH)))
+
+    def run(name):
+        manifest = EXPERIMENTS / f"{name}.toml"
+        if fmu_dir is not None:
+            manifest = localise(manifest, fmu_dir, results / f"{name}.toml")
+        out, res, _ = run_manifest(manifest, results / name, quiet=True)
+        assert all(r["status"] == "complete" for r in res), res
+        return out
+
+    results.mkdir(parents=True, exist_ok=True)
+    # ---- step
+    out = run("seed002_step")
+    grid = np.linspace(0, 40, 4001)
+    curves = {n: [] for n in LOOPS}
+    table = []
+    for kmh in KMH:
+        _, sig = load(out, f"v{kmh:02d}kmh")
+        v = kmh / 3.6
+        row = [kmh]
+        for n in LOOPS:
+            c = on_grid(sig["veh_i.distance"], sig[f"veh_{n}.y_rear"], grid)
+            curves[n].append(c)
+        for n in LOOPS:
+            dev = np.abs(curves[n][-1] - step_closed_form(grid)).max()
+            row += [settle_distance(grid, curves[n][-1], 2.0), max(0.0, curves[n][-1].max() - 2),
+                    np.abs(sig[f"veh_{n}.y_rear"] - step_closed_form(sig["veh_i.x_rear"])).max()
+                    if n == "i" or n == "d" else dev]
+        table.append(row)
+    fig, axes = _figure(2, 2, (11, 7.5))
+    for ax, n in zip(axes.flat, LOOPS):
+        for kmh, c, col in zip(KMH, curves[n], colors):
+            ax.plot(grid, c, color=col, lw=1.2, label=f"{kmh} km/h")
+        ax.plot(grid, step_closed_form(grid), "k--", lw=0.8, label="eq (22)")
+        gap, where = spread(curves[n])
+        ax.set_title(f"{LOOPS[n]}: spread {100 * gap:.1f} cm at {grid[where]:.1f} m")
+        ax.set_xlim(0, 30)
+        ax.set_xlabel("distance travelled [m]")
+        ax.set_ylabel("rear-axle y [m]")
+        ax.grid(alpha=0.3)
+        inset = ax.inset_axes([0.45, 0.12, 0.5, 0.45])
+        for c, col in zip(curves[n], colors):
+            inset.plot(grid, 100 * (c - step_closed_form(grid)), color=col, lw=1)
+        inset.set_xlim(0, 30)
+        inset.set_title("y - eq (22) [cm]", fontsize=8)
+        inset.tick_params(labelsize=7)
+        inset.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=8, loc="upper left", ncol=2)
+    fig.suptitle("Seed 002: 2 m lateral step (initial offset), chained-form law, 2-14 km/h")
+    _save(fig, figures / "seed002_step.png")
+    spreads = {n: spread(curves[n]) for n in LOOPS}
+
+    # ---- sine
+    out = run("seed002_sine")
+    path = parse_path(SINE)
+    variants = ["pose", "sampled", "camera", "latency_0_3", "wheelbase"]
+    sine_rows, traces = [], {}
+    for name in variants:
+        _, sig = load(out, name)
+        row = [name]
+        for n in ("i", "d"):
+            y, s = path_offset(path, sig[f"veh_{n}.x_rear"], sig[f"veh_{n}.y_rear"])
+            x = sig[f"veh_{n}.x_rear"]
+            traces[name, n] = (sig["veh_i.distance"], y, x)
+            late = x >= 40
+            peaks = sine_peaks(x, y)
+            row += [np.abs(y[late]).max(), np.sqrt(np.mean(y[late] ** 2)),
+                    np.mean([p[0] for p in peaks])]
+        sine_rows.append(row)
+    fig, axes = _figure(3, 1, (11, 9.5), gridspec_kw={"height_ratios": [1.2, 2, 2]})
+    ax = axes[0, 0]
+    xs = np.linspace(0, 100, 2001)
+    ax.plot(xs, 3 * np.sin(2 * np.pi * xs / 30), "k-", lw=2.5, alpha=0.3, label="path")
+    for name, col in zip(variants, ("C0", "C1", "C2", "C3", "C4")):
+        _, y, x = traces[name, "d"]
+        _, sig = load(out, name)
+        ax.plot(sig["veh_d.x_rear"], sig["veh_d.y_rear"], color=col, lw=1, label=name)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title("Rear-axle trajectories, delayed actuator, 6 km/h (start 0.5 m right)")
+    ax.set_xlim(0, 100)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, ncol=6, loc="lower left")
+    for ax, n in zip(axes[1:, 0], ("i", "d")):
+        for name, col in zip(variants, ("C0", "C1", "C2", "C3", "C4")):
+            d, y, x = traces[name, n]
+            ax.plot(x, 100 * y, color=col, lw=1, label=name)
+        for xc in np.arange(7.5, 100, 15):
+            ax.axvline(xc, color="k", lw=0.6, ls=":")
+        ax.set_ylim(-30, 30)
+        ax.set_xlim(0, 100)
+        ax.axhline(25, color="r", lw=0.6, ls="--")
+        ax.axhline(-25, color="r", lw=0.6, ls="--")
+        ax.set_xlabel("x of the rear axle [m] (dotted: crests and troughs; red: paper's 25 cm)")
+        ax.set_ylabel("true offset y [cm]")
+        ax.set_title(f"{'Ideal' if n == 'i' else 'Delayed (AgvSteeringA angle mode)'} "
+                     "actuator: lateral offset of the rear-axle centre")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, ncol=5, loc="lower right")
+    _save(fig, figures / "seed002_sine.png")
+
+    # ---- cross seed
+    out = run("cross_seed_controllers")
+    speeds = [0.5, 1.0, 2.0, 3.0, 4.0]
+    fig, axes = _figure(2, 1, (11, 7.5))
+    cross_rows = []
+    summary = {r["run"]: r for r in csv.DictReader(open(out / "summary.csv"))}
+    for ax, ctrl in zip(axes[:, 0], ("state_feedback", "chained_form")):
+        for v, col in zip(speeds, matplotlib.colormaps["plasma"](np.linspace(0, 0.85, 5))):
+            label = f"{ctrl}__vehicle.v0={v!r}"
+            _, sig = load(out, label)
+            ax.plot(sig["vehicle.distance"], sig["vehicle.y_rear"] - 0.5, color=col, lw=1.2,
+                    label=f"{v} m/s")
+            m = summary[label]
+            f = (lambda k: float(m[k]) if m[k] not in ("", "None") else math.nan)
+            cross_rows.append((ctrl, v, f("lateral_error_overshoot"), f("path_error_overshoot"),
+                               f("path_error_settling_time") * v, f("steering_angle_peak"),
+                               f("saturated_fraction")))
+        ax.set_xlim(0, 30)
+        ax.set_ylim(-0.6, 0.35)
+        ax.set_xlabel("distance travelled [m]")
+        ax.set_ylabel("rear-axle offset [m]")
+        ax.set_title({"state_feedback": "Seed 000 state feedback (gains for 1 m/s), "
+                      "actuator model a in command mode",
+                      "chained_form": "Seed 002 chained-form law, same actuator in angle mode"}
+                     [ctrl])
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, ncol=5, loc="lower right")
+    fig.suptitle("Same vehicle (L = 1.4944 m), same actuator, 0.5 m lateral step: speed "
+                 "dependence")
+    _save(fig, figures / "cross_seed_controllers.png")
+
+    # ---- tables
+    print("\nstep: km/h | per loop (i, d, ic, dc): settle distance [m], overshoot [cm], "
+          "max |y - eq22| [cm]")
+    for row in table:
+        cells = [f"{row[0]}"]
+        for j in range(4):
+            sd, os_, dev = row[1 + 3 * j: 4 + 3 * j]
+            cells.append(f"{sd:.2f} / {100 * os_:.2f} / {100 * dev:.2f}")
+        print(" | ".join(cells))
+    print("spreads:", {n: (round(100 * g, 2), float(grid[w])) for n, (g, w) in spreads.items()})
+    print("\nsine: variant | ideal max, rms [cm], mean peak - crest [m] | delayed same")
+    for row in sine_rows:
+        print(row[0], " | ".join(f"{100 * a:.2f} {100 * b:.2f} {c:+.2f}"
+                                  for a, b, c in (row[1:4], row[4:7])))
+    print("\ncross: controller, v, front overshoot [cm], rear overshoot [cm], rear settle "
+          "distance [m], peak alpha [rad], saturated fraction")
+    for r in cross_rows:
+        print(r[0], r[1], f"{100 * r[2]:.1f} {100 * r[3]:.1f} {r[4]:.1f} {r[5]:.3f} {r[6]:.2f}")
+
+
+if __name__ == "__main__":
+    make_figures(fmu_dir=Path(sys.argv[1]) if len(sys.argv) > 1 else None)
