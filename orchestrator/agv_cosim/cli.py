@@ -156,6 +156,10 @@ def main(argv=None):
         if args.debug:
             raise
         return _error(str(error))
+    except BrokenPipeError:
+        # the reader went away (e.g. `agv-cosim list | head`): stop quietly
+        sys.stdout = None
+        return 0
     except KeyboardInterrupt:
         if args.debug:
             raise

@@ -22,7 +22,9 @@ failure (partial if it had recorded rows), and the other runs go on.
 import importlib
 import os
 import platform
+import shutil
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from multiprocessing import get_context
@@ -172,8 +174,14 @@ def _finish(job, run_dir, rows, status, error, wall, values, metrics_error):
             "variant": job.variant}
 
 
-def _child(job, run_dir, channel):
-    """Body of a run's child process: run it, report progress and the result."""
+def _child(job, run_dir, channel, scratch):
+    """Body of a run's child process: run it, report progress and the result.
+
+    FMUs are extracted under ``scratch``, which the parent deletes however the child
+    ends (a child that dies cannot clean up after itself).
+    """
+    tempfile.tempdir = scratch
+
     def progress(steps):
         channel.send(("progress", steps))
 
@@ -205,20 +213,21 @@ def _run_isolated(jobs, root, workers, on_progress, on_done):
     context.set_forkserver_preload([__name__])
     results = [None] * len(jobs)
     waiting = list(range(len(jobs)))
-    running = {}  # job index -> (process, reading end of its pipe)
+    running = {}  # job index -> (process, reading end of its pipe, scratch folder)
     try:
         while waiting or running:
             while waiting and len(running) < workers:
                 index = waiting.pop(0)
                 job = jobs[index]
                 reader, writer = context.Pipe(duplex=False)
+                scratch = tempfile.mkdtemp(prefix="agv_cosim_run_")
                 process = context.Process(target=_child, name=f"agv-cosim {job.label}",
-                                          args=(job, root / job.label, writer))
+                                          args=(job, root / job.label, writer, scratch))
                 process.start()
                 writer.close()
-                running[index] = (process, reader)
-            ready = wait([reader for _, reader in running.values()], timeout=1.0)
-            for index, (process, reader) in list(running.items()):
+                running[index] = (process, reader, scratch)
+            ready = wait([reader for _, reader, _ in running.values()], timeout=1.0)
+            for index, (process, reader, scratch) in list(running.items()):
                 if reader not in ready:
                     continue
                 try:
@@ -226,6 +235,7 @@ def _run_isolated(jobs, root, workers, on_progress, on_done):
                 except EOFError:  # the child has ended, with or without its result
                     process.join()
                     reader.close()
+                    shutil.rmtree(scratch, ignore_errors=True)
                     del running[index]
                     if results[index] is None:
                         results[index] = _died(jobs[index], root / jobs[index].label,
@@ -238,10 +248,11 @@ def _run_isolated(jobs, root, workers, on_progress, on_done):
                     results[index] = payload
                     on_done()
     finally:
-        for process, reader in running.values():
+        for process, reader, scratch in running.values():
             process.kill()
             process.join()
             reader.close()
+            shutil.rmtree(scratch, ignore_errors=True)
     return results
 
 

@@ -78,10 +78,11 @@ def test_failing_fmu_leaves_partial_results(fmus, tmp_path, capsys):
     """doStep from t = 0.5 fails: rows t = 0 .. 0.5 (6) are kept, status partial, exit 1,
     and every extraction folder is gone afterwards (the run happens in a child process:
     its folders, agv_cosim_<instance>_*, are looked for in the temp folder)."""
-    def leftovers():
-        return {p.name for p in Path(tempfile.gettempdir()).glob("agv_cosim_*_*")}
+    def leftovers():  # this test's instance only: other processes may run meanwhile
+        root = Path(tempfile.gettempdir())
+        return list(root.glob("agv_cosim_bad_*")) + list(
+            root.glob("agv_cosim_run_*/agv_cosim_bad_*"))
 
-    before = leftovers()
     path = _fail_manifest(fmus, tmp_path, "agv_test_fail", "fail_time", 0.5)
     assert _run(path, tmp_path / "out") == 1
     err = capsys.readouterr().err
@@ -94,7 +95,7 @@ def test_failing_fmu_leaves_partial_results(fmus, tmp_path, capsys):
     t, sig = read_timeseries(run_dir / "timeseries.csv")
     np.testing.assert_allclose(t, np.arange(6) * 0.1, atol=1e-12)
     np.testing.assert_allclose(sig["bad.y"], np.arange(6) * 0.1, atol=1e-12)  # y = u = t
-    assert leftovers() == before
+    assert leftovers() == []
 
 
 def test_nan_names_component_variable_time(fmus, tmp_path):
@@ -132,17 +133,22 @@ def test_interrupted_run_leaves_no_complete_folder(chain, tmp_path, monkeypatch)
 def test_a_crashing_fmu_fails_its_run_only(fmus, tmp_path, capsys):
     """An FMU that kills its host at t = 2.5 s (step 1 ms): the run, in its own process,
     is reported partial with the rows flushed before (every 1000: 2000 of 2500), the
-    other run completes, exit code 1."""
+    other run completes, exit code 1, and no extraction folder is left behind."""
+    def leftovers():  # this test's instance only: other processes may run meanwhile
+        root = Path(tempfile.gettempdir())
+        return list(root.glob("agv_cosim_crashdut_*")) + list(
+            root.glob("agv_cosim_run_*/agv_cosim_crashdut_*"))
+
     path = tmp_path / "crash.toml"
     path.write_text(f"""
 name = "crash"
 [simulation]
 stop = 3.0
 step = 0.001
-[components.dut]
+[components.crashdut]
 fmu = "{fmus['agv_test_crash']}"
 [sweep]
-"dut.crash_time" = [2.5, 10.0]
+"crashdut.crash_time" = [2.5, 10.0]
 """)
     assert _run(path, tmp_path / "out") == 1
     runs = sorted(p for p in (tmp_path / "out").iterdir() if p.is_dir())
@@ -152,3 +158,4 @@ fmu = "{fmus['agv_test_crash']}"
     assert crashed[0]["status"] == "partial"
     assert "process died (signal 6)" in crashed[0]["error"]
     assert crashed[0]["rows"] == 2000
+    assert leftovers() == []
