@@ -79,6 +79,39 @@ def test_damped_response_overshoot(zeta):
     assert m["lateral_error_overshoot"] == pytest.approx(abs(e0) * ratio, abs=1e-6)
 
 
+def test_signed_mean_and_std_of_an_offset_sine():
+    # e = a + b sin(t) over whole periods: time mean a, population std b / sqrt(2) (the
+    # trapezoid over whole periods of a sinusoid is exact to rounding); the settled window
+    # [2 pi, 6 pi] is again two whole periods and starts on a sample
+    a, b = -0.3, 0.2
+    t = np.linspace(0.0, 6 * math.pi, 60001)
+    m = compute_metrics(t, {"s.e": a + b * np.sin(t)},
+                        {"lateral_error": "s.e", "settle_after": 2 * math.pi})
+    for window in ("", "settled_"):
+        assert m[f"lateral_error_{window}signed_mean"] == pytest.approx(a, abs=1e-12)
+        assert m[f"lateral_error_{window}std"] == pytest.approx(b / math.sqrt(2), rel=1e-9)
+        # rms^2 = mean^2 + std^2 (same trapezoid, rounding only)
+        assert m[f"lateral_error_{window}rms"] ** 2 == pytest.approx(
+            m[f"lateral_error_{window}signed_mean"] ** 2 + m[f"lateral_error_{window}std"] ** 2,
+            rel=1e-12)
+
+
+def test_signed_mean_and_std_of_a_ramp_on_a_settled_window():
+    # e = c t on a non-uniform grid, window [w, D] starting between samples (interpolated):
+    # mean c (w + D) / 2 (exact for a linear e), std c (D - w) / sqrt(12) (trapezoid of a
+    # quadratic: relative error h^2 / (D - w)^2 ~ 1e-8 with h <= 1e-3 s)
+    c, w, duration = -0.05, 3.3333, 10.0
+    u = np.linspace(0.0, 1.0, 10001)
+    t = duration * u * (2 - u)          # denser towards the end, max step 2e-3 s
+    m = compute_metrics(t, {"s.e": c * t}, {"lateral_error": "s.e", "settle_after": w})
+    assert m["lateral_error_signed_mean"] == pytest.approx(c * duration / 2, rel=1e-12)
+    assert m["lateral_error_std"] == pytest.approx(abs(c) * duration / math.sqrt(12), rel=1e-6)
+    assert m["lateral_error_settled_signed_mean"] == pytest.approx(c * (w + duration) / 2,
+                                                                   rel=1e-12)
+    assert m["lateral_error_settled_std"] == pytest.approx(
+        abs(c) * (duration - w) / math.sqrt(12), rel=1e-6)
+
+
 def test_piecewise_linear_grid_by_hand():
     # non-uniform grid, values chosen so every metric is a hand calculation (exact to
     # rounding: 1e-12)
@@ -96,6 +129,17 @@ def test_piecewise_linear_grid_by_hand():
     # settled window [1.5, 6]: e = -1.5 -> 0 over 1.5 s, then 0 -> 1 over 3 s
     assert m["lateral_error_settled_max"] == pytest.approx(1.5, abs=1e-12)
     assert m["lateral_error_settled_mean"] == pytest.approx((1.125 + 1.5) / 4.5, abs=1e-12)
+    # trapezoidal e: (2 - 2)/2*1 + (-2 + 0)/2*2 + (0 + 1)/2*3 = -0.5 over 6 s; the std is
+    # the trapezoid of (e - mean)^2, = 9.5/6 - mean^2 since the trapezoid is linear
+    assert m["lateral_error_signed_mean"] == pytest.approx(-0.5 / 6, abs=1e-12)
+    assert m["lateral_error_std"] == pytest.approx(math.sqrt(9.5 / 6 - (0.5 / 6) ** 2),
+                                                   abs=1e-12)
+    # settled window [1.5, 6]: integral of e = -1.125 + 1.5 over 4.5 s; e^2 by trapezoid:
+    # (2.25 + 0)/2*1.5 + (0 + 1)/2*3 = 3.1875
+    settled_mean = 0.375 / 4.5
+    assert m["lateral_error_settled_signed_mean"] == pytest.approx(settled_mean, abs=1e-12)
+    assert m["lateral_error_settled_std"] == pytest.approx(
+        math.sqrt(3.1875 / 4.5 - settled_mean ** 2), abs=1e-12)
 
 
 def test_settling_time_with_time_offset_and_settle_after():
@@ -181,10 +225,13 @@ def test_undefined_metrics_are_none_never_nan():
     m = compute_metrics(np.array([0.0]), {"s.e": np.array([0.01])},
                         {"lateral_error": "s.e", "control": "s.e"})
     assert m["duration"] == 0.0 and m["lateral_error_rms"] is None
+    assert m["lateral_error_signed_mean"] is None and m["lateral_error_std"] is None
     assert m["control_effort"] is None and m["lateral_error_settling_time"] == 0.0
     # settle_after past the end: empty window
     m = compute_metrics(t, {"s.e": e}, {"lateral_error": "s.e", "settle_after": 2.0})
     assert m["lateral_error_settled_rms"] is None
+    assert m["lateral_error_settled_signed_mean"] is None
+    assert m["lateral_error_settled_std"] is None
     for value in m.values():
         assert value is None or math.isfinite(value)
 
@@ -254,7 +301,8 @@ def test_geometric_error_from_reference_path():
             "lateral_error": "s.e"}
     m = compute_metrics(t, {"v.x": x, "v.y": y, "s.e": offset}, spec)
     # the projection is closed-form for a circle: same numbers as the signal to 1e-9 m
-    for name in ("max", "mean", "rms", "settling_time", "settled_rms"):
+    for name in ("max", "mean", "rms", "signed_mean", "std", "settling_time", "settled_rms",
+                 "settled_signed_mean", "settled_std"):
         assert m[f"path_error_{name}"] == pytest.approx(m[f"lateral_error_{name}"], abs=1e-9)
     assert m["path_error_settling_time"] == pytest.approx(math.log(0.4 / 0.02), abs=1e-4)
 

@@ -68,13 +68,22 @@ For a lateral-error signal e (prefix ``P`` = ``lateral_error`` or ``path_error``
     time-weighted mean of |e|: (1/T) integral |e| dt [m].
 ``P_rms``
     sqrt((1/T) integral e^2 dt) [m].
+``P_signed_mean``
+    time-weighted mean of e: m = (1/T) integral e dt [m] (trapezoidal, exact for the
+    piecewise-linear e). The sign says on which side of the path e lies on average.
+``P_std``
+    time-weighted (population) standard deviation of e about ``P_signed_mean``:
+    sqrt((1/T) integral (e - m)^2 dt) [m], trapezoidal like ``P_rms``, so that
+    ``P_rms``^2 = ``P_signed_mean``^2 + ``P_std``^2 up to rounding.
 ``P_settling_time``
     t_s - t_0 [s], where t_s is the first time after which |e| <= ``settle_band`` for good;
     the crossing is interpolated linearly between the last sample outside the band and
     the next one. 0 when |e| never leaves the band.
-``P_settled_max``, ``P_settled_mean``, ``P_settled_rms``
-    the three above over the window [t_0 + w, t_N], w = ``settle_after`` if given,
-    otherwise the settling time; the window's first value is interpolated.
+``P_settled_max``, ``P_settled_mean``, ``P_settled_rms``, ``P_settled_signed_mean``,
+``P_settled_std``
+    the five above (all but the settling time) over the window [t_0 + w, t_N],
+    w = ``settle_after`` if given, otherwise the settling time; the window's first value
+    is interpolated.
 ``P_overshoot``
     largest excursion past zero opposite to the sign of the initial error e(t_0):
     max(0, max(-sign(e(t_0)) e)) [m].
@@ -93,7 +102,8 @@ Undefined values
 The result never holds NaN or inf: a metric that is undefined is reported as ``None``
 (JSON ``null``), namely
 
-- every time-averaged metric (mean, RMS, effort, fraction) of a run with T = 0;
+- every time-averaged metric (mean, signed mean, standard deviation, RMS, effort,
+  fraction) of a run with T = 0;
 - ``P_settling_time`` when e never settles (its last sample is outside the band);
 - the ``P_settled_*`` metrics when their window is empty (``settle_after`` >= T) or, without
   ``settle_after``, when e never settles;
@@ -237,6 +247,15 @@ def _rms(t, f):
     return math.sqrt(mean_square) if mean_square is not None else None
 
 
+def _mean_and_std(t, f):
+    """Time-weighted mean of f and standard deviation about it, or (None, None) when T = 0."""
+    mean = _time_mean(t, f)
+    if mean is None:
+        return None, None
+    deviation = f - mean
+    return mean, math.sqrt(max(0.0, _time_mean(t, deviation * deviation)))
+
+
 def _abs_mean(t, f):
     """Time-weighted mean of |f| for piecewise-linear f (exact across sign changes)."""
     duration = float(t[-1] - t[0])
@@ -301,17 +320,21 @@ def _lateral_metrics(prefix, t, e, band, settle_after):
         f"{prefix}_mean": _abs_mean(t, e),
         f"{prefix}_rms": _rms(t, e),
     }
+    out[f"{prefix}_signed_mean"], out[f"{prefix}_std"] = _mean_and_std(t, e)
     t_settle = settling_time(t, e, band)
     out[f"{prefix}_settling_time"] = None if t_settle is None else t_settle - float(t[0])
     start = float(t[0]) + settle_after if settle_after is not None else t_settle
     window = None if start is None else _window(t, e, start)
     if window is None:
-        out.update({f"{prefix}_settled_{name}": None for name in ("max", "mean", "rms")})
+        out.update({f"{prefix}_settled_{name}": None
+                    for name in ("max", "mean", "rms", "signed_mean", "std")})
     else:
         tw, ew = window
         out[f"{prefix}_settled_max"] = float(np.max(np.abs(ew)))
         out[f"{prefix}_settled_mean"] = _abs_mean(tw, ew)
         out[f"{prefix}_settled_rms"] = _rms(tw, ew)
+        out[f"{prefix}_settled_signed_mean"], out[f"{prefix}_settled_std"] = \
+            _mean_and_std(tw, ew)
     e0 = float(e[0])
     if e0 == 0.0:
         out[f"{prefix}_overshoot"] = out[f"{prefix}_overshoot_ratio"] = None
@@ -428,8 +451,9 @@ def compute_metrics(time, signals, spec, *, base_dir=None):
         result.update({name: None for name in names})
         return False
 
-    lateral_names = ("max", "mean", "rms", "settling_time", "settled_max", "settled_mean",
-                     "settled_rms", "overshoot", "overshoot_ratio")
+    lateral_names = ("max", "mean", "rms", "signed_mean", "std", "settling_time",
+                     "settled_max", "settled_mean", "settled_rms", "settled_signed_mean",
+                     "settled_std", "overshoot", "overshoot_ratio")
     if "lateral_error" in spec:
         e = _get(signals, spec["lateral_error"], "lateral_error", n)
         if finite(e, [f"lateral_error_{name}" for name in lateral_names]):
