@@ -14,20 +14,25 @@ orchestrator
     ``agv_cosim.master.simulate`` with a ``write_row`` that copies each recorded row into
     a preallocated numpy array (no CSV, so both sides record the same way).
 minimal
-    A hand-written Gauss-Seidel loop: per macro step one ``fmi2DoStep`` per FMU, then in
-    the same feedthrough order one batched ``fmi2SetReal`` and one batched
-    ``fmi2GetReal`` per FMU (preallocated ctypes arrays, raw ctypes function pointers,
-    status checked), then the same signals copied into a preallocated numpy array at the
-    same record interval. It does not check outputs for NaN/inf (the master does).
+    A hand-written Gauss-Seidel loop: per macro step one ``fmi2DoStep`` per FMU, then
+    one batched ``fmi2GetReal`` of the actuator (its alpha closes the loop backwards, to
+    the vehicle, visited first), then in the same feedthrough order one batched
+    ``fmi2SetReal`` and one batched ``fmi2GetReal`` per FMU (preallocated ctypes arrays,
+    raw ctypes function pointers, status checked), then the same signals copied into a
+    preallocated numpy array at the same record interval. It does not check outputs for
+    NaN/inf (the master does).
 
 The per-step time of each is the wall time from the first recorded row (after
 initialisation) to the last one, divided by the number of macro steps, so FMU loading
 is excluded. Rounds alternate orchestrator / minimal; the medians and their ratio are
 printed, and the two recordings are checked to be bit-identical.
 
-Peak memory: the orchestrator (full ``runner.run_manifest`` path, CSV streamed to disk)
-runs 60 s and 3600 s simulated in child processes; their peak RSS is read with
-``os.wait4`` (per child) and cross-checked with ``getrusage(RUSAGE_CHILDREN)``.
+Peak memory: the orchestrator runs 60 s and 3600 s simulated in child processes, each
+calling ``runner.run_job`` (what ``run_manifest``'s per-run process calls:
+``master.simulate`` with the CSV streamed to disk). Each child reports its own peak RSS
+(VmHWM from /proc/self/status) at the end of the run. (``os.wait4``'s ``ru_maxrss`` is
+printed too but is no measure of the run: Linux keeps the pre-exec high-water mark, so it
+is at least this benchmark process's peak.)
 
 Run: ``python benchmarks/bench_orchestrator.py [--rounds 3] [--stop 20] [--record-interval
 0.001] [--no-memory]``.
@@ -51,7 +56,7 @@ import numpy as np
 
 from agv_cosim.build import build_one, default_components_dir
 from agv_cosim.master import simulate
-from agv_cosim.runner import prepare, run_manifest
+from agv_cosim.runner import prepare, run_job
 
 STEP = 0.001
 SCRIPTS = {"vehicle": "agv_vehicle.py", "actuator": "agv_steering_a.py",
@@ -200,9 +205,13 @@ def run_minimal(fmus, stop, step, record_every):
     vi, ai, si, ti, ci = veh.inp, act.inp, sen.inp, ste.inp, ctl.inp
 
     def propagate():
-        # One Gauss-Seidel pass in the master's order (vehicle, sensor, steer, controller,
-        # actuator: topological in the feedthrough graph), each FMU set from the buffers
-        # as they are at its turn, then read, exactly as master.simulate does.
+        # One Gauss-Seidel pass as master.simulate makes it. First the actuator's outputs
+        # are read: actuator.alpha feeds the vehicle, which is visited before the actuator,
+        # and alpha does not depend directly on u, so this is the value of this instant.
+        # Then, in the master's order (vehicle, sensor, steer, controller, actuator:
+        # topological in the feedthrough graph), each FMU is set from the buffers as they
+        # are at its turn, then read.
+        _check(act.get_real(act.c, act.out_vr, 1, ao), "fmi2GetReal")
         vi[0] = ao[0]
         _check(veh.set_real(veh.c, veh.in_vr, 1, vi), "fmi2SetReal")
         _check(veh.get_real(veh.c, veh.out_vr, 3, vo), "fmi2GetReal")
@@ -245,16 +254,39 @@ def run_minimal(fmus, stop, step, record_every):
 
 
 # ------------------------------------------------------------------------ peak memory
+def _vm_hwm_kib():
+    """This process's peak RSS [KiB]: VmHWM of /proc/self/status (reset by exec)."""
+    with open("/proc/self/status") as status:
+        for line in status:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1])
+    raise RuntimeError("no VmHWM in /proc/self/status")
+
+
 def memory_child(manifest_path, out_dir):
-    """Child process: the full run path (CSV streamed to disk), nothing else."""
-    _, results, _ = run_manifest(manifest_path, out_dir=out_dir, workers=1, quiet=True)
-    if results[0]["status"] != "complete":
-        raise SystemExit(f"run failed: {results[0]['error']}")
-    print(json.dumps({"rows": results[0]["rows"]}))
+    """Child process: one run as ``runner.run_manifest``'s run process makes it.
+
+    ``run_manifest`` runs each job in a grandchild forked by a forkserver
+    (``runner._run_isolated``), out of this benchmark's reach. So this child calls
+    ``runner.run_job`` itself, the function that grandchild runs: ``master.simulate``
+    with the CSV streamed to disk by ``results.CsvSink``, then run.json. The simulation
+    runs in this process, which reports its own peak RSS (VmHWM) when the run is done.
+    """
+    _, jobs, _ = prepare(manifest_path)
+    result = run_job(jobs[0], Path(out_dir) / jobs[0].label)
+    if result["status"] != "complete":
+        raise SystemExit(f"run failed: {result['error']}")
+    print(json.dumps({"rows": result["rows"], "vm_hwm_kib": _vm_hwm_kib()}))
 
 
 def peak_rss(folder, fmus, stop, step):
-    """Peak RSS [MiB] and wall time [s] of a child running the orchestrator to ``stop``."""
+    """Peak RSS [MiB], wall time [s] and rows of a child running the orchestrator to ``stop``.
+
+    The peak is the child's own VmHWM. ``os.wait4``'s ``ru_maxrss`` is not used: Linux
+    carries the high-water mark of the memory a process had before ``execve`` over into
+    the new program, so a child started by ``subprocess`` reports at least this (large)
+    benchmark process's peak, whatever the run itself uses. It is returned too, to show.
+    """
     manifest = write_manifest(folder, fmus, stop, step, step)
     out_dir = Path(folder) / f"out_{stop:g}_{step:g}"
     begin = time.perf_counter()
@@ -266,9 +298,10 @@ def peak_rss(folder, fmus, stop, step):
     wall = time.perf_counter() - begin
     if child.returncode != 0:
         raise SystemExit(f"memory run to {stop} s failed (exit {child.returncode})")
-    rows = json.loads(stdout)["rows"]
+    report = json.loads(stdout)
     shutil.rmtree(out_dir, ignore_errors=True)
-    return usage.ru_maxrss / 1024.0, wall, rows  # ru_maxrss is in KiB on Linux
+    # VmHWM and ru_maxrss are in KiB on Linux
+    return report["vm_hwm_kib"] / 1024.0, wall, report["rows"], usage.ru_maxrss / 1024.0
 
 
 # ------------------------------------------------------------------------ main
@@ -330,14 +363,14 @@ def main(argv=None):
 
         if not args.no_memory:
             long_step = STEP if med["orchestrator"] * 3600 / STEP < 300 else 0.01
-            print(f"peak memory (orchestrator, full run path with CSV, step "
+            own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+            print(f"peak memory (orchestrator, runner.run_job: simulate + CSV, step "
                   f"{long_step * 1e3:g} ms, recording every step):")
             for stop in (60.0, 3600.0):
-                mib, wall, rows = peak_rss(tmp, fmus, stop, long_step)
+                mib, wall, rows, wait4_mib = peak_rss(tmp, fmus, stop, long_step)
                 print(f"  {stop:6g} s simulated: peak RSS {mib:7.1f} MiB  ({rows} rows, "
-                      f"{wall:.0f} s wall)")
-            children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
-            print(f"  getrusage(RUSAGE_CHILDREN).ru_maxrss (largest child): {children:.1f} MiB")
+                      f"{wall:.0f} s wall; wait4 ru_maxrss {wait4_mib:.1f} MiB, floored "
+                      f"by this process's {own:.1f} MiB before exec)")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return 0

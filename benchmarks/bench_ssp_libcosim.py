@@ -8,9 +8,10 @@ libcosim
     ``CosimExecution.from_ssp_file`` (fixed step, Jacobi, worker threads), the recorded
     variables observed by a time-series observer; timed: ``execution.step(n)``.
 agv-cosim
-    ``agv_cosim.ssp.load_ssp_as_manifest`` + ``runner.prepare`` + ``master.simulate`` with
-    rows copied into a list (no CSV); timed: first recorded row (after initialisation)
-    to the last.
+    ``agv_cosim.ssp.load_ssp_as_manifest`` + ``runner.prepare`` + ``master.simulate`` in
+    this process (not through ``runner.run_manifest``, which would run it in a child
+    process of its own), with rows copied into a list (no CSV); timed: first recorded row
+    (after initialisation) to the last.
 
 Rounds alternate; medians of the per-step times and their ratio (libcosim / ours; > 1
 means ours is faster) are printed. Usage::
