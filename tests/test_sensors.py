@@ -210,3 +210,27 @@ def test_vision_fmu_reproduces_projection(tmp_path):
         slave.freeInstance()
     finally:
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def test_steer_sensor_fmu_noise_and_resolution(tmp_path):
+    """The steering-angle sensor FMU, defaults: 1 mrad white noise, 0.1 deg resolution.
+
+    Over 4000 samples of a constant 0.2 rad: every reading is a whole multiple of the
+    resolution (to 1e-12 rad), the mean error is within the quantisation half-step plus
+    4 standard errors (0.5 * 1.745e-3 + 4 * 1e-3 / sqrt(4000)), and the spread is that of
+    the noise plus uniform quantisation, sqrt(1e-6 + res^2 / 12), within 10 %.
+    """
+    import fmpy
+    from agv_cosim.build import build_one, default_components_dir
+
+    fmu = build_one(default_components_dir() / "slaves" / "agv_steer_sensor.py", tmp_path)
+    result = fmpy.simulate_fmu(str(fmu.fmu), stop_time=40.0, step_size=0.01,
+                               output_interval=0.01, start_values={"alpha": 0.2})
+    readings = result["alpha_meas"][1:]
+    resolution = 0.001745329251994
+    assert len(readings) == 4000
+    multiples = readings / resolution
+    assert np.max(np.abs(multiples - np.round(multiples))) < 1e-12 / resolution
+    assert abs(np.mean(readings) - 0.2) < 0.5 * resolution + 4 * 1e-3 / np.sqrt(4000)
+    expected = np.sqrt(1e-6 + resolution ** 2 / 12)
+    assert abs(np.std(readings) / expected - 1) < 0.10
