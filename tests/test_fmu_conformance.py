@@ -154,3 +154,29 @@ def test_runs_in_libcosim(component_fmus, name):
     names = [v.name for v in md.modelVariables if v.causality == "output" and v.type == "Real"]
     expected = [float(reference[n][-1]) for n in names]
     assert values == pytest.approx(expected, rel=1e-12, abs=1e-12)
+
+
+def test_outputs_are_valid_in_initialisation_mode(component_fmus):
+    """FMI 2.0 lets a master read outputs before fmi2ExitInitializationMode (libcosim
+    propagates initial values then): the vehicle reports the initial pose it was given,
+    also after a parameter changes within initialisation mode (exact: no arithmetic)."""
+    fmu = component_fmus["agv_vehicle"]
+    md = read_model_description(fmu)
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    folder = extract(str(fmu))
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=folder,
+                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName="v")
+    try:
+        slave.instantiate()
+        slave.setupExperiment(startTime=0.0)
+        slave.setReal([vr["y0"], vr["x0"]], [0.1, -2.0])
+        slave.enterInitializationMode()
+        assert slave.getReal([vr["x"], vr["y"]]) == [-2.0, 0.1]
+        slave.setReal([vr["y0"]], [0.25])
+        assert slave.getReal([vr["y"]]) == [0.25]
+        slave.exitInitializationMode()
+        assert slave.getReal([vr["x"], vr["y"]]) == [-2.0, 0.25]
+        slave.terminate()
+        slave.freeInstance()
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)

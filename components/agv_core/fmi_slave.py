@@ -76,6 +76,7 @@ class AgvSlave(Fmi2Slave):
         self._parameter_names = []
         self._stale = False
         self._was_set = set()
+        self._initializing = False
         self.core = None
         self.time = 0.0
         self._check_bundle()
@@ -154,7 +155,11 @@ class AgvSlave(Fmi2Slave):
     def setup_experiment(self, start_time, stop_time=None, tolerance=None):
         self.time = float(start_time)
 
+    def enter_initialization_mode(self):
+        self._initializing = True
+
     def exit_initialization_mode(self):
+        self._initializing = False
         try:
             self.core = self.make_core()
             self.publish()
@@ -206,10 +211,29 @@ class AgvSlave(Fmi2Slave):
         return name in self._was_set
 
     def get_real(self, vrs):
-        if self._stale and self.core is not None:
+        if self.core is None and self._initializing:
+            self._initial_outputs()
+        elif self._stale and self.core is not None:
             self._guarded(self.publish)
             self._stale = False
         return self._guarded(super().get_real, vrs)
+
+    def _initial_outputs(self):
+        """Outputs in initialisation mode, from the parameters and inputs set so far.
+
+        FMI 2.0 lets a master read outputs (the InitialUnknowns) before
+        fmi2ExitInitializationMode, and masters that propagate values then (libcosim)
+        do. A provisional core is built for the reading and dropped: the core that runs
+        is built at exit from the final parameters. Invalid parameters leave the start
+        values (the error is reported at exit, naming the parameter).
+        """
+        try:
+            self.core = self.make_core()
+            self.publish()
+        except Exception:  # noqa: BLE001 - reported by exit_initialization_mode
+            pass
+        finally:
+            self.core = None
 
     def _fail(self, message):
         text = f"{self.modelName} '{self.instance_name}': {message}"

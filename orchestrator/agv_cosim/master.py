@@ -21,10 +21,12 @@ Jacobi (what libcosim does)
     sets.
 Start
     ``fmi2SetupExperiment``, parameters, enter/exit initialisation. Gauss-Seidel: one
-    propagation pass so the outputs at t0 are consistent, then t0 is recorded. Jacobi:
-    the outputs as initialisation left them are recorded as t0 and passed to the inputs
-    without propagation, as libcosim does (so a feedthrough output at t0 still reflects
-    its inputs' start values); tests/test_ssp.py matches libcosim to 1e-9 on this.
+    propagation pass after initialisation so the outputs at t0 are consistent, then t0 is
+    recorded. Jacobi, as libcosim does: while the FMUs are in initialisation mode, N
+    Jacobi exchanges (N = number of FMUs: every output read, then every input set),
+    which propagate initial values through feedthrough chains; after initialisation
+    the outputs are recorded as t0 and passed to the inputs once more.
+    tests/test_ssp.py matches libcosim to 1e-9 on this.
 
 A non-OK FMI status or a NaN/inf output stops the run with a :class:`SimulationError`
 naming component, variable (or FMI call) and time; rows recorded so far are kept.
@@ -197,9 +199,24 @@ def simulate(plan, write_row, progress=None):
             for pname, value in plan.parameters.get(cname, {}).items():
                 _set_parameter(slave, info.variables[pname], value)
             slave.enterInitializationMode()
-            slave.exitInitializationMode()
-
         all_units = list(units.values())
+        if plan.algorithm == "jacobi":
+            # libcosim's initialisation: as many Jacobi exchanges as there are FMUs while
+            # they are in initialisation mode, which propagates initial values through
+            # any chain of direct feedthrough
+            state["where"] = "initialisation exchange"
+            for _ in all_units:
+                for unit in all_units:
+                    state["unit"] = unit.name
+                    unit.get()
+                for unit in all_units:
+                    state["unit"] = unit.name
+                    unit.set()
+        state["where"] = "initialisation"
+        for cname in plan.models:
+            state["unit"] = cname
+            instances[cname].slave.exitInitializationMode()
+
         step_plan = [(u.name, u.component, u.do_step) for u in all_units]
         n_steps = int(round((plan.stop - plan.start) / plan.step))
         h = plan.step

@@ -21,10 +21,10 @@ def test_gauss_seidel_vs_jacobi_closed_form(chain, tmp_path):
     """src (a + b t) -> gain 3 -> gain2 0.5 -> integrator, inputs held over each step.
 
     Gauss-Seidel: int.u(t_k) = K (a + b t_k), so y_n = h K (a n + b h n (n - 1) / 2).
-    Jacobi (libcosim's semantics): each feedthrough hop lags one step, and at t0 a
-    feedthrough output still reflects its input's start value (0 here), so with two hops
-    int.u(t_k) = K (a + b t_(k-2)) for k >= 2 and 0 before; the final values differ by
-    h K (2 a + b h (2N - 3)). Tolerance 1e-12: a handful of double additions of O(1).
+    Jacobi (libcosim's semantics): the exchanges in initialisation mode make t0
+    consistent, then each feedthrough hop lags one step: with two hops
+    int.u(t_k) = K (a + b t_max(k-2, 0)); the final values differ by h^2 K b (2N - 3).
+    Tolerance 1e-12: a handful of double additions of O(1) numbers.
     """
     assert _run(chain("gauss-seidel"), tmp_path / "gs") == 0
     assert _run(chain("jacobi", name="j.toml"), tmp_path / "j") == 0
@@ -33,15 +33,14 @@ def test_gauss_seidel_vs_jacobi_closed_form(chain, tmp_path):
     n = np.arange(N + 1)
     np.testing.assert_allclose(t, n * H, rtol=0, atol=1e-15)
     np.testing.assert_allclose(gs["gain2.y"], K * (A + B * n * H), rtol=0, atol=1e-12)
-    jacobi_u = np.where(n >= 2, K * (A + B * (n - 2) * H), 0.0)
+    jacobi_u = K * (A + B * np.maximum(n - 2, 0) * H)
     np.testing.assert_allclose(jc["gain2.y"], jacobi_u, rtol=0, atol=1e-12)
     y_gs = H * K * (A * n + B * H * n * (n - 1) / 2)
     np.testing.assert_allclose(gs["int.y"], y_gs, rtol=0, atol=1e-12)
     np.testing.assert_allclose(jc["int.y"], H * np.concatenate([[0.0], np.cumsum(jacobi_u[:-1])]),
                                rtol=0, atol=1e-12)
-    # the difference is not zero: two steps of lag on the ramp, from a zero start
-    assert jc["int.y"][-1] == pytest.approx(
-        y_gs[-1] - H * K * (2 * A + B * H * (2 * N - 3)), abs=1e-12)
+    # the difference is not zero: two steps of lag on the ramp of slope K b
+    assert jc["int.y"][-1] == pytest.approx(y_gs[-1] - H * H * K * B * (2 * N - 3), abs=1e-12)
     # default record = every Real output, in manifest order
     assert list(gs) == ["src.y", "src.t_out", "gain.y", "gain2.y", "int.y"]
 
