@@ -126,7 +126,7 @@ def make_parser():
                      help="output folder (default: results/<manifest name>)")
     run.add_argument("--quiet", action="store_true", help="no progress bars or summary")
     run.add_argument("--jobs", type=int, metavar="N",
-                     help="worker processes (default: one per core; 1 = serial)")
+                     help="runs at once, each in a process of its own (default: one per core)")
     run.set_defaults(func=_cmd_run)
 
     check = sub.add_parser("validate", help="check a manifest against its FMUs, run nothing",
