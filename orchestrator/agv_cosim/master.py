@@ -246,10 +246,9 @@ def simulate(plan, write_row, progress=None):
         # one read in the previous pass. Such an output cannot depend directly on an input
         # (the order puts every feedthrough source first), so reading it early is exact.
         position = {name: i for i, name in enumerate(plan.order)}
-        pre_read = [units[name] for name in plan.order
-                    if any(position[src.name] >= position[unit.name]
-                           for unit in all_units for _, src, _ in unit.sources
-                           if src.name == name)]
+        backward = {src.name for unit in all_units for _, src, _ in unit.sources
+                    if position[src.name] >= position[unit.name]}
+        pre_read = [units[name] for name in plan.order if name in backward]
 
         def gs_pass(t):
             for unit in pre_read:

@@ -127,13 +127,15 @@ _REFERENCE_KEYS = ("path", "x", "y")
 
 # --------------------------------------------------------------------------- validation
 
-def _check_signal_name(key, value):
+def check_signal_name(key, value, table="metrics"):
+    """Return ``value`` if it is a signal name 'component.variable'; else raise
+    ValueError naming ``table.key`` (also used for the ``[plots]`` table)."""
     if not isinstance(value, str):
-        raise ValueError(f"metrics.{key}: expected a signal name 'component.variable', "
+        raise ValueError(f"{table}.{key}: expected a signal name 'component.variable', "
                          f"got {value!r}")
     component, dot, variable = value.partition(".")
     if not dot or not component or not variable:
-        raise ValueError(f"metrics.{key}: signal name {value!r} is not 'component.variable'")
+        raise ValueError(f"{table}.{key}: signal name {value!r} is not 'component.variable'")
     return value
 
 
@@ -171,7 +173,7 @@ def _validate(spec):
     out = {}
     for key in _SIGNAL_KEYS:
         if key in spec:
-            out[key] = _check_signal_name(key, spec[key])
+            out[key] = check_signal_name(key, spec[key])
     out["settle_band"] = _check_number("settle_band",
                                        spec.get("settle_band", DEFAULT_SETTLE_BAND),
                                        0.0, strict=True)
@@ -186,7 +188,7 @@ def _validate(spec):
         if tolerance >= limit:
             raise ValueError(f"metrics.saturation.tolerance: must be < limit ({limit!r}), "
                              f"got {tolerance!r}")
-        out["saturation"] = {"signal": _check_signal_name("saturation.signal", sat["signal"]),
+        out["saturation"] = {"signal": check_signal_name("saturation.signal", sat["signal"]),
                              "limit": limit, "tolerance": tolerance}
     if "reference" in spec:
         ref = spec["reference"]
@@ -195,8 +197,8 @@ def _validate(spec):
             raise ValueError(f"metrics.reference.path: expected a path string, "
                              f"got {ref['path']!r}")
         out["reference"] = {"path": ref["path"],
-                            "x": _check_signal_name("reference.x", ref["x"]),
-                            "y": _check_signal_name("reference.y", ref["y"])}
+                            "x": check_signal_name("reference.x", ref["x"]),
+                            "y": check_signal_name("reference.y", ref["y"])}
     return out
 
 

@@ -55,6 +55,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from .metrics import check_signal_name
+
 #: File names of the figures (stable, so that a rerun overwrites them).
 SIGNALS_FILE = "signals.png"
 TRAJECTORY_FILE = "trajectory.png"
@@ -93,13 +95,7 @@ class RunData:
 # --------------------------------------------------------------------------- validation
 
 def _check_signal_name(key, value):
-    if not isinstance(value, str):
-        raise ValueError(f"plots.{key}: expected a signal name 'component.variable', "
-                         f"got {value!r}")
-    component, dot, variable = value.partition(".")
-    if not dot or not component or not variable:
-        raise ValueError(f"plots.{key}: signal name {value!r} is not 'component.variable'")
-    return value
+    return check_signal_name(key, value, table="plots")
 
 
 def _validate(spec):

@@ -285,7 +285,6 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet=False):
     out_dir = Path(out_dir) if out_dir else default_out_dir(manifest)
     workers = workers or os.cpu_count() or 1
     workers = max(1, min(workers, len(jobs)))
-    results = [None] * len(jobs)
     with AtomicDir(out_dir) as folder:
         total = sum(int(round((job.plan.stop - job.plan.start) / job.plan.step))
                     for job in jobs)
