@@ -5,12 +5,24 @@ a content hash (``agv_core/BUILD_ID``), a ``requirements.txt`` for the host Pyth
 ``agv_build.json`` with a GUID derived from every source that goes into the FMU. A
 rebuild with unchanged sources is skipped (the FMU's GUID already matches), and a built
 FMU that ``fmpy.validation`` finds fault with fails the build.
+
+pythonfmu's Linux binary needs a Python already in the host process and corrupts the heap
+at exit. The build therefore compiles ``components/fmu_loader/agv_fmu_loader.c`` (gcc, the
+build Python's headers, fmpy's FMI 2.0 headers) into each FMU as
+``binaries/linux64/<modelIdentifier>.so`` and ships pythonfmu's library beside it as
+``<modelIdentifier>.pythonfmu.so``: the loader starts the build's Python in hosts that have
+none (or the one named by ``AGV_COSIM_PYTHON``), forwards the FMI calls, and unloads the
+wrapper cleanly (see the C source for why and how).
 """
 
+import functools
 import hashlib
 import json
+import platform
 import shutil
+import subprocess
 import sys
+import sysconfig
 import tempfile
 import uuid
 import zipfile
@@ -22,12 +34,15 @@ import pythonfmu
 from pythonfmu.builder import FmuBuilder
 
 #: Bumped whenever the way an FMU is assembled changes, so every FMU is rebuilt.
-BUILD_FORMAT = 1
+BUILD_FORMAT = 2
 
 #: What the host Python needs to run the bundled core (shipped in every FMU).
 HOST_REQUIREMENTS = "numpy>=1.24\nscipy>=1.10\n"
 
 BOOT_SCRIPT = "agv_boot.py"
+LOADER_SOURCE = Path("fmu_loader") / "agv_fmu_loader.c"
+#: pythonfmu's own binary is shipped under this suffix beside the loader.
+WRAPPER_SUFFIX = ".pythonfmu.so"
 INDEX_FILE = "build-index.json"
 
 
@@ -73,12 +88,87 @@ def core_tag(core_dir):
     return digest.hexdigest()[:16]
 
 
+def host_python():
+    """The Python the FMUs start in a host that has none: ``{executable, libpython}``.
+
+    ``executable`` is the building interpreter as invoked (a venv's ``bin/python`` keeps
+    its site-packages); ``libpython`` is its shared library from ``sysconfig``.
+    """
+    libdir = sysconfig.get_config_var("LIBDIR") or ""
+    soname = (sysconfig.get_config_var("INSTSONAME")
+              or f"libpython{sysconfig.get_python_version()}.so.1.0")
+    multiarch = sysconfig.get_config_var("MULTIARCH") or f"{platform.machine()}-linux-gnu"
+    return {"executable": sys.executable, "libpython": str(Path(libdir) / soname),
+            "soname": soname, "multiarch": multiarch}
+
+
+def _loader_source():
+    return default_components_dir() / LOADER_SOURCE
+
+
+@functools.lru_cache(maxsize=4)
+def _compile_loader(source_text, executable, libpython, soname, multiarch):
+    """Compile the FMU loader for this Python; the shared library's bytes."""
+    import fmpy
+
+    compiler = shutil.which("gcc") or shutil.which("cc")
+    if compiler is None:
+        raise BuildError("cannot build the FMU loader: no C compiler (gcc) on PATH")
+    fmi_headers = Path(fmpy.__file__).parent / "c-code"
+    with tempfile.TemporaryDirectory(prefix="agv_loader_") as tmp:
+        source = Path(tmp) / "agv_fmu_loader.c"
+        source.write_text(source_text)
+        target = Path(tmp) / "loader.so"
+        command = [compiler, "-shared", "-fPIC", "-O2", "-Wall", "-Werror",
+                   "-fvisibility=default", f"-I{sysconfig.get_paths()['include']}",
+                   f"-I{fmi_headers}",
+                   f"-DAGV_PYTHON_EXECUTABLE={json.dumps(executable)}",
+                   f"-DAGV_LIBPYTHON={json.dumps(libpython)}",
+                   f"-DAGV_LIBPYTHON_SONAME={json.dumps(soname)}",
+                   f"-DAGV_MULTIARCH={json.dumps(multiarch)}",
+                   "-o", str(target), str(source), "-ldl", "-lpthread"]
+        done = subprocess.run(command, capture_output=True, text=True)
+        if done.returncode != 0:
+            raise BuildError("cannot build the FMU loader: "
+                             + (done.stderr.strip().splitlines() or ["gcc failed"])[-1])
+        return target.read_bytes()
+
+
+def loader_binary():
+    """The FMU loader compiled for the building Python (cached per process)."""
+    python = host_python()
+    return _compile_loader(_loader_source().read_text(), python["executable"],
+                           python["libpython"], python["soname"], python["multiarch"])
+
+
+def _install_loader(fmu_path, loader):
+    """Put the loader in the FMU as its Linux binary, pythonfmu's library beside it."""
+    with zipfile.ZipFile(fmu_path) as archive:
+        entries = [(info, archive.read(info)) for info in archive.infolist()]
+        identifier = ElementTree.fromstring(archive.read("modelDescription.xml")).find(
+            "CoSimulation").get("modelIdentifier")
+    binary = f"binaries/linux64/{identifier}.so"
+    if binary not in {info.filename for info, _ in entries}:
+        raise BuildError(f"{fmu_path.name}: pythonfmu wrote no {binary}")
+    rewritten = fmu_path.with_suffix(".loader")
+    with zipfile.ZipFile(rewritten, "w", zipfile.ZIP_DEFLATED) as archive:
+        for info, data in entries:
+            if info.filename == binary:
+                archive.writestr(binary[:-3] + WRAPPER_SUFFIX, data)
+                archive.writestr(binary, loader)
+            else:
+                archive.writestr(info, data)
+    rewritten.replace(fmu_path)
+
+
 def fmu_guid(script, boot, tag):
     """GUID of the FMU built from ``script``: a hash of all its sources and the tool chain."""
     digest = hashlib.sha256()
+    python = host_python()
     for part in (script.name.encode(), script.read_bytes(), boot.read_bytes(), tag.encode(),
                  pythonfmu.__version__.encode(), str(BUILD_FORMAT).encode(),
-                 HOST_REQUIREMENTS.encode()):
+                 HOST_REQUIREMENTS.encode(), _loader_source().read_bytes(),
+                 python["executable"].encode(), python["libpython"].encode()):
         digest.update(part + b"\0")
     return str(uuid.UUID(digest.hexdigest()[:32]))
 
@@ -102,9 +192,11 @@ def _stage(script, core_dir, boot, tag, guid, stage_dir):
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(path, target)
     (core_copy / "BUILD_ID").write_text(tag + "\n")
+    python = host_python()
     (stage_dir / "agv_build.json").write_text(
         json.dumps({"guid": guid, "core_tag": tag, "script": script.name,
-                    "pythonfmu": pythonfmu.__version__, "build_format": BUILD_FORMAT},
+                    "pythonfmu": pythonfmu.__version__, "build_format": BUILD_FORMAT,
+                    "python": python["executable"], "libpython": python["libpython"]},
                    indent=1) + "\n")
     (stage_dir / "requirements.txt").write_text(HOST_REQUIREMENTS)
     return [core_copy, stage_dir / BOOT_SCRIPT, stage_dir / "agv_build.json",
@@ -152,6 +244,7 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None):
             for module in [m for m in sys.modules
                            if m == script.stem or m.startswith("agv_core_")]:
                 del sys.modules[module]
+        _install_loader(fmu_path, loader_binary())
         _validate(fmu_path)
         target = out_dir / fmu_path.name
         partial = target.with_suffix(".fmu.partial")
