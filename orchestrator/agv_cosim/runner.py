@@ -188,9 +188,6 @@ def _child(job, run_dir, channel, scratch):
     result = run_job(job, run_dir, progress)
     channel.send(("done", result))
     channel.close()
-    # Leave without interpreter shutdown: the result is delivered, and a heap that a
-    # failed FMU damaged would only crash the collector now.
-    os._exit(0)
 
 
 def _died(job, run_dir, exitcode):
