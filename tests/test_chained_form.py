@@ -343,7 +343,7 @@ def test_fmu_closed_loop_with_vehicle_on_the_2_m_step(fmu, tmp_path):
         vehicle.instantiate()
         vehicle.setupExperiment(startTime=0.0)
         vehicle.enterInitializationMode()
-        vehicle.setReal([vrefs["wheelbase"], vrefs["v"]], [L, v])
+        vehicle.setReal([vrefs["wheelbase"], vrefs["v0"]], [L, v])
         vehicle.setString([vrefs["reference_point"]], ["rear"])
         vehicle.exitInitializationMode()
         xs, ys = [], []

@@ -93,11 +93,11 @@ def test_every_fmu_runs_in_a_plain_c_host_like_in_fmpy(c_host, unzipped, compone
 
 def test_vehicle_in_the_c_host_exits_cleanly_every_time(c_host, unzipped):
     """Ten processes, each loads, runs, frees and unloads the vehicle: exit status 0 each,
-    and the turn is the exact arc (alpha = 0.2 rad, v = 1.5 m/s, L = 1 m: yaw rate
-    v tan(alpha) / L; 1e-12 rad: the integration is exact)."""
+    and the turn is the exact arc (alpha = 0.2 rad, v = v0 + dv = 1.5 m/s, L = 1 m: yaw
+    rate v tan(alpha) / L; 1e-12 rad: the integration is exact)."""
     folder, md = unzipped["agv_vehicle"]
     for k in range(10):
-        done, table = run_c_host(c_host, folder, md, 1.0, 0.1, {"alpha": 0.2, "v": 1.5})
+        done, table = run_c_host(c_host, folder, md, 1.0, 0.1, {"alpha": 0.2, "dv": 0.5})
         assert done.returncode == 0, f"run {k}: {done.returncode} {done.stderr[-1000:]}"
         assert table["heading"][-1] == pytest.approx(1.5 * math.tan(0.2), abs=1e-12)
 

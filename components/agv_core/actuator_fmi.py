@@ -7,7 +7,7 @@ slave script subclasses :class:`ActuatorSlave` and sets ``model``, ``description
 """
 
 from .actuator import make_actuator
-from .fmi_slave import AgvSlave, String
+from .fmi_slave import AgvSlave, DefaultExperiment, String
 
 
 class ActuatorSlave(AgvSlave):
@@ -17,6 +17,11 @@ class ActuatorSlave(AgvSlave):
     model = None
     #: inputs that ``alpha_rate`` depends on directly
     rate_depends_on = ()
+    #: Reference: a 1 V step of u at 0.5 s (mode 'command'), 2 s at 1 ms, which resolves
+    #: model a's 50 ms dead time and model c's transient.
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=2.0,
+                                           step_size=0.001)
+    reference_inputs = {"u": ((0.0, 0.0), (0.5, 1.0))}
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)

@@ -41,6 +41,9 @@ from .units import base_unit_attributes
 #: Name of the build-info file the build writes into every FMU's ``resources/``.
 BUILD_INFO = "agv_build.json"
 
+#: Tool name of the vendor annotation that carries ``reference_inputs``.
+REFERENCE_TOOL = "org.agv-cosim"
+
 _PYTYPE = {Real: float, Integer: int, Boolean: bool, String: str}
 
 # pythonfmu 0.7: when a Python exception escapes a slave method, its C++ handler releases
@@ -58,14 +61,20 @@ _KEPT_FOR_PYTHONFMU = []
 class AgvSlave(Fmi2Slave):
     """Base class of every agv-cosim FMU slave (see the module docstring).
 
-    Subclasses set the class attributes ``description`` and ``default_experiment``.
+    Subclasses set the class attributes ``description``, ``default_experiment`` (a
+    ``DefaultExperiment`` with start, stop and step: the FMU's reference experiment) and,
+    if the experiment drives inputs, ``reference_inputs``: input name -> breakpoints
+    ``((t0, value0), (t1, value1), ...)``, each value held from its time on (the first
+    time is the start time; inputs not named keep their start values). The build runs
+    the experiment and ships its result in the FMU (fmi-ls-ref, see agv_cosim.build).
     """
 
     author = "agv-cosim"
     license = "MIT"
     version = __version__
     description = None
-    default_experiment = DefaultExperiment(start_time=0.0, stop_time=10.0, step_size=0.01)
+    default_experiment = None
+    reference_inputs = {}
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -75,7 +84,6 @@ class AgvSlave(Fmi2Slave):
         self._output_names = []
         self._parameter_names = []
         self._stale = False
-        self._was_set = set()
         self._initializing = False
         self.core = None
         self.time = 0.0
@@ -187,7 +195,6 @@ class AgvSlave(Fmi2Slave):
             raise
 
     def _mark_set(self, vrs):
-        self._was_set.update(self.vars[vr].name for vr in vrs)
         self._stale = True
 
     def set_real(self, vrs, values):
@@ -205,10 +212,6 @@ class AgvSlave(Fmi2Slave):
     def set_string(self, vrs, values):
         self._guarded(super().set_string, vrs, values)
         self._mark_set(vrs)
-
-    def was_set(self, name):
-        """True once the host has set variable ``name`` (connected, or given a value)."""
-        return name in self._was_set
 
     def get_real(self, vrs):
         if self.core is None and self._initializing:
@@ -249,8 +252,7 @@ class AgvSlave(Fmi2Slave):
     def _get_fmu_state(self):
         variables = {v.name: v.getter() for v in self.vars.values()}
         core_state = self.core.get_state() if self.core is not None else None
-        return {"variables": variables, "time": self.time, "core": core_state,
-                "was_set": sorted(self._was_set)}
+        return {"variables": variables, "time": self.time, "core": core_state}
 
     def _set_fmu_state(self, state):
         self._guarded(self._restore, state)
@@ -259,7 +261,6 @@ class AgvSlave(Fmi2Slave):
         for name, value in state["variables"].items():
             setattr(self, name, value)
         self.time = state["time"]
-        self._was_set = set(state["was_set"])
         if state["core"] is not None:
             if self.core is None:
                 self.core = self.make_core()
@@ -300,6 +301,8 @@ class AgvSlave(Fmi2Slave):
             if name in self._units:
                 scalar[0].set("unit", self._units[name])
 
+        self._annotate_reference_inputs(root)
+
         structure = root.find("ModelStructure")
         outputs = structure.find("Outputs")
         if outputs is not None:
@@ -311,6 +314,30 @@ class AgvSlave(Fmi2Slave):
             for unknown in outputs:
                 SubElement(initial, "Unknown", index=unknown.get("index"))
         return root
+
+    def _annotate_reference_inputs(self, root):
+        """Write ``reference_inputs`` as a vendor annotation (the build reads it)."""
+        if not self.reference_inputs:
+            return
+        experiment = type(self).default_experiment  # pythonfmu sets an instance None
+        if experiment is None:
+            raise ValueError("reference_inputs need a default_experiment")
+        tool = Element("Tool", name=REFERENCE_TOOL)
+        table = SubElement(tool, "ReferenceInputs")
+        for name, breakpoints in self.reference_inputs.items():
+            if name not in self._input_names:
+                raise ValueError(f"reference_inputs: '{name}' is not an input")
+            times = [float(t) for t, _ in breakpoints]
+            if not times or times[0] != float(experiment.start_time) or times != sorted(
+                    set(times)):
+                raise ValueError(f"reference_inputs['{name}']: times must rise strictly "
+                                 "from the start time")
+            node = SubElement(table, "Input", name=name)
+            for t, value in breakpoints:
+                SubElement(node, "Hold", time=repr(float(t)), value=repr(float(value)))
+        annotations = Element("VendorAnnotations")
+        annotations.append(tool)
+        root.insert(list(root).index(root.find("ModelVariables")), annotations)
 
     # ------------------------------------------------------------------ helpers
     def finite_or_fail(self, **values):

@@ -15,6 +15,13 @@ class AgvChainedForm(core.fmi_slave.AgvSlave):
                    "speed-independent steering angle from the path-relative state, "
                    "saturated at +/-delta_max")
 
+    #: Reference: a 0.1 m lateral error from the start and a 0.05 rad heading error from
+    #: 0.5 s (source 'sensor', straight path).
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.0,
+                                                          step_size=0.01)
+    reference_inputs = {"lateral_error": ((0.0, 0.1),),
+                        "heading_error": ((0.0, 0.0), (0.5, 0.05))}
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         S = core.fmi_slave.String

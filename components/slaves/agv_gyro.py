@@ -11,6 +11,12 @@ class AgvGyro(core.fmi_slave.AgvSlave):
     description = ("Fibre-optic gyro heading: drift 0.5 deg/h, resolution 0.01 deg, "
                    "optional white noise, sampled at every communication point")
 
+    #: Reference: a constant heading of 0.5 rad for an hour: the drift of 0.5 deg/h,
+    #: quantised to 0.01 deg.
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=3600.0,
+                                                          step_size=1.0)
+    reference_inputs = {"heading": ((0.0, 0.5),)}
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.input("heading", 0.0, "rad", "True heading, counter-clockwise from x")

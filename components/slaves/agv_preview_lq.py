@@ -11,6 +11,13 @@ class AgvPreviewLq(core.fmi_slave.AgvSlave):
     description = ("Seed-004 preview + LQ tracking controller: measured pose and steering "
                    "angle in, steering-angle command (actuator angle mode) out")
 
+    #: Reference: the measured pose held 0.1 m left of the default sine path's start with
+    #: the path's heading there (atan(2 pi 2 / 18.85) = 0.588 rad), turned 0.1 rad left
+    #: at 1 s; 2 s.
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=2.0,
+                                                          step_size=0.01)
+    reference_inputs = {"y_meas": ((0.0, 0.1),), "heading_meas": ((0.0, 0.588), (1.0, 0.688))}
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         inputs = ("x_meas", "y_meas", "fix_age", "heading_meas", "alpha_meas")

@@ -11,6 +11,14 @@ class AgvStateFeedback(core.fmi_slave.AgvSlave):
     description = ("Seed-000 state-feedback steering controller: wheel angle, heading error "
                    "and lateral error in, actuator voltage out")
 
+    #: Reference: a 0.1 m lateral error from the start, a 0.05 rad heading error from
+    #: 0.5 s and a -0.02 rad wheel angle from 1 s (u is their weighted sum).
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=2.0,
+                                                          step_size=0.01)
+    reference_inputs = {"lateral_error": ((0.0, 0.1),),
+                        "heading_error": ((0.0, 0.0), (0.5, 0.05)),
+                        "alpha": ((0.0, 0.0), (1.0, -0.02))}
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.input("alpha", 0.0, "rad", "Steered-wheel angle, positive steers left")

@@ -11,6 +11,12 @@ class AgvSteerSensor(core.fmi_slave.AgvSlave):
     description = ("Steering-angle sensor: white noise and quantisation, sampled at every "
                    "communication point")
 
+    #: Reference: a 0.1 rad step of the wheel angle at 0.5 s, seen with noise and
+    #: quantisation (seed 0).
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=2.0,
+                                                          step_size=0.01)
+    reference_inputs = {"alpha": ((0.0, 0.0), (0.5, 0.1))}
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.input("alpha", 0.0, "rad", "True steered-wheel angle, positive left")

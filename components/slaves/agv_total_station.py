@@ -11,6 +11,12 @@ class AgvTotalStation(core.fmi_slave.AgvSlave):
     description = ("Robotic total station: position fixes every 0.65 s on average with "
                    "jitter, radio latency and mm-level noise")
 
+    #: Reference: a prism standing at (1, 2) m; fixes every 0.65 s on average, delayed and
+    #: noisy (seed 0).
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=10.0,
+                                                          step_size=0.01)
+    reference_inputs = {"x": ((0.0, 1.0),), "y": ((0.0, 2.0),)}
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.input("x", 0.0, "m", "x of the prism (tracked point)")

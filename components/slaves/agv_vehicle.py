@@ -11,11 +11,19 @@ class AgvVehicle(core.fmi_slave.AgvSlave):
     description = ("Kinematic single-track AGV: steered-wheel angle and speed in, pose out "
                    "(exact arc integration for inputs held over a step)")
 
+    #: Reference: a constant steering angle of 0.2 rad at v0 = 1 m/s for 10 s, a circular
+    #: arc of radius L / tan(0.2) = 4.93 m about the turn centre.
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=10.0,
+                                                          step_size=0.01)
+    reference_inputs = {"alpha": ((0.0, 0.2),)}
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.input("alpha", 0.0, "rad", "Steered-wheel angle, positive turns left")
-        self.input("v", 0.0, "m/s", "Speed of the rear-axle centre; v0 is used until set")
-        self.parameter("v0", 1.0, "m/s", "Speed used while input v has not been set")
+        self.input("dv", 0.0, "m/s", "Speed added to v0 (a speed profile; with v0 = 0 the "
+                   "speed of the rear-axle centre)")
+        self.parameter("v0", 1.0, "m/s", "Constant part of the speed of the rear-axle centre; "
+                       "the speed is v0 + dv")
         self.parameter("wheelbase", 1.0, "m", "Wheelbase L, rear-axle centre to front wheel")
         self.parameter("x0", 0.0, "m", "Initial x of the reference point")
         self.parameter("y0", 0.0, "m", "Initial y of the reference point")
@@ -40,8 +48,7 @@ class AgvVehicle(core.fmi_slave.AgvSlave):
                                     self.reference_point, self.linear)
 
     def advance(self, t, h):
-        speed = self.v if self.was_set("v") else self.v0
-        self.core.step(self.alpha, speed, h)
+        self.core.step(self.alpha, self.v0 + self.dv, h)
 
     def publish(self):
         c = self.core

@@ -13,6 +13,12 @@ class AgvVisionSensor(core.fmi_slave.AgvSlave):
     description = ("Camera measuring lateral deviation and heading error of the tracked "
                    "point from a reference path, with frame period, latency and noise")
 
+    #: Reference: the tracked point 0.1 m left of the default straight path with a 0.05 rad
+    #: heading error, moving to 0.2 m at 0.5 s (frames, latency and noise as declared).
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.0,
+                                                          step_size=0.01)
+    reference_inputs = {"y": ((0.0, 0.1), (0.5, 0.2)), "heading": ((0.0, 0.05),)}
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.input("x", 0.0, "m", "x of the tracked point")

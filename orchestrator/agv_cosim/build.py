@@ -161,6 +161,124 @@ def _install_loader(fmu_path, loader):
     rewritten.replace(fmu_path)
 
 
+REFERENCE_DIR = "extra/org.fmi-standard.fmi-ls-ref"
+REFERENCE_MANIFEST = f"""<?xml version="1.0" encoding="UTF-8"?>
+<fmiReferences
+    xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance"
+    xmlns:fmi-ls="http://fmi-standard.org/fmi-ls-manifest"
+    fmi-ls:fmi-ls-name="org.fmi-standard.fmi-ls-ref"
+    fmi-ls:fmi-ls-version="1.0.0-alpha.1">
+{{related}}</fmiReferences>
+"""
+
+
+def reference_experiment(model_description_xml):
+    """The reference experiment an FMU declares, or None if it declares none.
+
+    Returns ``{"start", "stop", "step", "inputs"}`` from ``DefaultExperiment`` and the
+    ``org.agv-cosim`` vendor annotation the slave adapter writes from its
+    ``reference_inputs`` (input name -> [(time, value held from that time), ...]).
+    """
+    root = ElementTree.fromstring(model_description_xml)
+    experiment = root.find("DefaultExperiment")
+    if experiment is None:
+        return None
+    try:
+        start = float(experiment.get("startTime", "0"))
+        stop, step = float(experiment.get("stopTime")), float(experiment.get("stepSize"))
+    except (TypeError, ValueError):
+        raise BuildError("DefaultExperiment needs numeric startTime, stopTime and stepSize")
+    inputs = {}
+    for node in root.iterfind("VendorAnnotations/Tool[@name='org.agv-cosim']/"
+                              "ReferenceInputs/Input"):
+        inputs[node.get("name")] = [(float(h.get("time")), float(h.get("value")))
+                                    for h in node.iterfind("Hold")]
+    return {"start": start, "stop": stop, "step": step, "inputs": inputs}
+
+
+def reference_input_rows(experiment):
+    """Rows (time, value per input) of the held inputs: a step is two rows at one time."""
+    names = list(experiment["inputs"])
+    start, stop = experiment["start"], experiment["stop"]
+
+    def held(name, t):
+        return [v for time, v in experiment["inputs"][name] if time <= t][-1]
+
+    rows = [(start, *(held(n, start) for n in names))]
+    steps = sorted({t for n in names for t, _ in experiment["inputs"][n] if start < t < stop})
+    for t in steps:
+        rows.append((t, *rows[-1][1:]))  # the values up to the step
+        rows.append((t, *(held(n, t) for n in names)))
+    rows.append((stop, *rows[-1][1:]))
+    return names, rows
+
+
+def _csv(header, rows):
+    lines = [",".join(header)]
+    lines += [",".join(repr(float(x)) for x in row) for row in rows]
+    return "\n".join(lines) + "\n"
+
+
+def simulate_reference(fmu_path, input_csv, output_csv):
+    """Run an FMU's reference experiment with fmpy; write its Real outputs as CSV.
+
+    The build calls this in a child process (pythonfmu loads a slave module once per
+    process, so a build must not run the FMUs it builds in its own process).
+    """
+    import fmpy
+    from fmpy.util import read_csv
+
+    with zipfile.ZipFile(fmu_path) as archive:
+        experiment = reference_experiment(archive.read("modelDescription.xml"))
+    md = fmpy.read_model_description(str(fmu_path))
+    outputs = [v.name for v in md.modelVariables
+               if v.causality == "output" and v.type == "Real"]
+    signals = read_csv(input_csv) if input_csv else None
+    result = fmpy.simulate_fmu(str(fmu_path), start_time=experiment["start"],
+                               stop_time=experiment["stop"], step_size=experiment["step"],
+                               output_interval=experiment["step"], input=signals,
+                               output=outputs)
+    rows = zip(*(result[name] for name in ["time", *outputs]))
+    Path(output_csv).write_text(_csv(["time", *outputs], rows))
+
+
+def _ship_reference(fmu_path):
+    """Run the FMU's reference experiment and put it in the FMU (fmi-ls-ref layout)."""
+    with zipfile.ZipFile(fmu_path) as archive:
+        md_xml = archive.read("modelDescription.xml")
+    experiment = reference_experiment(md_xml)
+    if experiment is None:
+        return
+    model = ElementTree.fromstring(md_xml).get("modelName")
+    files = {}
+    with tempfile.TemporaryDirectory(prefix="agv_ref_") as tmp:
+        in_csv = None
+        related = []
+        if experiment["inputs"]:
+            names, rows = reference_input_rows(experiment)
+            in_csv = Path(tmp) / f"{model}_in.csv"
+            in_csv.write_text(_csv(["time", *names], rows))
+            files[in_csv.name] = in_csv.read_bytes()
+            related.append(f'    <Related type="text/csv" source="{in_csv.name}" role="input" '
+                           'description="Inputs of the default experiment (held)"/>\n')
+        out_csv = Path(tmp) / f"{model}_out.csv"
+        code = ("import sys; from agv_cosim.build import simulate_reference; "
+                "simulate_reference(sys.argv[1], sys.argv[2] or None, sys.argv[3])")
+        done = subprocess.run([sys.executable, "-c", code, str(fmu_path),
+                               str(in_csv or ""), str(out_csv)],
+                              capture_output=True, text=True, timeout=600)
+        if done.returncode != 0:
+            last = (done.stderr.strip().splitlines() or [f"exit code {done.returncode}"])[-1]
+            raise BuildError(f"{fmu_path.name}: its default experiment failed: {last}")
+        files[out_csv.name] = out_csv.read_bytes()
+        related.append(f'    <Related type="text/csv" source="{out_csv.name}" role="result" '
+                       'description="Output of the default experiment"/>\n')
+    files["fmi-ls-manifest.xml"] = REFERENCE_MANIFEST.format(related="".join(related)).encode()
+    with zipfile.ZipFile(fmu_path, "a", zipfile.ZIP_DEFLATED) as archive:
+        for name, data in files.items():
+            archive.writestr(f"{REFERENCE_DIR}/{name}", data)
+
+
 def fmu_guid(script, boot, tag):
     """GUID of the FMU built from ``script``: a hash of all its sources and the tool chain."""
     digest = hashlib.sha256()
@@ -246,6 +364,7 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None):
                 del sys.modules[module]
         _install_loader(fmu_path, loader_binary())
         _validate(fmu_path)
+        _ship_reference(fmu_path)
         target = out_dir / fmu_path.name
         partial = target.with_suffix(".fmu.partial")
         shutil.copy2(fmu_path, partial)

@@ -1,0 +1,125 @@
+"""Every FMU's declared start values are what it uses, and it ships its own reference result.
+
+Parametrised over every slave script in components/slaves: a new component is checked the
+moment it is added. What a slave must declare for these tests: ``default_experiment``
+(start, stop, step) and, if its experiment drives inputs, ``reference_inputs`` (see
+agv_core.fmi_slave.AgvSlave); the build does the rest.
+"""
+
+import io
+import math
+import zipfile
+from xml.etree import ElementTree
+
+import numpy as np
+import pytest
+from fmpy import read_model_description, simulate_fmu
+from fmpy.util import read_csv
+
+from agv_cosim.build import (REFERENCE_DIR, default_components_dir, reference_experiment,
+                             reference_input_rows, slave_scripts)
+
+SCRIPTS = [p.stem for p in slave_scripts(default_components_dir())]
+LS_NAMESPACE = "{http://fmi-standard.org/fmi-ls-manifest}"
+
+
+def _typed(variable):
+    if variable.type == "Real":
+        return float(variable.start)
+    if variable.type == "Integer":
+        return int(variable.start)
+    if variable.type == "Boolean":
+        return variable.start in ("true", "1")
+    return variable.start
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_writing_every_declared_start_value_changes_nothing(component_fmus, name):
+    """A host that writes each input's and parameter's declared start value (many do)
+    must get exactly what a host that writes nothing gets."""
+    fmu = str(component_fmus[name])
+    md = read_model_description(fmu)
+    starts = {v.name: _typed(v) for v in md.modelVariables
+              if v.causality in ("input", "parameter") and v.start is not None}
+    inputs = [v.name for v in md.modelVariables if v.causality == "input"]
+    assert all(n in starts for n in inputs), "an input without a start value"
+    stop = 1.0
+    plain = simulate_fmu(fmu, stop_time=stop, step_size=0.01)
+    written = simulate_fmu(fmu, stop_time=stop, step_size=0.01, start_values=starts)
+    for column in plain.dtype.names:
+        assert np.array_equal(plain[column], written[column]), column
+
+
+def _reference_files(fmu):
+    with zipfile.ZipFile(fmu) as archive:
+        names = set(archive.namelist())
+        manifest = ElementTree.fromstring(archive.read(f"{REFERENCE_DIR}/fmi-ls-manifest.xml"))
+        related = {r.get("role"): r.get("source") for r in manifest.iter("Related")}
+        files = {role: archive.read(f"{REFERENCE_DIR}/{source}")
+                 for role, source in related.items()
+                 if f"{REFERENCE_DIR}/{source}" in names}
+        experiment = reference_experiment(archive.read("modelDescription.xml"))
+    return manifest, related, files, experiment
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_ships_its_reference_and_reproduces_it(component_fmus, tmp_path, name):
+    fmu = component_fmus[name]
+    md = read_model_description(str(fmu))
+    assert md.defaultExperiment is not None, "the slave declares no default_experiment"
+    manifest, related, files, experiment = _reference_files(fmu)
+    assert manifest.get(f"{LS_NAMESPACE}fmi-ls-name") == "org.fmi-standard.fmi-ls-ref"
+    assert related["result"] == f"{md.modelName}_out.csv"
+    assert set(files) == set(related), "the manifest names a file the FMU lacks"
+
+    reference = np.genfromtxt(io.BytesIO(files["result"]), delimiter=",", names=True)
+    outputs = [v.name for v in md.modelVariables
+               if v.causality == "output" and v.type == "Real"]
+    assert list(reference.dtype.names) == ["time", *outputs]
+    steps = round((experiment["stop"] - experiment["start"]) / experiment["step"])
+    assert len(reference) == steps + 1
+    assert reference["time"][-1] == pytest.approx(experiment["stop"], abs=1e-9)
+    # a meaningful experiment: some output moves
+    assert any(np.ptp(reference[c]) > 0 for c in outputs), "every output is constant"
+
+    signals = None
+    if "input" in files:
+        path = tmp_path / related["input"]
+        path.write_bytes(files["input"])
+        signals = read_csv(str(path))
+    again = simulate_fmu(str(fmu), start_time=experiment["start"],
+                         stop_time=experiment["stop"], step_size=experiment["step"],
+                         output_interval=experiment["step"], input=signals, output=outputs)
+    # The CSV holds repr() of every double, so on the machine that built the FMU the
+    # re-run is identical; elsewhere another BLAS kernel can move the last bits of
+    # scipy's results (1.1e-16 measured), hence 1e-12, far below any modelled effect.
+    for column in reference.dtype.names:
+        assert np.allclose(again[column], reference[column], rtol=1e-12, atol=1e-12), column
+
+
+def test_references_hold_the_closed_forms(component_fmus):
+    """The shipped results are right, not only reproducible (exact discretisations:
+    1e-9 covers the CSV round trip and the arc formula's rounding)."""
+    _, _, files, _ = _reference_files(component_fmus["agv_vehicle"])
+    vehicle = np.genfromtxt(io.BytesIO(files["result"]), delimiter=",", names=True)
+    # alpha = 0.2 rad, v = v0 = 1 m/s, L = 1 m: heading = v tan(alpha) t / L, distance = v t
+    assert vehicle["heading"][-1] == pytest.approx(math.tan(0.2) * 10.0, abs=1e-9)
+    assert vehicle["distance"][-1] == pytest.approx(10.0, abs=1e-9)
+    radius = 1.0 / math.tan(0.2)  # rear-axle centre circles about (-1, R)
+    r = np.hypot(vehicle["x_rear"] + 1.0, vehicle["y_rear"] - radius)
+    assert np.allclose(r, radius, atol=1e-9)
+
+    _, _, files, _ = _reference_files(component_fmus["agv_steering_a"])
+    actuator = np.genfromtxt(io.BytesIO(files["result"]), delimiter=",", names=True)
+    # u = 1 V from 0.5 s, K = 0.6 rad/(V s), dead time 0.05 s: alpha(2) = 0.6 (2 - 0.55)
+    assert actuator["alpha"][-1] == pytest.approx(0.6 * 1.45, abs=1e-9)
+    assert np.all(actuator["alpha"][actuator["time"] <= 0.55 + 1e-9] == 0.0)
+
+
+def test_reference_inputs_become_held_steps():
+    experiment = {"start": 0.0, "stop": 2.0, "step": 0.01,
+                  "inputs": {"u": [(0.0, 0.0), (0.5, 1.0)], "w": [(0.0, 3.0), (5.0, 4.0)]}}
+    names, rows = reference_input_rows(experiment)
+    assert names == ["u", "w"]
+    # the step at 0.5 s is two rows at one time; the breakpoint after stop is dropped
+    assert rows == [(0.0, 0.0, 3.0), (0.5, 0.0, 3.0), (0.5, 1.0, 3.0), (2.0, 1.0, 3.0)]
