@@ -206,8 +206,9 @@ static int ensure_python(const fmi2CallbackFunctions *functions, fmi2String inst
     snprintf(expected, sizeof expected, "%d.%d.", PY_MAJOR_VERSION, PY_MINOR_VERSION);
     if (strncmp(py.Py_GetVersion(), expected, strlen(expected)) != 0) {
         report(functions, instanceName,
-               "%s: %s is Python %.16s, this FMU needs Python %d.%d", own_path(), tried,
-               py.Py_GetVersion(), PY_MAJOR_VERSION, PY_MINOR_VERSION);
+               "%s: %s is Python %.*s, this FMU needs Python %d.%d", own_path(), tried,
+               (int)strcspn(py.Py_GetVersion(), " "), py.Py_GetVersion(), PY_MAJOR_VERSION,
+               PY_MINOR_VERSION);
         return 0;
     }
     /* Isolated: PYTHONHOME, PYTHONPATH and the user site of the host's environment are
@@ -229,8 +230,9 @@ static int ensure_python(const fmi2CallbackFunctions *functions, fmi2String inst
     py.PyEval_SaveThread();
     if (loggingOn && functions != NULL && functions->logger != NULL) {
         functions->logger(functions->componentEnvironment, instanceName ? instanceName : "",
-                          fmi2OK, "logStatusOK", "%s: started Python %.16s (%s, %s)",
-                          own_path(), py.Py_GetVersion(), executable, tried);
+                          fmi2OK, "logStatusOK", "%s: started Python %.*s (%s, %s)",
+                          own_path(), (int)strcspn(py.Py_GetVersion(), " "),
+                          py.Py_GetVersion(), executable, tried);
     }
     return 1;
 }
