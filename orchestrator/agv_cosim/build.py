@@ -119,7 +119,7 @@ def _compile_loader(source_text, executable, libpython, soname, multiarch):
         source = Path(tmp) / "agv_fmu_loader.c"
         source.write_text(source_text)
         target = Path(tmp) / "loader.so"
-        command = [compiler, "-shared", "-fPIC", "-O2", "-Wall", "-Werror",
+        command = [compiler, "-shared", "-fPIC", "-O2", "-Wall",
                    "-fvisibility=default", f"-I{sysconfig.get_paths()['include']}",
                    f"-I{fmi_headers}",
                    f"-DAGV_PYTHON_EXECUTABLE={json.dumps(executable)}",
