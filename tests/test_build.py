@@ -4,12 +4,14 @@ import os
 import shutil
 import subprocess
 import sys
+import zipfile
 
 import fmpy
 from fmpy.fmi1 import FMICallException
 import pytest
 
-from agv_cosim.build import build_fmus, build_one, default_components_dir, fmu_guid_of
+from agv_cosim.build import (BuildError, build_fmus, build_one, default_components_dir,
+                             fmu_guid_of)
 
 VEHICLE = default_components_dir() / "slaves" / "agv_vehicle.py"
 
@@ -175,3 +177,44 @@ print("survived")
                           timeout=300, env={**os.environ, "PYTHONMALLOC": "debug"})
     assert done.returncode == 0, done.stderr[-1500:]
     assert done.stdout.split() == ["exit", "1", "exit", "1", "survived"]
+
+
+def _variant_of_test_fail(tmp_path, class_body):
+    """The test-fail slave script with extra class attributes (its own file name)."""
+    source = (default_components_dir().parent / "tests" / "fmu_src" / "agv_test_fail.py")
+    text = source.read_text().replace(
+        '    description = "Test FMU that fails at a given time"\n',
+        '    description = "Test FMU that fails at a given time"\n' + class_body)
+    script = tmp_path / "agv_test_fail_reference.py"
+    script.write_text(text.replace("class AgvTestFail(", "class AgvTestFailReference("))
+    return script
+
+
+def test_a_failing_default_experiment_fails_the_build_naming_it(tmp_path):
+    script = _variant_of_test_fail(tmp_path, (
+        "    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0,\n"
+        "                                                          stop_time=2.0,\n"
+        "                                                          step_size=0.1)\n"))
+    with pytest.raises(BuildError, match="its default experiment failed.*deliberate failure"):
+        build_one(script, tmp_path / "out")
+    assert not (tmp_path / "out" / "AgvTestFailReference.fmu").exists()
+
+
+def test_reference_inputs_must_name_inputs(tmp_path):
+    script = _variant_of_test_fail(tmp_path, (
+        "    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0,\n"
+        "                                                          stop_time=0.5,\n"
+        "                                                          step_size=0.1)\n"
+        "    reference_inputs = {'fail_time': ((0.0, 1.0),)}\n"))
+    with pytest.raises(BuildError, match="'fail_time' is not an input"):
+        build_one(script, tmp_path / "out")
+
+
+def test_no_default_experiment_no_reference(tmp_path):
+    """A slave that declares no experiment gets no DefaultExperiment and no reference
+    (the tests over components/slaves require one of every component)."""
+    fmu = build_one(default_components_dir().parent / "tests" / "fmu_src" / "agv_test_gain.py",
+                    tmp_path).fmu
+    with zipfile.ZipFile(fmu) as archive:
+        assert not [n for n in archive.namelist() if n.startswith("extra/")]
+        assert b"<DefaultExperiment" not in archive.read("modelDescription.xml")

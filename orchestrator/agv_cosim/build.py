@@ -234,10 +234,21 @@ def simulate_reference(fmu_path, input_csv, output_csv):
     outputs = [v.name for v in md.modelVariables
                if v.causality == "output" and v.type == "Real"]
     signals = read_csv(input_csv) if input_csv else None
-    result = fmpy.simulate_fmu(str(fmu_path), start_time=experiment["start"],
-                               stop_time=experiment["stop"], step_size=experiment["step"],
-                               output_interval=experiment["step"], input=signals,
-                               output=outputs)
+    errors = []
+
+    def logger(component, instance, status, category, message):
+        if status >= 3:  # fmi2Error, fmi2Fatal
+            errors.append(message.decode(errors="replace").strip())
+
+    try:
+        result = fmpy.simulate_fmu(str(fmu_path), start_time=experiment["start"],
+                                   stop_time=experiment["stop"],
+                                   step_size=experiment["step"],
+                                   output_interval=experiment["step"], input=signals,
+                                   output=outputs, debug_logging=True, logger=logger)
+    except Exception as error:  # noqa: BLE001 - re-raised with the FMU's own message
+        reason = errors[0].splitlines()[0] if errors else str(error)
+        raise SystemExit(f"{type(error).__name__}: {error} ({reason})") from None
     rows = zip(*(result[name] for name in ["time", *outputs]))
     Path(output_csv).write_text(_csv(["time", *outputs], rows))
 
