@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from fmpy import read_model_description, simulate_fmu
 
-from agv_cosim.build import default_components_dir, slave_scripts
+from agv_cosim.build import default_components_dir, host_python, slave_scripts
 
 SCRIPTS = [p.stem for p in slave_scripts(default_components_dir())]
 HOST_SOURCE = Path(__file__).parent / "c_host" / "fmi2_host.c"
@@ -35,6 +35,9 @@ BARE_ENV = {"PATH": "/usr/bin:/bin", "LANG": "C",
 @pytest.fixture(scope="module")
 def c_host(tmp_path_factory):
     """The C host, compiled into a temp folder."""
+    if not Path(host_python()["libpython"]).is_file():
+        pytest.skip(f"this Python has no shared library ({host_python()['libpython']}): "
+                    "a C host cannot start it (a Python built with --enable-shared can)")
     out = tmp_path_factory.mktemp("c_host") / "fmi2_host"
     headers = Path(fmpy.__file__).parent / "c-code"
     subprocess.run(["gcc", "-O1", "-Wall", "-Werror", f"-I{headers}", "-o", str(out),
