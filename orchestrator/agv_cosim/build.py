@@ -89,10 +89,12 @@ def core_tag(core_dir):
 
 
 def host_python():
-    """The Python the FMUs start in a host that has none: ``{executable, libpython}``.
+    """The Python the FMUs start in a host that has none, as a dict.
 
     ``executable`` is the building interpreter as invoked (a venv's ``bin/python`` keeps
-    its site-packages); ``libpython`` is its shared library from ``sysconfig``.
+    its site-packages); ``libpython`` its shared library (``sysconfig`` LIBDIR and
+    INSTSONAME), ``soname`` that library's file name, ``multiarch`` Debian's library
+    subfolder (where a named Python's library may be).
     """
     libdir = sysconfig.get_config_var("LIBDIR") or ""
     soname = (sysconfig.get_config_var("INSTSONAME")
@@ -162,13 +164,13 @@ def _install_loader(fmu_path, loader):
 
 
 REFERENCE_DIR = "extra/org.fmi-standard.fmi-ls-ref"
-REFERENCE_MANIFEST = f"""<?xml version="1.0" encoding="UTF-8"?>
+REFERENCE_MANIFEST = """<?xml version="1.0" encoding="UTF-8"?>
 <fmiReferences
     xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance"
     xmlns:fmi-ls="http://fmi-standard.org/fmi-ls-manifest"
     fmi-ls:fmi-ls-name="org.fmi-standard.fmi-ls-ref"
     fmi-ls:fmi-ls-version="1.0.0-alpha.1">
-{{related}}</fmiReferences>
+{related}</fmiReferences>
 """
 
 
@@ -187,7 +189,8 @@ def reference_experiment(model_description_xml):
         start = float(experiment.get("startTime", "0"))
         stop, step = float(experiment.get("stopTime")), float(experiment.get("stepSize"))
     except (TypeError, ValueError):
-        raise BuildError("DefaultExperiment needs numeric startTime, stopTime and stepSize")
+        raise BuildError("DefaultExperiment needs numeric startTime, stopTime and "
+                         "stepSize") from None
     inputs = {}
     for node in root.iterfind("VendorAnnotations/Tool[@name='org.agv-cosim']/"
                               "ReferenceInputs/Input"):
