@@ -112,6 +112,25 @@ def inverse_kinematics(wheelbase, v_c, omega):
     return theta_f, speed, -theta_f, speed
 
 
+class InverseKinematics:
+    """Stateless core of the inverse-kinematics FMU: :func:`inverse_kinematics` with a
+    fixed, validated wheelbase [m]."""
+
+    def __init__(self, wheelbase=1.0):
+        self.wheelbase = _positive("wheelbase", wheelbase)
+
+    def command(self, v_c, omega):
+        """(theta_f, v_f, theta_b, v_b) for ``v_c`` [m/s] and ``omega`` [rad/s]."""
+        return inverse_kinematics(self.wheelbase, v_c, omega)
+
+    def get_state(self):
+        """No state (JSON-safe empty snapshot)."""
+        return {}
+
+    def set_state(self, state):
+        """Nothing to restore."""
+
+
 def turning_radius(wheelbase, theta_f):
     """Radius [m] of the wheels' common circle under symmetric steering, L / (2 sin theta_f).
 

@@ -104,3 +104,10 @@ class RefTrajectory:
         crest = self.path.pieces[1].s_of_x(self.path.pieces[1].a
                                            + self.path.pieces[1].wavelength / 4.0)
         return (crest - self.s_start) / self.speed
+
+    def get_state(self):
+        """No state: the reference is a function of time (JSON-safe empty snapshot)."""
+        return {}
+
+    def set_state(self, state):
+        """Nothing to restore."""
