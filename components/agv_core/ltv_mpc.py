@@ -117,12 +117,15 @@ class LtvMpc:
         OSQP absolute and relative tolerance (before polishing).
     max_iter : int
         OSQP iteration limit per sample.
+    warm_start : bool
+        Start each QP from the previous solution, shifted (False: OSQP's cold start;
+        for the benchmark).
     """
 
     def __init__(self, sample_time=0.2, horizon=5, control_horizon=0, q=(1.0, 1.0, 0.5),
                  lam=0.1, rho=10.0, slack_max=10.0, e_max=0.0, u_min=(0.0, -0.6),
                  u_max=(0.8, 0.6), du_min=(-0.05, -0.05), du_max=(0.05, 0.05),
-                 eps=1e-7, max_iter=4000):
+                 eps=1e-7, max_iter=4000, warm_start=True):
         if not (math.isfinite(sample_time) and sample_time > 0.0):
             raise ParameterError("sample_time", f"must be > 0 s, got {sample_time}")
         if int(horizon) != horizon or horizon < 1:
@@ -165,6 +168,7 @@ class LtvMpc:
         self.du_min, self.du_max = bounds["du"]
         self.eps = float(eps)
         self.max_iter = int(max_iter)
+        self.warm_start = bool(warm_start)
         self.u_prev = None          # u(k-1) [v_c, omega], None before the first sample
         self.warm = None            # (x, y) of the last solution, shifted
         self.held = None            # (k, t, unused, result, warm start for the next sample)
@@ -269,7 +273,7 @@ class LtvMpc:
         x_err = np.array([x - ref["x"], y - ref["y"], wrap(heading - ref["heading"])])
         u_prev = np.asarray(u_prev, float)
         z, dual, iterations = self.solve(x_err, u_prev - u_r, ref["v"], ref["heading"], u_r,
-                                         self.warm)
+                                         self.warm if self.warm_start else None)
         du = z[:2]
         u = u_prev + du
         # warm start of the next sample: shift the increments by one sample

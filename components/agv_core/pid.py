@@ -28,14 +28,16 @@ class LateralPid:
     Parameters
     ----------
     kp, ki, kd : float
-        Gains (finite; their signs are the law's, positive gains steer back).
+        Gains (finite; positive gains steer back). Defaults: Ki, Kd from the notes'
+        prototype, Kp calibrated to the paper's 19 cm S-curve overshoot
+        (experiments/seed001_pid_calibration.py): a calibration, not a paper value.
     sample_time : float
         T [s], > 0.
     omega_max : float
         Yaw-rate limit [rad/s], > 0.
     """
 
-    def __init__(self, kp=0.8, ki=0.03, kd=1.8, sample_time=0.2, omega_max=0.6):
+    def __init__(self, kp=0.76, ki=0.03, kd=1.8, sample_time=0.2, omega_max=0.6):
         for name, value in (("kp", kp), ("ki", ki), ("kd", kd)):
             if not math.isfinite(value):
                 raise ParameterError(name, f"must be finite, got {value}")
