@@ -42,18 +42,11 @@ import osqp
 import scipy.sparse as sp
 
 from .errors import ParameterError
-
-TWO_PI = 2.0 * math.pi
+from .paths import heading_error
 
 
 class MpcSolveError(RuntimeError):
     """The QP of one sample was not solved (the message names the solver status)."""
-
-
-def wrap(angle):
-    """Angle [rad] wrapped to (-pi, pi]."""
-    d = float(angle) % TWO_PI
-    return d - TWO_PI if d > math.pi else d
 
 
 def error_model(v_r, alpha_r, T):
@@ -270,7 +263,7 @@ class LtvMpc:
             positive left of the reference), e_pos (position error norm).
         """
         u_r = np.array([ref["v"], ref["omega"]])
-        x_err = np.array([x - ref["x"], y - ref["y"], wrap(heading - ref["heading"])])
+        x_err = np.array([x - ref["x"], y - ref["y"], heading_error(heading, ref["heading"])])
         u_prev = np.asarray(u_prev, float)
         z, dual, iterations = self.solve(x_err, u_prev - u_r, ref["v"], ref["heading"], u_r,
                                          self.warm if self.warm_start else None)
@@ -326,5 +319,5 @@ def errors(x, y, heading, ref):
     """
     dx, dy = x - ref["x"], y - ref["y"]
     s, c = math.sin(ref["heading"]), math.cos(ref["heading"])
-    return {"e_x": dx, "e_y": dy, "e_heading": wrap(heading - ref["heading"]),
+    return {"e_x": dx, "e_y": dy, "e_heading": heading_error(heading, ref["heading"]),
             "e_lat": -s * dx + c * dy, "e_long": c * dx + s * dy, "e_pos": math.hypot(dx, dy)}
