@@ -210,3 +210,50 @@ def test_failed_qp_is_an_fmu_error_naming_the_status(component_fmus):
                           debug_logging=True, logger=logger)
     assert any("QP not solved" in m and "maximum iterations reached" in m
                for m in messages), messages
+
+
+def test_n3_steering_activity_after_the_transient_grows_with_n(horizon_runs):
+    """What of 001-N3 does hold: after the first 2 s the commanded wheel-angle rate grows
+    with N (measured max 0.023 / 0.039 / 0.059 / 0.089 rad/s for N = 5-8, each step
+    >= 1.3x): a longer horizon steers more actively once the start transient is over."""
+    peaks = []
+    for n in HORIZONS:
+        t, sig, _ = horizon_runs[n]
+        rate = np.abs(np.diff(sig["ik.theta_f"])) / T
+        peaks.append(rate[t[1:] > 2.0].max())
+    assert all(b > 1.3 * a for a, b in zip(peaks, peaks[1:])), peaks
+
+
+@pytest.fixture(scope="module")
+def rate_limit_runs(component_fmus, tmp_path_factory):
+    """experiments/seed001_rate_limit.toml shortened to 8 s and N in {6, 7} (4 runs at a
+    10 ms step: the post-transient peaks fall at 3.5-5 s)."""
+    tmp = tmp_path_factory.mktemp("seed001_rate_limit")
+    text = (EXPERIMENTS / "seed001_rate_limit.toml").read_text(encoding="utf-8")
+    text = re.sub(r'"\.\./fmus/(Agv\w+)\.fmu"',
+                  lambda m: json.dumps(str(component_fmus[_stem(m.group(1))])), text)
+    for old, new in (("stop = 80.0", "stop = 8.0"), ("settle_after = 60.0", "settle_after = 6.0"),
+                     ('"ctrl.horizon" = [5, 6, 7, 8]', '"ctrl.horizon" = [6, 7]')):
+        assert old in text
+        text = text.replace(old, new)
+    manifest = tmp / "seed001_rate_limit.toml"
+    manifest.write_text(text, encoding="utf-8")
+    out, results, _ = run_manifest(manifest, tmp / "out", workers=2, quiet=True)
+    assert all(r["status"] == "complete" for r in results), results
+    return {r["label"]: read_timeseries(out / r["label"] / "timeseries.csv") for r in results}
+
+
+def test_n3_with_actuators(rate_limit_runs):
+    """With the set's steering actuator in angle mode (30 rad/s servo) the wheel follows each
+    0.2 s command step quickly: after the start transient (t > 3 s) its peak rate is below
+    0.2 rad/s at N = 6 and above at N = 7 (measured 0.12 / 0.28 rad/s), the paper's
+    ordering; the crossing depends on our (chosen) servo bandwidth. With rate_max = 0.2 the
+    wheel never exceeds it, and symmetric commands keep the body rigid (stretch 0)."""
+    peak = {}
+    for label, (t, sig) in rate_limit_runs.items():
+        rate = np.abs(sig["act_f.alpha_rate"])
+        assert np.all(sig["vehicle.stretch"] == 0.0), label
+        if label.startswith("limited"):
+            assert rate.max() <= 0.2 + 1e-12, label
+        peak[label] = rate[t > 3.0].max()
+    assert peak["fast__ctrl.horizon=6"] < 0.2 < peak["fast__ctrl.horizon=7"], peak

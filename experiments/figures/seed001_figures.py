@@ -167,6 +167,34 @@ def scurve_figures(data, path_err, path_xy):
     plt.close(fig)
 
 
+def rate_limit_figure(data, path):
+    """Initial phase of experiments/seed001_rate_limit.toml: actuators with / without
+    the 0.2 rad/s limit, colour = N, line style = variant."""
+    fig, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
+    colours = {"5": "C0", "6": "C1", "7": "C2", "8": "C3"}
+    for label, t, sig, _ in data:
+        variant, n = label.split("__")[0], label.split("=")[-1]
+        style = "-" if variant == "limited" else ":"
+        kw = dict(color=colours[n], ls=style, label=f"{variant}, N = {n}")
+        axes[0].plot(t, 100 * sig["ctrl.e_pos"], **kw)
+        axes[1].plot(t, sig["act_f.alpha"], **kw)
+        axes[2].plot(t, sig["act_f.alpha_rate"], **kw)
+    axes[2].axhline(0.2, color="k", ls="--", lw=0.8)
+    axes[2].set_ylim(-0.6, 0.6)
+    for ax, ylabel in zip(axes, ("e_pos [cm]", "front wheel angle [rad]",
+                                 "front wheel rate [rad/s] (clipped view)")):
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+    axes[2].set_xlim(0, 15)
+    axes[2].set_xlabel("time [s]")
+    axes[0].legend(fontsize=7, ncol=2)
+    fig.suptitle("Seed 001 N3: steering actuators with the 0.2 rad/s limit (solid) or "
+                 "without (dotted)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main():
     lam = runs("seed001_circle_lambda")
     hor = runs("seed001_circle_horizon")
@@ -177,6 +205,20 @@ def main():
                   FIGURES / "seed001_circle_horizon.png")
     horizon_rate_figure(hor, FIGURES / "seed001_circle_horizon_rate.png")
     scurve_figures(sc, FIGURES / "seed001_scurve.png", FIGURES / "seed001_scurve_path.png")
+    if (RESULTS / "seed001_rate_limit" / "summary.csv").is_file():
+        limited = runs("seed001_rate_limit")
+        rate_limit_figure(limited, FIGURES / "seed001_rate_limit.png")
+        print("### steering actuators (seed001_rate_limit)\n")
+        print("| run | error 0-10 s [cm] | e_pos 30-50 s [mm] | v_c overshoot [cm/s] | "
+              "time at 0.2 rad/s [s] | settling (1 cm) [s] |")
+        print("| --- | --- | --- | --- | --- | --- |")
+        for label, t, sig, m in limited:
+            print(f"| {label.replace('__ctrl.horizon=', ', N = ')} | "
+                  f"{100 * window_mean(t, sig['ctrl.e_pos'], 0.0, 10.0):.2f} | "
+                  f"{1000 * window_mean(t, sig['ctrl.e_pos'], 30.0, 50.0):.4f} | "
+                  f"{100 * (sig['ctrl.v_c'].max() - V_R):.2f} | {m['saturated_time']:.2f} | "
+                  f"{m['lateral_error_settling_time']:.1f} |")
+        print()
     print("### circle, lambda sweep (p = 5)\n")
     print(table([(f"lambda = {l.split('=')[-1]}", seed001_metrics(t, s, m))
                  for l, t, s, m in lam], "run"))
