@@ -1,7 +1,7 @@
 """Seed 001 experiments (issue 13): the claims 001-R1 ... 001-P3 as numbers.
 
 The shipped manifests experiments/seed001_circle_lambda.toml, seed001_circle_horizon.toml
-and seed001_scurve.toml are copied into tmp_path with their FMU paths pointed at the
+and seed001_scurve.toml (and seed001_rate_limit.toml, shortened) are copied into tmp_path with their FMU paths pointed at the
 session-built FMUs and run in full through the orchestrator (step 0.2 s: about 4 s per
 manifest), once per module. Runs are deterministic (no noise), so every bound below holds
 with the margin stated beside it on every machine; the margins absorb changes of the
