@@ -1,0 +1,90 @@
+"""Sampled PID on the lateral error: seed 001's comparison controller.
+
+Seed 001 compares its MPC with "a PID controller [14]" and gives neither its structure nor
+its gains. Our choice (notes-001-003.md section 1.5): constant speed, PID on the signed
+lateral error of the centroid from the time-parameterised reference, no curvature
+feed-forward::
+
+    e_lat = -sin(alpha_r)(X - X_r) + cos(alpha_r)(Y - Y_r)     [m], positive left
+    v_c   = v_r
+    omega = -(Kp e_lat + Ki I + Kd D),  |omega| <= omega_max
+
+sampled every T [s] and held in between: I is the rectangle-rule integral
+I(k) = I(k-1) + T e_lat(k) (not advanced while omega is saturated in the direction that
+would grow it: conditional integration as anti-windup), D the backward difference
+(e_lat(k) - e_lat(k-1)) / T (0 at the first sample). Units: Kp [rad/(s m)],
+Ki [rad/(s^2 m)], Kd [rad/m].
+"""
+
+import math
+
+from .errors import ParameterError
+from .ltv_mpc import errors
+
+
+class LateralPid:
+    """The seed-001 comparison PID (see the module docstring).
+
+    Parameters
+    ----------
+    kp, ki, kd : float
+        Gains (finite; positive gains steer back). Defaults: Ki, Kd from the notes'
+        prototype, Kp calibrated to the paper's 19 cm S-curve overshoot
+        (experiments/seed001_pid_calibration.py): a calibration, not a paper value.
+    sample_time : float
+        T [s], > 0.
+    omega_max : float
+        Yaw-rate limit [rad/s], > 0.
+    """
+
+    def __init__(self, kp=0.76, ki=0.03, kd=1.8, sample_time=0.2, omega_max=0.6):
+        for name, value in (("kp", kp), ("ki", ki), ("kd", kd)):
+            if not math.isfinite(value):
+                raise ParameterError(name, f"must be finite, got {value}")
+        if not (math.isfinite(sample_time) and sample_time > 0.0):
+            raise ParameterError("sample_time", f"must be > 0 s, got {sample_time}")
+        if not (math.isfinite(omega_max) and omega_max > 0.0):
+            raise ParameterError("omega_max", f"must be > 0 rad/s, got {omega_max}")
+        self.kp, self.ki, self.kd = float(kp), float(ki), float(kd)
+        self.T = float(sample_time)
+        self.omega_max = float(omega_max)
+        self.integral = 0.0          # I(k-1) [m s]
+        self.e_prev = None           # e_lat(k-1) [m]
+        self.held = None             # (k, t, I(k-1), e(k-1), out, I(k), e(k))
+
+    def compute(self, x, y, heading, ref, integral, e_prev):
+        """One sample from I(k-1) and e(k-1); returns (out, I(k), e(k))."""
+        out = errors(x, y, heading, ref)
+        e = out["e_lat"]
+        d = 0.0 if e_prev is None else (e - e_prev) / self.T
+        i_new = integral + self.T * e
+        raw = -(self.kp * e + self.ki * i_new + self.kd * d)
+        omega = min(max(raw, -self.omega_max), self.omega_max)
+        if omega != raw and (raw - omega) * (-self.ki * e) > 0.0:
+            i_new = integral  # saturated and the integral would push further: hold it
+            raw = -(self.kp * e + self.ki * i_new + self.kd * d)
+            omega = min(max(raw, -self.omega_max), self.omega_max)
+        out.update(v_c=float(ref["v"]), omega=omega, integral=i_new)
+        return out, i_new, e
+
+    def update(self, t, x, y, heading, ref):
+        """Output at time ``t`` [s], sampled every T and held (as LtvMpc.update)."""
+        k = math.floor(t / self.T + 1e-9)
+        if self.held is not None and (k < self.held[0]
+                                      or (k == self.held[0] and t != self.held[1])):
+            return dict(self.held[2])
+        if self.held is not None and k > self.held[0]:
+            self.integral, self.e_prev = self.held[3], self.held[4]
+        out, i_new, e = self.compute(x, y, heading, ref, self.integral, self.e_prev)
+        self.held = (k, float(t), out, i_new, e)
+        return dict(out)
+
+    def get_state(self):
+        """JSON-safe snapshot."""
+        return {"integral": self.integral, "e_prev": self.e_prev,
+                "held": None if self.held is None else list(self.held)}
+
+    def set_state(self, state):
+        """Restore a snapshot from :meth:`get_state`."""
+        self.integral, self.e_prev = state["integral"], state["e_prev"]
+        self.held = None if state["held"] is None else tuple(state["held"])

@@ -1,0 +1,35 @@
+"""FMU slave: symmetric-steering inverse kinematics of seed 001 (agv_core.double_steer)."""
+
+from agv_boot import load_core
+
+core = load_core("fmi_slave", "double_steer")
+
+
+class AgvDoubleSteerIk(core.fmi_slave.AgvSlave):
+    """(v_c, omega) commands to wheel-angle set-points and wheel speeds, theta_b = -theta_f."""
+
+    description = ("Double-steer AGV inverse kinematics (seed 001): centroid speed and yaw "
+                   "rate commands in, symmetric wheel angles and speeds out")
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.input("v_c", 0.0, "m/s", "Commanded centroid speed along the body axis")
+        self.input("omega", 0.0, "rad/s", "Commanded yaw rate, positive counter-clockwise")
+        self.parameter("wheelbase", 1.0, "m", "Distance L between the wheel contact points")
+        both = ("v_c", "omega")
+        self.output("theta_f", "rad", "Front wheel angle atan2(omega L/2, v_c)", depends_on=both)
+        self.output("v_f", "m/s", "Front wheel speed sqrt(v_c^2 + (omega L/2)^2)",
+                    depends_on=both)
+        self.output("theta_b", "rad", "Rear wheel angle -theta_f", depends_on=both)
+        self.output("v_b", "m/s", "Rear wheel speed (= v_f)", depends_on=both)
+
+    def make_core(self):
+        return core.double_steer.InverseKinematics(self.wheelbase)
+
+    def advance(self, t, h):
+        pass  # algebraic
+
+    def publish(self):
+        self.theta_f, self.v_f, self.theta_b, self.v_b = \
+            self.core.command(self.v_c, self.omega)
+        self.finite_or_fail(theta_f=self.theta_f, v_f=self.v_f)

@@ -1,0 +1,32 @@
+"""FMU slave: seed-001 comparison PID on the lateral error (agv_core.pid)."""
+
+from agv_boot import load_core
+
+core = load_core("fmi_slave", "tracking_fmi", "pid")
+
+
+class AgvLateralPid(core.tracking_fmi.TrackingSlave):
+    """Sampled PID on the lateral error, constant speed v_r (swap-in for AgvLtvMpc)."""
+
+    description = ("Seed-001 comparison PID: pose and reference in, (v_c = v_r, omega) out; "
+                   "omega = -(Kp e + Ki int e + Kd de/dt) on the lateral error")
+
+    def declare_parameters(self):
+        p = self.parameter
+        p("sample_time", 0.2, "s", "Sample time T")
+        p("kp", 0.76, "rad/(s.m)",
+          "Proportional gain (seed 001 gives none; calibrated to its 19 cm overshoot)")
+        p("ki", 0.03, "rad/(s2.m)", "Integral gain")
+        p("kd", 1.8, "rad/m", "Derivative gain")
+        p("omega_max", 0.6, "rad/s", "Yaw-rate limit")
+
+    def declare_extra_outputs(self):
+        self.output("integral", "m.s", "Integral of e_lat (held while omega saturates)",
+                    depends_on=core.tracking_fmi.INPUTS)
+
+    def make_core(self):
+        return core.pid.LateralPid(self.kp, self.ki, self.kd, self.sample_time,
+                                   self.omega_max)
+
+    def publish_extra(self, out):
+        self.integral = out["integral"]

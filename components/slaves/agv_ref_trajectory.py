@@ -1,0 +1,45 @@
+"""FMU slave: seed-001 time-parameterised reference trajectory (agv_core.ref_trajectory)."""
+
+from agv_boot import load_core
+
+core = load_core("fmi_slave", "ref_trajectory")
+
+
+class AgvRefTrajectory(core.fmi_slave.AgvSlave):
+    """Circle or S-curve travelled at constant speed: reference pose, speed, yaw rate."""
+
+    description = ("Reference trajectory (seed 001): circle (v, omega) or S-curve (straight "
+                   "tangent to a sine, first curvature peak at peak_time) against time")
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.parameter("kind", "circle", None, "'circle' or 'scurve'",
+                       kind=core.fmi_slave.String)
+        self.parameter("speed", 0.4, "m/s", "Reference speed v_r along the path")
+        self.parameter("omega", 0.074, "rad/s", "Circle: yaw rate omega_r (< 0: clockwise)")
+        self.parameter("amplitude", 1.5, "m", "S-curve: sine amplitude A")
+        self.parameter("wavelength", 12.0, "m", "S-curve: sine wavelength W")
+        self.parameter("peak_time", 33.7, "s",
+                       "S-curve: time of the first curvature maximum (sets the straight)")
+        self.output("x_ref", "m", "Reference x")
+        self.output("y_ref", "m", "Reference y")
+        self.output("heading_ref", "rad", "Reference heading alpha_r (path tangent)")
+        self.output("v_ref", "m/s", "Reference speed v_r")
+        self.output("omega_ref", "rad/s", "Reference yaw rate omega_r = kappa_r v_r")
+        self.output("curvature_ref", "1/m", "Path curvature kappa_r, positive turning left")
+        self.output("s_ref", "m", "Arc length travelled along the reference")
+
+    def make_core(self):
+        return core.ref_trajectory.RefTrajectory(self.kind, self.speed, self.omega,
+                                                 self.amplitude, self.wavelength,
+                                                 self.peak_time)
+
+    def advance(self, t, h):
+        pass  # a function of time; publish() evaluates it at the new time
+
+    def publish(self):
+        r = self.core.at(self.time)
+        self.x_ref, self.y_ref, self.heading_ref = r["x"], r["y"], r["heading"]
+        self.v_ref, self.omega_ref = r["v"], r["omega"]
+        self.curvature_ref, self.s_ref = r["curvature"], r["s"]
+        self.finite_or_fail(x_ref=self.x_ref, y_ref=self.y_ref)
