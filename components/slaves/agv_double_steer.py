@@ -16,6 +16,14 @@ class AgvDoubleSteer(core.fmi_slave.AgvSlave):
                    "in, centroid pose, speed, yaw rate and wheel contact points out (exact "
                    "for inputs held over a step)")
 
+    #: Reference: symmetric steering theta_f = -theta_b = 0.2 rad at 0.5 m/s per wheel for
+    #: 20 s: a circle of radius L / (2 sin 0.2) = 2.517 m about the centroid's turn centre
+    #: (seed 001 claim G1).
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=20.0,
+                                                          step_size=0.01)
+    reference_inputs = {"theta_f": ((0.0, 0.2),), "v_f": ((0.0, 0.5),),
+                        "theta_b": ((0.0, -0.2),), "v_b": ((0.0, 0.5),)}
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.input("theta_f", 0.0, "rad", "Front wheel angle to the body axis X', positive left")

@@ -11,6 +11,11 @@ class AgvDoubleSteerIk(core.fmi_slave.AgvSlave):
     description = ("Double-steer AGV inverse kinematics (seed 001): centroid speed and yaw "
                    "rate commands in, symmetric wheel angles and speeds out")
 
+    #: Reference: v_c = 0.4 m/s with omega stepping 0 -> 0.074 -> -0.3 rad/s (1 s each).
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=3.0,
+                                                          step_size=0.1)
+    reference_inputs = {"v_c": ((0.0, 0.4),), "omega": ((0.0, 0.0), (1.0, 0.074), (2.0, -0.3))}
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.input("v_c", 0.0, "m/s", "Commanded centroid speed along the body axis")

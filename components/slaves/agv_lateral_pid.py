@@ -11,6 +11,12 @@ class AgvLateralPid(core.tracking_fmi.TrackingSlave):
     description = ("Seed-001 comparison PID: pose and reference in, (v_c = v_r, omega) out; "
                    "omega = -(Kp e + Ki int e + Kd de/dt) on the lateral error")
 
+    #: Reference: a held pose 0.1 m left of a reference moving along x at 0.4 m/s, heading
+    #: 0: the PID's first 20 samples (open loop: the integral grows, omega saturates).
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=4.0,
+                                                          step_size=0.2)
+    reference_inputs = {"y": ((0.0, 0.1),), "v_ref": ((0.0, 0.4),)}
+
     def declare_parameters(self):
         p = self.parameter
         p("sample_time", 0.2, "s", "Sample time T")

@@ -12,6 +12,12 @@ class AgvLtvMpc(core.tracking_fmi.TrackingSlave):
                    "(warm-started), a QP that is not solved is an FMU error")
     solve_errors = (core.ltv_mpc.MpcSolveError,)
 
+    #: Reference: a held pose 0.5 m left of a reference moving along x at 0.4 m/s, heading
+    #: 0: the MPC's first 20 samples (open loop: the pose input does not move).
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=4.0,
+                                                          step_size=0.2)
+    reference_inputs = {"y": ((0.0, 0.5),), "v_ref": ((0.0, 0.4),)}
+
     def declare_parameters(self):
         p = self.parameter
         p("sample_time", 0.2, "s", "Sample time T (prediction step and output update)")

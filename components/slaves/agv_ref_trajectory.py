@@ -11,6 +11,10 @@ class AgvRefTrajectory(core.fmi_slave.AgvSlave):
     description = ("Reference trajectory (seed 001): circle (v, omega) or S-curve (straight "
                    "tangent to a sine, first curvature peak at peak_time) against time")
 
+    #: Reference: the default circle (0.4 m/s, 0.074 rad/s) for one lap, 2 pi / 0.074 = 84.9 s.
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=85.0,
+                                                          step_size=0.1)
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.parameter("kind", "circle", None, "'circle' or 'scurve'",
