@@ -25,7 +25,7 @@ from pythonfmu.builder import FmuBuilder
 BUILD_FORMAT = 1
 
 #: What the host Python needs to run the bundled core (shipped in every FMU).
-HOST_REQUIREMENTS = "numpy>=1.24\nscipy>=1.10\n"
+HOST_REQUIREMENTS = "numpy>=1.24\nscipy>=1.10\nscikit-fuzzy>=0.5\n"
 
 BOOT_SCRIPT = "agv_boot.py"
 INDEX_FILE = "build-index.json"
