@@ -73,6 +73,7 @@ def test_pd_law_derivative_filter_and_saturation():
     """Fixed gains: delta = -(Kp e + Kd r) in rad from deg/m, deg s/m; after a step of e
     the filtered rate decays exactly as exp(-t / tau) / tau (exact discretisation)."""
     pd = AxlePD(FixedGains(600.0, 100.0), tau_d=0.05)
+    assert pd.evaluate(0.02, 3.9)["error_rate"] == 0.0      # no kick before the first step
     out = pd.evaluate(0.0, 3.9)
     assert out["delta"] == 0.0
     pd.advance(0.0, 0.01)

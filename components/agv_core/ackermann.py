@@ -96,3 +96,32 @@ def wheel_distances(delta, l, d):
         return math.inf, math.inf
     r = l / t
     return math.hypot(l, r - 0.5 * d), math.hypot(l, r + 0.5 * d)
+
+
+class TrainCoordination:
+    """Wheel angles of seed 003's four axles: baselines through each powered car's hinge.
+
+    Axle offsets from the baselines: (L1 + L2, L2) on the head car, (-L2, -(L1 + L2)) on
+    the tail car (agv_core.train). A static map: no state.
+
+    Parameters
+    ----------
+    offsets : sequence of float
+        Signed axle-to-baseline distances l_i [m] (non-zero).
+    d : float
+        Track width [m].
+    """
+
+    def __init__(self, offsets, d):
+        self.offsets = tuple(float(l) for l in offsets)
+        self.d = float(d)
+
+    def wheels(self, deltas):
+        """[(delta_L, delta_R), ...] [rad] for the axle angles ``deltas`` [rad]."""
+        return [wheel_angles(delta, l, self.d) for delta, l in zip(deltas, self.offsets)]
+
+    def get_state(self):
+        return {}
+
+    def set_state(self, state):
+        pass

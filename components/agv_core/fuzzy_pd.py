@@ -9,7 +9,8 @@ e [m] the axle's lateral error (positive left of the path), r [m/s] its rate, de
 the axle-equivalent steering angle (positive left). Kp [rad/m], Kd [rad s/m]. The rate is
 a first-order filtered derivative r = (e - x) / tau_d with x' = (e - x) / tau_d (transfer
 function s / (tau_d s + 1)), discretised exactly for e held over a step:
-x <- x + (1 - exp(-h / tau_d)) (e - x); x starts at the first e (no derivative kick).
+x <- x + (1 - exp(-h / tau_d)) (e - x); x starts at the e held over the first step (rate
+0 until then: no derivative kick from the start value).
 
 Fuzzy scheduling (seed 003 4.2): a Mamdani system with inputs e in [-e_max, e_max] m (five
 sets NB NS ZE PS PB) and speed v in [0, v_max] km/h (low, mid, high) and outputs Kp in
@@ -263,9 +264,7 @@ class AxlePD:
     def evaluate(self, e, v):
         """Outputs for lateral error ``e`` [m] and speed ``v`` [m/s] (SI gains)."""
         e = float(e)
-        if self.x is None:
-            self.x = e
-        rate = (e - self.x) / self.tau_d
+        rate = 0.0 if self.x is None else (e - self.x) / self.tau_d
         kp, kd = self.schedule.gains(e, abs(v) * KMH)
         kp_si, kd_si = math.radians(kp), math.radians(kd)
         law = -(kp_si * e + kd_si * rate)
