@@ -57,7 +57,10 @@ class AgvTrain(core.fmi_slave.AgvSlave):
         for i in _AXLES:
             self.output(f"delta{i}_applied", "rad",
                         f"Axle-equivalent angle of axle {i} applied over the last step")
-        self.output("u3", "m/s", "Longitudinal speed of the tail car (from the link)")
+        self.output("u1", "m/s", "Longitudinal speed of the head car over the last step "
+                    "(v0 before the first step)")
+        self.output("u3", "m/s", "Longitudinal speed of the tail car (from the link, with "
+                    "the last step's speed and axle angles)")
         self.output("distance", "m", "Distance travelled by the head car (|u1| t)")
         for i in _AXLES:
             for side in _SIDES:
@@ -72,8 +75,10 @@ class AgvTrain(core.fmi_slave.AgvSlave):
             raise core.errors.ParameterError(
                 "steering_input", f"must be 'axle' or 'wheels', got '{self.steering_input}'")
         geometry = core.train.TrainGeometry(self.L1, self.L2, self.d, self.Lm)
-        return core.train.Train.straight(geometry, self.x0, self.y0, self.heading0,
-                                         self.tolerance)
+        train = core.train.Train.straight(geometry, self.x0, self.y0, self.heading0,
+                                          self.tolerance)
+        train.u1 = float(self.v0)   # moving at v0 before the start: u1, u3 outputs at t0
+        return train
 
     def advance(self, t, h):
         speed = self.v if self.was_set("v") else self.v0
@@ -94,6 +99,7 @@ class AgvTrain(core.fmi_slave.AgvSlave):
             setattr(self, f"x{i}", x)
             setattr(self, f"y{i}", y)
             setattr(self, f"delta{i}_applied", c.deltas[i - 1])
+        self.u1 = c.u1
         self.u3 = c.car_rates()[0]
         self.distance = c.distance
         states = iter(c.wheel_states())
