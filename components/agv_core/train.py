@@ -330,3 +330,47 @@ def steady_pose(geometry, radius, phi=0.0):
         return psi2 + math.remainder(angle - psi2, 2.0 * math.pi)
 
     return x1, y1, near(psi1), psi2, near(psi3)
+
+
+def steady_offsets(geometry, radius, kp, car="head"):
+    """Steady state of one powered car on a circle under proportional axle control.
+
+    Each axle i of the car obeys delta_i = -kp(e_i) e_i (kp in rad/m, a function of the
+    error, e.g. a fuzzy schedule at fixed speed; the derivative term vanishes in steady
+    state) and the car turns rigidly about the circle's centre with both axle centres at
+    radii r_i = R - e_i (R > 0: left turn, e positive left = inside). With the axles at
+    body positions a_i, the turning centre is at body (cx, cy),
+
+        cx = (a_f + a_r) / 2 - (r_f^2 - r_r^2) / (2 (a_f - a_r)),   cy = sqrt(r_f^2 - (a_f - cx)^2)
+
+    and tan(delta_i) = (a_i - cx) / cy. Solved for (e_f, e_r) by scipy.optimize.root.
+
+    Returns
+    -------
+    (e_front, e_rear, delta_front, delta_rear) : floats [m, m, rad, rad]
+    """
+    from scipy.optimize import root
+
+    a = geometry.axle_offsets[:2] if car == "head" else geometry.axle_offsets[2:]
+    R = float(radius)
+    if R <= 0.0:
+        raise ValueError("steady_offsets: left turns (radius > 0) only")
+
+    def angles(e):
+        r_f, r_r = R - e[0], R - e[1]
+        cx = 0.5 * (a[0] + a[1]) - (r_f * r_f - r_r * r_r) / (2.0 * (a[0] - a[1]))
+        cy = math.sqrt(r_f * r_f - (a[0] - cx) ** 2)
+        return math.atan((a[0] - cx) / cy), math.atan((a[1] - cx) / cy)
+
+    def residual(e):
+        d = angles(e)
+        return [d[0] + kp(e[0]) * e[0], d[1] + kp(e[1]) * e[1]]
+
+    s = math.asin(geometry.L1 / (2.0 * R))
+    guess = [-s / kp(0.0), s / kp(0.0)]
+    sol = root(residual, guess, method="hybr", tol=1e-14)
+    if not sol.success:
+        raise RuntimeError(f"steady_offsets: {sol.message}")
+    e_f, e_r = (float(x) for x in sol.x)
+    d_f, d_r = angles(sol.x)
+    return e_f, e_r, d_f, d_r
