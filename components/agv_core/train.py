@@ -49,14 +49,9 @@ import math
 
 from .ackermann import wheel_angles
 from .errors import ParameterError
+from .vehicle import _sinc
 
 AXLES = 4
-
-
-def _sinc(u):
-    if abs(u) < 1e-4:
-        return 1.0 - u * u / 6.0
-    return math.sin(u) / u
 
 
 def _positive(name, value):

@@ -2,14 +2,14 @@
 # Regenerate the seed-003 results, the figures of experiments/seed003.md and the numbers
 # it quotes. Usage (from the repository root):
 #   sh experiments/figures/make_seed003.sh
-# Writes results/seed003_curve/, results/seed003_radius/, results/seed003_speed/,
+# Writes results/seed003_{curve,radius,speed,steering}/,
 # experiments/figures/seed003_*.png and results/seed003_numbers.json (printed too).
-# About 4 minutes on 2 cores (24 runs at 2 ms steps).
+# About 5 minutes on 2 cores (28 runs at 2 ms steps).
 set -eu
 cd "$(dirname "$0")/../.."
 BIN=${BIN:-.venv/bin}
 "$BIN/agv-cosim" build --out fmus
-for m in curve radius speed; do
+for m in curve radius speed steering; do
     "$BIN/agv-cosim" run "experiments/seed003_$m.toml" --out "results/seed003_$m" --jobs 2 --quiet
 done
 "$BIN/python" - <<'PY'
@@ -114,7 +114,7 @@ def body(x, y, psi, back, front, width):
 
 
 colours = ["tab:blue", "tab:orange", "tab:green", "tab:red"]
-for n, when in enumerate((8.0, 16.0, 20.0, 24.0, 31.0)):
+for n, when in enumerate((6.0, 13.5, 21.0, 28.5)):
     k = int(np.argmin(np.abs(t - when)))
     x1, y1 = s["train.x_J1"][k], s["train.y_J1"][k]
     x2, y2 = s["train.x_J2"][k], s["train.y_J2"][k]
@@ -133,7 +133,7 @@ ax.set_aspect("equal")
 ax.set_xlabel("x [m]")
 ax.set_ylabel("y [m]")
 ax.set_title("Seed 003: three-car train at 14 km/h, 20 m radius quarter curve "
-             "(fuzzy PD)\nhead car, floating car, tail car at five instants", fontsize=10)
+             "(fuzzy PD)\nhead car, floating car, tail car at four instants 7.5 s apart", fontsize=10)
 ax.legend(loc="upper left", fontsize=8)
 ax.grid(alpha=0.3)
 save(fig, "seed003_path.png")
@@ -218,6 +218,33 @@ fig.suptitle("Seed 003: where the fuzzy scheduling matters (kinematic plant, ide
 fig.tight_layout()
 save(fig, "seed003_sweeps.png")
 numbers["sweeps_max_offset_m"] = sweeps
+
+# ---- figure 5: with steering actuators
+out, rows = runs("seed003_steering")
+fig = Figure(figsize=(9.0, 7.0))
+steering = {}
+for n, run in enumerate(("fuzzy_lag", "fixed_lag", "fuzzy_delay", "fixed_delay")):
+    ax = fig.add_subplot(2, 2, n + 1)
+    t, s = load(out, run)
+    steering[run] = max_offsets(s)
+    for i in range(1, 5):
+        ax.plot(s[f"err.s{i}"], 100 * s[f"err.e{i}"], color=colours[i - 1], lw=0.9,
+                label=f"axle {i}")
+    for lim in (2.5, -2.5):
+        ax.axhline(lim, color="k", lw=0.8, ls="--")
+    ax.set_xlim(30, 130)
+    ax.set_title(run.replace("_lag", ": 56 ms lag").replace("_delay", ": 50 ms delay servo"),
+                 fontsize=9)
+    ax.set_xlabel("axle position on the path s [m]")
+    ax.set_ylabel("lateral offset [cm]")
+    ax.grid(alpha=0.3)
+    if n == 0:
+        ax.legend(fontsize=7, loc="lower left")
+fig.suptitle("Seed 003 with steering actuators between PD and Ackermann (14 km/h, R = 20 m);"
+             "\ndashed: the paper's 2.5 cm bound", fontsize=10)
+fig.tight_layout()
+save(fig, "seed003_steering.png")
+numbers["steering_max_offset_m"] = steering
 
 Path("results/seed003_numbers.json").write_text(json.dumps(numbers, indent=1))
 print(json.dumps(numbers, indent=1))
