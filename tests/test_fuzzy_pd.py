@@ -17,6 +17,10 @@ from agv_core.fuzzy_pd import AxlePD, FixedGains, FuzzySchedule
 #: 0.3 deg at the claimed 2.5 cm, against a ~7 deg curve angle.
 KP_BOUND, KD_BOUND = 12.0, 5.0
 
+# scikit-fuzzy 0.5's control module calls np.maximum with an out argument by position
+pytestmark = pytest.mark.filterwarnings(
+    "ignore:Passing more than 2 positional arguments:DeprecationWarning")
+
 
 @pytest.fixture(scope="module")
 def schedule():
