@@ -135,6 +135,32 @@ def test_steady_state_matches_the_closed_form_and_settles(curve_runs, variant):
             assert np.sign(inner) == np.sign(outer) == np.sign(delta)
 
 
+@pytest.mark.parametrize("variant", ["fuzzy", "fixed"])
+def test_steady_wheel_speeds_match_the_rotation_about_the_arc_centre(curve_runs, variant):
+    """Claim 003-A2, wheel speeds: in steady curving the head car turns about the arc
+    centre C; from the closed-form offsets, C is at body (cx, cy) from J1 with
+    cx = (a1 + a2)/2 - (r1^2 - r2^2) / (2 L1), cy = sqrt(r1^2 - (a1 - cx)^2), the yaw rate
+    is u1 / cy and each wheel's speed is the yaw rate times its distance from C: axle 1's
+    inner (left) wheel 3.718 m/s, outer 4.126 m/s at 3.889 m/s. Within 1e-6 relative
+    (the offsets match the closed form to 1e-7 m)."""
+    s = curve_runs[variant]
+    schedule = FuzzySchedule()
+    kp = ((lambda e: math.radians(schedule.gains(e, 14.0)[0])) if variant == "fuzzy"
+          else (lambda e: math.radians(FIXED[0])))
+    e_f, e_r, _, _ = steady_offsets(GEOM, 20.0, kp)
+    a1, a2 = GEOM.axle_offsets[:2]
+    r1, r2 = 20.0 - e_f, 20.0 - e_r
+    cx = 0.5 * (a1 + a2) - (r1 ** 2 - r2 ** 2) / (2 * GEOM.L1)
+    cy = math.sqrt(r1 ** 2 - (a1 - cx) ** 2)
+    rate = V14 / cy
+    window = (s["err.s2"] >= 70.0) & (s["err.s1"] <= 60.0 + 20.0 * QUARTER)
+    for side, w in (("left", GEOM.d / 2), ("right", -GEOM.d / 2)):
+        expected = rate * math.hypot(a1 - cx, w - cy)
+        assert s[f"train.speed1_{side}"][window] == pytest.approx(expected, rel=1e-6)
+    assert np.all(s["train.speed1_left"][window] < V14 / np.cos(s["pd1.delta"][window]))
+    assert np.all(s["train.speed1_right"][window] > V14 / np.cos(s["pd1.delta"][window]))
+
+
 def test_wheels_slip_a_little(curve_runs):
     """Claim 003-A4: single-axle coordination cannot give pure rolling of every wheel.
     With O1 != O2 the wheels slip: max |slip| is > 0.1 deg and < 2 deg here (0.73 deg)."""
