@@ -1,0 +1,48 @@
+"""FMU slave: per-axle Ackermann coordination about each car's hinge baseline
+(agv_core.ackermann)."""
+
+from agv_boot import load_core
+
+core = load_core("fmi_slave", "ackermann", "train")
+
+_AXLES = (1, 2, 3, 4)
+
+
+class AgvAckermann(core.fmi_slave.AgvSlave):
+    """Seed 003 single-axle coordination: four axle angles in, eight wheel angles out."""
+
+    description = ("Seed 003 per-axle Ackermann coordination: each axle's turning centre on "
+                   "its car's hinge baseline sets its left and right wheel angles")
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        for i in _AXLES:
+            self.input(f"delta{i}", 0.0, "rad",
+                       f"Axle-equivalent steering angle of axle {i}, positive left")
+        self.parameter("L1", 5.0, "m", "Axle spacing of each powered car")
+        self.parameter("L2", 3.0, "m", "Inner axle to the car's hinge (baseline)")
+        self.parameter("d", 2.1, "m", "Track width")
+        for i in _AXLES:
+            for side in ("left", "right"):
+                self.output(f"delta{i}_{side}", "rad",
+                            f"{side.capitalize()} wheel angle of axle {i}, positive left",
+                            depends_on=(f"delta{i}",))
+        for i in _AXLES:
+            self.output(f"centre_curvature{i}", "1/m",
+                        f"1/R of axle {i}'s turning centre on the baseline (positive: left "
+                        "of the car's centre line; 0 = straight)", depends_on=(f"delta{i}",))
+
+    def make_core(self):
+        geometry = core.train.TrainGeometry(self.L1, self.L2, self.d)
+        return core.ackermann.TrainCoordination(geometry.axle_offsets, geometry.d)
+
+    def advance(self, t, h):
+        pass  # static map: publish() evaluates it from the held inputs
+
+    def publish(self):
+        c = self.core
+        deltas = [getattr(self, f"delta{i}") for i in _AXLES]
+        for i, delta, l, (left, right) in zip(_AXLES, deltas, c.offsets, c.wheels(deltas)):
+            setattr(self, f"delta{i}_left", left)
+            setattr(self, f"delta{i}_right", right)
+            setattr(self, f"centre_curvature{i}", core.ackermann.turning_curvature(delta, l))

@@ -1,0 +1,44 @@
+"""FMU slave: lateral errors of seed 003's four axle tracking points from a reference path
+(agv_core.track_path)."""
+
+from agv_boot import load_core
+
+core = load_core("fmi_slave", "track_path", "paths")
+
+_AXLES = (1, 2, 3, 4)
+
+
+class AgvAxleErrors(core.fmi_slave.AgvSlave):
+    """Noise-free probe: four points in, their signed offsets from the path out."""
+
+    description = ("Lateral errors of four tracking points (seed 003's axle centres) from "
+                   "a reference path, positive left of the path; noise-free, no delay")
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        for i in _AXLES:
+            self.input(f"x{i}", 0.0, "m", f"x of tracking point {i}")
+            self.input(f"y{i}", 0.0, "m", f"y of tracking point {i}")
+        self.parameter("path", "line", None,
+                       "Reference path: 'curve:straight=..,radius=..,angle=..,transition=..' "
+                       "or any agv_core.paths kind", kind=core.fmi_slave.String)
+        for i in _AXLES:
+            self.output(f"e{i}", "m", f"Signed lateral error of point {i}, positive left of "
+                        "the path", depends_on=(f"x{i}", f"y{i}"))
+        for i in _AXLES:
+            self.output(f"s{i}", "m", f"Arc length of point {i}'s projection on the path",
+                        depends_on=(f"x{i}", f"y{i}"))
+
+    def make_core(self):
+        return core.track_path.PointErrors(core.track_path.parse_track_path(self.path), 4)
+
+    def _points(self):
+        return [(getattr(self, f"x{i}"), getattr(self, f"y{i}")) for i in _AXLES]
+
+    def advance(self, t, h):
+        self.core.measure(self._points(), commit=True)   # hints from the held points
+
+    def publish(self):
+        for i, p in zip(_AXLES, self.core.measure(self._points())):
+            setattr(self, f"e{i}", p.offset)
+            setattr(self, f"s{i}", p.s)
