@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .model import ModelError, read_model
+from .results import check_name
 
 ALGORITHMS = ("gauss-seidel", "jacobi")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -211,6 +212,10 @@ def load_manifest(path):
     variants = {}
     for name, table in _table(path, data, "variants").items():
         key = f"variants.{name}"
+        try:
+            check_name(name, "variant name")
+        except ValueError as error:
+            raise ManifestError(path, key, f"{error} (it names the run's folder)") from None
         if not isinstance(table, dict):
             raise ManifestError(path, key, "must be a table")
         extra = set(table) - {"description", "components"}
@@ -251,8 +256,13 @@ def load_manifest(path):
     if interval <= 0 or ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6 * ratio:
         raise ManifestError(path, "record.interval", f"{interval!r} must be a positive whole "
                             f"multiple of the step ({step!r})")
-    return Manifest(path=path, sha256=hashlib.sha256(raw).hexdigest(),
-                    name=str(data.get("name", path.stem)),
+    name = data.get("name", path.stem)
+    try:
+        check_name(name)
+    except ValueError as error:
+        raise ManifestError(path, "name", f"{error} (it names the default output folder "
+                            "results/<name>)") from None
+    return Manifest(path=path, sha256=hashlib.sha256(raw).hexdigest(), name=name,
                     description=str(data.get("description", "")), start=start, stop=stop,
                     step=step, algorithm=algorithm, components=components,
                     connections=connections, variants=variants, sweep=sweep,
@@ -275,6 +285,20 @@ def parse_set(manifest, text):
 
 def _slug(text):
     return re.sub(r"[^A-Za-z0-9._=+-]", "_", text)
+
+
+#: Longest run label (a folder name); longer labels (many or long sweep values) are cut
+#: and end in a hash of the full label, so they stay distinct.
+MAX_LABEL = 100
+
+
+def run_label(parts):
+    """The folder name of a run: its slugged parts joined by ``__``, bounded."""
+    label = "__".join(_slug(p) for p in parts)
+    if len(label) > MAX_LABEL:
+        digest = hashlib.sha256(label.encode()).hexdigest()[:12]
+        label = f"{label[:MAX_LABEL - 13]}-{digest}"
+    return label
 
 
 def plan_runs(manifest, variants=None, sets=()):
@@ -326,7 +350,7 @@ def plan_runs(manifest, variants=None, sets=()):
                 cname, pname = name.split(".")
                 comps[cname].parameters[pname] = value
             parts = [variant or "base"] + [f"{k}={v!r}" for k, v in point.items()]
-            runs.append(RunSpec(label="__".join(_slug(p) for p in parts), variant=variant,
+            runs.append(RunSpec(label=run_label(parts), variant=variant,
                                 point=point, components=comps, overrides=overrides))
     labels = [r.label for r in runs]
     if len(set(labels)) != len(labels):

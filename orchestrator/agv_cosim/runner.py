@@ -23,6 +23,7 @@ import importlib
 import os
 import platform
 import shutil
+import signal
 import sys
 import tempfile
 import time
@@ -32,6 +33,7 @@ from multiprocessing.connection import wait
 from pathlib import Path
 
 from . import __version__, metrics, plots
+from .lifetime import die_with_parent, scratch_dir
 from .manifest import ManifestError, load_manifest, plan_runs, validate
 from .master import Plan, SimulationError, simulate
 from .results import AtomicDir, CsvSink, read_timeseries, write_json, write_summary
@@ -178,15 +180,25 @@ def _child(job, run_dir, channel, scratch):
     """Body of a run's child process: run it, report progress and the result.
 
     FMUs are extracted under ``scratch``, which the parent deletes however the child
-    ends (a child that dies cannot clean up after itself).
+    ends (a child that dies cannot clean up after itself). The child dies with its
+    parent (:func:`~agv_cosim.lifetime.die_with_parent`), ignores SIGINT (the parent,
+    which a Ctrl-C reaches too, stops it) and ends quietly when the parent is gone.
     """
+    die_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     tempfile.tempdir = scratch
 
+    def send(message):
+        try:
+            channel.send(message)
+        except OSError:  # the parent is gone (BrokenPipeError): nobody to report to
+            os._exit(1)
+
     def progress(steps):
-        channel.send(("progress", steps))
+        send(("progress", steps))
 
     result = run_job(job, run_dir, progress)
-    channel.send(("done", result))
+    send(("done", result))
     channel.close()
     # Leave without interpreter shutdown: the result is delivered, and a heap that a
     # failed FMU damaged would only crash the collector now.
@@ -220,7 +232,7 @@ def _run_isolated(jobs, root, workers, on_progress, on_done):
                 index = waiting.pop(0)
                 job = jobs[index]
                 reader, writer = context.Pipe(duplex=False)
-                scratch = tempfile.mkdtemp(prefix="agv_cosim_run_")
+                scratch = scratch_dir("run")
                 process = context.Process(target=_child, name=f"agv-cosim {job.label}",
                                           args=(job, root / job.label, writer, scratch))
                 process.start()
@@ -261,7 +273,7 @@ def default_out_dir(manifest):
     return Path("results") / manifest.name
 
 
-def execute(manifest, jobs, out_dir=None, workers=None, quiet=False):
+def execute(manifest, jobs, out_dir=None, workers=None, quiet=False, overwrite=False):
     """Run ``jobs`` and write the output folder (see the module docstring).
 
     Parameters
@@ -274,6 +286,9 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet=False):
         Runs at once, each in its own process (default: one per core).
     quiet : bool
         No progress bars.
+    overwrite : bool
+        Replace ``out_dir`` even when it is not a result folder of ours (see
+        :class:`~agv_cosim.results.AtomicDir`; without it such a folder is refused).
 
     Returns
     -------
@@ -285,7 +300,7 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet=False):
     out_dir = Path(out_dir) if out_dir else default_out_dir(manifest)
     workers = workers or os.cpu_count() or 1
     workers = max(1, min(workers, len(jobs)))
-    with AtomicDir(out_dir) as folder:
+    with AtomicDir(out_dir, overwrite=overwrite) as folder:
         total = sum(int(round((job.plan.stop - job.plan.start) / job.plan.step))
                     for job in jobs)
         bar = tqdm(total=total, desc=manifest.name, unit="step", delay=2.0, disable=quiet,

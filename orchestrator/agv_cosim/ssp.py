@@ -43,6 +43,7 @@ from urllib.parse import unquote, urlparse
 from xml.etree import ElementTree
 
 from .manifest import ManifestError, load_manifest, plan_runs, validate
+from .results import check_name
 
 NS = {
     "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
@@ -473,7 +474,15 @@ def read_ssd(package, ssd_path):
         raise SspError(package, "DefaultExperiment", "no step size (an "
                        "osp:FixedStepAlgorithm annotation with baseStepSize is needed)")
     simulation = {"start": start, "stop": stop, "step": step, "algorithm": algorithm}
-    data = {"name": root.get("name") or system.get("name") or Path(package).stem,
+    name = root.get("name") if root.get("name") is not None else system.get("name")
+    if name is None:
+        name = Path(package).stem
+    try:
+        check_name(name, "system name")
+    except ValueError as error:
+        raise SspError(package, "SystemStructureDescription", f"{error} (it names the "
+                       "default output folder results/<name>)") from None
+    data = {"name": name,
             "description": system.get("description", ""),
             "simulation": simulation, "components": components, "connections": connections}
     if record or interval is not None:
