@@ -45,6 +45,14 @@ class SimulationError(Exception):
     """The run stopped: an FMU failed or produced a non-finite value."""
 
 
+class _WriteFailed(Exception):
+    """``write_row`` raised: its error is the caller's (e.g. a full disk), not an FMU's."""
+
+    def __init__(self, error):
+        super().__init__(str(error))
+        self.error = error
+
+
 @dataclass
 class Plan:
     """Everything :func:`simulate` needs for one run."""
@@ -159,6 +167,8 @@ def simulate(plan, write_row, progress=None):
     ------
     SimulationError
         An FMU returned a non-OK status or an output became NaN/inf.
+    Exception
+        Whatever ``write_row`` raised (e.g. OSError for a full disk), unchanged.
     """
     from fmpy.fmi1 import FMICallException
 
@@ -275,7 +285,10 @@ def simulate(plan, write_row, progress=None):
             row[0] = t
             for i, buffer, pos in record_from:
                 row[i] = buffer[pos]
-            write_row(row)
+            try:
+                write_row(row)
+            except Exception as error:  # noqa: BLE001 - re-raised as itself below
+                raise _WriteFailed(error) from None
             rows += 1
 
         state["where"] = "initial propagation"
@@ -338,6 +351,8 @@ def simulate(plan, write_row, progress=None):
                               + (f": {detail}" if detail else "")) from None
     except SimulationError:
         raise
+    except _WriteFailed as failed:  # not the FMU's fault: the caller's own error
+        raise failed.error from None
     except Exception as error:  # noqa: BLE001 - e.g. a failed instantiation
         raise SimulationError(f"component '{state['unit']}': {state['where']} at "
                               f"t={state['t']!r} s: {type(error).__name__}: {error}") from None

@@ -14,6 +14,7 @@ import hashlib
 import shutil
 import tempfile
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.etree import ElementTree
@@ -106,12 +107,37 @@ def read_model(path):
     try:
         with zipfile.ZipFile(path) as archive:
             xml = archive.read("modelDescription.xml")
-    except zipfile.BadZipFile:
-        raise ModelError(f"broken FMU (not a zip archive): '{path}'") from None
+            # every entry's CRC now, so a corrupt binary is named here, not mid-run
+            bad = archive.testzip()
     except KeyError:
         raise ModelError(f"broken FMU (no modelDescription.xml): '{path}'") from None
+    except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError) as error:
+        reason = "not a zip archive" if "File is not a zip" in str(error) else \
+            f"corrupt zip archive: {error}"
+        raise ModelError(f"broken FMU ({reason}): '{path}'") from None
     except OSError as error:
-        raise ModelError(f"cannot read FMU '{path}': {error}") from None
+        raise ModelError(f"cannot read FMU '{path}': {error.strerror or error}") from None
+    if bad is not None:
+        raise ModelError(f"broken FMU (entry '{bad}' is corrupt): '{path}'")
+    try:
+        return _parse_model(path, xml)
+    except (TypeError, ValueError, IndexError) as error:
+        raise ModelError(f"broken FMU (modelDescription.xml: {error}): '{path}'") from None
+
+
+def _integer(node, attr, what):
+    text = node.get(attr)
+    if text is None:
+        raise ValueError(f"{what} has no {attr}")
+    try:
+        return int(text)
+    except ValueError:
+        raise ValueError(f"{what}: {attr}={text!r} is not an integer") from None
+
+
+def _parse_model(path, xml):
+    stat = path.stat()
+    key = (str(path), stat.st_size, stat.st_mtime_ns)
     try:
         root = ElementTree.fromstring(xml)
     except ElementTree.ParseError as error:
@@ -131,7 +157,11 @@ def read_model(path):
         if kind is None:
             raise ModelError(f"broken FMU (variable '{scalar.get('name')}' has no type): "
                              f"'{path}'")
-        variable = Variable(name=scalar.get("name"), vr=int(scalar.get("valueReference")),
+        if not scalar.get("name"):
+            raise ValueError(f"ScalarVariable {len(ordered) + 1} has no name")
+        variable = Variable(name=scalar.get("name"),
+                            vr=_integer(scalar, "valueReference",
+                                        f"variable '{scalar.get('name')}'"),
                             type=kind.tag, causality=scalar.get("causality", "local"),
                             variability=scalar.get("variability", "continuous"),
                             unit=kind.get("unit"), description=scalar.get("description", ""),
@@ -140,13 +170,22 @@ def read_model(path):
         ordered.append(variable)
     input_names = [v.name for v in ordered if v.causality == "input"]
     outputs = root.find("ModelStructure/Outputs")
+    def indexed(text, what):
+        try:
+            index = int(text)
+        except (TypeError, ValueError):
+            raise ValueError(f"{what} {text!r} is not an integer") from None
+        if not 1 <= index <= len(ordered):
+            raise ValueError(f"{what} {index} is not a variable index (1..{len(ordered)})")
+        return ordered[index - 1]
+
     for unknown in outputs if outputs is not None else []:
-        variable = ordered[int(unknown.get("index")) - 1]
+        variable = indexed(unknown.get("index"), "Outputs/Unknown index")
         deps = unknown.get("dependencies")
         if deps is None:
             info.dependencies[variable.name] = list(input_names)
         else:
-            names = [ordered[int(i) - 1].name for i in deps.split()]
+            names = [indexed(i, "Outputs/Unknown dependency").name for i in deps.split()]
             info.dependencies[variable.name] = [n for n in names if n in input_names]
     for variable in ordered:
         if variable.causality == "output" and variable.name not in info.dependencies:

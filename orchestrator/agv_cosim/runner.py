@@ -75,6 +75,18 @@ def _signal_sources(manifest):
                 sources.append((name, list(module.referenced_signals(spec))))
             except Exception as error:  # noqa: BLE001 - a bad spec is a manifest error
                 raise ManifestError(manifest.path, name, str(error)) from None
+    # a path string is checked now, not after the runs (it would leave metrics empty)
+    base_dir = Path(manifest.path).parent
+    for key, text in (("metrics.reference.path",
+                       (manifest.metrics.get("reference") or {}).get("path")),
+                      ("plots.trajectory.path",
+                       (manifest.plots.get("trajectory") or {}).get("path"))):
+        if isinstance(text, str):
+            try:
+                metrics.load_path(text, key, base_dir)
+            except Exception as error:  # noqa: BLE001 - a bad path is a manifest error
+                problem = str(error).removeprefix(f"{key}: ")
+                raise ManifestError(manifest.path, key, problem) from None
     return sources
 
 
@@ -143,8 +155,12 @@ def run_job(job, run_dir, progress=None):
         simulate(job.plan, write, progress)
     except SimulationError as failure:
         error = str(failure)
-    finally:
+    except OSError as failure:  # writing the results failed (disk full, ...)
+        error = f"cannot write {failure.filename or sink.path}: {failure.strerror or failure}"
+    try:
         sink.close()
+    except OSError as failure:
+        error = error or f"cannot write {sink.path}: {failure.strerror or failure}"
     wall = time.perf_counter() - begin
     status = "complete" if error is None else ("partial" if rows else "failed")
     values, metrics_error = {}, None
@@ -197,7 +213,12 @@ def _child(job, run_dir, channel, scratch):
     def progress(steps):
         send(("progress", steps))
 
-    result = run_job(job, run_dir, progress)
+    try:
+        result = run_job(job, run_dir, progress)
+    except Exception as failure:  # noqa: BLE001 - e.g. a full disk: report, no traceback
+        result = {"label": job.label, "status": "failed", "rows": 0, "metrics": {},
+                  "error": f"{type(failure).__name__}: {failure}", "metrics_error": None,
+                  "point": job.point, "variant": job.variant}
     send(("done", result))
     channel.close()
     # Leave without interpreter shutdown: the result is delivered, and a heap that a

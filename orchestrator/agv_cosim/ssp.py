@@ -38,12 +38,13 @@ import stat
 import sys
 import tempfile
 import zipfile
+import zlib
 from pathlib import Path, PurePosixPath
 from urllib.parse import unquote, urlparse
 from xml.etree import ElementTree
 
 from .manifest import ManifestError, load_manifest, plan_runs, validate
-from .results import check_name
+from .results import OutputError, check_name
 
 NS = {
     "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
@@ -242,7 +243,14 @@ def export_ssp(manifest_path, out_path, variant=None, sets=()):
                      manifest.stop, manifest.step, manifest.algorithm, checked.record,
                      manifest.record_interval, manifest.description)
     out_path = Path(out_path)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
+    if out_path.is_dir():
+        raise OutputError(f"{out_path}: is a folder; give the name of the .ssp file to "
+                          "write")
+    try:
+        out_path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise OutputError(f"{out_path}: cannot create '{error.filename or out_path.parent}'"
+                          f": {error.strerror}") from None
     partial = out_path.with_name(out_path.name + ".partial")
     try:
         with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as archive:
@@ -295,7 +303,7 @@ def safe_extract(archive_path, dest):
                     raise SspError(archive_path, "archive",
                                    f"refused: entry '{info.filename}' leaves the folder")
             archive.extractall(dest)
-    except (zipfile.BadZipFile, OSError) as error:
+    except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, OSError) as error:
         raise SspError(archive_path, "archive", f"not a readable zip archive: {error}") \
             from None
 
