@@ -42,10 +42,12 @@ def _warn(warnings, quiet=False):
 
 
 def _cmd_validate(args):
-    from .runner import prepare
+    from .runner import check_initialisation, prepare
 
     manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set)
     _warn(warnings)
+    if not args.no_init:
+        check_initialisation(manifest, jobs)
     print(f"{manifest.path}: ok: {len(jobs)} run(s), {len(manifest.components)} "
           f"component(s), {len(manifest.connections)} connection(s), "
           f"{manifest.algorithm}")
@@ -142,7 +144,14 @@ def make_parser():
     run.set_defaults(func=_cmd_run)
 
     check = sub.add_parser("validate", help="check a manifest against its FMUs, run nothing",
-                           parents=[selection, debug])
+                           parents=[selection, debug],
+                           description="Check a manifest against its FMUs' model "
+                                       "descriptions, then instantiate and initialise "
+                                       "each FMU once with each run's parameters (in a "
+                                       "process of its own) to catch values an FMU "
+                                       "refuses. Runs no step.")
+    check.add_argument("--no-init", action="store_true",
+                       help="skip instantiating and initialising the FMUs")
     check.set_defaults(func=_cmd_validate)
 
     listing = sub.add_parser("list", help="list FMUs and their variables", parents=[debug])

@@ -354,8 +354,11 @@ def simulate(plan, write_row, progress=None):
     except _WriteFailed as failed:  # not the FMU's fault: the caller's own error
         raise failed.error from None
     except Exception as error:  # noqa: BLE001 - e.g. a failed instantiation
-        raise SimulationError(f"component '{state['unit']}': {state['where']} at "
-                              f"t={state['t']!r} s: {type(error).__name__}: {error}") from None
+        name = state["unit"]
+        detail = instances[name].last_error() if name in instances else ""
+        raise SimulationError(f"component '{name}': {state['where']} at "
+                              f"t={state['t']!r} s: {type(error).__name__}: {error}"
+                              + (f": {detail}" if detail else "")) from None
     finally:
         for instance in instances.values():
             instance.close()

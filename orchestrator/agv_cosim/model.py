@@ -6,11 +6,14 @@ unit and description, and each output's direct dependencies. An output whose
 ``<Unknown>`` carries no ``dependencies`` attribute depends, per FMI 2.0, on every input.
 
 :class:`FmuInstance` extracts an FMU into a private temporary folder, instantiates it with
-fmpy's ``FMU2Slave`` and collects its log messages; :meth:`FmuInstance.close` frees it and
+fmpy's ``FMU2Slave`` and collects its own log messages (each instance its own, see
+:func:`_logger`); :meth:`FmuInstance.close` frees it and
 removes the folder, also after a failure.
 """
 
 import hashlib
+import itertools
+import re
 import shutil
 import tempfile
 import zipfile
@@ -219,6 +222,40 @@ def describe(info):
     return "\n".join(lines)
 
 
+#: Instance key -> message list of that instance (see :func:`_logger`).
+_ROUTES = {}
+_KEYS = itertools.count(1)
+_ROUTER = []
+
+
+def _route(environment, instance_name, status, category, message):
+    """The one logger every instance is given; hands a message to its own instance."""
+    messages = _ROUTES.get(environment or 0)
+    if messages is None:  # an FMU that does not pass its environment back
+        name = instance_name.decode("utf-8", "replace") if instance_name else ""
+        messages = _ROUTES.get(name)
+    if messages is not None:
+        text = message.decode("utf-8", "replace") if message else ""
+        messages.append((int(status), text))
+
+
+def _logger():
+    """The process's single C logger callback (created once, kept alive).
+
+    fmpy's native proxy, which formats the printf-style message, keeps one logger per
+    process, and with it each instance's own Python logger would get the messages of
+    every instance created after it (the last one gets them all). So every instance
+    gets this one router, and its ``componentEnvironment`` (a key unique in the
+    process; the instance name when an FMU does not pass it back) says whose messages
+    they are.
+    """
+    if not _ROUTER:
+        from fmpy.fmi2 import fmi2CallbackLoggerTYPE
+
+        _ROUTER.append(fmi2CallbackLoggerTYPE(_route))
+    return _ROUTER[0]
+
+
 class FmuInstance:
     """One instantiated FMU in a private extraction folder.
 
@@ -232,8 +269,7 @@ class FmuInstance:
 
     def __init__(self, info, instance_name):
         from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE,
-                               fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
-                               fmi2CallbackLoggerTYPE)
+                               fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions)
         from fmpy.fmi1 import calloc, free
         from ctypes import byref
 
@@ -241,19 +277,21 @@ class FmuInstance:
         self.name = instance_name
         self.messages = []
         self.slave = None
-        self.unzip_dir = tempfile.mkdtemp(prefix=f"agv_cosim_{instance_name}_")
+        self._key = next(_KEYS)
+        _ROUTES[self._key] = self.messages
+        _ROUTES[instance_name] = self.messages
+        tag = instance_name if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,63}",
+                                            instance_name) else "fmu"
+        self.unzip_dir = tempfile.mkdtemp(prefix=f"agv_cosim_{tag}_")
         try:
             with zipfile.ZipFile(info.path) as archive:
                 archive.extractall(self.unzip_dir)
 
-            def logger(component, name, status, category, message):
-                text = message.decode("utf-8", "replace") if message else ""
-                self.messages.append((int(status), text))
-
             callbacks = fmi2CallbackFunctions()
-            callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+            callbacks.logger = _logger()
             callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
             callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+            callbacks.componentEnvironment = self._key
             try:
                 from fmpy.logging import addLoggerProxy
 
@@ -261,7 +299,6 @@ class FmuInstance:
             except Exception:  # noqa: BLE001 - messages then arrive unformatted
                 pass
             self._callbacks = callbacks  # keep the ctypes callbacks alive
-            self._logger = logger
             slave = FMU2Slave(guid=info.guid, unzipDirectory=self.unzip_dir,
                               modelIdentifier=info.identifier, instanceName=instance_name)
             self.slave = slave
@@ -299,3 +336,6 @@ class FmuInstance:
         if self.unzip_dir is not None:
             shutil.rmtree(self.unzip_dir, ignore_errors=True)
             self.unzip_dir = None
+        for key in (self._key, self.name):
+            if _ROUTES.get(key) is self.messages:
+                del _ROUTES[key]

@@ -289,6 +289,118 @@ def _run_isolated(jobs, root, workers, on_progress, on_done):
     return results
 
 
+def _check_child(checks, channel, scratch):
+    """Body of the initialisation check's child: instantiate and initialise each FMU."""
+    from .master import _set_parameter
+    from .model import FmuInstance
+
+    die_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    tempfile.tempdir = scratch
+    for index, (cname, info, values, start, stop) in enumerate(checks):
+        try:
+            channel.send(("checking", index))
+        except OSError:
+            os._exit(1)
+        instance, failure = None, None
+        try:
+            instance = FmuInstance(info, cname)
+            slave = instance.slave
+            call = "fmi2SetupExperiment"
+            slave.setupExperiment(startTime=start, stopTime=stop)
+            for pname, value in values.items():
+                call = f"setting parameter '{pname}'"
+                _set_parameter(slave, info.variables[pname], value)
+            call = "fmi2EnterInitializationMode"
+            slave.enterInitializationMode()
+            call = "fmi2ExitInitializationMode"
+            slave.exitInitializationMode()
+        except Exception as error:  # noqa: BLE001 - the FMU's refusal is the result
+            detail = instance.last_error() if instance is not None else ""
+            call = getattr(error, "function", None) or (call if instance else
+                                                         "fmi2Instantiate")
+            failure = f"{call} failed" + (f": {detail}" if detail else f" ({error})")
+        finally:
+            if instance is not None:
+                instance.close()
+        if failure:
+            try:
+                channel.send(("failed", (index, failure)))
+            except OSError:
+                pass
+            os._exit(0)  # a failed pythonfmu instance may have damaged the heap
+    try:
+        channel.send(("done", None))
+    except OSError:
+        pass
+    os._exit(0)
+
+
+def check_initialisation(manifest, jobs):
+    """Instantiate and initialise each FMU once with each run's parameters.
+
+    Catches what only the FMU knows (a parameter value it refuses), without running.
+    The FMUs run in a child process of their own (see the module docstring); each
+    distinct (FMU, parameters) pair is checked once, and the first refusal stops.
+
+    Raises
+    ------
+    ManifestError
+        Naming the component, the run, the FMI call and the FMU's own message.
+    """
+    checks, where, seen = [], [], set()
+    for job in jobs:
+        for cname, info in job.plan.models.items():
+            values = job.plan.parameters.get(cname, {})
+            key = (info.sha256, cname, repr(sorted(values.items())))
+            if key in seen:
+                continue
+            seen.add(key)
+            checks.append((cname, info, values, job.plan.start, job.plan.stop))
+            where.append((cname, job.label))
+    if not checks:
+        return
+    context = get_context("forkserver")
+    context.set_forkserver_preload([__name__])
+    reader, writer = context.Pipe(duplex=False)
+    scratch = scratch_dir("check")
+    process = context.Process(target=_check_child, name="agv-cosim check",
+                              args=(checks, writer, scratch))
+    current, failure = None, None
+    try:
+        process.start()
+        writer.close()
+        while True:
+            try:
+                kind, payload = reader.recv()
+            except EOFError:
+                process.join()
+                if current is not None and failure is None:
+                    code = process.exitcode
+                    how = f"signal {-code}" if code and code < 0 else f"exit code {code}"
+                    failure = (current, f"the FMU's process died ({how}) while it was "
+                                        "instantiated and initialised")
+                break
+            if kind == "checking":
+                current = payload
+            elif kind == "failed":
+                failure = payload
+            else:
+                current = None
+    finally:
+        if process.is_alive():
+            process.kill()
+        if process.pid is not None:
+            process.join()
+        reader.close()
+        shutil.rmtree(scratch, ignore_errors=True)
+    if failure is not None:
+        index, text = failure
+        cname, label = where[index]
+        raise ManifestError(manifest.path, f"components.{cname}",
+                            f"the FMU refuses to initialise (run {label}): {text}")
+
+
 def default_out_dir(manifest):
     """``results/<manifest name>`` relative to the current folder."""
     return Path("results") / manifest.name

@@ -36,7 +36,6 @@ import re
 import shutil
 import stat
 import sys
-import tempfile
 import zipfile
 import zlib
 from pathlib import Path, PurePosixPath
@@ -44,6 +43,7 @@ from urllib.parse import unquote, urlparse
 from xml.etree import ElementTree
 
 from .manifest import ManifestError, load_manifest, plan_runs, validate
+from .lifetime import scratch_dir
 from .results import OutputError, check_name
 
 NS = {
@@ -599,7 +599,7 @@ def ssp_manifest(path):
     if not is_ssp(path):
         yield path
         return
-    work = tempfile.mkdtemp(prefix="agv_ssp_")
+    work = scratch_dir("ssp")
     try:
         yield str(load_ssp_as_manifest(path, work))
     finally:
@@ -636,10 +636,13 @@ def run_libcosim(ssp_path, variables, step=None, stop=None, start=0.0):
     from libcosimpy.CosimObserver import CosimObserver
 
     if step is None or stop is None:
-        with tempfile.TemporaryDirectory(prefix="agv_ssp_") as work:
+        work = scratch_dir("ssp")
+        try:
             unpacked = Path(work)
             safe_extract(ssp_path, unpacked)
             data = read_ssd(ssp_path, unpacked / SSD_NAME)
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
         step = data["simulation"]["step"] if step is None else step
         stop = data["simulation"]["stop"] if stop is None else stop
         start = data["simulation"]["start"]
