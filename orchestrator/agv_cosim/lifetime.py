@@ -157,6 +157,13 @@ def multiprocessing_scratch():
             stop_helpers()
         return
     folder = scratch_dir("mp")
+    if len(folder) > 80:  # the fork server's socket path must stay under 108 bytes
+        shutil.rmtree(folder, ignore_errors=True)
+        try:
+            yield
+        finally:
+            stop_helpers()
+        return
     config["tempdir"] = folder
     try:
         yield
