@@ -44,7 +44,8 @@ def _warn(warnings, quiet=False):
 def _cmd_validate(args):
     from .runner import check_initialisation, prepare
 
-    manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set)
+    manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set,
+                                       source=args.source)
     _warn(warnings)
     if not args.no_init:
         check_initialisation(manifest, jobs)
@@ -59,7 +60,8 @@ def _cmd_run(args):
 
     if args.jobs is not None and args.jobs < 1:
         return _error("--jobs: must be >= 1")
-    manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set)
+    manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set,
+                                       source=args.source)
     _warn(warnings)
     target, results = execute(manifest, jobs, args.out, args.jobs, args.quiet,
                               overwrite=args.overwrite)
@@ -164,9 +166,11 @@ def make_parser():
 
 def _dispatch(args):
     # a .ssp package given as the manifest runs through a manifest made from it
-    with ssp_manifest(getattr(args, "manifest", None)) as path:
-        if path is not None:
-            args.manifest = path
+    original = getattr(args, "manifest", None)
+    args.source = None
+    with ssp_manifest(original) as path:
+        if path is not None and path != original:
+            args.manifest, args.source = path, original
         return args.func(args)
 
 

@@ -52,6 +52,7 @@ class Job:
     manifest_path: str
     manifest_sha256: str
     metrics_spec: dict
+    fmu_paths: dict = None
 
 
 def _start_value(var):
@@ -90,8 +91,12 @@ def _signal_sources(manifest):
     return sources
 
 
-def prepare(manifest_path, variants=None, sets=()):
+def prepare(manifest_path, variants=None, sets=(), source=None):
     """Load, expand and validate a manifest.
+
+    ``source``: the SSP package a generated manifest was made from (see
+    :func:`agv_cosim.ssp.ssp_manifest`); messages and run.json then name it (and its
+    SHA-256, and the FMUs as ``<package>!/<path inside it>``), not the temporary files.
 
     Returns
     -------
@@ -103,6 +108,11 @@ def prepare(manifest_path, variants=None, sets=()):
     ManifestError
     """
     manifest = load_manifest(manifest_path)
+    unpacked = None
+    if source is not None:
+        unpacked = Path(manifest.path).resolve().parent
+        manifest.path = Path(source)
+        manifest.sha256 = _source_sha256(source)
     runs = plan_runs(manifest, variants, sets)
     checked = validate(manifest, runs, _signal_sources(manifest))
     every = int(round(manifest.record_interval / manifest.step))
@@ -119,8 +129,27 @@ def prepare(manifest_path, variants=None, sets=()):
                         parameters=effective,
                         fmu_sha256={c: info.sha256 for c, info in models.items()},
                         manifest_path=str(manifest.path), manifest_sha256=manifest.sha256,
-                        metrics_spec=manifest.metrics))
+                        metrics_spec=manifest.metrics,
+                        fmu_paths={c: _shown_path(info.path, source, unpacked)
+                                   for c, info in models.items()}))
     return manifest, jobs, checked.warnings
+
+
+def _source_sha256(source):
+    """SHA-256 of an SSP source: the .ssp file, or the SSD of a package folder."""
+    from .model import file_sha256
+
+    source = Path(source)
+    return file_sha256(source / "SystemStructure.ssd" if source.is_dir() else source)
+
+
+def _shown_path(path, source, unpacked):
+    """How run.json names an FMU: inside an unpacked .ssp as ``<ssp>!/<entry>``."""
+    if source is not None and unpacked is not None:
+        package = unpacked / "package"
+        if package in Path(path).parents:
+            return f"{source}!/{Path(path).relative_to(package).as_posix()}"
+    return str(path)
 
 
 def versions():
@@ -181,7 +210,7 @@ def _finish(job, run_dir, rows, status, error, wall, values, metrics_error):
         "label": job.label, "variant": job.variant, "sweep_point": job.point,
         "manifest": job.manifest_path, "manifest_sha256": job.manifest_sha256,
         "fmu_sha256": job.fmu_sha256,
-        "fmus": {c: str(info.path) for c, info in job.plan.models.items()},
+        "fmus": job.fmu_paths or {c: str(info.path) for c, info in job.plan.models.items()},
         "parameters": job.parameters, "algorithm": job.plan.algorithm,
         "start": job.plan.start, "stop": job.plan.stop, "step": job.plan.step,
         "record_every": job.plan.record_every, "rows": rows,
