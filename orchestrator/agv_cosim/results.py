@@ -281,6 +281,12 @@ class AtomicDir:
                     shutil.rmtree(stale, ignore_errors=True)
 
     def commit(self):
+        from .lifetime import signals_blocked
+
+        with signals_blocked():  # the renames are not cut half-way by a Ctrl-C/SIGTERM
+            return self._commit()
+
+    def _commit(self):
         old = None
         if self.target.exists():
             self._check_target()

@@ -16,26 +16,7 @@ from pathlib import Path
 
 import pytest
 
-LONG = """
-name = "long"
-[simulation]
-stop = 10000.0
-step = 0.01
-[components.src]
-fmu = "{src}"
-[components.gain]
-fmu = "{gain}"
-[components.int]
-fmu = "{integ}"
-[[connections]]
-from = "src.y"
-to = "gain.u"
-[[connections]]
-from = "gain.y"
-to = "int.u"
-[sweep]
-"gain.k" = [1.0, 2.0]
-"""
+SWEEP = '[sweep]\n"gain.k" = [1.0, 2.0]\n'  # two runs, each in a child process
 
 
 def _group(pgid):
@@ -63,10 +44,8 @@ def _wait_gone(pgid, seconds):
 
 
 @pytest.fixture
-def long_run(fmus, tmp_path):
-    path = tmp_path / "long.toml"
-    path.write_text(LONG.format(src=fmus["agv_test_source"], gain=fmus["agv_test_gain"],
-                                integ=fmus["agv_test_integrator"]))
+def long_run(chain, tmp_path):
+    path = chain(stop=10000.0, step=0.01, extra=SWEEP, name="long.toml")
     tmp = Path(tempfile.mkdtemp(prefix="agvsig", dir="/tmp"))  # short: socket paths
     env = dict(os.environ, TMPDIR=str(tmp))
     started = []
@@ -135,11 +114,8 @@ def test_sigkilled_parent_children_stop_and_next_run_cleans(long_run):
     assert list(tmp.iterdir()) == []
 
 
-def test_no_process_left_after_a_normal_exit(fmus, tmp_path):
-    path = tmp_path / "short.toml"
-    path.write_text(LONG.format(src=fmus["agv_test_source"], gain=fmus["agv_test_gain"],
-                                integ=fmus["agv_test_integrator"]).replace(
-                                    "stop = 10000.0", "stop = 1.0"))
+def test_no_process_left_after_a_normal_exit(chain, tmp_path):
+    path = chain(extra=SWEEP, name="short.toml")
     tmp = Path(tempfile.mkdtemp(prefix="agvsig", dir="/tmp"))
     process = subprocess.Popen([sys.executable, "-m", "agv_cosim.cli", "run", str(path),
                                 "--quiet", "--out", str(tmp_path / "o")],
