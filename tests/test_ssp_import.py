@@ -136,6 +136,20 @@ def test_refused_with_one_line_naming_the_ssp(vehicle, tmp_path, capsys, kwargs,
     assert not (tmp_path / "out").exists()
 
 
+def test_broken_fmu_in_the_package_is_named_inside_it(vehicle, tmp_path, capsys):
+    ssp = _package(tmp_path, vehicle,
+                   component_bindings=_binding([("heading0", "Real", "1.0", "")]))
+    broken = tmp_path / "broken.ssp"
+    with zipfile.ZipFile(ssp) as old, zipfile.ZipFile(broken, "w") as new:
+        for info in old.infolist():
+            data = old.read(info)
+            new.writestr(info, b"not a zip" if info.filename.endswith(".fmu") else data)
+    code, err = _run(capsys, broken, tmp_path / "out")
+    assert code == 2 and len(err) == 1
+    assert err[0].startswith(f"agv-cosim: error: {broken}: Component 'vehicle': broken FMU")
+    assert f"'{broken}!/resources/AgvVehicle.fmu'" in err[0]
+
+
 def test_manifest_level_errors_name_the_ssp(vehicle, tmp_path, capsys):
     """A value the manifest check refuses (a String for a Boolean parameter) names the
     .ssp, and an FMU-level refusal at validate too."""

@@ -752,19 +752,18 @@ def ssp_manifest(path):
         yield path
         return
     work = scratch_dir("ssp")
+    manifest = Path(work) / "?"
     try:
         manifest = load_ssp_as_manifest(path, work)
-        try:
-            yield str(manifest)
-        except ManifestError as error:
-            if error.manifest not in (str(manifest), str(path)) or \
-                    isinstance(error, SspError):
-                raise
-            # an error in the generated manifest is the package's: name it and the
-            # entries in it, not our temporary files
-            package = str((Path(work) / "package").resolve()) + "/"
-            problem = error.problem.replace(package, f"{path}!/")
-            raise SspError(path, error.key, problem) from None
+        yield str(manifest)
+    except ManifestError as error:
+        if error.manifest not in (str(manifest), str(path)):
+            raise
+        # an error in the package or in the manifest made from it: name the package and
+        # the entries in it, never our temporary files
+        package = str((Path(work) / "package").resolve()) + "/"
+        problem = error.problem.replace(package, f"{path}!/")
+        raise SspError(path, error.key, problem) from None
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
