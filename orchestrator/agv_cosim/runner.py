@@ -186,10 +186,11 @@ def run_job(job, run_dir, progress=None):
         error = str(failure)
     except OSError as failure:  # writing the results failed (disk full, ...)
         error = f"cannot write {failure.filename or sink.path}: {failure.strerror or failure}"
-    try:
-        sink.close()
-    except OSError as failure:
-        error = error or f"cannot write {sink.path}: {failure.strerror or failure}"
+    finally:
+        try:
+            sink.close()
+        except OSError as failure:
+            error = error or f"cannot write {sink.path}: {failure.strerror or failure}"
     wall = time.perf_counter() - begin
     status = "complete" if error is None else ("partial" if rows else "failed")
     values, metrics_error = {}, None
