@@ -230,13 +230,12 @@ _ROUTER = []
 
 def _route(environment, instance_name, status, category, message):
     """The one logger every instance is given; hands a message to its own instance."""
-    messages = _ROUTES.get(environment or 0)
-    if messages is None:  # an FMU that does not pass its environment back
+    receive = _ROUTES.get(environment or 0)
+    if receive is None:  # an FMU that does not pass its environment back
         name = instance_name.decode("utf-8", "replace") if instance_name else ""
-        messages = _ROUTES.get(name)
-    if messages is not None:
-        text = message.decode("utf-8", "replace") if message else ""
-        messages.append((int(status), text))
+        receive = _ROUTES.get(name)
+    if receive is not None:
+        receive(int(status), message.decode("utf-8", "replace") if message else "")
 
 
 def _logger():
@@ -265,9 +264,12 @@ class FmuInstance:
         The FMU's model description.
     instance_name : str
         The component's instance name.
+    on_message : callable, optional
+        Also called as ``on_message(instance_name, status, text)`` for each message the
+        FMU logs (e.g. to pass it on before a crash can lose it).
     """
 
-    def __init__(self, info, instance_name):
+    def __init__(self, info, instance_name, on_message=None):
         from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE,
                                fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions)
         from fmpy.fmi1 import calloc, free
@@ -278,8 +280,9 @@ class FmuInstance:
         self.messages = []
         self.slave = None
         self._key = next(_KEYS)
-        _ROUTES[self._key] = self.messages
-        _ROUTES[instance_name] = self.messages
+        self._on_message = on_message
+        _ROUTES[self._key] = self._receive
+        _ROUTES[instance_name] = self._receive
         tag = instance_name if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,63}",
                                             instance_name) else "fmu"
         self.unzip_dir = tempfile.mkdtemp(prefix=f"agv_cosim_{tag}_")
@@ -306,6 +309,11 @@ class FmuInstance:
         except BaseException:
             self.close()
             raise
+
+    def _receive(self, status, text):
+        self.messages.append((status, text))
+        if self._on_message is not None:
+            self._on_message(self.name, status, text)
 
     def last_error(self):
         """The FMU's own error message, one line ('' if none was logged).
@@ -337,5 +345,5 @@ class FmuInstance:
             shutil.rmtree(self.unzip_dir, ignore_errors=True)
             self.unzip_dir = None
         for key in (self._key, self.name):
-            if _ROUTES.get(key) is self.messages:
+            if _ROUTES.get(key) == self._receive:
                 del _ROUTES[key]

@@ -35,7 +35,7 @@ from pathlib import Path
 from . import __version__, metrics, plots
 from .lifetime import die_with_parent, scratch_dir
 from .manifest import ManifestError, load_manifest, plan_runs, validate
-from .master import Plan, SimulationError, simulate
+from .master import Plan, SimulationError, describe_track, simulate
 from .results import AtomicDir, CsvSink, read_timeseries, write_json, write_summary
 
 
@@ -163,11 +163,12 @@ def versions():
     return found
 
 
-def run_job(job, run_dir, progress=None):
+def run_job(job, run_dir, progress=None, track=None, on_message=None):
     """Run one job into ``run_dir`` (created); return its summary dict.
 
     Never raises for a simulation failure: the status is ``complete``, ``partial`` (some
-    rows recorded, then a failure) or ``failed`` (nothing recorded).
+    rows recorded, then a failure) or ``failed`` (nothing recorded). ``track`` and
+    ``on_message`` are passed to :func:`~agv_cosim.master.simulate`.
     """
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -181,7 +182,7 @@ def run_job(job, run_dir, progress=None):
         rows += 1
 
     try:
-        simulate(job.plan, write, progress)
+        simulate(job.plan, write, progress, track, on_message)
     except SimulationError as failure:
         error = str(failure)
     except OSError as failure:  # writing the results failed (disk full, ...)
@@ -222,7 +223,7 @@ def _finish(job, run_dir, rows, status, error, wall, values, metrics_error):
             "variant": job.variant}
 
 
-def _child(job, run_dir, channel, scratch):
+def _child(job, run_dir, channel, scratch, track):
     """Body of a run's child process: run it, report progress and the result.
 
     FMUs are extracted under ``scratch``, which the parent deletes however the child
@@ -243,8 +244,16 @@ def _child(job, run_dir, channel, scratch):
     def progress(steps):
         send(("progress", steps))
 
+    warnings = [0]
+
+    def message(component, status, text):
+        # errors (and the first 100 warnings) reach the parent before a crash loses them
+        if status >= 3 or (status >= 1 and warnings[0] < 100):
+            warnings[0] += status < 3
+            send(("message", f"{component}: {' '.join(text.split())}"))
+
     try:
-        result = run_job(job, run_dir, progress)
+        result = run_job(job, run_dir, progress, track, message)
     except Exception as failure:  # noqa: BLE001 - e.g. a full disk: report, no traceback
         result = {"label": job.label, "status": "failed", "rows": 0, "metrics": {},
                   "error": f"{type(failure).__name__}: {failure}", "metrics_error": None,
@@ -256,12 +265,18 @@ def _child(job, run_dir, channel, scratch):
     os._exit(0)
 
 
-def _died(job, run_dir, exitcode):
-    """The summary of a run whose child process died before it reported."""
+def _died(job, run_dir, exitcode, track, last_message):
+    """The summary of a run whose child process died before it reported.
+
+    ``track`` (shared with the child) names the component, call and time it died in;
+    ``last_message`` is the last message an FMU of the run logged (or None).
+    """
     csv = Path(run_dir) / "timeseries.csv"
     rows = max(0, len(csv.read_text().splitlines()) - 1) if csv.is_file() else 0
     how = f"signal {-exitcode}" if exitcode < 0 else f"exit code {exitcode}"
-    error = f"the run's process died ({how}) after {rows} recorded rows"
+    error = (f"the run's process died ({how}) in {describe_track(track, list(job.plan.models))}"
+             f" after {rows} recorded rows"
+             + (f"; last FMU message: {last_message}" if last_message else ""))
     Path(run_dir).mkdir(parents=True, exist_ok=True)
     return _finish(job, run_dir, rows, "partial" if rows else "failed", error, None, {}, None)
 
@@ -275,8 +290,9 @@ def _run_isolated(jobs, root, workers, on_progress, on_done):
     context = get_context("forkserver")
     context.set_forkserver_preload([__name__])
     results = [None] * len(jobs)
+    last_message = [None] * len(jobs)
     waiting = list(range(len(jobs)))
-    running = {}  # job index -> (process, reading end of its pipe, scratch folder)
+    running = {}  # job index -> (process, reading end of its pipe, scratch folder, track)
     try:
         while waiting or running:
             while waiting and len(running) < workers:
@@ -284,13 +300,15 @@ def _run_isolated(jobs, root, workers, on_progress, on_done):
                 job = jobs[index]
                 reader, writer = context.Pipe(duplex=False)
                 scratch = scratch_dir("run")
+                track = context.RawArray("d", 3)  # where the child is (master.simulate)
                 process = context.Process(target=_child, name=f"agv-cosim {job.label}",
-                                          args=(job, root / job.label, writer, scratch))
+                                          args=(job, root / job.label, writer, scratch,
+                                                track))
                 process.start()
                 writer.close()
-                running[index] = (process, reader, scratch)
-            ready = wait([reader for _, reader, _ in running.values()], timeout=1.0)
-            for index, (process, reader, scratch) in list(running.items()):
+                running[index] = (process, reader, scratch, track)
+            ready = wait([entry[1] for entry in running.values()], timeout=1.0)
+            for index, (process, reader, scratch, track) in list(running.items()):
                 if reader not in ready:
                     continue
                 try:
@@ -302,16 +320,19 @@ def _run_isolated(jobs, root, workers, on_progress, on_done):
                     del running[index]
                     if results[index] is None:
                         results[index] = _died(jobs[index], root / jobs[index].label,
-                                               process.exitcode)
+                                               process.exitcode, track,
+                                               last_message[index])
                         on_done()
                     continue
                 if kind == "progress":
                     on_progress(payload)
+                elif kind == "message":
+                    last_message[index] = payload
                 else:
                     results[index] = payload
                     on_done()
     finally:
-        for process, reader, scratch in running.values():
+        for process, reader, scratch, _ in running.values():
             process.kill()
             process.join()
             reader.close()

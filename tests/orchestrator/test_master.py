@@ -157,5 +157,7 @@ fmu = "{fmus['agv_test_crash']}"
     assert len(crashed) == 1 and len(infos) == 2
     assert crashed[0]["status"] == "partial"
     assert "process died (signal 6)" in crashed[0]["error"]
+    # the child's shared track names the component, the call and the time it died in
+    assert "in component 'crashdut' during doStep at t=2.5" in crashed[0]["error"]
     assert crashed[0]["rows"] == 2000
     assert leftovers() == []
