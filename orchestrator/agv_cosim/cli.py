@@ -184,8 +184,8 @@ def _report(args, text, code):
 
 def main(argv=None):
     """Entry point of the ``agv-cosim`` console script; returns the exit code."""
-    from .lifetime import (Interrupted, clean_stale_scratch, multiprocessing_scratch,
-                           termination_signals)
+    from .lifetime import (Interrupted, clean_stale_scratch, termination_signals,
+                           use_own_scratch_for_multiprocessing)
     from .manifest import ManifestError
     from .results import OutputError
 
@@ -193,7 +193,8 @@ def main(argv=None):
     if not hasattr(args, "debug"):
         args.debug = False
     try:
-        with termination_signals(), multiprocessing_scratch():
+        with termination_signals():
+            use_own_scratch_for_multiprocessing()
             if args.command != "list":
                 clean_stale_scratch()
             return _dispatch(args)

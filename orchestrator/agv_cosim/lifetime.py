@@ -11,8 +11,9 @@
   ``<tmp>/agv-cosim-<pid>-<kind>-XXXXXXXX``; :func:`clean_stale_scratch` removes those
   whose process is gone (a run killed with SIGKILL leaves them), so the next run cleans
   what an earlier one could not.
-- :func:`stop_helpers` stops multiprocessing's fork server and resource tracker, so no
-  process of ours outlives the command.
+- :func:`use_own_scratch_for_multiprocessing` puts multiprocessing's sockets in such a
+  scratch folder and stops its fork server and resource tracker at exit
+  (:func:`stop_helpers`), so no process of ours outlives the command.
 """
 
 import contextlib
@@ -139,38 +140,34 @@ def clean_stale_scratch(tmp=None):
     return removed
 
 
-@contextlib.contextmanager
-def multiprocessing_scratch():
-    """Context: multiprocessing keeps its sockets in a scratch folder of ours.
+def use_own_scratch_for_multiprocessing():
+    """Once per process: multiprocessing's sockets in a scratch folder of ours, and its
+    helper processes stopped at exit.
 
-    Its default (``pymp-*``) is removed only by an orderly exit; ours is removed by the
-    next run when this process was killed. On leaving, the fork server and resource
-    tracker are stopped and the folder removed.
+    Its default folder (``pymp-*``) is removed only by an orderly exit; ours is removed
+    by the next run when this process was killed. At exit (``atexit``, before the
+    interpreter ends) the fork server and resource tracker are stopped and waited for,
+    so no process of ours outlives the command. Within one process (the tests call the
+    CLI many times) the fork server is kept between commands.
     """
+    import atexit
     import multiprocessing
 
     config = multiprocessing.current_process()._config
-    if config.get("tempdir") is not None:
-        try:
-            yield
-        finally:
-            stop_helpers()
+    if config.get("agv_cosim_scratch") or config.get("tempdir") is not None:
         return
     folder = scratch_dir("mp")
-    if len(folder) > 80:  # the fork server's socket path must stay under 108 bytes
+    config["agv_cosim_scratch"] = folder
+    if len(folder) <= 80:  # the fork server's socket path must stay under 108 bytes
+        config["tempdir"] = folder
+    else:
         shutil.rmtree(folder, ignore_errors=True)
-        try:
-            yield
-        finally:
-            stop_helpers()
-        return
-    config["tempdir"] = folder
-    try:
-        yield
-    finally:
+
+    def at_exit():
         stop_helpers()
-        config.pop("tempdir", None)
         shutil.rmtree(folder, ignore_errors=True)
+
+    atexit.register(at_exit)
 
 
 def stop_helpers():
