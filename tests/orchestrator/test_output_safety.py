@@ -8,6 +8,7 @@ stale .incomplete folders are cleaned; folders get the user's umask; one run per
 
 import os
 import stat
+from pathlib import Path
 
 import pytest
 
@@ -65,8 +66,11 @@ def test_out_under_a_file_or_unwritable(chain, tmp_path, capsys):
     (tmp_path / "plain").write_text("x")
     assert _run(chain(), tmp_path / "plain" / "out") == 2
     assert "is not a folder" in _one_error(capsys)
+    if Path("/proc/self").is_dir():  # a place nobody can write, not even root
+        assert _run(chain(), "/proc/agv-cosim-out") == 2
+        assert "/proc/agv-cosim-out: cannot write here" in _one_error(capsys)
     if os.geteuid() == 0:
-        return  # root writes everywhere
+        return  # root writes everywhere else
     locked = tmp_path / "locked"
     locked.mkdir(mode=0o500)
     assert _run(chain(), locked / "out") == 2
