@@ -141,3 +141,21 @@ def test_check_name():
     for bad in ("..", ".", "", "a b", "a/b", "a]", ".x", "x" * 129, None):
         with pytest.raises(ValueError):
             check_name(bad)
+
+
+def test_legacy_result_folder_is_recognised(tmp_path):
+    """A folder written before the stamp existed (summary.csv, run folders with
+    run.json, plots) is ours; one more file of the user's makes it not ours."""
+    from agv_cosim.results import is_result_folder
+
+    old = tmp_path / "old"
+    (old / "base").mkdir(parents=True)
+    (old / "summary.csv").write_text("run\nbase\n")
+    (old / "base" / "run.json").write_text("{}")
+    (old / "trajectory.png").write_bytes(b"png")
+    assert is_result_folder(old)
+    (old / "notes.txt").write_text("mine")
+    assert not is_result_folder(old)
+    (old / "notes.txt").unlink()
+    (old / "data").mkdir()  # a folder without run.json is not a run of ours
+    assert not is_result_folder(old)
