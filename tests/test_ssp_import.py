@@ -47,9 +47,10 @@ def _binding(params, source=None, prefix=""):
 
 
 def _package(tmp_path, vehicle_fmu, component_bindings="", system_bindings="",
-             name="vehicle", units=UNITS, extra_files=None):
+             name="vehicle", units=UNITS, extra_files=None, connectors=""):
     comp = (f'<ssd:Component name="{name}" source="resources/AgvVehicle.fmu" '
             'type="application/x-fmu-sharedlibrary">'
+            + (f"<ssd:Connectors>{connectors}</ssd:Connectors>" if connectors else "")
             + (f"<ssd:ParameterBindings>{component_bindings}</ssd:ParameterBindings>"
                if component_bindings else "") + "</ssd:Component>")
     system = ('<ssd:System name="imp"><ssd:Elements>' + comp + "</ssd:Elements>"
@@ -80,6 +81,8 @@ def test_bindings_at_every_level_with_units(vehicle, tmp_path, capsys):
     vehicle.x0 = 250 mm (overrides the component's 1 m). The pose at t = 0 shows them."""
     ssv = _set([("0", "Real", "-30", ' unit="mm"')])
     ssp = _package(tmp_path, vehicle,
+                   connectors='<ssd:Connector name="heading" kind="output"><ssc:Real '
+                              'unit="rad"/></ssd:Connector>',
                    component_bindings=_binding([("heading0", "Real", "90", ' unit="deg"'),
                                                 ("x0", "Real", "1.0", ' unit="m"')])
                    + _binding(None, source="resources/y.ssv", prefix="y"),
@@ -122,6 +125,15 @@ def test_bindings_at_every_level_with_units(vehicle, tmp_path, capsys):
      "Component 'vehicle': ParameterBinding", "is not a file in the package"),
     ({"component_bindings": '<ssd:ParameterBinding type="application/json"/>'},
      "Component 'vehicle': ParameterBinding", "type 'application/json' is not supported"),
+    ({"connectors": '<ssd:Connector name="heading" kind="output"><ssc:Real unit="deg"/>'
+                    '</ssd:Connector>'},
+     "Component 'vehicle': Connector 'heading'", "connector unit conversion is not supported"),
+    ({"connectors": '<ssd:Connector name="heading" kind="input"><ssc:Real unit="rad"/>'
+                    '</ssd:Connector>'},
+     "Component 'vehicle': Connector 'heading'", "kind 'input', but the FMU's variable is "
+                                                 "output"),
+    ({"connectors": '<ssd:Connector name="nope" kind="input"/>'},
+     "Component 'vehicle': Connector 'nope'", "not a variable of AgvVehicle"),
     ({"name": "my vehicle"}, "Component 'my vehicle'", "component names must be identifiers"),
     ({"name": "v]x"}, "Component 'v]x'", "component names must be identifiers"),
 ])

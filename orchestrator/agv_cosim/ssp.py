@@ -32,7 +32,9 @@ cannot be. What we do not support is refused with one line naming the .ssp and t
 element: nested systems, signal dictionaries, non-FMU or model-exchange components,
 sources outside the package, connections to system connectors, connection
 transformations, parameter mappings, other binding types, ``sourceBase="component"``,
-parameters of the system itself, Enumeration/Binary values. A package without the ``org.agv-cosim`` annotation runs with the Jacobi
+parameters of the system itself, Enumeration/Binary values, connectors that are not the
+FMU's variable of that kind, type and unit (connector units are never converted). A
+package without the ``org.agv-cosim`` annotation runs with the Jacobi
 algorithm (the semantics of libcosim, the master SSP packages of this kind come from) and
 records every Real output.
 """
@@ -496,6 +498,42 @@ def _component(package, base, node, ssd_units):
     return cname, fmu, _bindings(package, base, node, key, ssd_units)
 
 
+def _check_connectors(package, cname, fmu, node):
+    """Refuse connectors that do not match the FMU (we convert no connector units)."""
+    from .model import ModelError, read_model
+
+    connectors = node.findall("ssd:Connectors/ssd:Connector", NS)
+    if not connectors:
+        return
+    try:
+        info = read_model(fmu)
+    except ModelError as error:
+        raise SspError(package, f"Component '{cname}'", str(error)) from None
+    for connector in connectors:
+        name, kind = connector.get("name"), connector.get("kind")
+        key = f"Component '{cname}': Connector '{name}'"
+        var = info.variables.get(name)
+        if var is None:
+            raise SspError(package, key, f"not a variable of {info.model_name}")
+        if kind not in (None, var.causality) and not (kind == "inout" and
+                                                       var.causality in ("input", "output")):
+            raise SspError(package, key, f"kind '{kind}', but the FMU's variable is "
+                           f"{var.causality}")
+        typed = next((child for child in connector if child.tag in
+                      [_q("ssc", t) for t in _TYPES + ("Enumeration", "Binary")]), None)
+        if typed is None:
+            continue
+        vtype = typed.tag.split("}")[1]
+        if vtype != var.type:
+            raise SspError(package, key, f"type {vtype}, but the FMU's variable is "
+                           f"{var.type}")
+        unit = typed.get("unit")
+        if unit is not None and unit != (var.unit or ""):
+            raise SspError(package, key, f"unit '{unit}', but the FMU's variable is in "
+                           f"[{var.unit or '1'}] (connector unit conversion is not "
+                           "supported)")
+
+
 def _bound_parameters(package, components, component_bound, system_bound):
     """Component -> {parameter: value in the FMU's unit}.
 
@@ -584,6 +622,7 @@ def read_ssd(package, ssd_path):
         cname, fmu, bound[cname] = _component(package, base, node, ssd_units)
         if cname in components:
             raise SspError(package, f"Component '{cname}'", "name used twice")
+        _check_connectors(package, cname, fmu, node)
         components[cname] = fmu
     if not components:
         raise SspError(package, "System: Elements", "no components")
