@@ -219,6 +219,9 @@ def test_symlink_entry_is_refused(tmp_path):
     (lambda t: t.replace('source="resources/', 'source="http://example.org/', 1),
      "is not a path inside the package"),
     (lambda t: t.replace('source="resources/', 'source="../', 1), "outside the package"),
+    # issue 10 class 1: an SSD name is data, never a path (".." would name results/..)
+    (lambda t: re.sub(r'(<ssd:(?:SystemStructureDescription|System) [^>]*?name=)"[^"]*"',
+                      r'\1".."', t), "system name '..' is not a plain file name"),
 ])
 def test_unsupported_ssd_is_one_line(package, tmp_path, change, message):
     text, _ = _ssd_text(package[1])

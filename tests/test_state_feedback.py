@@ -32,16 +32,23 @@ def test_output_limit():
 
 
 def test_sample_and_hold_at_multiples_when_step_does_not_divide_it():
-    # T = 0.1 s, steps of 0.03 s: samples at the first communication points at or after
-    # 0, 0.1, 0.2, ... i.e. t = 0, 0.12, 0.21, 0.30 (0.3 = 10 steps), 0.42, ...
+    # T = 0.1 s, steps of 0.03 s, e = t held over each step (agv_core.sampling): the
+    # sample of t_k is the input held at t_k, i.e. set at the last communication point
+    # at or before it: 0, 0.09 (for 0.1), 0.18 (0.2), 0.3 (= 10 steps, on the grid),
+    # 0.39, 0.48, 0.6
     c = StateFeedback(Ka=0.0, Kb=0.0, Ke=1.0, sample_period=0.1)
     times = [round(0.03 * i, 10) for i in range(21)]
-    held = [c.update(t, 0.0, 0.0, t) for t in times]   # e = t, so u = -(sample time)
-    expected_samples = [0.0, 0.12, 0.21, 0.3, 0.42, 0.51, 0.6]
+    held = []
+    for t in times:
+        held.append(c.update(t, 0.0, 0.0, t))   # e = t, so u = -(sampled e)
+        c.step(t, 0.03, 0.0, 0.0, t)
+    expected_samples = [0.0, 0.09, 0.18, 0.3, 0.39, 0.48, 0.6]
     sampled_at = sorted({-u for u in held})
     assert sampled_at == pytest.approx(expected_samples, abs=1e-12)
+    assert held[4] == pytest.approx(-0.09, abs=1e-12)  # shown at 0.12: the 0.1 sample
     # same instant again with newer inputs refreshes the sample (Gauss-Seidel masters)
     assert c.update(0.6, 0.0, 0.0, 5.0) == -5.0
+    c.step(0.6, 0.03, 0.0, 0.0, 5.0)
     assert c.update(0.63, 0.0, 0.0, 7.0) == -5.0  # held
 
 
@@ -144,7 +151,7 @@ def test_fmu_feedthrough_and_sampling(tmp_path):
         slave.exitInitializationMode()
         ins = [vr["alpha"], vr["heading_error"], vr["lateral_error"]]
         got = []
-        for i in range(8):   # h = 0.03: samples at t = 0, 0.12, 0.21
+        for i in range(8):   # h = 0.03: samples of 0, 0.1 and 0.2, shown at 0, 0.12, 0.21
             t = 0.03 * i
             slave.setReal(ins, [0.0, 0.0, t])
             got.append(slave.getReal([vr["u"]])[0])  # feedthrough at a sample instant
@@ -153,6 +160,7 @@ def test_fmu_feedthrough_and_sampling(tmp_path):
     finally:
         slave.freeInstance()
         shutil.rmtree(folder, ignore_errors=True)
-    # u = -Ke * e at the sample, held between (4.472 * t, rounding 1e-12)
-    held_e = [0.0, 0.0, 0.0, 0.0, 0.12, 0.12, 0.12, 0.21]
+    # u = -Ke * e of the sample, held between (4.472 * t, rounding 1e-12); the sample of
+    # 0.1 is the input held over [0.09, 0.12), that of 0.2 the one over [0.18, 0.21)
+    held_e = [0.0, 0.0, 0.0, 0.0, 0.09, 0.09, 0.09, 0.18]
     np.testing.assert_allclose(got, [-4.472 * e for e in held_e], atol=1e-12)

@@ -31,6 +31,7 @@ import math
 
 from . import paths
 from .errors import ParameterError
+from .sampling import SampleHold
 
 #: Sources of the path-relative state understood by :class:`ChainedFormController`.
 SOURCES = ("sensor", "pose")
@@ -151,7 +152,10 @@ class ChainedFormController:
     delta_max : float
         Steering saturation [rad], 0 < delta_max < pi/2. Seed 002: 45 deg.
     sample_period : float
-        Controller sample period [s]; 0 computes on every call (every step).
+        Controller sample period [s]; 0 computes on every call (every step). Samples at
+        multiples of it, by the rule of :mod:`agv_core.sampling` (an instant inside a
+        communication step is sampled from the inputs held over it, committed by
+        :meth:`step` / :meth:`step_from_pose`).
     path : object, optional
         For :meth:`update_from_pose`: a reference path with ``project(x, y, s_hint)``
         returning an object with ``s, heading, curvature, curvature_rate, offset``
@@ -179,7 +183,7 @@ class ChainedFormController:
         self.delta_max = float(delta_max)
         self.sample_period = float(sample_period)
         self.path = path
-        self._sample = None  # index of the held sample (None: nothing held yet)
+        self._hold = SampleHold(self.sample_period)
         self._s_hint = None
         self.outputs = self._evaluate(0.0, 0.0, 0.0, 0.0)
 
@@ -195,17 +199,6 @@ class ChainedFormController:
         return {"delta": delta, "delta_law": delta_law, "m3": m3, "a2": a2, "a3": a3,
                 "s": s, "lateral_error": lateral_error, "heading_error": heading_error,
                 "saturated": delta != delta_law, "in_domain": in_domain}
-
-    def _due(self, t):
-        """True when a new value must be computed at time ``t`` [s]."""
-        if self.sample_period == 0.0:
-            return True
-        k = math.floor(t / self.sample_period + 1e-9)
-        instant = abs(t - k * self.sample_period) <= 1e-9 * max(1.0, abs(t))
-        if k != self._sample or instant:  # a new sample, or new inputs at its instant
-            self._sample = k
-            return True
-        return False
 
     def update(self, t, lateral_error, heading_error, curvature, curvature_rate):
         """Steering angle [rad] at time ``t`` [s] from the path-relative state.
@@ -228,10 +221,30 @@ class ChainedFormController:
         float
             Saturated steering angle delta [rad]; all outputs are in ``self.outputs``.
         """
-        if self._due(t):
-            self.outputs = self._evaluate(float(lateral_error), wrap_angle(heading_error),
-                                          float(curvature), float(curvature_rate))
+        self.outputs = self._hold.output(t, self._state_inputs(
+            lateral_error, heading_error, curvature, curvature_rate), self._evaluate)
         return self.outputs["delta"]
+
+    @staticmethod
+    def _state_inputs(lateral_error, heading_error, curvature, curvature_rate):
+        return (float(lateral_error), wrap_angle(heading_error), float(curvature),
+                float(curvature_rate))
+
+    def step(self, t, h, lateral_error, heading_error, curvature, curvature_rate):
+        """Commit the samples of the step from ``t`` to ``t + h`` [s] (inputs held).
+
+        The sampling rule is :mod:`agv_core.sampling`'s: an instant inside the step is
+        sampled from these held inputs.
+        """
+        self._hold.step(t, h, self._state_inputs(lateral_error, heading_error, curvature,
+                                                  curvature_rate), self._evaluate)
+        self.outputs = self._hold.value if self._hold.value is not None else self.outputs
+
+    def _from_pose(self, x, y, heading):
+        p = self.path.project(x, y, s_hint=self._s_hint)
+        self._s_hint = float(p.s)
+        return self._evaluate(float(p.offset), paths.heading_error(heading, float(p.heading)),
+                              float(p.curvature), float(p.curvature_rate), s=float(p.s))
 
     def update_from_pose(self, t, x, y, heading):
         """Steering angle [rad] from the rear-axle-centre pose, projected on ``path``.
@@ -252,23 +265,26 @@ class ChainedFormController:
         """
         if self.path is None:
             raise ValueError("update_from_pose needs a path")
-        if self._due(t):
-            p = self.path.project(x, y, s_hint=self._s_hint)
-            self._s_hint = float(p.s)
-            self.outputs = self._evaluate(float(p.offset),
-                                          paths.heading_error(heading, float(p.heading)),
-                                          float(p.curvature), float(p.curvature_rate),
-                                          s=float(p.s))
+        self.outputs = self._hold.output(t, (float(x), float(y), float(heading)),
+                                         self._from_pose)
         return self.outputs["delta"]
+
+    def step_from_pose(self, t, h, x, y, heading):
+        """:meth:`step` for the pose inputs (rear-axle centre [m], heading [rad])."""
+        if self.path is None:
+            raise ValueError("step_from_pose needs a path")
+        self._hold.step(t, h, (float(x), float(y), float(heading)), self._from_pose)
+        self.outputs = self._hold.value if self._hold.value is not None else self.outputs
 
     # ------------------------------------------------------------------ state
     def get_state(self):
         """JSON-safe snapshot: the held sample, its outputs and the projection hint."""
-        return {"sample": self._sample, "s_hint": self._s_hint, "outputs": dict(self.outputs)}
+        return {"hold": self._hold.get_state(), "s_hint": self._s_hint,
+                "outputs": dict(self.outputs)}
 
     def set_state(self, state):
         """Restore a snapshot from :meth:`get_state`."""
-        self._sample = state["sample"]
+        self._hold.set_state(state["hold"])
         self._s_hint = state["s_hint"]
         self.outputs = dict(state["outputs"])
 

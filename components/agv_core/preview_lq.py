@@ -59,6 +59,7 @@ import math
 import numpy as np
 
 from .errors import ParameterError
+from .sampling import SampleHold
 
 
 def wrap_angle(angle):
@@ -368,6 +369,7 @@ class PreviewLQ:
         Steering limit [rad], in (0, pi/2).
     sample_period : float
         Controller period [s]; 0 evaluates on every call (every communication step).
+        Sampling follows :mod:`agv_core.sampling`.
     dead_reckoning : bool
         Propagate the last fix by ``fix_age`` along the kinematic arc (our addition).
     alpha_fixed_point : bool
@@ -423,7 +425,7 @@ class PreviewLQ:
                                          f"{error}") from error
         self._gains = {}
         self.hint = None
-        self.held = None  # (sample index, time, output dict)
+        self._hold = SampleHold(self.sample_period)
 
     # ------------------------------------------------------------------ gain
     def gain(self, theta_p, alpha_p):
@@ -525,27 +527,28 @@ class PreviewLQ:
     def update(self, t, x_meas, y_meas, heading_meas, alpha_meas, fix_age=0.0):
         """Output at time ``t`` [s], with sample-and-hold when ``sample_period`` > 0.
 
-        The law is evaluated at the first call at or after each sample instant k T and
-        at any later call at that same time (new inputs at the sample instant); between
-        samples the held output is returned.
+        The rule is :mod:`agv_core.sampling`'s: at an instant k T the law is evaluated
+        on the current inputs (again at every call at that time); an instant inside a
+        communication step is sampled from the inputs held over it by :meth:`step`;
+        between instants the sample is held.
         """
         args = (x_meas, y_meas, heading_meas, alpha_meas, fix_age)
-        if self.sample_period == 0.0:
-            return self.compute(*args)
-        k = math.floor(t / self.sample_period + 1e-9)
-        if self.held is None or k > self.held[0] or (k == self.held[0] and t == self.held[1]):
-            self.held = (k, t, self.compute(*args))
-        return dict(self.held[2])
+        return dict(self._hold.output(t, args, self.compute))
+
+    def step(self, t, h, x_meas, y_meas, heading_meas, alpha_meas, fix_age=0.0):
+        """Commit the samples of the step from ``t`` to ``t + h`` [s] (inputs held)."""
+        self._hold.step(t, h, (x_meas, y_meas, heading_meas, alpha_meas, fix_age),
+                        self.compute)
 
     # ------------------------------------------------------------------ state
     def get_state(self):
         """JSON-safe snapshot (search hint and held sample; the gain cache is a pure
         function of its keys and is not state)."""
-        held = None if self.held is None else [self.held[0], self.held[1], self.held[2]]
-        return {"hint": self.hint, "held": held}
+        return {"hint": self.hint, "hold": self._hold.get_state()}
 
     def set_state(self, state):
         """Restore a snapshot from :meth:`get_state`."""
         self.hint = state["hint"]
-        held = state["held"]
-        self.held = None if held is None else (held[0], held[1], dict(held[2]))
+        self._hold.set_state(state["hold"])
+        if self._hold.value is not None:
+            self._hold.value = dict(self._hold.value)

@@ -2,6 +2,8 @@
 
 Timing semantics shared by the sampled sensors (vision, total station)
 ---------------------------------------------------------------------
+The rule is the one of every sampled component (agv_core.sampling, components/README.md
+"Sampling"); the sensors add latency and noise to it.
 The master holds every input constant over a communication step [t, t + h). A sample
 (camera frame, total-station fix) is *captured* at its instant t_k from the input held
 at that instant: a capture instant belongs to the step [t, t + h) when
@@ -34,9 +36,11 @@ import numpy as np
 
 from .errors import ParameterError
 from .paths import heading_error
+from .sampling import TIME_EPS, at_instant, in_step
 
-#: Time tolerance [s] for matching sample instants to communication points.
-EPS = 1e-9
+#: Time tolerance [s] for matching sample instants to communication points: the one
+#: tolerance of agv_core.sampling.
+EPS = TIME_EPS
 
 
 def _nonneg(name, value):
@@ -82,7 +86,7 @@ class _Sampled:
 
     # timing ----------------------------------------------------------------
     def _due(self, t):
-        return abs(self._next_time() - t) <= EPS
+        return at_instant(self._next_time(), t)
 
     def step(self, t, h, *inputs):
         """Advance from ``t`` to ``t + h`` [s] with ``inputs`` held."""
@@ -91,7 +95,7 @@ class _Sampled:
         end = t + h
         while self._next_time() < end - EPS:
             t_k = self._next_time()
-            if t_k >= t - EPS:
+            if in_step(t_k, t, h):  # agv_core.sampling's rule (instants before t: skipped)
                 self.pending.append((t_k + self.latency, t_k,
                                      self._sample(inputs, True, commit=True)))
             self._advance_schedule()

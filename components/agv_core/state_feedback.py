@@ -26,6 +26,7 @@ import math
 import numpy as np
 
 from .errors import ParameterError
+from .sampling import SampleHold
 
 #: seed 000 eq 10: [Ka [V/rad], Kb [V/rad], Ke [V/m]]
 PAPER_GAINS = (4.828, 3.767, 4.472)
@@ -51,9 +52,9 @@ class StateFeedback:
     sample_period : float
         Sample period [s], >= 0. 0: the law is evaluated at every communication point.
         Otherwise the output is sampled at multiples ``k * sample_period`` of absolute
-        time and held; a sample instant inside a communication step is taken at the first
-        communication point at or after it (the inputs are only known there), and the
-        sample count never drifts because k is computed from time, not accumulated.
+        time and held, by the project's one rule (:mod:`agv_core.sampling`): an instant
+        is sampled from the inputs held at it (an instant inside a communication step
+        from the inputs held over that step, committed by :meth:`step`).
     u_max : float
         Output limit [V], >= 0; 0 = off.
     """
@@ -69,8 +70,7 @@ class StateFeedback:
         if self.u_max < 0.0:
             raise ParameterError("u_max", f"must be >= 0 V (0 = off), got {u_max}")
         self.u = 0.0
-        self._sample_index = None   # float k of the last sample (JSON-safe)
-        self._sample_time = None    # communication time [s] the last sample was taken at
+        self._hold = SampleHold(self.sample_period)
 
     def law(self, alpha, heading_error, lateral_error):
         """The control law without sampling [V] (limited by ``u_max`` if set)."""
@@ -80,28 +80,22 @@ class StateFeedback:
         return u
 
     def update(self, t, alpha, heading_error, lateral_error):
-        """Output [V] at time ``t`` [s] for the current inputs (samples when due)."""
-        if self.sample_period == 0.0:
-            self.u = self.law(alpha, heading_error, lateral_error)
-            return self.u
-        k = float(math.floor(t / self.sample_period + 1e-9))
-        if self._sample_index is None or k > self._sample_index or t == self._sample_time:
-            # a new sample, or the same instant again with newer inputs
-            self.u = self.law(alpha, heading_error, lateral_error)
-            self._sample_index = k
-            self._sample_time = t
+        """Output [V] at time ``t`` [s] for the current inputs (the sample, or held)."""
+        self.u = self._hold.output(t, (alpha, heading_error, lateral_error), self.law)
         return self.u
+
+    def step(self, t, h, alpha, heading_error, lateral_error):
+        """Commit the samples of the step from ``t`` to ``t + h`` [s] (inputs held)."""
+        self._hold.step(t, h, (alpha, heading_error, lateral_error), self.law)
 
     def get_state(self):
         """JSON-safe snapshot of the state."""
-        return {"u": self.u, "sample_index": self._sample_index,
-                "sample_time": self._sample_time}
+        return {"u": self.u, "hold": self._hold.get_state()}
 
     def set_state(self, state):
         """Restore a snapshot from :meth:`get_state`."""
         self.u = float(state["u"])
-        self._sample_index = state["sample_index"]
-        self._sample_time = state["sample_time"]
+        self._hold.set_state(state["hold"])
 
 
 # ---------------------------------------------------------------------- design

@@ -80,7 +80,13 @@ class AgvChainedForm(core.fmi_slave.AgvSlave):
             self.source, self.path)
 
     def advance(self, t, h):
-        pass  # a static law: publish() evaluates it at the new time with the held inputs
+        # a static law; a sample instant inside this step is taken from the held inputs
+        c = self.core
+        if self.source == "pose":
+            c.step_from_pose(t, h, self.x, self.y, self.heading)
+        else:
+            c.step(t, h, self.lateral_error, self.heading_error, self.curvature,
+                   self.curvature_rate)
 
     def publish(self):
         c = self.core

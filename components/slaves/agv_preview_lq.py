@@ -72,7 +72,9 @@ class AgvPreviewLq(core.fmi_slave.AgvSlave):
             dead_reckoning=self.dead_reckoning, alpha_fixed_point=self.alpha_fixed_point)
 
     def advance(self, t, h):
-        pass  # the law is static; publish() evaluates it at the new time
+        # the law is static; a sample instant inside this step uses the held inputs
+        self.core.step(t, h, self.x_meas, self.y_meas, self.heading_meas, self.alpha_meas,
+                       self.fix_age)
 
     def publish(self):
         out = self.core.update(self.time, self.x_meas, self.y_meas, self.heading_meas,

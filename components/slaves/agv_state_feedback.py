@@ -40,7 +40,8 @@ class AgvStateFeedback(core.fmi_slave.AgvSlave):
                                                  self.sample_period, self.u_max)
 
     def advance(self, t, h):
-        pass  # memoryless between samples: the output is formed in publish()
+        # a sample instant inside this step is taken from the inputs held over it
+        self.core.step(t, h, self.alpha, self.heading_error, self.lateral_error)
 
     def publish(self):
         self.u = self.core.update(self.time, self.alpha, self.heading_error,

@@ -1,12 +1,16 @@
 """The ``agv-cosim`` command line.
 
-Exit codes: 0 success; 1 a run that failed or is partial (or a failed build); 2 bad input
-(one line ``agv-cosim: error: <manifest>: <key>: <problem>`` on stderr, no traceback
-unless ``--debug``).
+Exit codes: 0 success; 1 a run that failed or is partial, a metrics error, a failed build
+or an error of the system (disk full, ...); 2 bad input (one line
+``agv-cosim: error: <manifest>: <key>: <problem>`` on stderr; also an output folder that
+is not ours, or one another run is writing); 128 + N when ended by signal N (SIGINT,
+SIGTERM, SIGHUP), with no result folder completed. Every error is one line on stderr;
+``--debug`` adds the traceback and changes nothing else (not the exit code).
 """
 
 import argparse
 import sys
+import traceback
 
 from . import __version__
 from .ssp import add_cli as add_ssp_cli
@@ -38,10 +42,13 @@ def _warn(warnings, quiet=False):
 
 
 def _cmd_validate(args):
-    from .runner import prepare
+    from .runner import check_initialisation, prepare
 
-    manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set)
+    manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set,
+                                       source=args.source)
     _warn(warnings)
+    if not args.no_init:
+        check_initialisation(manifest, jobs)
     print(f"{manifest.path}: ok: {len(jobs)} run(s), {len(manifest.components)} "
           f"component(s), {len(manifest.connections)} connection(s), "
           f"{manifest.algorithm}")
@@ -53,16 +60,22 @@ def _cmd_run(args):
 
     if args.jobs is not None and args.jobs < 1:
         return _error("--jobs: must be >= 1")
-    manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set)
+    manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set,
+                                       source=args.source)
     _warn(warnings)
-    target, results = execute(manifest, jobs, args.out, args.jobs, args.quiet)
+    target, results = execute(manifest, jobs, args.out, args.jobs, args.quiet,
+                              overwrite=args.overwrite)
     bad = [r for r in results if r["status"] != "complete"]
     for result in bad:
         print(f"agv-cosim: run {result['label']} {result['status']}: {result['error']}",
               file=sys.stderr)
+    unmeasured = [r for r in results if r.get("metrics_error")]
+    for result in unmeasured:
+        print(f"agv-cosim: run {result['label']}: metrics: {result['metrics_error']}",
+              file=sys.stderr)
     if not args.quiet:
         print(f"{target}: {len(results) - len(bad)}/{len(results)} run(s) complete")
-    return 1 if bad else 0
+    return 1 if bad or unmeasured else 0
 
 
 def _cmd_list(args):
@@ -125,12 +138,22 @@ def make_parser():
     run.add_argument("--out", metavar="DIR",
                      help="output folder (default: results/<manifest name>)")
     run.add_argument("--quiet", action="store_true", help="no progress bars or summary")
+    run.add_argument("--overwrite", action="store_true",
+                     help="replace DIR even if it is not a result folder of agv-cosim "
+                          "(without it such a folder is refused)")
     run.add_argument("--jobs", type=int, metavar="N",
                      help="runs at once, each in a process of its own (default: one per core)")
     run.set_defaults(func=_cmd_run)
 
     check = sub.add_parser("validate", help="check a manifest against its FMUs, run nothing",
-                           parents=[selection, debug])
+                           parents=[selection, debug],
+                           description="Check a manifest against its FMUs' model "
+                                       "descriptions, then instantiate and initialise "
+                                       "each FMU once with each run's parameters (in a "
+                                       "process of its own) to catch values an FMU "
+                                       "refuses. Runs no step.")
+    check.add_argument("--no-init", action="store_true",
+                       help="skip instantiating and initialising the FMUs")
     check.set_defaults(func=_cmd_validate)
 
     listing = sub.add_parser("list", help="list FMUs and their variables", parents=[debug])
@@ -141,30 +164,57 @@ def make_parser():
     return parser
 
 
+def _dispatch(args):
+    # a .ssp package given as the manifest runs through a manifest made from it
+    original = getattr(args, "manifest", None)
+    args.source = None
+    with ssp_manifest(original) as path:
+        if path is not None and path != original:
+            args.manifest, args.source = path, original
+        return args.func(args)
+
+
+def _report(args, text, code):
+    """One line on stderr (the traceback first with ``--debug``); return ``code``."""
+    if args.debug:
+        traceback.print_exc()
+    print(f"agv-cosim: {text}", file=sys.stderr)
+    return code
+
+
 def main(argv=None):
     """Entry point of the ``agv-cosim`` console script; returns the exit code."""
+    from .lifetime import (Interrupted, clean_stale_scratch, termination_signals,
+                           use_own_scratch_for_multiprocessing)
     from .manifest import ManifestError
+    from .results import OutputError
 
     args = make_parser().parse_args(argv)
+    if not hasattr(args, "debug"):
+        args.debug = False
     try:
-        # a .ssp package given as the manifest runs through a manifest made from it
-        with ssp_manifest(getattr(args, "manifest", None)) as path:
-            if path is not None:
-                args.manifest = path
-            return args.func(args)
-    except ManifestError as error:
-        if args.debug:
-            raise
-        return _error(str(error))
+        with termination_signals():
+            use_own_scratch_for_multiprocessing()
+            if args.command != "list":
+                clean_stale_scratch()
+            return _dispatch(args)
+    except (ManifestError, OutputError) as error:
+        return _report(args, f"error: {error}", 2)
     except BrokenPipeError:
         # the reader went away (e.g. `agv-cosim list | head`): stop quietly
         sys.stdout = None
         return 0
     except KeyboardInterrupt:
-        if args.debug:
-            raise
-        print("agv-cosim: interrupted (no result folder was completed)", file=sys.stderr)
-        return 130
+        return _report(args, "interrupted by SIGINT (no result folder was completed)", 130)
+    except Interrupted as signal:
+        return _report(args, f"interrupted by {signal.name} (no result folder was "
+                       "completed)", 128 + signal.signum)
+    except OSError as error:  # the system refused (disk full, permissions, ...)
+        where = f"{error.filename}: " if error.filename else ""
+        return _report(args, f"error: {where}{error.strerror or error}", 1)
+    except Exception as error:  # noqa: BLE001 - never a traceback without --debug
+        return _report(args, f"error: internal error: {type(error).__name__}: {error} "
+                       "(run with --debug for the traceback)", 1)
 
 
 if __name__ == "__main__":

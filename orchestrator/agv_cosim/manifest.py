@@ -21,11 +21,30 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .model import ModelError, read_model
+from .results import check_name
 
 ALGORITHMS = ("gauss-seidel", "jacobi")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _TOP_KEYS = {"name", "description", "simulation", "components", "connections", "variants",
              "sweep", "record", "metrics", "plots"}
+
+
+#: Most macro steps of one run: 2**53, where k step stops being exact in a double.
+MAX_STEPS = float(2 ** 53)
+#: FMI 2.0 Integer is a 32-bit signed int.
+INT32 = (-2 ** 31, 2 ** 31 - 1)
+
+
+def whole_multiple(span, step):
+    """True when ``span`` is n * ``step`` for a whole n >= 1, up to rounding.
+
+    The tolerance is absolute in steps: 1e-9 of a step, plus the rounding error of the
+    division (4 ulp per step counted), so a long run cannot hide half a step behind a
+    relative tolerance (500000.5 steps is not 500000).
+    """
+    steps = span / step
+    n = round(steps)
+    return n >= 1 and abs(steps - n) <= 1e-9 + 4 * 2.220446049250313e-16 * n
 
 
 class ManifestError(Exception):
@@ -173,7 +192,11 @@ def load_manifest(path):
     if stop <= start:
         raise ManifestError(path, "simulation.stop", f"{stop!r} must be > start ({start!r})")
     steps = (stop - start) / step
-    if abs(steps - round(steps)) > 1e-6 * max(1.0, steps):
+    if not steps <= MAX_STEPS:
+        raise ManifestError(path, "simulation.step", f"(stop - start) / step = {steps!r} "
+                            f"steps; at most {MAX_STEPS:.0f} (beyond, t = start + k step "
+                            "no longer tells the steps apart)")
+    if not whole_multiple(stop - start, step):
         raise ManifestError(path, "simulation.step", f"stop - start = {stop - start!r} is not "
                             f"a whole number of steps of {step!r}")
     algorithm = sim.get("algorithm", "gauss-seidel")
@@ -211,6 +234,10 @@ def load_manifest(path):
     variants = {}
     for name, table in _table(path, data, "variants").items():
         key = f"variants.{name}"
+        try:
+            check_name(name, "variant name")
+        except ValueError as error:
+            raise ManifestError(path, key, f"{error} (it names the run's folder)") from None
         if not isinstance(table, dict):
             raise ManifestError(path, key, "must be a table")
         extra = set(table) - {"description", "components"}
@@ -247,12 +274,16 @@ def load_manifest(path):
         if len(set(variables)) != len(variables):
             raise ManifestError(path, "record.variables", "a variable is listed twice")
     interval = _number(path, record, "interval", "record", step)
-    ratio = interval / step
-    if interval <= 0 or ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6 * ratio:
+    if interval <= 0 or interval / step > MAX_STEPS or not whole_multiple(interval, step):
         raise ManifestError(path, "record.interval", f"{interval!r} must be a positive whole "
                             f"multiple of the step ({step!r})")
-    return Manifest(path=path, sha256=hashlib.sha256(raw).hexdigest(),
-                    name=str(data.get("name", path.stem)),
+    name = data.get("name", path.stem)
+    try:
+        check_name(name)
+    except ValueError as error:
+        raise ManifestError(path, "name", f"{error} (it names the default output folder "
+                            "results/<name>)") from None
+    return Manifest(path=path, sha256=hashlib.sha256(raw).hexdigest(), name=name,
                     description=str(data.get("description", "")), start=start, stop=stop,
                     step=step, algorithm=algorithm, components=components,
                     connections=connections, variants=variants, sweep=sweep,
@@ -275,6 +306,20 @@ def parse_set(manifest, text):
 
 def _slug(text):
     return re.sub(r"[^A-Za-z0-9._=+-]", "_", text)
+
+
+#: Longest run label (a folder name); longer labels (many or long sweep values) are cut
+#: and end in a hash of the full label, so they stay distinct.
+MAX_LABEL = 100
+
+
+def run_label(parts):
+    """The folder name of a run: its slugged parts joined by ``__``, bounded."""
+    label = "__".join(_slug(p) for p in parts)
+    if len(label) > MAX_LABEL:
+        digest = hashlib.sha256(label.encode()).hexdigest()[:12]
+        label = f"{label[:MAX_LABEL - 13]}-{digest}"
+    return label
 
 
 def plan_runs(manifest, variants=None, sets=()):
@@ -326,7 +371,7 @@ def plan_runs(manifest, variants=None, sets=()):
                 cname, pname = name.split(".")
                 comps[cname].parameters[pname] = value
             parts = [variant or "base"] + [f"{k}={v!r}" for k, v in point.items()]
-            runs.append(RunSpec(label="__".join(_slug(p) for p in parts), variant=variant,
+            runs.append(RunSpec(label=run_label(parts), variant=variant,
                                 point=point, components=comps, overrides=overrides))
     labels = [r.label for r in runs]
     if len(set(labels)) != len(labels):
@@ -339,7 +384,8 @@ def _value_ok(vtype, value):
     if vtype == "Real":
         return isinstance(value, (int, float)) and not isinstance(value, bool)
     if vtype in ("Integer", "Enumeration"):
-        return isinstance(value, int) and not isinstance(value, bool)
+        return (isinstance(value, int) and not isinstance(value, bool)
+                and INT32[0] <= value <= INT32[1])
     if vtype == "Boolean":
         return isinstance(value, bool)
     return isinstance(value, str)
@@ -365,7 +411,8 @@ def _fmu_key(manifest, run, cname):
     return f"components.{cname}.fmu"
 
 
-def feedthrough_order(models, connections, manifest_path="manifest"):
+def feedthrough_order(models, connections, manifest_path="manifest",
+                      algorithm="gauss-seidel"):
     """Gauss-Seidel order of the components, or raise on an algebraic loop.
 
     Parameters
@@ -373,6 +420,11 @@ def feedthrough_order(models, connections, manifest_path="manifest"):
     models : dict
         Instance name -> :class:`~agv_cosim.model.ModelInfo`.
     connections : list of Connection
+    manifest_path : path
+        For the messages.
+    algorithm : {"gauss-seidel", "jacobi"}
+        Jacobi needs no order: components that feed each other without a variable loop
+        are then accepted (in manifest order); an algebraic loop is refused for both.
 
     Returns
     -------
@@ -414,6 +466,8 @@ def feedthrough_order(models, connections, manifest_path="manifest"):
                 ready.append(dst)
         ready.sort(key=names.index)
     if len(order) != len(names):
+        if algorithm == "jacobi":  # Jacobi needs no order: every FMU reads, then sets
+            return names
         stuck = ", ".join(n for n in names if n not in order)
         raise ManifestError(manifest_path, "connections",
                             f"components {stuck} feed each other through feedthrough "
@@ -497,6 +551,10 @@ def validate(manifest, runs, extra_signals=()):
                     raise err(key, f"'{cname}.{pname}' is {_article(var.causality)}, "
                               "not a parameter")
                 if not _value_ok(var.type, value):
+                    if var.type in ("Integer", "Enumeration") and _value_ok("Real", value) \
+                            and isinstance(value, int):
+                        raise err(key, f"'{cname}.{pname}' = {value!r} is out of the range "
+                                  f"of an FMI Integer ({INT32[0]} .. {INT32[1]})")
                     raise err(key, f"type mismatch: '{cname}.{pname}' is {var.type}, "
                               f"got {value!r}")
         for name in manifest.sweep:
@@ -533,7 +591,8 @@ def validate(manifest, runs, extra_signals=()):
                 raise err(f"{conn.key}.to", f"input '{'.'.join(conn.target)}' is already "
                           f"connected by {targets[conn.target].key}")
             targets[conn.target] = conn
-        orders.append(feedthrough_order(models, manifest.connections, manifest.path))
+        orders.append(feedthrough_order(models, manifest.connections, manifest.path,
+                                        manifest.algorithm))
         unconnected = [f"{c}.{v.name}" for c, info in models.items() for v in info.inputs
                        if (c, v.name) not in targets]
         if unconnected:

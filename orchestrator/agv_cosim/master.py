@@ -45,6 +45,14 @@ class SimulationError(Exception):
     """The run stopped: an FMU failed or produced a non-finite value."""
 
 
+class _WriteFailed(Exception):
+    """``write_row`` raised: its error is the caller's (e.g. a full disk), not an FMU's."""
+
+    def __init__(self, error):
+        super().__init__(str(error))
+        self.error = error
+
+
 @dataclass
 class Plan:
     """Everything :func:`simulate` needs for one run."""
@@ -138,7 +146,22 @@ def _set_parameter(slave, var, value):
         slave.setString([var.vr], [str(value)])
 
 
-def simulate(plan, write_row, progress=None):
+#: What a run is doing, by code (``track[1]``; see :func:`simulate`).
+PHASES = ("instantiation", "initialisation", "initialisation exchange",
+          "initial propagation", "doStep", "fmi2GetReal", "fmi2SetReal",
+          "Gauss-Seidel pass")
+(_INSTANTIATION, _INITIALISATION, _EXCHANGE, _PROPAGATION, _DO_STEP, _GET, _SET,
+ _GS_PASS) = range(len(PHASES))
+
+
+def describe_track(track, names):
+    """``"component 'X' during <phase> at t=<t> s"`` from a :func:`simulate` track."""
+    unit, phase, t = int(track[0]), int(track[1]), float(track[2])
+    name = names[unit] if 0 <= unit < len(names) else "?"
+    return f"component '{name}' during {PHASES[phase]} at t={t!r} s"
+
+
+def simulate(plan, write_row, progress=None, track=None, on_message=None):
     """Run one co-simulation.
 
     Parameters
@@ -149,6 +172,13 @@ def simulate(plan, write_row, progress=None):
         values in order).
     progress : callable, optional
         Called with the number of macro steps done since the last call.
+    track : mutable sequence of 3 float, optional
+        Kept current (cheaply, one store per FMU call): index of the component being
+        called (in ``plan.models`` order), code of the phase (:data:`PHASES`) and time
+        [s]. In shared memory, it lets a parent name the component, call and time of a
+        run whose process died (:func:`describe_track`).
+    on_message : callable, optional
+        ``on_message(component, status, text)`` for every message an FMU logs.
 
     Returns
     -------
@@ -159,16 +189,21 @@ def simulate(plan, write_row, progress=None):
     ------
     SimulationError
         An FMU returned a non-OK status or an output became NaN/inf.
+    Exception
+        Whatever ``write_row`` raised (e.g. OSError for a full disk), unchanged.
     """
     from fmpy.fmi1 import FMICallException
 
     instances, units = {}, {}
-    state = {"t": plan.start, "where": "instantiation", "unit": None}
+    names = list(plan.models)
+    index = {cname: i for i, cname in enumerate(names)}
+    track = [0.0, 0.0, 0.0] if track is None else track
+    track[0], track[1], track[2] = -1, _INSTANTIATION, plan.start
     rows = 0
     try:
         for cname in plan.models:
-            state["unit"] = cname
-            instances[cname] = FmuInstance(plan.models[cname], cname)
+            track[0] = index[cname]
+            instances[cname] = FmuInstance(plan.models[cname], cname, on_message)
         connected = {}
         for conn in plan.connections:
             connected.setdefault(conn.target[0], []).append(conn)
@@ -182,6 +217,7 @@ def simulate(plan, write_row, progress=None):
             outs = [v for v in info.outputs if v.name in needed_out[cname]]
             ins = [info.variables[c.target[1]] for c in connected.get(cname, [])]
             units[cname] = _Unit(instances[cname], outs, ins)
+            units[cname].index = index[cname]
         for cname, unit in units.items():
             for j, conn in enumerate(connected.get(cname, [])):
                 src = units[conn.source[0]]
@@ -190,9 +226,9 @@ def simulate(plan, write_row, progress=None):
         record_idx = [(units[n.split(".")[0]], units[n.split(".")[0]].out_names.index(
             n.split(".")[1])) for n in plan.record]
 
-        state["where"] = "initialisation"
+        track[1] = _INITIALISATION
         for cname in plan.models:
-            state["unit"] = cname
+            track[0] = index[cname]
             slave = instances[cname].slave
             slave.setupExperiment(startTime=plan.start, stopTime=plan.stop)
             info = plan.models[cname]
@@ -204,20 +240,20 @@ def simulate(plan, write_row, progress=None):
             # libcosim's initialisation: as many Jacobi exchanges as there are FMUs while
             # they are in initialisation mode, which propagates initial values through
             # any chain of direct feedthrough
-            state["where"] = "initialisation exchange"
+            track[1] = _EXCHANGE
             for _ in all_units:
                 for unit in all_units:
-                    state["unit"] = unit.name
+                    track[0] = unit.index
                     unit.get()
                 for unit in all_units:
-                    state["unit"] = unit.name
+                    track[0] = unit.index
                     unit.set()
-        state["where"] = "initialisation"
+        track[1] = _INITIALISATION
         for cname in plan.models:
-            state["unit"] = cname
+            track[0] = index[cname]
             instances[cname].slave.exitInitializationMode()
 
-        step_plan = [(u.name, u.component, u.do_step) for u in all_units]
+        step_plan = [(u.index, u.component, u.do_step) for u in all_units]
         n_steps = int(round((plan.stop - plan.start) / plan.step))
         h = plan.step
         row = [0.0] * (1 + len(record_idx))
@@ -237,7 +273,7 @@ def simulate(plan, write_row, progress=None):
         # The Gauss-Seidel pass, unrolled: per unit (name, component, set function, input
         # references, count, buffer, links, get function, output references, count,
         # buffer); a unit without inputs (outputs) skips the set (get), as _Unit does.
-        gs_plan = [(u.name, u.component, u.set_real, u.in_vr, u.n_in, u.in_val, u.links,
+        gs_plan = [(u.index, u.component, u.set_real, u.in_vr, u.n_in, u.in_val, u.links,
                     u.get_real, u.out_vr, u.n_out, u.out_val, u) for u in
                    (units[c] for c in plan.order)]
 
@@ -252,11 +288,11 @@ def simulate(plan, write_row, progress=None):
 
         def gs_pass(t):
             for unit in pre_read:
-                state["unit"] = unit.name
+                track[0] = unit.index
                 unit.get()
-            for (name, comp, set_real, in_vr, n_in, in_val, links, get_real, out_vr, n_out,
+            for (i, comp, set_real, in_vr, n_in, in_val, links, get_real, out_vr, n_out,
                  out_val, unit) in gs_plan:
-                state["unit"] = name
+                track[0] = i
                 if n_in:
                     for j, src, pos in links:
                         in_val[j] = src[pos]
@@ -275,20 +311,23 @@ def simulate(plan, write_row, progress=None):
             row[0] = t
             for i, buffer, pos in record_from:
                 row[i] = buffer[pos]
-            write_row(row)
+            try:
+                write_row(row)
+            except Exception as error:  # noqa: BLE001 - re-raised as itself below
+                raise _WriteFailed(error) from None
             rows += 1
 
-        state["where"] = "initial propagation"
+        track[1] = _PROPAGATION
         jacobi = plan.algorithm == "jacobi"
         if jacobi:
             for unit in all_units:
-                state["unit"] = unit.name
+                track[0] = unit.index
                 unit.get()
                 if not isfinite(sum(unit.out_val)):
                     check(unit, plan.start)
             record(plan.start)
             for unit in all_units:
-                state["unit"] = unit.name
+                track[0] = unit.index
                 unit.set()
         else:
             gs_pass(plan.start)
@@ -297,28 +336,28 @@ def simulate(plan, write_row, progress=None):
         done = 0
         for k in range(n_steps):
             t = plan.start + k * h
-            state["t"] = t
-            state["where"] = "doStep"
-            for name, comp, do_step in step_plan:
-                state["unit"] = name
+            track[2] = t
+            track[1] = _DO_STEP
+            for i, comp, do_step in step_plan:
+                track[0] = i
                 status = do_step(comp, t, h, 1)
                 if status > 1:
                     raise _failed("fmi2DoStep", status)
             t_next = plan.start + (k + 1) * h
-            state["t"] = t_next
+            track[2] = t_next
             if jacobi:
-                state["where"] = "fmi2GetReal"
+                track[1] = _GET
                 for unit in all_units:
-                    state["unit"] = unit.name
+                    track[0] = unit.index
                     unit.get()
                     if not isfinite(sum(unit.out_val)):
                         check(unit, t_next)
-                state["where"] = "fmi2SetReal"
+                track[1] = _SET
                 for unit in all_units:
-                    state["unit"] = unit.name
+                    track[0] = unit.index
                     unit.set()
             else:
-                state["where"] = "Gauss-Seidel pass"
+                track[1] = _GS_PASS
                 gs_pass(t_next)
             if (k + 1) % every == 0 or k + 1 == n_steps:
                 record(t_next)
@@ -331,16 +370,22 @@ def simulate(plan, write_row, progress=None):
             progress(done)
         return rows
     except FMICallException as error:
-        name = state["unit"]
+        name = names[int(track[0])] if int(track[0]) >= 0 else "?"
         detail = instances[name].last_error() if name in instances else ""
         raise SimulationError(f"component '{name}': {error.function} returned status "
-                              f"{error.status} during {state['where']} at t={state['t']!r} s"
-                              + (f": {detail}" if detail else "")) from None
+                              f"{error.status} during {PHASES[int(track[1])]} at "
+                              f"t={track[2]!r} s" + (f": {detail}" if detail else "")) \
+            from None
     except SimulationError:
         raise
+    except _WriteFailed as failed:  # not the FMU's fault: the caller's own error
+        raise failed.error from None
     except Exception as error:  # noqa: BLE001 - e.g. a failed instantiation
-        raise SimulationError(f"component '{state['unit']}': {state['where']} at "
-                              f"t={state['t']!r} s: {type(error).__name__}: {error}") from None
+        name = names[int(track[0])] if int(track[0]) >= 0 else "?"
+        detail = instances[name].last_error() if name in instances else ""
+        raise SimulationError(f"component '{name}': {PHASES[int(track[1])]} at "
+                              f"t={track[2]!r} s: {type(error).__name__}: {error}"
+                              + (f": {detail}" if detail else "")) from None
     finally:
         for instance in instances.values():
             instance.close()

@@ -6,14 +6,18 @@ unit and description, and each output's direct dependencies. An output whose
 ``<Unknown>`` carries no ``dependencies`` attribute depends, per FMI 2.0, on every input.
 
 :class:`FmuInstance` extracts an FMU into a private temporary folder, instantiates it with
-fmpy's ``FMU2Slave`` and collects its log messages; :meth:`FmuInstance.close` frees it and
+fmpy's ``FMU2Slave`` and collects its own log messages (each instance its own, see
+:func:`_logger`); :meth:`FmuInstance.close` frees it and
 removes the folder, also after a failure.
 """
 
 import hashlib
+import itertools
+import re
 import shutil
 import tempfile
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.etree import ElementTree
@@ -106,12 +110,37 @@ def read_model(path):
     try:
         with zipfile.ZipFile(path) as archive:
             xml = archive.read("modelDescription.xml")
-    except zipfile.BadZipFile:
-        raise ModelError(f"broken FMU (not a zip archive): '{path}'") from None
+            # every entry's CRC now, so a corrupt binary is named here, not mid-run
+            bad = archive.testzip()
     except KeyError:
         raise ModelError(f"broken FMU (no modelDescription.xml): '{path}'") from None
+    except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError) as error:
+        reason = "not a zip archive" if "File is not a zip" in str(error) else \
+            f"corrupt zip archive: {error}"
+        raise ModelError(f"broken FMU ({reason}): '{path}'") from None
     except OSError as error:
-        raise ModelError(f"cannot read FMU '{path}': {error}") from None
+        raise ModelError(f"cannot read FMU '{path}': {error.strerror or error}") from None
+    if bad is not None:
+        raise ModelError(f"broken FMU (entry '{bad}' is corrupt): '{path}'")
+    try:
+        return _parse_model(path, xml)
+    except (TypeError, ValueError, IndexError) as error:
+        raise ModelError(f"broken FMU (modelDescription.xml: {error}): '{path}'") from None
+
+
+def _integer(node, attr, what):
+    text = node.get(attr)
+    if text is None:
+        raise ValueError(f"{what} has no {attr}")
+    try:
+        return int(text)
+    except ValueError:
+        raise ValueError(f"{what}: {attr}={text!r} is not an integer") from None
+
+
+def _parse_model(path, xml):
+    stat = path.stat()
+    key = (str(path), stat.st_size, stat.st_mtime_ns)
     try:
         root = ElementTree.fromstring(xml)
     except ElementTree.ParseError as error:
@@ -131,7 +160,11 @@ def read_model(path):
         if kind is None:
             raise ModelError(f"broken FMU (variable '{scalar.get('name')}' has no type): "
                              f"'{path}'")
-        variable = Variable(name=scalar.get("name"), vr=int(scalar.get("valueReference")),
+        if not scalar.get("name"):
+            raise ValueError(f"ScalarVariable {len(ordered) + 1} has no name")
+        variable = Variable(name=scalar.get("name"),
+                            vr=_integer(scalar, "valueReference",
+                                        f"variable '{scalar.get('name')}'"),
                             type=kind.tag, causality=scalar.get("causality", "local"),
                             variability=scalar.get("variability", "continuous"),
                             unit=kind.get("unit"), description=scalar.get("description", ""),
@@ -140,13 +173,22 @@ def read_model(path):
         ordered.append(variable)
     input_names = [v.name for v in ordered if v.causality == "input"]
     outputs = root.find("ModelStructure/Outputs")
+    def indexed(text, what):
+        try:
+            index = int(text)
+        except (TypeError, ValueError):
+            raise ValueError(f"{what} {text!r} is not an integer") from None
+        if not 1 <= index <= len(ordered):
+            raise ValueError(f"{what} {index} is not a variable index (1..{len(ordered)})")
+        return ordered[index - 1]
+
     for unknown in outputs if outputs is not None else []:
-        variable = ordered[int(unknown.get("index")) - 1]
+        variable = indexed(unknown.get("index"), "Outputs/Unknown index")
         deps = unknown.get("dependencies")
         if deps is None:
             info.dependencies[variable.name] = list(input_names)
         else:
-            names = [ordered[int(i) - 1].name for i in deps.split()]
+            names = [indexed(i, "Outputs/Unknown dependency").name for i in deps.split()]
             info.dependencies[variable.name] = [n for n in names if n in input_names]
     for variable in ordered:
         if variable.causality == "output" and variable.name not in info.dependencies:
@@ -180,6 +222,39 @@ def describe(info):
     return "\n".join(lines)
 
 
+#: Instance key -> message list of that instance (see :func:`_logger`).
+_ROUTES = {}
+_KEYS = itertools.count(1)
+_ROUTER = []
+
+
+def _route(environment, instance_name, status, category, message):
+    """The one logger every instance is given; hands a message to its own instance."""
+    receive = _ROUTES.get(environment or 0)
+    if receive is None:  # an FMU that does not pass its environment back
+        name = instance_name.decode("utf-8", "replace") if instance_name else ""
+        receive = _ROUTES.get(name)
+    if receive is not None:
+        receive(int(status), message.decode("utf-8", "replace") if message else "")
+
+
+def _logger():
+    """The process's single C logger callback (created once, kept alive).
+
+    fmpy's native proxy, which formats the printf-style message, keeps one logger per
+    process, and with it each instance's own Python logger would get the messages of
+    every instance created after it (the last one gets them all). So every instance
+    gets this one router, and its ``componentEnvironment`` (a key unique in the
+    process; the instance name when an FMU does not pass it back) says whose messages
+    they are.
+    """
+    if not _ROUTER:
+        from fmpy.fmi2 import fmi2CallbackLoggerTYPE
+
+        _ROUTER.append(fmi2CallbackLoggerTYPE(_route))
+    return _ROUTER[0]
+
+
 class FmuInstance:
     """One instantiated FMU in a private extraction folder.
 
@@ -189,12 +264,14 @@ class FmuInstance:
         The FMU's model description.
     instance_name : str
         The component's instance name.
+    on_message : callable, optional
+        Also called as ``on_message(instance_name, status, text)`` for each message the
+        FMU logs (e.g. to pass it on before a crash can lose it).
     """
 
-    def __init__(self, info, instance_name):
+    def __init__(self, info, instance_name, on_message=None):
         from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE,
-                               fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
-                               fmi2CallbackLoggerTYPE)
+                               fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions)
         from fmpy.fmi1 import calloc, free
         from ctypes import byref
 
@@ -202,19 +279,22 @@ class FmuInstance:
         self.name = instance_name
         self.messages = []
         self.slave = None
-        self.unzip_dir = tempfile.mkdtemp(prefix=f"agv_cosim_{instance_name}_")
+        self._key = next(_KEYS)
+        self._on_message = on_message
+        _ROUTES[self._key] = self._receive
+        _ROUTES[instance_name] = self._receive
+        tag = instance_name if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,63}",
+                                            instance_name) else "fmu"
+        self.unzip_dir = tempfile.mkdtemp(prefix=f"agv_cosim_{tag}_")
         try:
             with zipfile.ZipFile(info.path) as archive:
                 archive.extractall(self.unzip_dir)
 
-            def logger(component, name, status, category, message):
-                text = message.decode("utf-8", "replace") if message else ""
-                self.messages.append((int(status), text))
-
             callbacks = fmi2CallbackFunctions()
-            callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+            callbacks.logger = _logger()
             callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
             callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+            callbacks.componentEnvironment = self._key
             try:
                 from fmpy.logging import addLoggerProxy
 
@@ -222,7 +302,6 @@ class FmuInstance:
             except Exception:  # noqa: BLE001 - messages then arrive unformatted
                 pass
             self._callbacks = callbacks  # keep the ctypes callbacks alive
-            self._logger = logger
             slave = FMU2Slave(guid=info.guid, unzipDirectory=self.unzip_dir,
                               modelIdentifier=info.identifier, instanceName=instance_name)
             self.slave = slave
@@ -230,6 +309,11 @@ class FmuInstance:
         except BaseException:
             self.close()
             raise
+
+    def _receive(self, status, text):
+        self.messages.append((status, text))
+        if self._on_message is not None:
+            self._on_message(self.name, status, text)
 
     def last_error(self):
         """The FMU's own error message, one line ('' if none was logged).
@@ -260,3 +344,6 @@ class FmuInstance:
         if self.unzip_dir is not None:
             shutil.rmtree(self.unzip_dir, ignore_errors=True)
             self.unzip_dir = None
+        for key in (self._key, self.name):
+            if _ROUTES.get(key) == self._receive:
+                del _ROUTES[key]

@@ -9,6 +9,7 @@ folder that looks complete.
 import csv
 import json
 import os
+import re
 import shutil
 import tempfile
 from pathlib import Path
@@ -102,32 +103,218 @@ def write_summary(path, rows):
                              for k, v in row.items()})
 
 
+class OutputError(Exception):
+    """An output folder we must not (or cannot) write; the text names the path."""
+
+
+#: File that marks a folder as a result folder this tool wrote (JSON: tool, version).
+MARKER = ".agv-cosim"
+#: What a result folder written before the marker existed holds (besides run folders
+#: that each contain a run.json): recognised so that re-running into it still works.
+_LEGACY_FILES = {"summary.csv", "plots_error.txt"}
+_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+#: Longest name accepted as one path component (most file systems allow 255 bytes;
+#: what we add around a name, ``.<name>.incomplete-XXXXXXXX``, must fit too).
+MAX_NAME = 128
+
+
+def check_name(name, what="name"):
+    """Return ``name`` if it is one safe path component, else raise ValueError.
+
+    Safe: letters, digits, ``-``, ``_``, ``.``; not ``.`` or ``..``; not starting with
+    ``.`` (hidden, and our own temporary names start so); at most :data:`MAX_NAME`
+    characters. Names from manifests and SSP packages are data: they pass through here
+    before they are used in a path.
+    """
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"{what} {name!r} is empty or not a string")
+    if len(name) > MAX_NAME:
+        raise ValueError(f"{what} is {len(name)} characters long (at most {MAX_NAME})")
+    if not _NAME.match(name) or name.startswith("."):
+        raise ValueError(f"{what} {name!r} is not a plain file name (letters, digits, "
+                         "'-', '_', '.'; not starting with '.')")
+    return name
+
+
+def user_mode(directory=True):
+    """Permission bits a new folder (file) gets under the process's umask."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return (0o777 if directory else 0o666) & ~mask
+
+
+def is_result_folder(path):
+    """True when ``path`` is a folder this tool wrote (marker, or the legacy layout)."""
+    path = Path(path)
+    if (path / MARKER).is_file():
+        return True
+    if not (path / "summary.csv").is_file():
+        return False
+    for entry in path.iterdir():
+        if entry.is_symlink():
+            return False
+        if entry.is_dir():
+            if not (entry / "run.json").is_file():
+                return False
+        elif entry.name not in _LEGACY_FILES and entry.suffix != ".png":
+            return False
+    return True
+
+
+def _write_marker(folder):
+    from . import __version__
+
+    (Path(folder) / MARKER).write_text(json.dumps({"tool": "agv-cosim",
+                                                   "version": __version__}) + "\n")
+
+
+class _Lock:
+    """An exclusive lock on ``path`` (a lock file removed on release), or OutputError."""
+
+    def __init__(self, path, target):
+        import fcntl
+
+        self.path = Path(path)
+        while True:
+            try:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            except OSError as error:
+                raise OutputError(f"{target}: cannot write here: {error.strerror}") from None
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                owner = os.read(fd, 32).decode(errors="replace").strip()
+                os.close(fd)
+                raise OutputError(f"{target}: another agv-cosim run is writing this folder"
+                                  + (f" (process {owner})" if owner else "")
+                                  + "; wait for it or choose another --out") from None
+            # the file we locked may have been unlinked by its previous holder: retry
+            try:
+                same = os.fstat(fd).st_ino == os.stat(self.path).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            os.close(fd)
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+        self.fd = fd
+
+    def release(self):
+        if self.fd is not None:
+            self.path.unlink(missing_ok=True)
+            os.close(self.fd)
+            self.fd = None
+
+
 class AtomicDir:
     """Build a folder under a temporary name beside ``target``; rename it in at the end.
 
-    ``commit()`` replaces an existing ``target``; ``discard()`` deletes the temporary
-    folder. Used as a context manager it discards on an exception.
+    Safety (a user's data is never lost):
+
+    - ``target`` is replaced only when it is missing, an empty folder, or a result
+      folder this tool wrote (:func:`is_result_folder`); anything else raises
+      :class:`OutputError` naming it, unless ``overwrite`` (then any folder is
+      replaced; a file never is);
+    - one run at a time per target: a lock file ``.<name>.lock`` beside it;
+    - leftovers of runs to the same target that were killed (``.<name>.incomplete-*``,
+      ``.<name>.old-*``, each carrying the marker) are removed first;
+    - the folder gets the user's umask (``mkdtemp`` alone would make it 0700).
+
+    ``commit()`` replaces ``target``; ``discard()`` deletes the temporary folder. Used
+    as a context manager it discards on an exception and always releases the lock.
     """
 
-    def __init__(self, target):
-        self.target = Path(target).resolve()
-        self.target.parent.mkdir(parents=True, exist_ok=True)
-        self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.incomplete-",
-                                          dir=self.target.parent))
+    def __init__(self, target, overwrite=False):
+        self.target = Path(os.path.abspath(target))
+        self.overwrite = overwrite
+        self.lock = None
+        self.path = None
+        parent, name = self.target.parent, self.target.name
+        if not name:
+            raise OutputError(f"{target}: not a folder name")
+        if parent.exists() and not parent.is_dir():
+            raise OutputError(f"{target}: '{parent}' is not a folder")
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise OutputError(f"{target}: cannot create '{error.filename or parent}': "
+                              f"{error.strerror}") from None
+        self._check_target()
+        self.lock = _Lock(parent / f".{name}.lock", self.target)
+        try:
+            self._check_target()  # again, now that no other run can change it
+            self._clean_stale()
+            try:
+                self.path = Path(tempfile.mkdtemp(prefix=f".{name}.incomplete-",
+                                                  dir=parent))
+                _write_marker(self.path)
+            except OSError as error:
+                raise OutputError(f"{target}: cannot write here: {error.strerror}") from None
+            os.chmod(self.path, user_mode())
+        except BaseException:
+            self.discard()
+            raise
+
+    def _check_target(self):
+        target = self.target
+        if target.is_symlink() and not target.is_dir():
+            raise OutputError(f"{target}: exists and is not a folder; refusing to replace it")
+        if not target.exists():
+            return
+        if not target.is_dir():
+            raise OutputError(f"{target}: exists and is not a folder; refusing to replace it")
+        if target.is_symlink():
+            raise OutputError(f"{target}: is a symbolic link; refusing to replace it "
+                              "(give the folder it points to)")
+        if self.overwrite or is_result_folder(target) or not any(target.iterdir()):
+            return
+        raise OutputError(f"{target}: exists and is not a result folder of agv-cosim; "
+                          "refusing to replace it (choose another --out, or pass "
+                          "--overwrite to replace it)")
+
+    def _clean_stale(self):
+        name = self.target.name
+        for pattern in (f".{name}.incomplete-*", f".{name}.old-*"):
+            for stale in self.target.parent.glob(pattern):
+                if stale.is_dir() and not stale.is_symlink() and (stale / MARKER).is_file():
+                    shutil.rmtree(stale, ignore_errors=True)
 
     def commit(self):
+        from .lifetime import signals_blocked
+
+        with signals_blocked():  # the renames are not cut half-way by a Ctrl-C/SIGTERM
+            return self._commit()
+
+    def _commit(self):
         old = None
         if self.target.exists():
+            self._check_target()
             old = self.target.with_name(f".{self.target.name}.old-{os.getpid()}")
             shutil.rmtree(old, ignore_errors=True)
             self.target.rename(old)
+            if not (old / MARKER).is_file():
+                try:
+                    _write_marker(old)  # so that a run killed now still cleans it
+                except OSError:
+                    pass
         self.path.rename(self.target)
+        self.path = None
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
+        self._release()
         return self.target
 
     def discard(self):
-        shutil.rmtree(self.path, ignore_errors=True)
+        if self.path is not None:
+            shutil.rmtree(self.path, ignore_errors=True)
+            self.path = None
+        self._release()
+
+    def _release(self):
+        if self.lock is not None:
+            self.lock.release()
+            self.lock = None
 
     def __enter__(self):
         return self
@@ -135,4 +322,5 @@ class AtomicDir:
     def __exit__(self, kind, value, traceback):
         if kind is not None:
             self.discard()
+        self._release()
         return False

@@ -23,6 +23,7 @@ import importlib
 import os
 import platform
 import shutil
+import signal
 import sys
 import tempfile
 import time
@@ -32,8 +33,9 @@ from multiprocessing.connection import wait
 from pathlib import Path
 
 from . import __version__, metrics, plots
+from .lifetime import die_with_parent, scratch_dir
 from .manifest import ManifestError, load_manifest, plan_runs, validate
-from .master import Plan, SimulationError, simulate
+from .master import Plan, SimulationError, describe_track, simulate
 from .results import AtomicDir, CsvSink, read_timeseries, write_json, write_summary
 
 
@@ -50,6 +52,7 @@ class Job:
     manifest_path: str
     manifest_sha256: str
     metrics_spec: dict
+    fmu_paths: dict = None
 
 
 def _start_value(var):
@@ -73,11 +76,27 @@ def _signal_sources(manifest):
                 sources.append((name, list(module.referenced_signals(spec))))
             except Exception as error:  # noqa: BLE001 - a bad spec is a manifest error
                 raise ManifestError(manifest.path, name, str(error)) from None
+    # a path string is checked now, not after the runs (it would leave metrics empty)
+    base_dir = Path(manifest.path).parent
+    for key, text in (("metrics.reference.path",
+                       (manifest.metrics.get("reference") or {}).get("path")),
+                      ("plots.trajectory.path",
+                       (manifest.plots.get("trajectory") or {}).get("path"))):
+        if isinstance(text, str):
+            try:
+                metrics.load_path(text, key, base_dir)
+            except Exception as error:  # noqa: BLE001 - a bad path is a manifest error
+                problem = str(error).removeprefix(f"{key}: ")
+                raise ManifestError(manifest.path, key, problem) from None
     return sources
 
 
-def prepare(manifest_path, variants=None, sets=()):
+def prepare(manifest_path, variants=None, sets=(), source=None):
     """Load, expand and validate a manifest.
+
+    ``source``: the SSP package a generated manifest was made from (see
+    :func:`agv_cosim.ssp.ssp_manifest`); messages and run.json then name it (and its
+    SHA-256, and the FMUs as ``<package>!/<path inside it>``), not the temporary files.
 
     Returns
     -------
@@ -89,6 +108,11 @@ def prepare(manifest_path, variants=None, sets=()):
     ManifestError
     """
     manifest = load_manifest(manifest_path)
+    unpacked = None
+    if source is not None:
+        unpacked = Path(manifest.path).resolve().parent
+        manifest.path = Path(source)
+        manifest.sha256 = _source_sha256(source)
     runs = plan_runs(manifest, variants, sets)
     checked = validate(manifest, runs, _signal_sources(manifest))
     every = int(round(manifest.record_interval / manifest.step))
@@ -105,8 +129,27 @@ def prepare(manifest_path, variants=None, sets=()):
                         parameters=effective,
                         fmu_sha256={c: info.sha256 for c, info in models.items()},
                         manifest_path=str(manifest.path), manifest_sha256=manifest.sha256,
-                        metrics_spec=manifest.metrics))
+                        metrics_spec=manifest.metrics,
+                        fmu_paths={c: _shown_path(info.path, source, unpacked)
+                                   for c, info in models.items()}))
     return manifest, jobs, checked.warnings
+
+
+def _source_sha256(source):
+    """SHA-256 of an SSP source: the .ssp file, or the SSD of a package folder."""
+    from .model import file_sha256
+
+    source = Path(source)
+    return file_sha256(source / "SystemStructure.ssd" if source.is_dir() else source)
+
+
+def _shown_path(path, source, unpacked):
+    """How run.json names an FMU: inside an unpacked .ssp as ``<ssp>!/<entry>``."""
+    if source is not None and unpacked is not None:
+        package = unpacked / "package"
+        if package in Path(path).parents:
+            return f"{source}!/{Path(path).relative_to(package).as_posix()}"
+    return str(path)
 
 
 def versions():
@@ -120,11 +163,12 @@ def versions():
     return found
 
 
-def run_job(job, run_dir, progress=None):
+def run_job(job, run_dir, progress=None, track=None, on_message=None):
     """Run one job into ``run_dir`` (created); return its summary dict.
 
     Never raises for a simulation failure: the status is ``complete``, ``partial`` (some
-    rows recorded, then a failure) or ``failed`` (nothing recorded).
+    rows recorded, then a failure) or ``failed`` (nothing recorded). ``track`` and
+    ``on_message`` are passed to :func:`~agv_cosim.master.simulate`.
     """
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -138,11 +182,16 @@ def run_job(job, run_dir, progress=None):
         rows += 1
 
     try:
-        simulate(job.plan, write, progress)
+        simulate(job.plan, write, progress, track, on_message)
     except SimulationError as failure:
         error = str(failure)
+    except OSError as failure:  # writing the results failed (disk full, ...)
+        error = f"cannot write {failure.filename or sink.path}: {failure.strerror or failure}"
     finally:
-        sink.close()
+        try:
+            sink.close()
+        except OSError as failure:
+            error = error or f"cannot write {sink.path}: {failure.strerror or failure}"
     wall = time.perf_counter() - begin
     status = "complete" if error is None else ("partial" if rows else "failed")
     values, metrics_error = {}, None
@@ -163,7 +212,7 @@ def _finish(job, run_dir, rows, status, error, wall, values, metrics_error):
         "label": job.label, "variant": job.variant, "sweep_point": job.point,
         "manifest": job.manifest_path, "manifest_sha256": job.manifest_sha256,
         "fmu_sha256": job.fmu_sha256,
-        "fmus": {c: str(info.path) for c, info in job.plan.models.items()},
+        "fmus": job.fmu_paths or {c: str(info.path) for c, info in job.plan.models.items()},
         "parameters": job.parameters, "algorithm": job.plan.algorithm,
         "start": job.plan.start, "stop": job.plan.stop, "step": job.plan.step,
         "record_every": job.plan.record_every, "rows": rows,
@@ -174,28 +223,57 @@ def _finish(job, run_dir, rows, status, error, wall, values, metrics_error):
             "variant": job.variant}
 
 
-def _child(job, run_dir, channel, scratch):
+def _child(job, run_dir, channel, scratch, track):
     """Body of a run's child process: run it, report progress and the result.
 
     FMUs are extracted under ``scratch``, which the parent deletes however the child
-    ends (a child that dies cannot clean up after itself).
+    ends (a child that dies cannot clean up after itself). The child dies with its
+    parent (:func:`~agv_cosim.lifetime.die_with_parent`), ignores SIGINT (the parent,
+    which a Ctrl-C reaches too, stops it) and ends quietly when the parent is gone.
     """
+    die_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     tempfile.tempdir = scratch
 
-    def progress(steps):
-        channel.send(("progress", steps))
+    def send(message):
+        try:
+            channel.send(message)
+        except OSError:  # the parent is gone (BrokenPipeError): nobody to report to
+            os._exit(1)
 
-    result = run_job(job, run_dir, progress)
-    channel.send(("done", result))
+    def progress(steps):
+        send(("progress", steps))
+
+    warnings = [0]
+
+    def message(component, status, text):
+        # errors (and the first 100 warnings) reach the parent before a crash loses them
+        if status >= 3 or (status >= 1 and warnings[0] < 100):
+            warnings[0] += status < 3
+            send(("message", f"{component}: {' '.join(text.split())}"))
+
+    try:
+        result = run_job(job, run_dir, progress, track, message)
+    except Exception as failure:  # noqa: BLE001 - e.g. a full disk: report, no traceback
+        result = {"label": job.label, "status": "failed", "rows": 0, "metrics": {},
+                  "error": f"{type(failure).__name__}: {failure}", "metrics_error": None,
+                  "point": job.point, "variant": job.variant}
+    send(("done", result))
     channel.close()
 
 
-def _died(job, run_dir, exitcode):
-    """The summary of a run whose child process died before it reported."""
+def _died(job, run_dir, exitcode, track, last_message):
+    """The summary of a run whose child process died before it reported.
+
+    ``track`` (shared with the child) names the component, call and time it died in;
+    ``last_message`` is the last message an FMU of the run logged (or None).
+    """
     csv = Path(run_dir) / "timeseries.csv"
     rows = max(0, len(csv.read_text().splitlines()) - 1) if csv.is_file() else 0
     how = f"signal {-exitcode}" if exitcode < 0 else f"exit code {exitcode}"
-    error = f"the run's process died ({how}) after {rows} recorded rows"
+    error = (f"the run's process died ({how}) in {describe_track(track, list(job.plan.models))}"
+             f" after {rows} recorded rows"
+             + (f"; last FMU message: {last_message}" if last_message else ""))
     Path(run_dir).mkdir(parents=True, exist_ok=True)
     return _finish(job, run_dir, rows, "partial" if rows else "failed", error, None, {}, None)
 
@@ -209,22 +287,25 @@ def _run_isolated(jobs, root, workers, on_progress, on_done):
     context = get_context("forkserver")
     context.set_forkserver_preload([__name__])
     results = [None] * len(jobs)
+    last_message = [None] * len(jobs)
     waiting = list(range(len(jobs)))
-    running = {}  # job index -> (process, reading end of its pipe, scratch folder)
+    running = {}  # job index -> (process, reading end of its pipe, scratch folder, track)
     try:
         while waiting or running:
             while waiting and len(running) < workers:
                 index = waiting.pop(0)
                 job = jobs[index]
                 reader, writer = context.Pipe(duplex=False)
-                scratch = tempfile.mkdtemp(prefix="agv_cosim_run_")
+                scratch = scratch_dir("run")
+                track = context.RawArray("d", 3)  # where the child is (master.simulate)
                 process = context.Process(target=_child, name=f"agv-cosim {job.label}",
-                                          args=(job, root / job.label, writer, scratch))
+                                          args=(job, root / job.label, writer, scratch,
+                                                track))
                 process.start()
                 writer.close()
-                running[index] = (process, reader, scratch)
-            ready = wait([reader for _, reader, _ in running.values()], timeout=1.0)
-            for index, (process, reader, scratch) in list(running.items()):
+                running[index] = (process, reader, scratch, track)
+            ready = wait([entry[1] for entry in running.values()], timeout=1.0)
+            for index, (process, reader, scratch, track) in list(running.items()):
                 if reader not in ready:
                     continue
                 try:
@@ -236,16 +317,19 @@ def _run_isolated(jobs, root, workers, on_progress, on_done):
                     del running[index]
                     if results[index] is None:
                         results[index] = _died(jobs[index], root / jobs[index].label,
-                                               process.exitcode)
+                                               process.exitcode, track,
+                                               last_message[index])
                         on_done()
                     continue
                 if kind == "progress":
                     on_progress(payload)
+                elif kind == "message":
+                    last_message[index] = payload
                 else:
                     results[index] = payload
                     on_done()
     finally:
-        for process, reader, scratch in running.values():
+        for process, reader, scratch, _ in running.values():
             process.kill()
             process.join()
             reader.close()
@@ -253,12 +337,124 @@ def _run_isolated(jobs, root, workers, on_progress, on_done):
     return results
 
 
+def _check_child(checks, channel, scratch):
+    """Body of the initialisation check's child: instantiate and initialise each FMU."""
+    from .master import _set_parameter
+    from .model import FmuInstance
+
+    die_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    tempfile.tempdir = scratch
+    for index, (cname, info, values, start, stop) in enumerate(checks):
+        try:
+            channel.send(("checking", index))
+        except OSError:
+            os._exit(1)
+        instance, failure = None, None
+        try:
+            instance = FmuInstance(info, cname)
+            slave = instance.slave
+            call = "fmi2SetupExperiment"
+            slave.setupExperiment(startTime=start, stopTime=stop)
+            for pname, value in values.items():
+                call = f"setting parameter '{pname}'"
+                _set_parameter(slave, info.variables[pname], value)
+            call = "fmi2EnterInitializationMode"
+            slave.enterInitializationMode()
+            call = "fmi2ExitInitializationMode"
+            slave.exitInitializationMode()
+        except Exception as error:  # noqa: BLE001 - the FMU's refusal is the result
+            detail = instance.last_error() if instance is not None else ""
+            call = getattr(error, "function", None) or (call if instance else
+                                                         "fmi2Instantiate")
+            failure = f"{call} failed" + (f": {detail}" if detail else f" ({error})")
+        finally:
+            if instance is not None:
+                instance.close()
+        if failure:
+            try:
+                channel.send(("failed", (index, failure)))
+            except OSError:
+                pass
+            os._exit(0)  # a failed pythonfmu instance may have damaged the heap
+    try:
+        channel.send(("done", None))
+    except OSError:
+        pass
+    os._exit(0)
+
+
+def check_initialisation(manifest, jobs):
+    """Instantiate and initialise each FMU once with each run's parameters.
+
+    Catches what only the FMU knows (a parameter value it refuses), without running.
+    The FMUs run in a child process of their own (see the module docstring); each
+    distinct (FMU, parameters) pair is checked once, and the first refusal stops.
+
+    Raises
+    ------
+    ManifestError
+        Naming the component, the run, the FMI call and the FMU's own message.
+    """
+    checks, where, seen = [], [], set()
+    for job in jobs:
+        for cname, info in job.plan.models.items():
+            values = job.plan.parameters.get(cname, {})
+            key = (info.sha256, cname, repr(sorted(values.items())))
+            if key in seen:
+                continue
+            seen.add(key)
+            checks.append((cname, info, values, job.plan.start, job.plan.stop))
+            where.append((cname, job.label))
+    if not checks:
+        return
+    context = get_context("forkserver")
+    context.set_forkserver_preload([__name__])
+    reader, writer = context.Pipe(duplex=False)
+    scratch = scratch_dir("check")
+    process = context.Process(target=_check_child, name="agv-cosim check",
+                              args=(checks, writer, scratch))
+    current, failure = None, None
+    try:
+        process.start()
+        writer.close()
+        while True:
+            try:
+                kind, payload = reader.recv()
+            except EOFError:
+                process.join()
+                if current is not None and failure is None:
+                    code = process.exitcode
+                    how = f"signal {-code}" if code and code < 0 else f"exit code {code}"
+                    failure = (current, f"the FMU's process died ({how}) while it was "
+                                        "instantiated and initialised")
+                break
+            if kind == "checking":
+                current = payload
+            elif kind == "failed":
+                failure = payload
+            else:
+                current = None
+    finally:
+        if process.is_alive():
+            process.kill()
+        if process.pid is not None:
+            process.join()
+        reader.close()
+        shutil.rmtree(scratch, ignore_errors=True)
+    if failure is not None:
+        index, text = failure
+        cname, label = where[index]
+        raise ManifestError(manifest.path, f"components.{cname}",
+                            f"the FMU refuses to initialise (run {label}): {text}")
+
+
 def default_out_dir(manifest):
     """``results/<manifest name>`` relative to the current folder."""
     return Path("results") / manifest.name
 
 
-def execute(manifest, jobs, out_dir=None, workers=None, quiet=False):
+def execute(manifest, jobs, out_dir=None, workers=None, quiet=False, overwrite=False):
     """Run ``jobs`` and write the output folder (see the module docstring).
 
     Parameters
@@ -271,6 +467,9 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet=False):
         Runs at once, each in its own process (default: one per core).
     quiet : bool
         No progress bars.
+    overwrite : bool
+        Replace ``out_dir`` even when it is not a result folder of ours (see
+        :class:`~agv_cosim.results.AtomicDir`; without it such a folder is refused).
 
     Returns
     -------
@@ -282,7 +481,7 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet=False):
     out_dir = Path(out_dir) if out_dir else default_out_dir(manifest)
     workers = workers or os.cpu_count() or 1
     workers = max(1, min(workers, len(jobs)))
-    with AtomicDir(out_dir) as folder:
+    with AtomicDir(out_dir, overwrite=overwrite) as folder:
         total = sum(int(round((job.plan.stop - job.plan.start) / job.plan.step))
                     for job in jobs)
         bar = tqdm(total=total, desc=manifest.name, unit="step", delay=2.0, disable=quiet,

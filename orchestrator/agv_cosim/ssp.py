@@ -20,11 +20,21 @@ interval. Other tools ignore it.
 Import (:func:`load_ssp_as_manifest`, :func:`ssp_manifest`): the archive is checked entry
 by entry (absolute paths, ``..``, drive letters and symbolic links are refused before
 anything is written), extracted, and its SSD is translated into an ordinary manifest
-(TOML) next to the FMUs, which the runner then validates and runs like any other. What we
-do not support is refused with one line naming the element: nested systems, signal
-dictionaries, non-FMU components, sources outside the package, connections to system
-connectors, connection transformations, parameter mappings, several parameter sets per
-component. A package without the ``org.agv-cosim`` annotation runs with the Jacobi
+(TOML) next to the FMUs, which the runner then validates and runs like any other; names
+from the SSD are data (quoted TOML strings; component names must be identifiers and
+connector names free of '.', else refused). Parameter bindings are applied at every
+level: on components and on the system (names ``component.parameter``), inline
+``ssd:ParameterValues`` or ``.ssv`` files (``source``, with ``prefix``), in document
+order, a system binding overriding the component's own; a Real with a ``unit`` is
+converted through the ``ssc:Unit``/``BaseUnit`` factor and offset (of the parameter set,
+else of the SSD) to the FMU variable's unit (its UnitDefinition), and refused when it
+cannot be. What we do not support is refused with one line naming the .ssp and the
+element: nested systems, signal dictionaries, non-FMU or model-exchange components,
+sources outside the package, connections to system connectors, connection
+transformations, parameter mappings, other binding types, ``sourceBase="component"``,
+parameters of the system itself, Enumeration/Binary values, connectors that are not the
+FMU's variable of that kind, type and unit (connector units are never converted). A
+package without the ``org.agv-cosim`` annotation runs with the Jacobi
 algorithm (the semantics of libcosim, the master SSP packages of this kind come from) and
 records every Real output.
 """
@@ -36,13 +46,15 @@ import re
 import shutil
 import stat
 import sys
-import tempfile
 import zipfile
+import zlib
 from pathlib import Path, PurePosixPath
 from urllib.parse import unquote, urlparse
 from xml.etree import ElementTree
 
 from .manifest import ManifestError, load_manifest, plan_runs, validate
+from .lifetime import scratch_dir
+from .results import OutputError, check_name
 
 NS = {
     "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
@@ -56,6 +68,8 @@ AGV_ANNOTATION = "org.agv-cosim"
 FMU_MIME = "application/x-fmu-sharedlibrary"
 SSD_NAME = "SystemStructure.ssd"
 _TYPES = ("Real", "Integer", "Boolean", "String")
+PSET_MIME = "application/x-ssp-parameter-set"
+_IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 for _prefix, _uri in NS.items():
     ElementTree.register_namespace(_prefix, _uri)
@@ -241,7 +255,14 @@ def export_ssp(manifest_path, out_path, variant=None, sets=()):
                      manifest.stop, manifest.step, manifest.algorithm, checked.record,
                      manifest.record_interval, manifest.description)
     out_path = Path(out_path)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
+    if out_path.is_dir():
+        raise OutputError(f"{out_path}: is a folder; give the name of the .ssp file to "
+                          "write")
+    try:
+        out_path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise OutputError(f"{out_path}: cannot create '{error.filename or out_path.parent}'"
+                          f": {error.strerror}") from None
     partial = out_path.with_name(out_path.name + ".partial")
     try:
         with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as archive:
@@ -294,7 +315,7 @@ def safe_extract(archive_path, dest):
                     raise SspError(archive_path, "archive",
                                    f"refused: entry '{info.filename}' leaves the folder")
             archive.extractall(dest)
-    except (zipfile.BadZipFile, OSError) as error:
+    except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, OSError) as error:
         raise SspError(archive_path, "archive", f"not a readable zip archive: {error}") \
             from None
 
@@ -315,6 +336,7 @@ def _float_attr(package, key, node, attr, default=None):
 
 
 def _parse_value(package, key, node):
+    """(type, value, unit or None) of an ssv:Parameter."""
     kind = next((child for child in node if child.tag in
                  [_q("ssv", t) for t in _TYPES]), None)
     if kind is None:
@@ -324,28 +346,127 @@ def _parse_value(package, key, node):
     text = kind.get("value")
     if text is None:
         raise SspError(package, key, "missing attribute 'value'")
+    unit = kind.get("unit") if vtype == "Real" else None
     try:
         if vtype == "Real":
-            return float(text)
+            value = float(text)
+            if not math.isfinite(value):
+                raise ValueError(text)
+            return vtype, value, unit
         if vtype == "Integer":
-            return int(text)
+            return vtype, int(text), None
         if vtype == "Boolean":
             if text not in ("true", "false", "1", "0"):
                 raise ValueError(text)
-            return text in ("true", "1")
+            return vtype, text in ("true", "1"), None
     except ValueError:
         raise SspError(package, key, f"{text!r} is not a valid {vtype}") from None
-    return text
+    return vtype, text, None
 
 
-def _parameter_set(package, key, pset):
-    if pset is None:
-        raise SspError(package, key, "no ssv:ParameterSet")
-    values = {}
-    for param in pset.iterfind("ssv:Parameters/ssv:Parameter", NS):
-        pname = param.get("name")
-        values[pname] = _parse_value(package, f"{key}: parameter '{pname}'", param)
-    return values
+#: SI base units of FMI 2.0 / SSP unit definitions (exponents).
+_BASE = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
+
+
+def _unit_of(package, key, attrs):
+    """(exponents, factor, offset) of a BaseUnit attribute dict."""
+    try:
+        exponents = tuple(int(attrs.get(b, 0)) for b in _BASE)
+        factor = float(attrs.get("factor", 1.0))
+        offset = float(attrs.get("offset", 0.0))
+    except ValueError:
+        raise SspError(package, key, f"malformed BaseUnit {attrs}") from None
+    if not (math.isfinite(factor) and factor != 0.0 and math.isfinite(offset)):
+        raise SspError(package, key, f"BaseUnit factor/offset {attrs} is not usable")
+    return exponents, factor, offset
+
+
+def _units(package, holder, prefix):
+    """Unit name -> (exponents, factor, offset) of ``holder``'s ``<prefix>:Units``."""
+    units = {}
+    for unit in holder.iterfind(f"{prefix}:Units/ssc:Unit", NS):
+        base = unit.find("ssc:BaseUnit", NS)
+        units[unit.get("name")] = _unit_of(package, f"Unit '{unit.get('name')}'",
+                                           base.attrib if base is not None else {})
+    return units
+
+
+def _bindings(package, base, element, key, ssd_units):
+    """The parameter values bound on ``element`` (ssd:System or ssd:Component), in order.
+
+    Returns a list of (name, type, value, unit, unit definition or None, key). Every
+    binding of SSP 1.0 is read: inline ssd:ParameterValues or a ``source`` .ssv file
+    in the package, with its ``prefix``; what we cannot apply exactly is refused.
+    """
+    found = []
+    bindings = element.findall("ssd:ParameterBindings/ssd:ParameterBinding", NS)
+    for i, binding in enumerate(bindings, start=1):
+        bkey = f"{key}: ParameterBinding {i}" if len(bindings) > 1 else \
+            f"{key}: ParameterBinding"
+        kind = binding.get("type", PSET_MIME)
+        if kind != PSET_MIME:
+            raise SspError(package, bkey, f"type '{kind}' is not supported (only "
+                           f"{PSET_MIME})")
+        if binding.find("ssd:ParameterMapping", NS) is not None:
+            raise SspError(package, bkey, "ParameterMapping is not supported")
+        if binding.get("sourceBase", "SSD") != "SSD":
+            raise SspError(package, bkey, f"sourceBase '{binding.get('sourceBase')}' is not "
+                           "supported (only 'SSD')")
+        prefix = binding.get("prefix", "")
+        source = binding.get("source")
+        if source:
+            url = urlparse(source)
+            path = None if url.scheme or url.netloc else _inside(base, unquote(url.path))
+            if path is None or not path.is_file():
+                raise SspError(package, bkey, f"source '{source}' is not a file in the "
+                               "package")
+            try:
+                pset = ElementTree.parse(path).getroot()
+            except ElementTree.ParseError as error:
+                raise SspError(package, bkey, f"{source}: not well-formed XML: {error}") \
+                    from None
+            if pset.tag != _q("ssv", "ParameterSet"):
+                raise SspError(package, bkey, f"{source}: root is not ssv:ParameterSet")
+            bkey = f"{bkey} ({source})"
+        else:
+            pset = binding.find("ssd:ParameterValues/ssv:ParameterSet", NS)
+            if pset is None:
+                raise SspError(package, bkey, "no source and no inline ssv:ParameterSet")
+        set_units = _units(package, pset, "ssv")
+        for param in pset.iterfind("ssv:Parameters/ssv:Parameter", NS):
+            pname = param.get("name")
+            pkey = f"{bkey}: parameter '{pname}'"
+            if not pname:
+                raise SspError(package, f"{bkey}: Parameter", "missing attribute 'name'")
+            vtype, value, unit = _parse_value(package, pkey, param)
+            definition = None
+            if unit is not None:
+                definition = set_units.get(unit, ssd_units.get(unit))
+            found.append((prefix + pname, vtype, value, unit, definition, pkey))
+    return found
+
+
+def _convert(package, where, value, unit, definition, var, fmu_units):
+    """``value`` in ``unit`` converted to the unit of the FMU variable ``var``."""
+    if unit is None or (unit == var.unit and (definition is None
+                                              or var.unit not in fmu_units)):
+        return value
+    if definition is None:
+        raise SspError(package, where, f"unit '{unit}' has no ssc:Unit definition (in the "
+                       "parameter set or the SSD), so it cannot be converted to "
+                       f"[{var.unit or '1'}]")
+    if var.unit is None:
+        target = ((0,) * len(_BASE), 1.0, 0.0)
+    elif var.unit in fmu_units:
+        target = fmu_units[var.unit]
+    else:
+        raise SspError(package, where, f"the FMU's unit '{var.unit}' of '{var.name}' has "
+                       "no UnitDefinition, so the value cannot be converted to it")
+    if definition[0] != target[0]:
+        raise SspError(package, where, f"unit '{unit}' cannot be converted to "
+                       f"[{var.unit or '1'}] of '{var.name}' (other base units)")
+    si = definition[1] * value + definition[2]
+    return (si - target[2]) / target[1]
 
 
 def _inside(base, relative):
@@ -353,12 +474,18 @@ def _inside(base, relative):
     return target if base == target or base in target.parents else None
 
 
-def _component(package, base, node):
+def _component(package, base, node, ssd_units):
     cname = node.get("name")
     key = f"Component '{cname}'"
+    if not cname or not _IDENTIFIER.match(cname):
+        raise SspError(package, key, "component names must be identifiers "
+                       "([A-Za-z_][A-Za-z0-9_]*, used as 'component.variable')")
     kind = node.get("type", FMU_MIME)
     if kind != FMU_MIME:
         raise SspError(package, key, f"type '{kind}' is not supported (only FMUs)")
+    if node.get("implementation", "any").lower() not in ("any", "cosimulation"):
+        raise SspError(package, key, f"implementation '{node.get('implementation')}' is not "
+                       "supported (only CoSimulation)")
     source = node.get("source") or ""
     url = urlparse(source)
     if url.scheme or url.netloc or not source:
@@ -368,32 +495,94 @@ def _component(package, base, node):
         raise SspError(package, key, f"source '{source}' is outside the package")
     if not fmu.is_file():
         raise SspError(package, key, f"source '{source}' is not in the package")
-    bindings = node.findall("ssd:ParameterBindings/ssd:ParameterBinding", NS)
-    if len(bindings) > 1:
-        raise SspError(package, key, "several parameter bindings (parameter sets) are not "
-                       "supported")
+    return cname, fmu, _bindings(package, base, node, key, ssd_units)
+
+
+def _check_connectors(package, cname, fmu, node):
+    """Refuse connectors that do not match the FMU (we convert no connector units)."""
+    from .model import ModelError, read_model
+
+    connectors = node.findall("ssd:Connectors/ssd:Connector", NS)
+    if not connectors:
+        return
+    try:
+        info = read_model(fmu)
+    except ModelError as error:
+        raise SspError(package, f"Component '{cname}'", str(error)) from None
+    for connector in connectors:
+        name, kind = connector.get("name"), connector.get("kind")
+        key = f"Component '{cname}': Connector '{name}'"
+        var = info.variables.get(name)
+        if var is None:
+            raise SspError(package, key, f"not a variable of {info.model_name}")
+        if kind not in (None, var.causality) and not (kind == "inout" and
+                                                       var.causality in ("input", "output")):
+            raise SspError(package, key, f"kind '{kind}', but the FMU's variable is "
+                           f"{var.causality}")
+        typed = next((child for child in connector if child.tag in
+                      [_q("ssc", t) for t in _TYPES + ("Enumeration", "Binary")]), None)
+        if typed is None:
+            continue
+        vtype = typed.tag.split("}")[1]
+        if vtype != var.type:
+            raise SspError(package, key, f"type {vtype}, but the FMU's variable is "
+                           f"{var.type}")
+        unit = typed.get("unit")
+        if unit is not None and unit != (var.unit or ""):
+            raise SspError(package, key, f"unit '{unit}', but the FMU's variable is in "
+                           f"[{var.unit or '1'}] (connector unit conversion is not "
+                           "supported)")
+
+
+def _bound_parameters(package, components, component_bound, system_bound):
+    """Component -> {parameter: value in the FMU's unit}.
+
+    Precedence (our reading of SSP 1.0): within one element, a later binding overrides
+    an earlier one; a system binding (``component.parameter``) overrides the
+    component's own.
+    """
+    from .model import ModelError, read_model
+
+    chosen = {cname: {} for cname in components}
+    for cname, bound in component_bound.items():
+        for name, *rest in bound:
+            chosen[cname][name] = rest
+    for name, *rest in system_bound:
+        where = rest[-1]
+        cname, dot, pname = name.partition(".")
+        if not dot:
+            raise SspError(package, where, f"'{name}' names no component (a parameter of "
+                           "the system itself is not supported; use 'component.parameter')")
+        if cname not in components:
+            raise SspError(package, where, f"unknown component '{cname}' in '{name}'")
+        chosen[cname][pname] = rest
     params = {}
-    for binding in bindings:
-        bkey = f"{key}: ParameterBinding"
-        if binding.get("prefix"):
-            raise SspError(package, bkey, "a 'prefix' is not supported")
-        if binding.find("ssd:ParameterMapping", NS) is not None:
-            raise SspError(package, bkey, "ParameterMapping is not supported")
-        if binding.get("source"):
-            path = _inside(base, unquote(binding.get("source")))
-            if path is None or not path.is_file():
-                raise SspError(package, bkey, f"source '{binding.get('source')}' is not a "
-                               "file in the package")
-            try:
-                pset = ElementTree.parse(path).getroot()
-            except ElementTree.ParseError as error:
-                raise SspError(package, bkey, f"{binding.get('source')}: {error}") from None
-            if pset.tag != _q("ssv", "ParameterSet"):
-                pset = None
-        else:
-            pset = binding.find("ssd:ParameterValues/ssv:ParameterSet", NS)
-        params.update(_parameter_set(package, bkey, pset))
-    return cname, fmu, params
+    for cname, values in chosen.items():
+        params[cname] = {}
+        if not values:
+            continue
+        try:
+            info = read_model(components[cname])
+        except ModelError as error:
+            raise SspError(package, f"Component '{cname}'", str(error)) from None
+        fmu_units = {}
+        if any(unit is not None for _, _, unit, _, _ in values.values()):
+            defs = _unit_definitions(info.path)
+            fmu_units = {u: _unit_of(package, f"Component '{cname}'", d)
+                         for u, d in defs.items()}
+        for pname, (vtype, value, unit, definition, where) in values.items():
+            var = info.variables.get(pname)
+            if var is None or var.causality != "parameter":
+                what = "no variable" if var is None else f"'{pname}' is {var.causality}"
+                raise SspError(package, where, f"{cname} ({info.model_name}) has "
+                               f"{what}{' ' + repr(pname) if var is None else ''}, "
+                               "not a parameter")
+            if vtype == "Real" and var.type != "Real":
+                raise SspError(package, where, f"a Real value for the {var.type} "
+                               f"parameter '{pname}'")
+            params[cname][pname] = _convert(package, where, value, unit, definition, var,
+                                            fmu_units)
+    return params
 
 
 def read_ssd(package, ssd_path):
@@ -421,7 +610,8 @@ def read_ssd(package, ssd_path):
     for tag, what in (("SignalDictionaries", "signal dictionaries"),):
         if system.find(f"ssd:{tag}", NS) is not None:
             raise SspError(package, f"System: {tag}", f"{what} are not supported")
-    components, connections = {}, []
+    components, connections, bound = {}, [], {}
+    ssd_units = _units(package, root, "ssd")
     elements = system.find("ssd:Elements", NS)
     for node in (elements if elements is not None else []):
         tag = node.tag.split("}")[-1]
@@ -429,12 +619,17 @@ def read_ssd(package, ssd_path):
             raise SspError(package, f"Elements: {tag} '{node.get('name')}'",
                            "only Component elements are supported (no nested systems or "
                            "signal dictionaries)")
-        cname, fmu, params = _component(package, base, node)
+        cname, fmu, bound[cname] = _component(package, base, node, ssd_units)
         if cname in components:
             raise SspError(package, f"Component '{cname}'", "name used twice")
-        components[cname] = {"fmu": str(fmu), "parameters": params}
+        _check_connectors(package, cname, fmu, node)
+        components[cname] = fmu
     if not components:
         raise SspError(package, "System: Elements", "no components")
+    params = _bound_parameters(package, components, bound,
+                               _bindings(package, base, system, "System", ssd_units))
+    components = {cname: {"fmu": str(fmu), "parameters": params[cname]}
+                  for cname, fmu in components.items()}
     for node in system.iterfind("ssd:Connections/ssd:Connection", NS):
         ends = [node.get(a) for a in ("startElement", "startConnector", "endElement",
                                       "endConnector")]
@@ -442,6 +637,9 @@ def read_ssd(package, ssd_path):
         if not ends[0] or not ends[2]:
             raise SspError(package, key, "connections to the system's own connectors are "
                            "not supported")
+        if not ends[1] or not ends[3] or "." in ends[1] + ends[3]:
+            raise SspError(package, key, "connector names must be non-empty and without "
+                           "'.' (used as 'component.variable')")
         if len(node):
             raise SspError(package, key, f"{node[0].tag.split('}')[-1]} is not supported")
         connections.append({"from": f"{ends[0]}.{ends[1]}", "to": f"{ends[2]}.{ends[3]}"})
@@ -473,7 +671,15 @@ def read_ssd(package, ssd_path):
         raise SspError(package, "DefaultExperiment", "no step size (an "
                        "osp:FixedStepAlgorithm annotation with baseStepSize is needed)")
     simulation = {"start": start, "stop": stop, "step": step, "algorithm": algorithm}
-    data = {"name": root.get("name") or system.get("name") or Path(package).stem,
+    name = root.get("name") if root.get("name") is not None else system.get("name")
+    if name is None:
+        name = Path(package).stem
+    try:
+        check_name(name, "system name")
+    except ValueError as error:
+        raise SspError(package, "SystemStructureDescription", f"{error} (it names the "
+                       "default output folder results/<name>)") from None
+    data = {"name": name,
             "description": system.get("description", ""),
             "simulation": simulation, "components": components, "connections": connections}
     if record or interval is not None:
@@ -511,9 +717,11 @@ def manifest_toml(data):
              "[simulation]"]
     lines += [f"{k} = {_toml_value(v)}" for k, v in data["simulation"].items()]
     for cname, comp in data["components"].items():
-        lines += ["", f"[components.{cname}]", f"fmu = {_toml_value(comp['fmu'])}"]
+        # names are data: written as quoted, escaped TOML strings, never pasted
+        table = f"components.{_toml_value(cname)}"
+        lines += ["", f"[{table}]", f"fmu = {_toml_value(comp['fmu'])}"]
         if comp["parameters"]:
-            lines.append(f"[components.{cname}.parameters]")
+            lines.append(f"[{table}.parameters]")
             lines += [f"{_toml_value(k)} = {_toml_value(v)}"
                       for k, v in comp["parameters"].items()]
     for conn in data["connections"]:
@@ -582,9 +790,19 @@ def ssp_manifest(path):
     if not is_ssp(path):
         yield path
         return
-    work = tempfile.mkdtemp(prefix="agv_ssp_")
+    work = scratch_dir("ssp")
+    manifest = Path(work) / "?"
     try:
-        yield str(load_ssp_as_manifest(path, work))
+        manifest = load_ssp_as_manifest(path, work)
+        yield str(manifest)
+    except ManifestError as error:
+        if error.manifest not in (str(manifest), str(path)):
+            raise
+        # an error in the package or in the manifest made from it: name the package and
+        # the entries in it, never our temporary files
+        package = str((Path(work) / "package").resolve()) + "/"
+        problem = error.problem.replace(package, f"{path}!/")
+        raise SspError(path, error.key, problem) from None
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
@@ -619,10 +837,13 @@ def run_libcosim(ssp_path, variables, step=None, stop=None, start=0.0):
     from libcosimpy.CosimObserver import CosimObserver
 
     if step is None or stop is None:
-        with tempfile.TemporaryDirectory(prefix="agv_ssp_") as work:
+        work = scratch_dir("ssp")
+        try:
             unpacked = Path(work)
             safe_extract(ssp_path, unpacked)
             data = read_ssd(ssp_path, unpacked / SSD_NAME)
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
         step = data["simulation"]["step"] if step is None else step
         stop = data["simulation"]["stop"] if stop is None else stop
         start = data["simulation"]["start"]

@@ -95,9 +95,11 @@ def test_bad_set_and_debug_traceback(chain, capsys):
     path = chain()
     line = _fail(capsys, ["validate", str(path), "--set", "gain.nope=1.0"])
     assert f"{path}: --set: unknown parameter 'nope'" in line
-    from agv_cosim.manifest import ManifestError
-    with pytest.raises(ManifestError):
-        cli.main(["validate", str(path), "--set", "gain.nope=1.0", "--debug"])
+    # --debug adds the traceback and changes nothing else: same line, same exit code
+    assert cli.main(["validate", str(path), "--set", "gain.nope=1.0", "--debug"]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" in err and "ManifestError" in err
+    assert err.strip().splitlines()[-1] == line
 
 
 def test_toml_syntax_error(tmp_path, capsys):

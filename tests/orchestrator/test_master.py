@@ -76,11 +76,12 @@ parameters = {{ {param} = {when} }}
 def test_failing_fmu_leaves_partial_results(fmus, tmp_path, capsys):
     """doStep from t = 0.5 fails: rows t = 0 .. 0.5 (6) are kept, status partial, exit 1,
     and every extraction folder is gone afterwards (the run happens in a child process:
-    its folders, agv_cosim_<instance>_*, are looked for in the temp folder)."""
+    its folders, agv_cosim_<instance>_* inside agv-cosim-<pid>-run-*, are looked for in
+    the temp folder)."""
     def leftovers():  # this test's instance only: other processes may run meanwhile
         root = Path(tempfile.gettempdir())
         return list(root.glob("agv_cosim_bad_*")) + list(
-            root.glob("agv_cosim_run_*/agv_cosim_bad_*"))
+            root.glob("agv-cosim-*-run-*/agv_cosim_bad_*"))
 
     path = _fail_manifest(fmus, tmp_path, "agv_test_fail", "fail_time", 0.5)
     assert _run(path, tmp_path / "out") == 1
@@ -136,7 +137,7 @@ def test_a_crashing_fmu_fails_its_run_only(fmus, tmp_path, capsys):
     def leftovers():  # this test's instance only: other processes may run meanwhile
         root = Path(tempfile.gettempdir())
         return list(root.glob("agv_cosim_crashdut_*")) + list(
-            root.glob("agv_cosim_run_*/agv_cosim_crashdut_*"))
+            root.glob("agv-cosim-*-run-*/agv_cosim_crashdut_*"))
 
     path = tmp_path / "crash.toml"
     path.write_text(f"""
@@ -156,5 +157,7 @@ fmu = "{fmus['agv_test_crash']}"
     assert len(crashed) == 1 and len(infos) == 2
     assert crashed[0]["status"] == "partial"
     assert "process died (signal 6)" in crashed[0]["error"]
+    # the child's shared track names the component, the call and the time it died in
+    assert "in component 'crashdut' during doStep at t=2.5" in crashed[0]["error"]
     assert crashed[0]["rows"] == 2000
     assert leftovers() == []

@@ -1,0 +1,109 @@
+"""The one sampling rule of every sampled component (controllers and sensors).
+
+Convention (written once here and in components/README.md, "Sampling"):
+
+- Sample instants are t_k = k T for whole k (absolute time, k computed from time, never
+  accumulated), or a sensor's own schedule (the total station's jittered fixes).
+- The master holds every input constant over a communication step [t, t + h). The
+  sample of instant t_k is taken from the input *held at t_k*: an instant belongs to the
+  step [t, t + h) when ``t - TIME_EPS <= t_k < t + h - TIME_EPS``
+  (:func:`in_step`). So an instant on a communication point t (within
+  :data:`TIME_EPS`) is sampled from the inputs set at t, and an instant inside a step
+  from the inputs held over that step (those set at its start), whatever the step size.
+- On a communication point that is a sample instant, the output shown at t is the
+  sample of t computed from the current inputs, and it is computed again at every
+  further call at that same time (a Gauss-Seidel master or an initialisation exchange
+  may set newer inputs at the same instant); the step from t commits the last one.
+- Between instants the newest committed sample is held. Before the first sample (a
+  start between instants), the first call's inputs are sampled and held.
+- T = 0: no hold; the law is evaluated at every call.
+
+:class:`SampleHold` implements it for memoryless laws (the controllers); the sampled
+sensors (agv_core.sensors) add latency and noise to the same instants and the same
+:func:`in_step` / :func:`at_instant` tests.
+"""
+
+import math
+
+#: Time tolerance [s]: two instants closer than this are the same instant (1 ns: far
+#: above the rounding of t = start + k h in doubles for any run shorter than ~1e6 s,
+#: far below any step or period used).
+TIME_EPS = 1e-9
+
+
+def at_instant(t_k, t):
+    """True when the instant ``t_k`` [s] is the communication point ``t`` [s]."""
+    return abs(t_k - t) <= TIME_EPS
+
+
+def in_step(t_k, t, h):
+    """True when the instant ``t_k`` [s] is sampled in the step [t, t + h) [s]."""
+    return t - TIME_EPS <= t_k < t + h - TIME_EPS
+
+
+def last_index(t, period):
+    """k of the newest instant k ``period`` at or before ``t`` [s] (within TIME_EPS)."""
+    return math.floor((t + TIME_EPS) / period)
+
+
+class SampleHold:
+    """Sample-and-hold of a memoryless law at t_k = k ``period`` (see the module rule).
+
+    Parameters
+    ----------
+    period : float
+        Sample period T [s], >= 0 (0: no hold, every call evaluates).
+
+    Notes
+    -----
+    The owner calls :meth:`output` from its output function and :meth:`step` from its
+    step function, each with the current (held) inputs as a tuple and the law
+    ``law(*inputs)``. The step from an instant t commits the sample of t from the inputs
+    held over the step; the value shown at t is reused when it was computed from those
+    same inputs (the law is not evaluated twice for one sample).
+    """
+
+    def __init__(self, period):
+        self.period = float(period)
+        self.value = None    # the value shown (held, or tentative at an instant)
+        self.index = None    # k of the held (or tentative) sample; None before any
+        self.inputs = None   # the inputs ``value`` was computed from
+
+    def _evaluate(self, law, inputs, index):
+        self.value = law(*inputs)
+        self.inputs = tuple(inputs)
+        self.index = index
+        return self.value
+
+    def output(self, t, inputs, law):
+        """The value at ``t`` [s] for the current ``inputs``."""
+        if self.period == 0.0:
+            return law(*inputs)
+        k = last_index(t, self.period)
+        if at_instant(k * self.period, t) or self.value is None:
+            return self._evaluate(law, inputs, k)  # tentative at an instant, per call
+        return self.value
+
+    def step(self, t, h, inputs, law):
+        """Commit the samples of the step from ``t`` to ``t + h`` [s], ``inputs`` held.
+
+        Every instant of the step sees the same held inputs, so only the newest matters.
+        """
+        if self.period == 0.0:
+            return
+        newest = last_index(t + h - 2.0 * TIME_EPS, self.period)
+        if not in_step(newest * self.period, t, h):
+            return                           # no instant in this step: hold
+        if self.index == newest and self.inputs == tuple(inputs):
+            return                           # shown at t from these very inputs
+        self._evaluate(law, inputs, newest)
+
+    def get_state(self):
+        """JSON-safe snapshot."""
+        return {"value": self.value, "index": self.index,
+                "inputs": None if self.inputs is None else list(self.inputs)}
+
+    def set_state(self, state):
+        """Restore a snapshot from :meth:`get_state`."""
+        self.value, self.index = state["value"], state["index"]
+        self.inputs = None if state["inputs"] is None else tuple(state["inputs"])
