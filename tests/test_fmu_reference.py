@@ -123,3 +123,55 @@ def test_reference_inputs_become_held_steps():
     assert names == ["u", "w"]
     # the step at 0.5 s is two rows at one time; the breakpoint after stop is dropped
     assert rows == [(0.0, 0.0, 3.0), (0.5, 0.0, 3.0), (0.5, 1.0, 3.0), (2.0, 1.0, 3.0)]
+
+
+def _reference(component_fmus, name):
+    _, _, files, _ = _reference_files(component_fmus[name])
+    return np.genfromtxt(io.BytesIO(files["result"]), delimiter=",", names=True)
+
+
+def test_seed003_references_hold_the_closed_forms(component_fmus):
+    """The seed-003 slaves' shipped results against closed forms (1e-9: CSV round trip
+    and rounding of exact discretisations; the train's floating car is integrated, so
+    only its exact parts are checked)."""
+    train = _reference(component_fmus, "agv_train")
+    v0, t = 14.0 / 3.6, train["time"]
+    # u1 = v0 + dv, dv = 1 m/s from 5 s: the start value of dv (0) is what runs before
+    distance = v0 * t + np.where(t > 5.0 + 1e-9, t - 5.0, 0.0)
+    assert np.allclose(train["distance"], distance, atol=1e-9)
+    assert np.allclose(train["heading1"], math.tan(0.05) / 5.0 * distance, atol=1e-9)
+    # J2 = J1 - Lm e2(psi2): psi2 is integrated to 1e-12 rad a step, 200 steps x 9 m
+    assert np.all(train["heading3"] == 0.0) and np.allclose(train["y_J2"], 0.0, atol=1e-8)
+    assert np.allclose(np.hypot(train["x_J1"] - train["x_J2"], train["y_J1"] - train["y_J2"]),
+                       9.0, atol=1e-9)
+    assert train["heading2"][-1] > 0.5   # the floating car does swing
+
+    ack = _reference(component_fmus, "agv_ackermann")
+    delta = math.asin(5.0 / 40.0)
+    for i, sign, l in ((1, 1.0, 8.0), (2, -1.0, 3.0), (3, 1.0, -3.0), (4, -1.0, -8.0)):
+        for row, held in ((4, 0.0), (6, sign * delta), (11, -sign * delta)):  # 0.4, 0.6, 1.1 s
+            tt = math.tan(held)
+            assert ack[f"delta{i}_left"][row] == pytest.approx(
+                math.atan(l * tt / (l - 1.05 * tt)), abs=1e-12)
+            assert ack[f"delta{i}_right"][row] == pytest.approx(
+                math.atan(l * tt / (l + 1.05 * tt)), abs=1e-12)
+            assert ack[f"centre_curvature{i}"][row] == pytest.approx(tt / l, abs=1e-12)
+
+    errors = _reference(component_fmus, "agv_axle_errors")   # default path: the x axis
+    for i, (y_before, y_after, x_before) in enumerate(
+            ((0.5, -0.25, 10.0), (-0.3, 0.125, 7.0), (0.2, 0.0, -2.0), (0.0, 1.5, -5.0)), 1):
+        assert errors[f"e{i}"][4] == pytest.approx(y_before, abs=1e-12)
+        assert errors[f"e{i}"][-1] == pytest.approx(y_after, abs=1e-12)
+        assert errors[f"s{i}"][4] == pytest.approx(x_before, abs=1e-12)
+        assert errors[f"s{i}"][-1] == pytest.approx(x_before + 2.0, abs=1e-12)
+
+    from agv_core.fuzzy_pd import FuzzySchedule
+    kp_fuzzy, kd_fuzzy = FuzzySchedule().gains(0.01, 14.0)
+    for name, kp, kd in (("agv_fixed_pd", 710.0, 112.0), ("agv_fuzzy_pd", kp_fuzzy, kd_fuzzy)):
+        pd = _reference(component_fmus, name)
+        kp, kd, after = math.radians(kp), math.radians(kd), pd["time"] > 0.5 + 1e-9
+        rate = 0.01 / 0.05 * np.exp(-(pd["time"][after] - 0.5) / 0.05)
+        assert np.allclose(pd["Kp_used"][after], kp, atol=1e-9), name
+        assert np.allclose(pd["error_rate"][after], rate, atol=1e-9), name
+        assert np.allclose(pd["delta"][after], -(kp * 0.01 + kd * rate), atol=1e-9), name
+        assert np.all(pd["delta"][pd["time"] < 0.5 - 1e-9] == 0.0), name

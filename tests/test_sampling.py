@@ -13,7 +13,9 @@ import math
 import pytest
 
 from agv_core import chained_form as cf
+from agv_core.ltv_mpc import LtvMpc
 from agv_core.paths import parse_path
+from agv_core.pid import LateralPid
 from agv_core.preview_lq import PreviewLQ
 from agv_core.sampling import TIME_EPS, SampleHold, at_instant, in_step, last_index
 from agv_core.sensors import EPS, TotalStation, VisionSensor
@@ -21,6 +23,8 @@ from agv_core.state_feedback import StateFeedback
 
 T = 0.1
 LINE = parse_path("line:")
+# a reference standing at the origin, heading along x, moving at 0.4 m/s (seed-001 inputs)
+REF = {"x": 0.0, "y": 0.0, "heading": 0.0, "v": 0.4, "omega": 0.0}
 
 # poses (x [m], y [m], heading [rad]) near the line y = 0
 POSES = {name: (0.1 * i, 0.02 * (i + 1) * (-1) ** i, 0.01 * (i + 1))
@@ -58,6 +62,54 @@ class Controller:
     def law(self, pose):
         return self._show(self.make(0.0), 0.0, *self.inputs(pose))
 
+    def expected(self, t, pose_name):
+        return self.law(POSES[pose_name])
+
+
+def _committed():
+    """Instant k -> the pose whose sample the sequence commits there (the last shown)."""
+    chosen = {}
+    for call, t, _, _, expected in SEQUENCE:
+        if call == "show":
+            chosen[last_index(t, T)] = expected
+    return chosen
+
+
+def _mpc_law(poses):
+    """The MPC's unsampled law (``compute``) chained by hand over ``poses``: u(k-1) and
+    the warm start from the previous one, u(-1) = u_r."""
+    core, u_prev, out = LtvMpc(sample_time=T), [REF["v"], REF["omega"]], None
+    for pose in poses:
+        out = core.compute(*pose, REF, u_prev)
+        u_prev, core.warm = [out["v_c"], out["omega"]], core._next_warm
+    return out
+
+
+def _pid_law(poses):
+    """The PID's unsampled law (``compute``) chained by hand: I(k-1), e(k-1)."""
+    core, integral, e_prev, out = LateralPid(sample_time=T), 0.0, None, None
+    for pose in poses:
+        out, integral, e_prev = core.compute(*pose, REF, integral, e_prev)
+    return out
+
+
+class MemoryController(Controller):
+    """A sampled controller with memory (integral, previous command): its law at
+    instant k depends on the samples committed before. Expected: the unsampled law
+    chained over the poses the rule commits at 0, T, ..., (k-1) T, then the pose due."""
+
+    def __init__(self, make, chained):
+        super().__init__(make, lambda c, t, *u: c.update(t, *u),
+                         lambda c, t, h, *u: c.step(t, h, *u), lambda pose: (*pose, REF))
+        self.chained = chained
+
+    def law(self, pose):
+        return self.chained([pose])
+
+    def expected(self, t, pose_name):
+        committed, k = _committed(), last_index(t, T)
+        return self.chained([POSES[committed[j]] for j in range(k)] + [POSES[pose_name]])
+
 
 class Sensor:
     """A sampled sensor with zero latency and noise; its law is a fresh sensor's
@@ -74,6 +126,9 @@ class Sensor:
 
     def law(self, pose):
         return self._values(self.make().measure(0.0, *self.inputs(pose)))
+
+    def expected(self, t, pose_name):
+        return self.law(POSES[pose_name])
 
     @staticmethod
     def _values(reading):
@@ -101,6 +156,10 @@ def _components():
             lambda p: PreviewLQ(LINE, sample_period=p),
             lambda c, t, *u: c.update(t, *u)["alpha_ref"],
             lambda c, t, h, *u: c.step(t, h, *u), lambda pose: (*pose, 0.0, 0.0)),
+        "seed-001 LTV MPC (memory)": MemoryController(
+            lambda p: LtvMpc(sample_time=p), _mpc_law),
+        "seed-001 lateral PID (memory)": MemoryController(
+            lambda p: LateralPid(sample_time=p), _pid_law),
         "vision sensor": Sensor(
             lambda: VisionSensor(LINE, frame_period=T, latency=0.0, noise_lateral=0.0,
                                  noise_heading=0.0), lambda pose: pose),
@@ -119,7 +178,7 @@ def test_every_sampled_component_follows_the_one_rule(name):
             component.step(t, h, POSES[given])
             continue
         got = component.show(t, POSES[given])
-        want = component.law(POSES[expected])
+        want = component.expected(t, expected)
         shown.append(expected)
         # the same law on the same input; 1e-12 only for a projection started from
         # another search hint
@@ -164,3 +223,25 @@ def test_sample_hold_unsampled_and_state():
     hold.step(1.0, 0.1, (4.0,), law)                    # instant at 1.0, same inputs:
     assert len(calls) == n + 1                          # not evaluated twice
     assert math.isfinite(hold.value)
+
+
+def test_sample_hold_with_memory():
+    """A law with memory (here a sum of its samples) sees every instant of a long step
+    once, and a re-evaluation at an instant starts again from the same prior sample."""
+    hold = SampleHold(0.1, memory=True)
+
+    def law(u):
+        return (hold.prior or 0.0) + u
+
+    assert hold.output(0.0, (1.0,), law) == 1.0
+    hold.step(0.0, 0.35, (1.0,), law)          # instants 0 (shown), 0.1, 0.2, 0.3
+    assert hold.value == 4.0 and hold.index == 3
+    assert hold.output(0.4, (10.0,), law) == 14.0
+    assert hold.output(0.4, (20.0,), law) == 24.0   # newer inputs at the same instant
+    saved = hold.get_state()
+    hold.step(0.4, 0.1, (20.0,), law)               # commits the 24 shown
+    assert hold.output(0.5, (1.0,), law) == 25.0
+    hold.set_state(saved)
+    assert hold.output(0.4, (30.0,), law) == 34.0
+    with pytest.raises(ValueError):
+        SampleHold(0.0, memory=True)

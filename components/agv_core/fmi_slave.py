@@ -300,6 +300,11 @@ class AgvSlave(Fmi2Slave):
             index[name] = number
             if name in self._units:
                 scalar[0].set("unit", self._units[name])
+            if scalar[0].tag == "Real" and scalar[0].get("start") is not None:
+                # pythonfmu writes 16 significant digits, which does not round-trip every
+                # double (radians(112) -> 1.954768762233649): the start a host reads and
+                # writes back must be the value the FMU uses, so write repr's 17.
+                scalar[0].set("start", repr(float(getattr(self, name))))
 
         self._annotate_reference_inputs(root)
 

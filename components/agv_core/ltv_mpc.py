@@ -25,7 +25,9 @@ subject to (eqs 31-32, bounds per sample, A(k), B(k) and u_r frozen over the hor
 The slack softens the optional "feasible region" bound e_max on the predicted position
 errors; with e_max = 0 (default: its value is lost from the paper) it appears in the
 cost only and the optimum has gamma = 0. The first increment is applied:
-u(k) = u(k-1) + Delta u(k) (eq 30); the controller output is held for T.
+u(k) = u(k-1) + Delta u(k) (eq 30); the controller output is held for T (sampled at
+k T by the rule of :mod:`agv_core.sampling`, :class:`~agv_core.sampling.SampleHold`
+with memory: u(k-1) and the warm start come from the committed sample before).
 
 The QP (1/2 z' P z + q' z, l <= A z <= u with z = [Delta U; gamma]) is solved by OSQP
 (operator splitting, with solution polishing), warm-started from the previous solution
@@ -43,6 +45,7 @@ import scipy.sparse as sp
 
 from .errors import ParameterError
 from .paths import heading_error
+from .sampling import SampleHold
 
 
 class MpcSolveError(RuntimeError):
@@ -162,9 +165,9 @@ class LtvMpc:
         self.eps = float(eps)
         self.max_iter = int(max_iter)
         self.warm_start = bool(warm_start)
-        self.u_prev = None          # u(k-1) [v_c, omega], None before the first sample
-        self.warm = None            # (x, y) of the last solution, shifted
-        self.held = None            # (k, t, unused, result, warm start for the next sample)
+        self.u_prev = None          # u(k-1) [v_c, omega] of the last sample computed
+        self.warm = None            # its warm start (x, y): the solution before, shifted
+        self._hold = SampleHold(self.T, memory=True)
 
     # ------------------------------------------------------------------ the QP
     def qp(self, x_err, u_prev_err, v_r, alpha_r, u_r):
@@ -277,38 +280,49 @@ class LtvMpc:
                    domega=float(du[1]), slack=float(z[-1]), iterations=iterations)
         return out
 
-    def update(self, t, x, y, heading, ref):
-        """Output at time ``t`` [s], sampled every T and held in between.
-
-        The law is evaluated at the first call at or after each sample instant k T and
-        again at any later call at that same time (new inputs at the sample instant,
-        from the same u(k-1) and warm start); between samples the held output is returned.
-        """
-        k = math.floor(t / self.T + 1e-9)
-        if self.held is not None and (k < self.held[0]
-                                      or (k == self.held[0] and t != self.held[1])):
-            return dict(self.held[3])
-        if self.held is not None and k > self.held[0]:
-            self.u_prev = [self.held[3]["v_c"], self.held[3]["omega"]]
-            self.warm = self.held[4]
-        u_prev = self.u_prev if self.u_prev is not None else [ref["v"], ref["omega"]]
+    def _law(self, x, y, heading, x_r, y_r, heading_r, v_r, omega_r):
+        """One sample from the held inputs, starting from the committed sample before it
+        (its command is u(k-1), its shifted solution the warm start)."""
+        prior = self._hold.prior
+        if prior is None:                   # the first sample: u(-1) = u_r, no warm start
+            self.u_prev, self.warm = None, None
+            u_prev = [v_r, omega_r]
+        else:
+            self.u_prev = [prior["out"]["v_c"], prior["out"]["omega"]]
+            self.warm = prior["warm"]
+            u_prev = self.u_prev
+        ref = {"x": x_r, "y": y_r, "heading": heading_r, "v": v_r, "omega": omega_r}
         out = self.compute(x, y, heading, ref, u_prev)
-        self.held = (k, float(t), None, out, self._next_warm)
-        return dict(out)
+        return {"out": out, "warm": self._next_warm}
+
+    @staticmethod
+    def _inputs(x, y, heading, ref):
+        return (float(x), float(y), float(heading), float(ref["x"]), float(ref["y"]),
+                float(ref["heading"]), float(ref["v"]), float(ref["omega"]))
+
+    def update(self, t, x, y, heading, ref):
+        """Output at time ``t`` [s], sampled at k T and held in between.
+
+        The project's one sampling rule (:mod:`agv_core.sampling`, a sample-and-hold
+        with memory): at an instant k T on a communication point the law is evaluated
+        from the current inputs at every call (newer inputs at the same instant), each
+        time from the same u(k-1) and warm start; between instants the held output is
+        returned. :meth:`step` commits the samples of a step.
+        """
+        return dict(self._hold.output(t, self._inputs(x, y, heading, ref), self._law)["out"])
+
+    def step(self, t, h, x, y, heading, ref):
+        """Commit the samples of the step from ``t`` to ``t + h`` [s], inputs held."""
+        self._hold.step(t, h, self._inputs(x, y, heading, ref), self._law)
 
     def get_state(self):
-        """JSON-safe snapshot: u(k-1), warm start and the held sample."""
-        held = None if self.held is None else [self.held[0], self.held[1], None,
-                                               self.held[3], self.held[4]]
-        return {"u_prev": self.u_prev, "warm": self.warm, "held": held}
+        """JSON-safe snapshot: the sample-and-hold (held and prior samples)."""
+        return {"hold": self._hold.get_state(), "u_prev": self.u_prev, "warm": self.warm}
 
     def set_state(self, state):
         """Restore a snapshot from :meth:`get_state`."""
-        self.u_prev = state["u_prev"]
-        self.warm = None if state["warm"] is None else tuple(state["warm"])
-        held = state["held"]
-        self.held = None if held is None else (held[0], held[1], None, held[3],
-                                               tuple(held[4]))
+        self._hold.set_state(state["hold"])
+        self.u_prev, self.warm = state["u_prev"], state["warm"]
 
 
 def errors(x, y, heading, ref):

@@ -9,7 +9,8 @@ feed-forward::
     v_c   = v_r
     omega = -(Kp e_lat + Ki I + Kd D),  |omega| <= omega_max
 
-sampled every T [s] and held in between: I is the rectangle-rule integral
+sampled every T [s] and held in between (the rule of agv_core.sampling, a
+sample-and-hold with memory): I is the rectangle-rule integral
 I(k) = I(k-1) + T e_lat(k) (not advanced while omega is saturated in the direction that
 would grow it: conditional integration as anti-windup), D the backward difference
 (e_lat(k) - e_lat(k-1)) / T (0 at the first sample). Units: Kp [rad/(s m)],
@@ -19,7 +20,8 @@ Ki [rad/(s^2 m)], Kd [rad/m].
 import math
 
 from .errors import ParameterError
-from .ltv_mpc import errors
+from .ltv_mpc import LtvMpc, errors
+from .sampling import SampleHold
 
 
 class LateralPid:
@@ -48,9 +50,9 @@ class LateralPid:
         self.kp, self.ki, self.kd = float(kp), float(ki), float(kd)
         self.T = float(sample_time)
         self.omega_max = float(omega_max)
-        self.integral = 0.0          # I(k-1) [m s]
-        self.e_prev = None           # e_lat(k-1) [m]
-        self.held = None             # (k, t, I(k-1), e(k-1), out, I(k), e(k))
+        self.integral = 0.0          # I(k-1) [m s] of the last sample computed
+        self.e_prev = None           # e_lat(k-1) [m] of the last sample computed
+        self._hold = SampleHold(self.T, memory=True)
 
     def compute(self, x, y, heading, ref, integral, e_prev):
         """One sample from I(k-1) and e(k-1); returns (out, I(k), e(k))."""
@@ -67,24 +69,30 @@ class LateralPid:
         out.update(v_c=float(ref["v"]), omega=omega, integral=i_new)
         return out, i_new, e
 
-    def update(self, t, x, y, heading, ref):
-        """Output at time ``t`` [s], sampled every T and held (as LtvMpc.update)."""
-        k = math.floor(t / self.T + 1e-9)
-        if self.held is not None and (k < self.held[0]
-                                      or (k == self.held[0] and t != self.held[1])):
-            return dict(self.held[2])
-        if self.held is not None and k > self.held[0]:
-            self.integral, self.e_prev = self.held[3], self.held[4]
+    def _law(self, x, y, heading, x_r, y_r, heading_r, v_r, omega_r):
+        """One sample from the held inputs and the committed sample before it."""
+        prior = self._hold.prior
+        self.integral, self.e_prev = ((0.0, None) if prior is None
+                                      else (prior["integral"], prior["e"]))
+        ref = {"x": x_r, "y": y_r, "heading": heading_r, "v": v_r, "omega": omega_r}
         out, i_new, e = self.compute(x, y, heading, ref, self.integral, self.e_prev)
-        self.held = (k, float(t), out, i_new, e)
-        return dict(out)
+        return {"out": out, "integral": i_new, "e": e}
+
+    def update(self, t, x, y, heading, ref):
+        """Output at time ``t`` [s], sampled at k T and held (the rule of
+        :mod:`agv_core.sampling`, as :meth:`LtvMpc.update`)."""
+        return dict(self._hold.output(t, LtvMpc._inputs(x, y, heading, ref), self._law)["out"])
+
+    def step(self, t, h, x, y, heading, ref):
+        """Commit the samples of the step from ``t`` to ``t + h`` [s], inputs held."""
+        self._hold.step(t, h, LtvMpc._inputs(x, y, heading, ref), self._law)
 
     def get_state(self):
         """JSON-safe snapshot."""
-        return {"integral": self.integral, "e_prev": self.e_prev,
-                "held": None if self.held is None else list(self.held)}
+        return {"hold": self._hold.get_state(), "integral": self.integral,
+                "e_prev": self.e_prev}
 
     def set_state(self, state):
         """Restore a snapshot from :meth:`get_state`."""
+        self._hold.set_state(state["hold"])
         self.integral, self.e_prev = state["integral"], state["e_prev"]
-        self.held = None if state["held"] is None else tuple(state["held"])

@@ -18,8 +18,11 @@ Convention (written once here and in components/README.md, "Sampling"):
   start between instants), the first call's inputs are sampled and held.
 - T = 0: no hold; the law is evaluated at every call.
 
-:class:`SampleHold` implements it for memoryless laws (the controllers); the sampled
-sensors (agv_core.sensors) add latency and noise to the same instants and the same
+:class:`SampleHold` implements it for the controllers: memoryless laws, and laws with
+memory from sample to sample (``memory=True``: the law reads :attr:`SampleHold.prior`,
+the committed sample before the one being computed; every instant of a step is then
+evaluated in turn, each from the same held inputs). The sampled sensors
+(agv_core.sensors) add latency and noise to the same instants and the same
 :func:`in_step` / :func:`at_instant` tests.
 """
 
@@ -53,6 +56,12 @@ class SampleHold:
     ----------
     period : float
         Sample period T [s], >= 0 (0: no hold, every call evaluates).
+    memory : bool
+        True for a law with memory (an integral, the previous command): the law reads
+        :attr:`prior`, the value of the newest sample before the one it computes (None
+        before the second sample), so a re-evaluation at the same instant starts from
+        the same memory, and :meth:`step` evaluates every instant of a step that holds
+        several (a memoryless law needs only the newest). Needs ``period`` > 0.
 
     Notes
     -----
@@ -63,13 +72,19 @@ class SampleHold:
     same inputs (the law is not evaluated twice for one sample).
     """
 
-    def __init__(self, period):
+    def __init__(self, period, memory=False):
         self.period = float(period)
+        self.memory = bool(memory)
+        if self.memory and not self.period > 0.0:
+            raise ValueError("a law with memory needs a sample period > 0")
         self.value = None    # the value shown (held, or tentative at an instant)
         self.index = None    # k of the held (or tentative) sample; None before any
         self.inputs = None   # the inputs ``value`` was computed from
+        self.prior = None    # the sample before ``index`` (memory=True); None before
 
     def _evaluate(self, law, inputs, index):
+        if self.index is not None and index != self.index:
+            self.prior = self.value          # a new instant: the held sample is now past
         self.value = law(*inputs)
         self.inputs = tuple(inputs)
         self.index = index
@@ -87,23 +102,30 @@ class SampleHold:
     def step(self, t, h, inputs, law):
         """Commit the samples of the step from ``t`` to ``t + h`` [s], ``inputs`` held.
 
-        Every instant of the step sees the same held inputs, so only the newest matters.
+        Every instant of the step sees the same held inputs, so for a memoryless law
+        only the newest matters; a law with memory is evaluated at each in turn.
         """
         if self.period == 0.0:
             return
         newest = last_index(t + h - 2.0 * TIME_EPS, self.period)
         if not in_step(newest * self.period, t, h):
             return                           # no instant in this step: hold
-        if self.index == newest and self.inputs == tuple(inputs):
-            return                           # shown at t from these very inputs
-        self._evaluate(law, inputs, newest)
+        first = newest
+        if self.memory:
+            while in_step((first - 1) * self.period, t, h):
+                first -= 1
+        inputs = tuple(inputs)
+        for index in range(first, newest + 1):
+            if self.index == index and self.inputs == inputs:
+                continue                     # shown at t from these very inputs
+            self._evaluate(law, inputs, index)
 
     def get_state(self):
         """JSON-safe snapshot."""
-        return {"value": self.value, "index": self.index,
+        return {"value": self.value, "index": self.index, "prior": self.prior,
                 "inputs": None if self.inputs is None else list(self.inputs)}
 
     def set_state(self, state):
         """Restore a snapshot from :meth:`get_state`."""
-        self.value, self.index = state["value"], state["index"]
+        self.value, self.index, self.prior = state["value"], state["index"], state["prior"]
         self.inputs = None if state["inputs"] is None else tuple(state["inputs"])

@@ -23,7 +23,8 @@ def run_loop(controller, reference, pose0, stop, sample_time=0.2, wheelbase=1.0,
     Parameters
     ----------
     controller : LtvMpc or LateralPid
-        A core with ``update(t, x, y, heading, ref) -> dict``.
+        A core with ``update(t, x, y, heading, ref) -> dict`` and ``step(t, h, x, y,
+        heading, ref)``.
     reference : RefTrajectory
     pose0 : tuple of float
         Initial centroid x, y [m] and yaw [rad].
@@ -56,5 +57,6 @@ def run_loop(controller, reference, pose0, stop, sample_time=0.2, wheelbase=1.0,
         out["t"], out["theta_f"] = t, theta_f
         rows.append(out)
         if k < n:
+            controller.step(t, sample_time, vehicle.x, vehicle.y, vehicle.yaw, ref)  # commit
             vehicle.step(theta_f, v_f, theta_b, v_b, sample_time)
     return rows

@@ -3,8 +3,9 @@
 Both FMUs have the same inputs and the same common outputs, so a manifest can swap one for
 the other (the orchestrator's FMU substitution). A slave script subclasses
 :class:`TrackingSlave`, declares its parameters in ``declare_parameters``, builds its core
-in ``make_core`` (a core with ``update(t, x, y, heading, ref) -> dict`` and
-``get_state`` / ``set_state``), and may add outputs in ``declare_extra_outputs`` /
+in ``make_core`` (a core with ``update(t, x, y, heading, ref) -> dict`` (the output at
+t), ``step(t, h, x, y, heading, ref)`` (commits the samples of a step, the rule of
+agv_core.sampling) and ``get_state`` / ``set_state``), and may add outputs in ``declare_extra_outputs`` /
 ``publish_extra``. The core's errors of the kinds listed in ``solve_errors`` become an FMU
 error naming the cause.
 """
@@ -57,14 +58,20 @@ class TrackingSlave(AgvSlave):
     def publish_extra(self, out):
         """Copy the extra outputs from the core's result ``out`` (override)."""
 
+    def _ref(self):
+        return {"x": self.x_ref, "y": self.y_ref, "heading": self.heading_ref,
+                "v": self.v_ref, "omega": self.omega_ref}
+
     def advance(self, t, h):
-        pass  # sampled law: publish() evaluates it at the new time
+        # commits the samples of [t, t + h) from the held inputs (agv_core.sampling)
+        try:
+            self.core.step(t, h, self.x, self.y, self.heading, self._ref())
+        except self.solve_errors as error:
+            self._fail(f"t={t:.9g} s: {error}")
 
     def publish(self):
-        ref = {"x": self.x_ref, "y": self.y_ref, "heading": self.heading_ref,
-               "v": self.v_ref, "omega": self.omega_ref}
         try:
-            out = self.core.update(self.time, self.x, self.y, self.heading, ref)
+            out = self.core.update(self.time, self.x, self.y, self.heading, self._ref())
         except self.solve_errors as error:
             self._fail(f"t={self.time:.9g} s: {error}")
         self.v_c, self.omega = out["v_c"], out["omega"]

@@ -14,6 +14,15 @@ class AgvAckermann(core.fmi_slave.AgvSlave):
     description = ("Seed 003 per-axle Ackermann coordination: each axle's turning centre on "
                    "its car's hinge baseline sets its left and right wheel angles")
 
+    #: Reference: the steady R = 20 m left-circle angles (+-asin(L1 / 2R), front +, rear -)
+    #: from 0.5 s, then a right turn (signs flipped) from 1.0 s: each wheel angle against
+    #: tan(dL) = l t / (l - (d/2) t), tan(dR) = l t / (l + (d/2) t), t = tan(delta).
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.5,
+                                                          step_size=0.1)
+    reference_inputs = {f"delta{i}": ((0.0, 0.0), (0.5, sign * 0.1253278311680654),
+                                      (1.0, -sign * 0.1253278311680654))
+                        for i, sign in zip(_AXLES, (1.0, -1.0, 1.0, -1.0))}
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         for i in _AXLES:

@@ -14,6 +14,15 @@ class AgvAxleErrors(core.fmi_slave.AgvSlave):
     description = ("Lateral errors of four tracking points (seed 003's axle centres) from "
                    "a reference path, positive left of the path; noise-free, no delay")
 
+    #: Reference: four points held on either side of the default path (the x axis), moved
+    #: at 0.5 s: e_i = y_i and s_i = x_i exactly.
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.0,
+                                                          step_size=0.1)
+    reference_inputs = {"x1": ((0.0, 10.0), (0.5, 12.0)), "y1": ((0.0, 0.5), (0.5, -0.25)),
+                        "x2": ((0.0, 7.0), (0.5, 9.0)), "y2": ((0.0, -0.3), (0.5, 0.125)),
+                        "x3": ((0.0, -2.0), (0.5, 0.0)), "y3": ((0.0, 0.2), (0.5, 0.0)),
+                        "x4": ((0.0, -5.0), (0.5, -3.0)), "y4": ((0.0, 0.0), (0.5, 1.5))}
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         for i in _AXLES:

@@ -16,6 +16,14 @@ class AgvFixedPd(core.fmi_slave.AgvSlave):
     description = ("Fixed-gain PD steering law for one axle: delta = -(Kp e + Kd de/dt), "
                    "the baseline for seed 003's fuzzy-scheduled PD")
 
+    #: Reference: a 1 cm step of the lateral error at 0.5 s: with e held the filter is
+    #: exact, error_rate = (e / tau_d) exp(-(t - 0.5) / tau_d), delta = -(Kp e + Kd
+    #: error_rate) (0.52 rad peak, below delta_max).
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.0,
+                                                          step_size=0.01)
+    reference_inputs = {"lateral_error": ((0.0, 0.0), (0.5, 0.01)),
+                        "speed": ((0.0, 14.0 / 3.6),)}
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.input("lateral_error", 0.0, "m", "Lateral error e of the axle's tracking point, "

@@ -15,6 +15,15 @@ class AgvFuzzyPd(core.fmi_slave.AgvSlave):
     description = ("Seed 003 fuzzy-scheduled PD: a Mamdani system (scikit-fuzzy) sets Kp, Kd "
                    "from the lateral error and speed; delta = -(Kp e + Kd de/dt)")
 
+    #: Reference: a 1 cm step of the lateral error at 0.5 s at 14 km/h: with e held the
+    #: filter is exact, error_rate = (e / tau_d) exp(-(t - 0.5) / tau_d) and
+    #: delta = -(Kp e + Kd error_rate), Kp, Kd the schedule's gains at (1 cm, 14 km/h)
+    #: (709.7 deg/m, 111.8 deg s/m).
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.0,
+                                                          step_size=0.01)
+    reference_inputs = {"lateral_error": ((0.0, 0.0), (0.5, 0.01)),
+                        "speed": ((0.0, 14.0 / 3.6),)}
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         S, I = core.fmi_slave.String, core.fmi_slave.Integer

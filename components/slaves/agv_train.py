@@ -15,11 +15,21 @@ class AgvTrain(core.fmi_slave.AgvSlave):
                    "tail car), planar kinematics with four steered axles: head car exact "
                    "arc, articulation by RK4 with step doubling")
 
+    #: Reference: axle 1 held at 0.05 rad, axles 2-4 straight, from a straight start at
+    #: v0 = 14 km/h, dv = +1 m/s from 5 s. Closed forms: the head car is exact,
+    #: heading1 = tan(0.05) / L1 * distance, distance = 10 v0 + 5 m; the tail car cannot
+    #: turn (omega3 = 0, no side slip at J2), so heading3 = 0 and y_J2 = 0 while the
+    #: floating car swings (|J1 - J2| = Lm). (Open loop the Ackermann steady-circle angles
+    #: from a straight start jack-knife within seconds: see components/README.md.)
+    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=10.0,
+                                                          step_size=0.05)
+    reference_inputs = {"delta1": ((0.0, 0.05),), "dv": ((0.0, 0.0), (5.0, 1.0))}
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         S = core.fmi_slave.String
-        self.input("v", 0.0, "m/s", "Longitudinal speed u1 of the head car (body x velocity); "
-                   "v0 is used until set")
+        self.input("dv", 0.0, "m/s", "Speed added to v0 (a speed profile; with v0 = 0 the "
+                   "head car's longitudinal speed u1, body x velocity)")
         for i in _AXLES:
             self.input(f"delta{i}", 0.0, "rad",
                        f"Axle-equivalent steering angle of axle {i}, positive left "
@@ -33,7 +43,8 @@ class AgvTrain(core.fmi_slave.AgvSlave):
         self.parameter("L2", 3.0, "m", "Inner axle (head: rear, tail: front) to the car's hinge")
         self.parameter("d", 2.1, "m", "Track width (wheel slip diagnostics)")
         self.parameter("Lm", 9.0, "m", "Floating car, hinge J1 to hinge J2")
-        self.parameter("v0", 14.0 / 3.6, "m/s", "Speed used while input v has not been set")
+        self.parameter("v0", 14.0 / 3.6, "m/s", "Constant part of the head car's longitudinal "
+                       "speed u1 (14 km/h); u1 = v0 + dv")
         self.parameter("x0", 0.0, "m", "Initial x of axle 1's centre (train straight)")
         self.parameter("y0", 0.0, "m", "Initial y of axle 1's centre (train straight)")
         self.parameter("heading0", 0.0, "rad", "Initial heading of the straight train, "
@@ -58,7 +69,7 @@ class AgvTrain(core.fmi_slave.AgvSlave):
             self.output(f"delta{i}_applied", "rad",
                         f"Axle-equivalent angle of axle {i} applied over the last step")
         self.output("u1", "m/s", "Longitudinal speed of the head car over the last step "
-                    "(v0 before the first step)")
+                    "(v0 + dv at initialisation before the first step)")
         self.output("u3", "m/s", "Longitudinal speed of the tail car (from the link, with "
                     "the last step's speed and axle angles)")
         self.output("distance", "m", "Distance travelled by the head car (|u1| t)")
@@ -77,11 +88,11 @@ class AgvTrain(core.fmi_slave.AgvSlave):
         geometry = core.train.TrainGeometry(self.L1, self.L2, self.d, self.Lm)
         train = core.train.Train.straight(geometry, self.x0, self.y0, self.heading0,
                                           self.tolerance)
-        train.u1 = float(self.v0)   # moving at v0 before the start: u1, u3 outputs at t0
+        train.u1 = float(self.v0 + self.dv)  # moving before the start: u1, u3 outputs at t0
         return train
 
     def advance(self, t, h):
-        speed = self.v if self.was_set("v") else self.v0
+        speed = self.v0 + self.dv
         if self.steering_input == "wheels":
             pairs = [(getattr(self, f"delta{i}_left"), getattr(self, f"delta{i}_right"))
                      for i in _AXLES]
