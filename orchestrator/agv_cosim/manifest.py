@@ -20,6 +20,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from . import fmitypes
 from .model import ModelError, read_model
 from .results import check_name
 
@@ -31,8 +32,6 @@ _TOP_KEYS = {"name", "description", "simulation", "components", "connections", "
 
 #: Most macro steps of one run: 2**53, where k step stops being exact in a double.
 MAX_STEPS = float(2 ** 53)
-#: FMI 2.0 Integer is a 32-bit signed int.
-INT32 = (-2 ** 31, 2 ** 31 - 1)
 
 
 def whole_multiple(span, step):
@@ -380,17 +379,6 @@ def plan_runs(manifest, variants=None, sets=()):
     return runs
 
 
-def _value_ok(vtype, value):
-    if vtype == "Real":
-        return isinstance(value, (int, float)) and not isinstance(value, bool)
-    if vtype in ("Integer", "Enumeration"):
-        return (isinstance(value, int) and not isinstance(value, bool)
-                and INT32[0] <= value <= INT32[1])
-    if vtype == "Boolean":
-        return isinstance(value, bool)
-    return isinstance(value, str)
-
-
 def _parameter_key(manifest, run, cname, pname):
     full = f"{cname}.{pname}"
     if full in run.point:
@@ -550,13 +538,18 @@ def validate(manifest, runs, extra_signals=()):
                 if var.causality != "parameter":
                     raise err(key, f"'{cname}.{pname}' is {_article(var.causality)}, "
                               "not a parameter")
-                if not _value_ok(var.type, value):
-                    if var.type in ("Integer", "Enumeration") and _value_ok("Real", value) \
-                            and isinstance(value, int):
-                        raise err(key, f"'{cname}.{pname}' = {value!r} is out of the range "
-                                  f"of an FMI Integer ({INT32[0]} .. {INT32[1]})")
-                    raise err(key, f"type mismatch: '{cname}.{pname}' is {var.type}, "
-                              f"got {value!r}")
+                why = var.unsupported()
+                if why:
+                    raise err(key, f"'{cname}.{pname}' is {why}")
+                try:
+                    comp.parameters[pname] = fmitypes.parse(var.ftype, value)
+                except ValueError as error:
+                    problem = str(error)
+                    if problem.startswith("is "):
+                        problem = f"type mismatch: '{cname}.{pname}' {problem}"
+                    else:
+                        problem = f"'{cname}.{pname}' {problem}"
+                    raise err(key, problem) from None
         for name in manifest.sweep:
             cname, pname = name.split(".")
             if cname not in models:
@@ -579,11 +572,14 @@ def validate(manifest, runs, extra_signals=()):
                               f"{_article(var.causality)}, a connection goes output -> input")
                 ends.append(var)
             src, dst = ends
-            if src.type != dst.type:
+            for (cname, _), var in zip((conn.source, conn.target), ends):
+                why = var.unsupported()
+                if why:
+                    raise err(conn.key, f"'{cname}.{var.name}' is {why}")
+            if not fmitypes.compatible(src.ftype, dst.ftype):
                 raise err(conn.key, f"type mismatch: {conn.source[0]}.{src.name} is "
-                          f"{src.type}, {conn.target[0]}.{dst.name} is {dst.type}")
-            if src.type != "Real":
-                raise err(conn.key, f"only Real connections are supported ({conn})")
+                          f"{src.type}, {conn.target[0]}.{dst.name} is {dst.type} (no "
+                          "implicit conversion)")
             if (src.unit or "") != (dst.unit or ""):
                 raise err(conn.key, f"unit mismatch: {conn.source[0]}.{src.name} is "
                           f"[{src.unit}], {conn.target[0]}.{dst.name} is [{dst.unit}]")
@@ -627,7 +623,7 @@ def _article(causality):
 def _record_list(manifest, models):
     if manifest.record is None:
         return [f"{c}.{v.name}" for c, info in models.items() for v in info.outputs
-                if v.type == "Real"]
+                if not v.unsupported() and v.ftype.numeric]
     for i, name in enumerate(manifest.record):
         cname, vname = name.split(".")
         key = f"record.variables[{i}]"
@@ -636,7 +632,10 @@ def _record_list(manifest, models):
         var = models[cname].variables.get(vname)
         if var is None:
             raise manifest.error(key, f"unknown variable '{name}'")
-        if var.causality != "output" or var.type != "Real":
-            raise manifest.error(key, f"'{name}' is not a Real output (it is "
+        if var.causality != "output":
+            raise manifest.error(key, f"'{name}' is not an output (it is "
                                  f"{_article(var.causality)} {var.type})")
+        why = var.unsupported()
+        if why:
+            raise manifest.error(key, f"'{name}' is {why}")
     return list(manifest.record)
