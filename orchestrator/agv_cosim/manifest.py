@@ -580,7 +580,8 @@ def validate(manifest, runs, extra_signals=()):
                 raise err(conn.key, f"type mismatch: {conn.source[0]}.{src.name} is "
                           f"{src.type}, {conn.target[0]}.{dst.name} is {dst.type} (no "
                           "implicit conversion)")
-            if (src.unit or "") != (dst.unit or ""):
+            # no unit and "1" both mean dimensionless (third-party FMUs often omit it)
+            if (src.unit or "1") != (dst.unit or "1"):
                 raise err(conn.key, f"unit mismatch: {conn.source[0]}.{src.name} is "
                           f"[{src.unit}], {conn.target[0]}.{dst.name} is [{dst.unit}]")
             if conn.target in targets:
