@@ -27,7 +27,7 @@ from .results import check_name
 ALGORITHMS = ("gauss-seidel", "jacobi")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _TOP_KEYS = {"name", "description", "simulation", "components", "connections", "variants",
-             "sweep", "record", "metrics", "plots"}
+             "sweep", "record", "metrics", "plots", "events"}
 
 
 #: Most macro steps of one run: 2**53, where k step stops being exact in a double.
@@ -95,6 +95,7 @@ class Manifest:
     record_interval: float
     metrics: dict
     plots: dict
+    events: dict = field(default_factory=dict)  # name -> {"at": s, "set": {"c.v": value}}
 
     def error(self, key, problem):
         return ManifestError(self.path, key, problem)
@@ -109,6 +110,7 @@ class RunSpec:
     point: dict
     components: dict
     overrides: dict
+    events: dict = field(default_factory=dict)
 
 
 def _number(manifest, table, key, prefix, default=None):
@@ -157,6 +159,39 @@ def _component(manifest, base_dir, name, table, key):
     if fmu is not None and not isinstance(fmu, str):
         raise ManifestError(manifest, f"{key}.fmu", f"{fmu!r} is not a path")
     return Component(name, (base_dir / fmu).resolve() if fmu else None, dict(params))
+
+
+def _event(manifest, key, table, partial=False):
+    """One ``[events.<name>]`` table: ``at`` [s] and ``set`` ("comp.var" -> value)."""
+    if not isinstance(table, dict):
+        raise ManifestError(manifest, key, "must be a table with 'at' and 'set'")
+    unknown = set(table) - {"at", "set"}
+    if unknown:
+        raise ManifestError(manifest, f"{key}.{sorted(unknown)[0]}",
+                            "unknown key (allowed: at, set)")
+    event = {}
+    if "at" in table or not partial:
+        event["at"] = _number(manifest, table, "at", key)
+    values = table.get("set")
+    if values is not None or not partial:
+        if not isinstance(values, dict) or not values:
+            raise ManifestError(manifest, f"{key}.set", "must be a non-empty table of "
+                                '"component.variable" = value')
+        for name in values:
+            _dotted(manifest, f"{key}.set", name)
+        event["set"] = dict(values)
+    return event
+
+
+def _event_key(manifest, key, name, events):
+    """``events.<event>.at`` as a sweep / --set name: the event's name, else an error."""
+    parts = name.split(".")
+    if len(parts) != 3 or parts[2] != "at":
+        raise ManifestError(manifest, key, f"{name!r}: only an event's time can be swept "
+                            "or set ('events.<name>.at')")
+    if parts[1] not in events:
+        raise ManifestError(manifest, key, f"unknown event '{parts[1]}' in '{name}'")
+    return parts[1]
 
 
 def load_manifest(path):
@@ -230,6 +265,10 @@ def load_manifest(path):
         connections.append(Connection(_dotted(path, f"{key}.from", conn["from"]),
                                       _dotted(path, f"{key}.to", conn["to"]), key))
 
+    events = {}
+    for name, table in _table(path, data, "events").items():
+        events[name] = _event(path, f"events.{name}", table)
+
     variants = {}
     for name, table in _table(path, data, "variants").items():
         key = f"variants.{name}"
@@ -239,23 +278,31 @@ def load_manifest(path):
             raise ManifestError(path, key, f"{error} (it names the run's folder)") from None
         if not isinstance(table, dict):
             raise ManifestError(path, key, "must be a table")
-        extra = set(table) - {"description", "components"}
+        extra = set(table) - {"description", "components", "events"}
         if extra:
             raise ManifestError(path, f"{key}.{sorted(extra)[0]}",
-                                "unknown key (allowed: description, components)")
+                                "unknown key (allowed: description, components, events)")
         comps = {}
         for cname, ctable in _table(path, table, "components").items():
             ckey = f"{key}.components.{cname}"
             if cname not in components:
                 raise ManifestError(path, ckey, f"unknown component '{cname}'")
             comps[cname] = _component(path, base_dir, cname, ctable, ckey)
+        variant_events = {}
+        for ename, etable in _table(path, table, "events").items():
+            ekey = f"{key}.events.{ename}"
+            # an event of the base is changed field by field; a new one needs both
+            variant_events[ename] = _event(path, ekey, etable, partial=ename in events)
         variants[name] = {"description": str(table.get("description", "")),
-                          "components": comps}
+                          "components": comps, "events": variant_events}
 
     sweep = {}
     for name, values in _table(path, data, "sweep").items():
         key = f"sweep.{name}"
-        _dotted(path, key, name, "component.parameter")
+        if name.startswith("events."):
+            _event_key(path, key, name, events)
+        else:
+            _dotted(path, key, name, "component.parameter")
         if not isinstance(values, list) or not values:
             raise ManifestError(path, key, "must be a non-empty array of values")
         sweep[name] = list(values)
@@ -287,7 +334,8 @@ def load_manifest(path):
                     step=step, algorithm=algorithm, components=components,
                     connections=connections, variants=variants, sweep=sweep,
                     record=variables, record_interval=interval,
-                    metrics=_table(path, data, "metrics"), plots=_table(path, data, "plots"))
+                    metrics=_table(path, data, "metrics"), plots=_table(path, data, "plots"),
+                    events=events)
 
 
 def parse_set(manifest, text):
@@ -295,7 +343,10 @@ def parse_set(manifest, text):
     if "=" not in text:
         raise ManifestError(manifest.path, "--set", f"{text!r} is not comp.param=VALUE")
     name, value = text.split("=", 1)
-    _dotted(manifest.path, "--set", name.strip(), "component.parameter")
+    if name.strip().startswith("events."):
+        _event_key(manifest.path, "--set", name.strip(), manifest.events)
+    else:
+        _dotted(manifest.path, "--set", name.strip(), "component.parameter")
     try:
         parsed = tomllib.loads(f"v = {value}")["v"]
     except tomllib.TOMLDecodeError:
@@ -338,11 +389,11 @@ def plan_runs(manifest, variants=None, sets=()):
         if name in manifest.sweep:
             raise ManifestError(manifest.path, "--set", f"'{name}' is also swept in [sweep]")
         comp = name.split(".")[0]
-        if comp not in manifest.components:
+        if comp != "events" and comp not in manifest.components:
             raise ManifestError(manifest.path, "--set", f"unknown component '{comp}' in "
                                 f"'{name}'")
     for name in manifest.sweep:
-        if name.split(".")[0] not in manifest.components:
+        if name.split(".")[0] not in manifest.components and not name.startswith("events."):
             raise ManifestError(manifest.path, f"sweep.{name}",
                                 f"unknown component '{name.split('.')[0]}'")
     if variants:
@@ -361,17 +412,26 @@ def plan_runs(manifest, variants=None, sets=()):
     for variant in chosen:
         for point in points:
             comps = copy.deepcopy(manifest.components)
+            events = copy.deepcopy(manifest.events)
             if variant is not None:
                 for cname, sub in manifest.variants[variant]["components"].items():
                     if sub.fmu is not None:
                         comps[cname].fmu = sub.fmu
                     comps[cname].parameters.update(sub.parameters)
+                for ename, sub in manifest.variants[variant].get("events", {}).items():
+                    event = events.setdefault(ename, {"at": None, "set": {}})
+                    event["at"] = sub.get("at", event["at"])
+                    event["set"].update(sub.get("set", {}))
             for name, value in list(overrides.items()) + list(point.items()):
+                if name.startswith("events."):
+                    events[name.split(".")[1]]["at"] = value
+                    continue
                 cname, pname = name.split(".")
                 comps[cname].parameters[pname] = value
             parts = [variant or "base"] + [f"{k}={v!r}" for k, v in point.items()]
             runs.append(RunSpec(label=run_label(parts), variant=variant,
-                                point=point, components=comps, overrides=overrides))
+                                point=point, components=comps, overrides=overrides,
+                                events=events))
     labels = [r.label for r in runs]
     if len(set(labels)) != len(labels):
         raise ManifestError(manifest.path, "sweep", "two sweep points give the same run "
@@ -498,6 +558,64 @@ class Checked:
     orders: list
     record: list
     warnings: list
+    events: list = field(default_factory=list)  # per run: see _check_events
+
+
+def _check_events(manifest, run, models, targets):
+    """The run's events, checked: ``[(step index, time, name, [(comp, var, value)])]``.
+
+    An event sets, exactly at a communication point, a tunable parameter or an input
+    that no connection drives (a connection would overwrite it at once); the value is
+    checked like a parameter's (:func:`agv_cosim.fmitypes.parse`).
+    """
+    err = manifest.error
+    resolved = []
+    for name, event in run.events.items():
+        key = f"events.{name}"
+        at = event.get("at")
+        if at is None or not event.get("set"):
+            raise err(key, "an event needs 'at' and 'set'")
+        if isinstance(at, bool) or not isinstance(at, (int, float)) or not math.isfinite(at):
+            raise err(f"{key}.at", f"{at!r} is not a number")
+        at = float(at)
+        if not manifest.start <= at <= manifest.stop:
+            raise err(f"{key}.at", f"{at!r} s is outside the run ({manifest.start!r} .. "
+                      f"{manifest.stop!r} s)")
+        k = 0 if at == manifest.start else round((at - manifest.start) / manifest.step)
+        if at != manifest.start and not whole_multiple(at - manifest.start, manifest.step):
+            raise err(f"{key}.at", f"{at!r} s is not a communication point (start + k * "
+                      f"{manifest.step!r} s)")
+        sets = []
+        for target, value in event["set"].items():
+            cname, vname = target.split(".")
+            vkey = f"{key}.set.{target}"
+            if cname not in models:
+                raise err(vkey, f"unknown component '{cname}'")
+            var = models[cname].variables.get(vname)
+            if var is None:
+                raise err(vkey, f"unknown variable '{target}'")
+            if var.causality == "parameter":
+                if var.variability != "tunable":
+                    raise err(vkey, f"'{target}' is a {var.variability} parameter (an "
+                              "event can change only a tunable one)")
+            elif var.causality == "input":
+                if (cname, vname) in targets:
+                    raise err(vkey, f"input '{target}' is driven by "
+                              f"{targets[(cname, vname)].key} (an event can set only an "
+                              "unconnected input)")
+            else:
+                raise err(vkey, f"'{target}' is {_article(var.causality)} (an event sets a "
+                          "tunable parameter or an unconnected input)")
+            why = var.unsupported()
+            if why:
+                raise err(vkey, f"'{target}' is {why}")
+            try:
+                sets.append((cname, vname, fmitypes.parse(var.ftype, value)))
+            except ValueError as error:
+                raise err(vkey, f"'{target}' {error}") from None
+        resolved.append((k, at, name, sets))
+    resolved.sort(key=lambda e: (e[0], list(run.events).index(e[2])))
+    return resolved
 
 
 def validate(manifest, runs, extra_signals=()):
@@ -518,7 +636,7 @@ def validate(manifest, runs, extra_signals=()):
         recorded.
     """
     err = manifest.error
-    models_per_run, orders, warnings, record = [], [], [], None
+    models_per_run, orders, warnings, record, events_per_run = [], [], [], None, []
     for run in runs:
         models = {}
         for cname, comp in run.components.items():
@@ -551,6 +669,8 @@ def validate(manifest, runs, extra_signals=()):
                         problem = f"'{cname}.{pname}' {problem}"
                     raise err(key, problem) from None
         for name in manifest.sweep:
+            if name.startswith("events."):
+                continue
             cname, pname = name.split(".")
             if cname not in models:
                 raise err(f"sweep.{name}", f"unknown component '{cname}'")
@@ -588,6 +708,7 @@ def validate(manifest, runs, extra_signals=()):
                 raise err(f"{conn.key}.to", f"input '{'.'.join(conn.target)}' is already "
                           f"connected by {targets[conn.target].key}")
             targets[conn.target] = conn
+        events_per_run.append(_check_events(manifest, run, models, targets))
         orders.append(feedthrough_order(models, manifest.connections, manifest.path,
                                         manifest.algorithm))
         unconnected = [f"{c}.{v.name}" for c, info in models.items() for v in info.inputs
@@ -610,7 +731,7 @@ def validate(manifest, runs, extra_signals=()):
             if name not in recorded:
                 raise err(source, f"signal '{name}' is not recorded (see [record])")
     return Checked(runs=runs, models=models_per_run, orders=orders, record=record or [],
-                   warnings=warnings)
+                   warnings=warnings, events=events_per_run)
 
 
 def _first_fmu_key(manifest, run):

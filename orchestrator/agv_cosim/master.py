@@ -38,7 +38,7 @@ naming component, variable (or FMI call) and time; rows recorded so far are kept
 Every FMU's extraction folder is removed when the run ends, however it ends.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from math import isfinite
 
 from . import fmitypes
@@ -71,6 +71,9 @@ class Plan:
     step: float
     algorithm: str
     record_every: int
+    #: scenario events: [(step index k, time [s], name, [(component, variable, value)])],
+    #: sorted by k; applied at t_k = start + k step, before that instant's exchange
+    events: list = field(default_factory=list)
 
 
 def _raw_function(slave, name):
@@ -435,8 +438,25 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None, outcom
                 if not unit.finite():
                     check(unit, t)
 
+        # scenario events by step index: the values are set (fmpy's setters, one call
+        # per variable) after the FMUs stepped to t_k and before t_k's exchange, so the
+        # row of t_k already shows their effect on feedthrough outputs
+        pending = [(k, [(instances[c].slave, plan.models[c].variables[v], value)
+                        for c, v, value in sets]) for k, _, _, sets in plan.events]
+        pending.reverse()
+        next_event = pending[-1][0] if pending else -1
+
+        def apply_events(k):
+            nonlocal next_event
+            while pending and pending[-1][0] == k:
+                for slave, var, value in pending.pop()[1]:
+                    _set_parameter(slave, var, value)
+            next_event = pending[-1][0] if pending else -1
+
         track[1] = _PROPAGATION
         jacobi = plan.algorithm == "jacobi"
+        if next_event == 0:
+            apply_events(0)
         if jacobi:
             jacobi_get(plan.start)
             record(plan.start)
@@ -472,6 +492,8 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None, outcom
                         raise _failed("fmi3DoStep", status)
             t_next = plan.start + (k + 1) * h
             track[2] = t_next
+            if k + 1 == next_event and not stops:
+                apply_events(k + 1)
             if stops:
                 track[1] = _GET if jacobi else _GS_PASS
                 name, when = stops[0]

@@ -114,14 +114,15 @@ def prepare(manifest_path, variants=None, sets=(), source=None):
     checked = validate(manifest, runs, _signal_sources(manifest))
     every = int(round(manifest.record_interval / manifest.step))
     jobs = []
-    for run, models, order in zip(runs, checked.models, checked.orders):
+    for run, models, order, events in zip(runs, checked.models, checked.orders,
+                                          checked.events):
         params = {c: dict(comp.parameters) for c, comp in run.components.items()}
         effective = {c: {v.name: params[c].get(v.name, _start_value(v))
                          for v in info.parameters} for c, info in models.items()}
         plan = Plan(models=models, parameters=params, connections=manifest.connections,
                     order=order, record=checked.record, start=manifest.start,
                     stop=manifest.stop, step=manifest.step, algorithm=manifest.algorithm,
-                    record_every=every)
+                    record_every=every, events=events)
         jobs.append(Job(label=run.label, variant=run.variant, point=run.point, plan=plan,
                         parameters=effective,
                         fmu_sha256={c: info.sha256 for c, info in models.items()},
@@ -219,7 +220,10 @@ def _finish(job, run_dir, rows, status, error, wall, values, metrics_error, ende
         "record_every": job.plan.record_every, "rows": rows,
         "versions": versions(), "wall_time_s": wall, "status": status, "error": error,
         "metrics_error": metrics_error, "partial": status != "complete",
-        "ended_by": ended_by or ("stop time" if status == "complete" else None)})
+        "ended_by": ended_by or ("stop time" if status == "complete" else None),
+        "events": [{"name": name, "at": at, "set": {f"{c}.{v}": value
+                                                    for c, v, value in sets}}
+                   for _, at, name, sets in job.plan.events]})
     return {"label": job.label, "status": status, "error": error, "rows": rows,
             "metrics": values, "metrics_error": metrics_error, "point": job.point,
             "variant": job.variant}
@@ -525,7 +529,9 @@ def _plots(manifest, jobs, results, out_dir):
                 continue
             t, signals = read_timeseries(out_dir / job.label / "timeseries.csv", wanted)
             runs.append(plots.RunData(label=job.label, time=t, signals=signals,
-                                       partial=result["status"] != "complete"))
+                                       partial=result["status"] != "complete",
+                                       events=[(at, name) for _, at, name, _ in
+                                               job.plan.events]))
         if runs:
             plots.plot_runs(runs, manifest.plots, out_dir,
                             base_dir=Path(manifest.path).parent)
