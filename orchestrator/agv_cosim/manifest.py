@@ -22,6 +22,7 @@ from pathlib import Path
 
 from . import fmitypes
 from .model import ModelError, read_model
+from .table import TableError, read_table
 from .results import check_name
 
 ALGORITHMS = ("gauss-seidel", "jacobi")
@@ -56,11 +57,15 @@ class ManifestError(Exception):
 
 @dataclass
 class Component:
-    """One component instance: its FMU and the parameter values the manifest gives."""
+    """One component instance: its FMU and the parameter values the manifest gives, or a
+    time table (``table``, see :mod:`agv_cosim.table`)."""
 
     name: str
     fmu: Path
     parameters: dict = field(default_factory=dict)
+    table: Path = None
+    interpolation: dict = field(default_factory=dict)
+    units: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -148,10 +153,24 @@ def _dotted(manifest, key, text, what="component.variable"):
 def _component(manifest, base_dir, name, table, key):
     if not isinstance(table, dict):
         raise ManifestError(manifest, key, "must be a table with 'fmu' and 'parameters'")
-    unknown = set(table) - {"fmu", "parameters"}
+    unknown = set(table) - {"fmu", "parameters", "table", "interpolation", "units"}
     if unknown:
         raise ManifestError(manifest, f"{key}.{sorted(unknown)[0]}", "unknown key "
-                            "(allowed: fmu, parameters)")
+                            "(allowed: fmu, parameters; table, interpolation, units)")
+    if "table" in table:
+        if "fmu" in table or "parameters" in table:
+            raise ManifestError(manifest, f"{key}.table", "a component is an FMU or a "
+                                "table, not both")
+        if not isinstance(table["table"], str):
+            raise ManifestError(manifest, f"{key}.table", f"{table['table']!r} is not a path")
+        for sub in ("interpolation", "units"):
+            if not isinstance(table.get(sub, {}), dict):
+                raise ManifestError(manifest, f"{key}.{sub}", "must be a table")
+        return Component(name, None, {}, table=(base_dir / table["table"]).resolve(),
+                         interpolation=dict(table.get("interpolation", {})),
+                         units=dict(table.get("units", {})))
+    elif "interpolation" in table or "units" in table:
+        raise ManifestError(manifest, f"{key}.interpolation", "only for a table component")
     params = table.get("parameters", {})
     if not isinstance(params, dict):
         raise ManifestError(manifest, f"{key}.parameters", "must be a table")
@@ -247,7 +266,7 @@ def load_manifest(path):
         if not _NAME.match(name):
             raise ManifestError(path, key, "instance names are identifiers ([A-Za-z_][A-Za-z0-9_]*)")
         comp = _component(path, base_dir, name, table, key)
-        if comp.fmu is None:
+        if comp.fmu is None and comp.table is None:
             raise ManifestError(path, f"{key}.fmu", "missing (path of the FMU, relative to "
                                 "the manifest)")
         components[name] = comp
@@ -416,7 +435,11 @@ def plan_runs(manifest, variants=None, sets=()):
             if variant is not None:
                 for cname, sub in manifest.variants[variant]["components"].items():
                     if sub.fmu is not None:
-                        comps[cname].fmu = sub.fmu
+                        comps[cname].fmu, comps[cname].table = sub.fmu, None
+                    if sub.table is not None:
+                        comps[cname].fmu, comps[cname].table = None, sub.table
+                        comps[cname].interpolation = sub.interpolation
+                        comps[cname].units = sub.units
                     comps[cname].parameters.update(sub.parameters)
                 for ename, sub in manifest.variants[variant].get("events", {}).items():
                     event = events.setdefault(ename, {"at": None, "set": {}})
@@ -640,6 +663,12 @@ def validate(manifest, runs, extra_signals=()):
     for run in runs:
         models = {}
         for cname, comp in run.components.items():
+            if comp.table is not None:
+                try:
+                    models[cname] = read_table(comp.table, comp.interpolation, comp.units)
+                except TableError as error:
+                    raise err(f"components.{cname}.table", str(error)) from None
+                continue
             try:
                 models[cname] = read_model(comp.fmu)
             except ModelError as error:

@@ -219,6 +219,48 @@ class _Unit:
         return True, float(when.value)
 
 
+class _TableUnit:
+    """A time table (:mod:`agv_cosim.table`) in the place of an FMU: outputs only.
+
+    Its one output group is a Python function that writes every column's value at the
+    current communication point (``track[2]``) into a float buffer; it has no inputs and
+    is not stepped.
+    """
+
+    fmi3 = False
+    step_extra = None
+    in_groups = ()
+
+    def __init__(self, name, table, track):
+        from ctypes import c_double
+
+        self.name = name
+        self.component = None
+        self.sources = []
+        names = list(table.names)
+        self.out_names = names
+        buf = (c_double * len(names))()
+        self.address = {n: (buf, i) for i, n in enumerate(names)}
+
+        def fill():
+            table.values_at(track[2], buf)
+            return 0
+
+        self.out_groups = ((fill, (), buf, True, "table", names),)
+
+    def freeze(self):
+        pass
+
+    def get(self):
+        self.out_groups[0][0]()
+
+    def set(self):
+        pass
+
+    def finite(self):
+        return True
+
+
 def _vr_type(fmi3):
     if fmi3:
         from fmpy.fmi3 import fmi3ValueReference
@@ -310,9 +352,11 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None, outcom
     track[0], track[1], track[2] = -1, _INSTANTIATION, plan.start
     rows = 0
     try:
+        tables = {c for c, info in plan.models.items() if info.table is not None}
         for cname in plan.models:
             track[0] = index[cname]
-            instances[cname] = FmuInstance(plan.models[cname], cname, on_message)
+            if cname not in tables:
+                instances[cname] = FmuInstance(plan.models[cname], cname, on_message)
         connected = {}
         for conn in plan.connections:
             connected.setdefault(conn.target[0], []).append(conn)
@@ -325,7 +369,8 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None, outcom
         for cname, info in plan.models.items():
             outs = [v for v in info.outputs if v.name in needed_out[cname]]
             ins = [info.variables[c.target[1]] for c in connected.get(cname, [])]
-            units[cname] = _Unit(instances[cname], outs, ins)
+            units[cname] = (_TableUnit(cname, info.table, track) if cname in tables else
+                            _Unit(instances[cname], outs, ins))
             units[cname].index = index[cname]
         for cname, unit in units.items():
             for conn in connected.get(cname, []):
@@ -335,7 +380,7 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None, outcom
                        for i, n in enumerate(plan.record, start=1)]
 
         track[1] = _INITIALISATION
-        for cname in plan.models:
+        for cname in instances:
             track[0] = index[cname]
             slave = instances[cname].slave
             info = plan.models[cname]
@@ -362,11 +407,12 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None, outcom
                     track[0] = unit.index
                     unit.set()
         track[1] = _INITIALISATION
-        for cname in plan.models:
+        for cname in instances:
             track[0] = index[cname]
             instances[cname].slave.exitInitializationMode()
 
-        step_plan = [(u.index, u.component, u.do_step, u.step_extra, u) for u in all_units]
+        step_plan = [(u.index, u.component, u.do_step, u.step_extra, u) for u in all_units
+                     if u.name not in tables]
         n_steps = int(round((plan.stop - plan.start) / plan.step))
         h = plan.step
         row = [0.0] * (1 + len(record_from))

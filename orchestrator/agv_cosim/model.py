@@ -83,6 +83,7 @@ class ModelInfo:
     fmi_version: str = "2.0"
     can_handle_variable_step: bool = True
     can_get_set_state: bool = False
+    table: object = None  # a time table (agv_cosim.table.Table) instead of an FMU
 
     def of_causality(self, causality):
         """Variables with the given causality, in model-description order."""
