@@ -115,7 +115,30 @@ def build(folder):
 
 
 # ------------------------------------------------------------------------ orchestrator
-def run_orchestrator(manifest_path):
+def load_baseline(rev):
+    """``agv_cosim/master.py`` as of git revision ``rev``, imported beside the current one.
+
+    It runs with the current package's other modules (model, ...), so it measures the
+    master's own loop: the before/after comparison of a change to master.py in one run.
+    """
+    import importlib.util
+
+    root = Path(__file__).resolve().parent.parent
+    source = subprocess.run(["git", "-C", str(root), "show",
+                             f"{rev}:orchestrator/agv_cosim/master.py"],
+                            check=True, capture_output=True, text=True).stdout
+    folder = Path(tempfile.mkdtemp(prefix="agv_bench_baseline_"))
+    path = folder / "master_baseline.py"
+    path.write_text(source)
+    spec = importlib.util.spec_from_file_location("agv_cosim._master_baseline", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    shutil.rmtree(folder, ignore_errors=True)
+    return module.simulate
+
+
+def run_orchestrator(manifest_path, simulate=simulate):
     """Run through ``master.simulate``; return (per-step wall [s], CPU [s], recording)."""
     _, jobs, _ = prepare(manifest_path)
     plan = jobs[0].plan
@@ -312,6 +335,8 @@ def main(argv=None):
     parser.add_argument("--record-interval", type=float, default=STEP,
                         help="record interval [s], a multiple of 1 ms (0.001)")
     parser.add_argument("--no-memory", action="store_true", help="skip the peak-RSS runs")
+    parser.add_argument("--baseline", metavar="REV",
+                        help="also run master.py of git revision REV (before/after ratio)")
     parser.add_argument("--memory-child", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.memory_child:
@@ -331,13 +356,20 @@ def main(argv=None):
         print(f"closed loop: 5 FMUs (seed 000 model a), step {STEP * 1e3:g} ms, "
               f"{args.stop:g} s simulated = {n_steps} macro steps, recording "
               f"{len(RECORD)} signals every {every} step(s)")
-        wall = {"orchestrator": [], "minimal": []}
-        cpu = {"orchestrator": [], "minimal": []}
+        names = ["orchestrator", "minimal"]
+        baseline = None
+        if args.baseline:
+            baseline = load_baseline(args.baseline)
+            names.insert(1, "baseline")
+        wall = {name: [] for name in names}
+        cpu = {name: [] for name in names}
         reference = None
         for r in range(args.rounds):
-            for name in ("orchestrator", "minimal"):
+            for name in names:
                 if name == "orchestrator":
                     per_step, per_cpu, rec = run_orchestrator(manifest)
+                elif name == "baseline":
+                    per_step, per_cpu, rec = run_orchestrator(manifest, baseline)
                 else:
                     per_step, per_cpu, rec = run_minimal(fmus, args.stop, STEP, every)
                 if reference is None:
@@ -360,6 +392,12 @@ def main(argv=None):
               f"{med_cpu['orchestrator'] / med_cpu['minimal']:.3f})")
         print(f"RATIO orchestrator / minimal (median wall) = {ratio:.3f}  "
               f"(target <= 1.10: {'met' if ratio <= 1.10 else 'MISSED'})")
+        if baseline is not None:
+            print(f"median wall per macro step: baseline master ({args.baseline}) "
+                  f"{med['baseline'] * 1e6:.1f} us, CPU {med_cpu['baseline'] * 1e6:.1f} us")
+            print(f"RATIO orchestrator / baseline {args.baseline} (median wall) = "
+                  f"{med['orchestrator'] / med['baseline']:.3f}, (median CPU) = "
+                  f"{med_cpu['orchestrator'] / med_cpu['baseline']:.3f}")
 
         if not args.no_memory:
             long_step = STEP if med["orchestrator"] * 3600 / STEP < 300 else 0.01

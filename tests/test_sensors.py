@@ -234,3 +234,27 @@ def test_steer_sensor_fmu_noise_and_resolution(tmp_path):
     assert abs(np.mean(readings) - 0.2) < 0.5 * resolution + 4 * 1e-3 / np.sqrt(4000)
     expected = np.sqrt(1e-6 + resolution ** 2 / 12)
     assert abs(np.std(readings) / expected - 1) < 0.10
+
+
+def test_total_station_dropout_loses_fixes_and_keeps_the_random_stream():
+    """available = False from 2 s to 3 s: no fix captured then reaches the output (the
+    last one before stays, its age grows); from the first fix after the dropout on, the
+    outputs equal an undisturbed station's (same seed), since the lost fixes are drawn."""
+    h = 0.01
+    clean, cut = TotalStation(seed=3), TotalStation(seed=3)
+    worst_age, same_after = 0.0, None
+    for k in range(600):
+        t = k * h
+        cut.available = not (2.0 <= t < 3.0)
+        xy = (0.5 * t, 0.1 * t)
+        clean.step(t, h, *xy)
+        cut.step(t, h, *xy)
+        a, b = clean.measure(t + h, *xy), cut.measure(t + h, *xy)
+        if 2.0 <= t < 3.0:
+            # nothing captured in the dropout shows up
+            assert b[2] > (t + h) - 2.0 - 1e-9
+        worst_age = max(worst_age, b[2])
+        if t > 4.0:
+            same_after = (same_after is None or same_after) and a == b
+    assert worst_age > 1.0          # the fix shown aged over the whole dropout
+    assert same_after               # and the stream is unchanged afterwards

@@ -140,9 +140,12 @@ class AgvSlave(Fmi2Slave):
         self._output_names.append(name)
         self._dependencies[name] = tuple(depends_on)
 
-    def parameter(self, name, start, unit, description, kind=Real):
-        """Declare a fixed parameter (set before initialisation, then constant)."""
-        self._declare(kind, name, Fmi2Causality.parameter, Fmi2Variability.fixed, start, unit,
+    def parameter(self, name, start, unit, description, kind=Real, tunable=False):
+        """Declare a parameter: fixed (set before initialisation, then constant), or
+        ``tunable`` (a master may change it between steps; the slave reads the attribute
+        in ``advance``/``publish``, the core is not rebuilt)."""
+        variability = Fmi2Variability.tunable if tunable else Fmi2Variability.fixed
+        self._declare(kind, name, Fmi2Causality.parameter, variability, start, unit,
                       description)
         self._parameter_names.append(name)
 
@@ -213,13 +216,29 @@ class AgvSlave(Fmi2Slave):
         self._guarded(super().set_string, vrs, values)
         self._mark_set(vrs)
 
-    def get_real(self, vrs):
+    def _fresh(self):
         if self.core is None and self._initializing:
             self._initial_outputs()
         elif self._stale and self.core is not None:
             self._guarded(self.publish)
             self._stale = False
+
+    def get_real(self, vrs):
+        self._fresh()
         return self._guarded(super().get_real, vrs)
+
+    # a feedthrough output of any type is recomputed after a set, not only a Real one
+    def get_integer(self, vrs):
+        self._fresh()
+        return self._guarded(super().get_integer, vrs)
+
+    def get_boolean(self, vrs):
+        self._fresh()
+        return self._guarded(super().get_boolean, vrs)
+
+    def get_string(self, vrs):
+        self._fresh()
+        return self._guarded(super().get_string, vrs)
 
     def _initial_outputs(self):
         """Outputs in initialisation mode, from the parameters and inputs set so far.

@@ -72,6 +72,10 @@ class _Sampled:
         self.pending = deque()       # (t_available, t_capture, values)
         self.current = None          # (t_capture, values) of the newest available sample
         self.initial = None
+        #: False during a dropout: samples due then are drawn (so the random stream
+        #: after the dropout is the same as without it) but lost, and the last one
+        #: received stays shown
+        self.available = True
 
     # hooks -----------------------------------------------------------------
     def _next_time(self):
@@ -96,8 +100,9 @@ class _Sampled:
         while self._next_time() < end - EPS:
             t_k = self._next_time()
             if in_step(t_k, t, h):  # agv_core.sampling's rule (instants before t: skipped)
-                self.pending.append((t_k + self.latency, t_k,
-                                     self._sample(inputs, True, commit=True)))
+                values = self._sample(inputs, True, commit=True)
+                if self.available:
+                    self.pending.append((t_k + self.latency, t_k, values))
             self._advance_schedule()
         while self.pending and self.pending[0][0] <= end + EPS:
             _, t_k, values = self.pending.popleft()
@@ -105,7 +110,7 @@ class _Sampled:
 
     def output(self, t, *inputs):
         """(t_capture, values) the sensor shows at ``t`` [s] for the current inputs."""
-        if self.latency <= EPS and self._due(t):
+        if self.available and self.latency <= EPS and self._due(t):
             state = self.rng.bit_generator.state
             values = self._sample(inputs, noisy=True)
             self.rng.bit_generator.state = state      # the step draws them again

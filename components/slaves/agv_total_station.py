@@ -27,6 +27,9 @@ class AgvTotalStation(core.fmi_slave.AgvSlave):
         self.parameter("latency", 0.1, "s", "Radio-modem transmission delay")
         self.parameter("noise", 0.003, "m", "Std. dev. of the noise of each coordinate")
         self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi_slave.Integer)
+        self.parameter("available", True, None, "Fixes reach the vehicle (false: a radio "
+                       "or line-of-sight dropout; fixes due then are lost)",
+                       kind=core.fmi_slave.Boolean, tunable=True)
         self.output("x_meas", "m", "Measured x of the newest fix", depends_on=("x",))
         self.output("y_meas", "m", "Measured y of the newest fix", depends_on=("y",))
         self.output("fix_age", "s", "Time since the shown fix was measured")
@@ -36,8 +39,10 @@ class AgvTotalStation(core.fmi_slave.AgvSlave):
                                          self.noise, self.seed, self.time)
 
     def advance(self, t, h):
+        self.core.available = bool(self.available)
         self.core.step(t, h, self.x, self.y)
 
     def publish(self):
+        self.core.available = bool(self.available)
         self.x_meas, self.y_meas, self.fix_age = self.core.measure(self.time, self.x, self.y)
         self.finite_or_fail(x_meas=self.x_meas, y_meas=self.y_meas)

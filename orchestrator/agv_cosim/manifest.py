@@ -20,19 +20,19 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from . import fmitypes
 from .model import ModelError, read_model
+from .table import TableError, read_table
 from .results import check_name
 
 ALGORITHMS = ("gauss-seidel", "jacobi")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _TOP_KEYS = {"name", "description", "simulation", "components", "connections", "variants",
-             "sweep", "record", "metrics", "plots"}
+             "sweep", "record", "metrics", "plots", "events"}
 
 
 #: Most macro steps of one run: 2**53, where k step stops being exact in a double.
 MAX_STEPS = float(2 ** 53)
-#: FMI 2.0 Integer is a 32-bit signed int.
-INT32 = (-2 ** 31, 2 ** 31 - 1)
 
 
 def whole_multiple(span, step):
@@ -57,11 +57,15 @@ class ManifestError(Exception):
 
 @dataclass
 class Component:
-    """One component instance: its FMU and the parameter values the manifest gives."""
+    """One component instance: its FMU and the parameter values the manifest gives, or a
+    time table (``table``, see :mod:`agv_cosim.table`)."""
 
     name: str
     fmu: Path
     parameters: dict = field(default_factory=dict)
+    table: Path = None
+    interpolation: dict = field(default_factory=dict)
+    units: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -96,6 +100,7 @@ class Manifest:
     record_interval: float
     metrics: dict
     plots: dict
+    events: dict = field(default_factory=dict)  # name -> {"at": s, "set": {"c.v": value}}
 
     def error(self, key, problem):
         return ManifestError(self.path, key, problem)
@@ -110,6 +115,7 @@ class RunSpec:
     point: dict
     components: dict
     overrides: dict
+    events: dict = field(default_factory=dict)
 
 
 def _number(manifest, table, key, prefix, default=None):
@@ -147,10 +153,24 @@ def _dotted(manifest, key, text, what="component.variable"):
 def _component(manifest, base_dir, name, table, key):
     if not isinstance(table, dict):
         raise ManifestError(manifest, key, "must be a table with 'fmu' and 'parameters'")
-    unknown = set(table) - {"fmu", "parameters"}
+    unknown = set(table) - {"fmu", "parameters", "table", "interpolation", "units"}
     if unknown:
         raise ManifestError(manifest, f"{key}.{sorted(unknown)[0]}", "unknown key "
-                            "(allowed: fmu, parameters)")
+                            "(allowed: fmu, parameters; table, interpolation, units)")
+    if "table" in table:
+        if "fmu" in table or "parameters" in table:
+            raise ManifestError(manifest, f"{key}.table", "a component is an FMU or a "
+                                "table, not both")
+        if not isinstance(table["table"], str):
+            raise ManifestError(manifest, f"{key}.table", f"{table['table']!r} is not a path")
+        for sub in ("interpolation", "units"):
+            if not isinstance(table.get(sub, {}), dict):
+                raise ManifestError(manifest, f"{key}.{sub}", "must be a table")
+        return Component(name, None, {}, table=(base_dir / table["table"]).resolve(),
+                         interpolation=dict(table.get("interpolation", {})),
+                         units=dict(table.get("units", {})))
+    elif "interpolation" in table or "units" in table:
+        raise ManifestError(manifest, f"{key}.interpolation", "only for a table component")
     params = table.get("parameters", {})
     if not isinstance(params, dict):
         raise ManifestError(manifest, f"{key}.parameters", "must be a table")
@@ -158,6 +178,39 @@ def _component(manifest, base_dir, name, table, key):
     if fmu is not None and not isinstance(fmu, str):
         raise ManifestError(manifest, f"{key}.fmu", f"{fmu!r} is not a path")
     return Component(name, (base_dir / fmu).resolve() if fmu else None, dict(params))
+
+
+def _event(manifest, key, table, partial=False):
+    """One ``[events.<name>]`` table: ``at`` [s] and ``set`` ("comp.var" -> value)."""
+    if not isinstance(table, dict):
+        raise ManifestError(manifest, key, "must be a table with 'at' and 'set'")
+    unknown = set(table) - {"at", "set"}
+    if unknown:
+        raise ManifestError(manifest, f"{key}.{sorted(unknown)[0]}",
+                            "unknown key (allowed: at, set)")
+    event = {}
+    if "at" in table or not partial:
+        event["at"] = _number(manifest, table, "at", key)
+    values = table.get("set")
+    if values is not None or not partial:
+        if not isinstance(values, dict) or not values:
+            raise ManifestError(manifest, f"{key}.set", "must be a non-empty table of "
+                                '"component.variable" = value')
+        for name in values:
+            _dotted(manifest, f"{key}.set", name)
+        event["set"] = dict(values)
+    return event
+
+
+def _event_key(manifest, key, name, events):
+    """``events.<event>.at`` as a sweep / --set name: the event's name, else an error."""
+    parts = name.split(".")
+    if len(parts) != 3 or parts[2] != "at":
+        raise ManifestError(manifest, key, f"{name!r}: only an event's time can be swept "
+                            "or set ('events.<name>.at')")
+    if parts[1] not in events:
+        raise ManifestError(manifest, key, f"unknown event '{parts[1]}' in '{name}'")
+    return parts[1]
 
 
 def load_manifest(path):
@@ -213,7 +266,7 @@ def load_manifest(path):
         if not _NAME.match(name):
             raise ManifestError(path, key, "instance names are identifiers ([A-Za-z_][A-Za-z0-9_]*)")
         comp = _component(path, base_dir, name, table, key)
-        if comp.fmu is None:
+        if comp.fmu is None and comp.table is None:
             raise ManifestError(path, f"{key}.fmu", "missing (path of the FMU, relative to "
                                 "the manifest)")
         components[name] = comp
@@ -231,6 +284,10 @@ def load_manifest(path):
         connections.append(Connection(_dotted(path, f"{key}.from", conn["from"]),
                                       _dotted(path, f"{key}.to", conn["to"]), key))
 
+    events = {}
+    for name, table in _table(path, data, "events").items():
+        events[name] = _event(path, f"events.{name}", table)
+
     variants = {}
     for name, table in _table(path, data, "variants").items():
         key = f"variants.{name}"
@@ -240,23 +297,31 @@ def load_manifest(path):
             raise ManifestError(path, key, f"{error} (it names the run's folder)") from None
         if not isinstance(table, dict):
             raise ManifestError(path, key, "must be a table")
-        extra = set(table) - {"description", "components"}
+        extra = set(table) - {"description", "components", "events"}
         if extra:
             raise ManifestError(path, f"{key}.{sorted(extra)[0]}",
-                                "unknown key (allowed: description, components)")
+                                "unknown key (allowed: description, components, events)")
         comps = {}
         for cname, ctable in _table(path, table, "components").items():
             ckey = f"{key}.components.{cname}"
             if cname not in components:
                 raise ManifestError(path, ckey, f"unknown component '{cname}'")
             comps[cname] = _component(path, base_dir, cname, ctable, ckey)
+        variant_events = {}
+        for ename, etable in _table(path, table, "events").items():
+            ekey = f"{key}.events.{ename}"
+            # an event of the base is changed field by field; a new one needs both
+            variant_events[ename] = _event(path, ekey, etable, partial=ename in events)
         variants[name] = {"description": str(table.get("description", "")),
-                          "components": comps}
+                          "components": comps, "events": variant_events}
 
     sweep = {}
     for name, values in _table(path, data, "sweep").items():
         key = f"sweep.{name}"
-        _dotted(path, key, name, "component.parameter")
+        if name.startswith("events."):
+            _event_key(path, key, name, events)
+        else:
+            _dotted(path, key, name, "component.parameter")
         if not isinstance(values, list) or not values:
             raise ManifestError(path, key, "must be a non-empty array of values")
         sweep[name] = list(values)
@@ -288,7 +353,8 @@ def load_manifest(path):
                     step=step, algorithm=algorithm, components=components,
                     connections=connections, variants=variants, sweep=sweep,
                     record=variables, record_interval=interval,
-                    metrics=_table(path, data, "metrics"), plots=_table(path, data, "plots"))
+                    metrics=_table(path, data, "metrics"), plots=_table(path, data, "plots"),
+                    events=events)
 
 
 def parse_set(manifest, text):
@@ -296,7 +362,10 @@ def parse_set(manifest, text):
     if "=" not in text:
         raise ManifestError(manifest.path, "--set", f"{text!r} is not comp.param=VALUE")
     name, value = text.split("=", 1)
-    _dotted(manifest.path, "--set", name.strip(), "component.parameter")
+    if name.strip().startswith("events."):
+        _event_key(manifest.path, "--set", name.strip(), manifest.events)
+    else:
+        _dotted(manifest.path, "--set", name.strip(), "component.parameter")
     try:
         parsed = tomllib.loads(f"v = {value}")["v"]
     except tomllib.TOMLDecodeError:
@@ -339,11 +408,11 @@ def plan_runs(manifest, variants=None, sets=()):
         if name in manifest.sweep:
             raise ManifestError(manifest.path, "--set", f"'{name}' is also swept in [sweep]")
         comp = name.split(".")[0]
-        if comp not in manifest.components:
+        if comp != "events" and comp not in manifest.components:
             raise ManifestError(manifest.path, "--set", f"unknown component '{comp}' in "
                                 f"'{name}'")
     for name in manifest.sweep:
-        if name.split(".")[0] not in manifest.components:
+        if name.split(".")[0] not in manifest.components and not name.startswith("events."):
             raise ManifestError(manifest.path, f"sweep.{name}",
                                 f"unknown component '{name.split('.')[0]}'")
     if variants:
@@ -362,33 +431,35 @@ def plan_runs(manifest, variants=None, sets=()):
     for variant in chosen:
         for point in points:
             comps = copy.deepcopy(manifest.components)
+            events = copy.deepcopy(manifest.events)
             if variant is not None:
                 for cname, sub in manifest.variants[variant]["components"].items():
                     if sub.fmu is not None:
-                        comps[cname].fmu = sub.fmu
+                        comps[cname].fmu, comps[cname].table = sub.fmu, None
+                    if sub.table is not None:
+                        comps[cname].fmu, comps[cname].table = None, sub.table
+                        comps[cname].interpolation = sub.interpolation
+                        comps[cname].units = sub.units
                     comps[cname].parameters.update(sub.parameters)
+                for ename, sub in manifest.variants[variant].get("events", {}).items():
+                    event = events.setdefault(ename, {"at": None, "set": {}})
+                    event["at"] = sub.get("at", event["at"])
+                    event["set"].update(sub.get("set", {}))
             for name, value in list(overrides.items()) + list(point.items()):
+                if name.startswith("events."):
+                    events[name.split(".")[1]]["at"] = value
+                    continue
                 cname, pname = name.split(".")
                 comps[cname].parameters[pname] = value
             parts = [variant or "base"] + [f"{k}={v!r}" for k, v in point.items()]
             runs.append(RunSpec(label=run_label(parts), variant=variant,
-                                point=point, components=comps, overrides=overrides))
+                                point=point, components=comps, overrides=overrides,
+                                events=events))
     labels = [r.label for r in runs]
     if len(set(labels)) != len(labels):
         raise ManifestError(manifest.path, "sweep", "two sweep points give the same run "
                             "label (a value is repeated)")
     return runs
-
-
-def _value_ok(vtype, value):
-    if vtype == "Real":
-        return isinstance(value, (int, float)) and not isinstance(value, bool)
-    if vtype in ("Integer", "Enumeration"):
-        return (isinstance(value, int) and not isinstance(value, bool)
-                and INT32[0] <= value <= INT32[1])
-    if vtype == "Boolean":
-        return isinstance(value, bool)
-    return isinstance(value, str)
 
 
 def _parameter_key(manifest, run, cname, pname):
@@ -510,6 +581,64 @@ class Checked:
     orders: list
     record: list
     warnings: list
+    events: list = field(default_factory=list)  # per run: see _check_events
+
+
+def _check_events(manifest, run, models, targets):
+    """The run's events, checked: ``[(step index, time, name, [(comp, var, value)])]``.
+
+    An event sets, exactly at a communication point, a tunable parameter or an input
+    that no connection drives (a connection would overwrite it at once); the value is
+    checked like a parameter's (:func:`agv_cosim.fmitypes.parse`).
+    """
+    err = manifest.error
+    resolved = []
+    for name, event in run.events.items():
+        key = f"events.{name}"
+        at = event.get("at")
+        if at is None or not event.get("set"):
+            raise err(key, "an event needs 'at' and 'set'")
+        if isinstance(at, bool) or not isinstance(at, (int, float)) or not math.isfinite(at):
+            raise err(f"{key}.at", f"{at!r} is not a number")
+        at = float(at)
+        if not manifest.start <= at <= manifest.stop:
+            raise err(f"{key}.at", f"{at!r} s is outside the run ({manifest.start!r} .. "
+                      f"{manifest.stop!r} s)")
+        k = 0 if at == manifest.start else round((at - manifest.start) / manifest.step)
+        if at != manifest.start and not whole_multiple(at - manifest.start, manifest.step):
+            raise err(f"{key}.at", f"{at!r} s is not a communication point (start + k * "
+                      f"{manifest.step!r} s)")
+        sets = []
+        for target, value in event["set"].items():
+            cname, vname = target.split(".")
+            vkey = f"{key}.set.{target}"
+            if cname not in models:
+                raise err(vkey, f"unknown component '{cname}'")
+            var = models[cname].variables.get(vname)
+            if var is None:
+                raise err(vkey, f"unknown variable '{target}'")
+            if var.causality == "parameter":
+                if var.variability != "tunable":
+                    raise err(vkey, f"'{target}' is a {var.variability} parameter (an "
+                              "event can change only a tunable one)")
+            elif var.causality == "input":
+                if (cname, vname) in targets:
+                    raise err(vkey, f"input '{target}' is driven by "
+                              f"{targets[(cname, vname)].key} (an event can set only an "
+                              "unconnected input)")
+            else:
+                raise err(vkey, f"'{target}' is {_article(var.causality)} (an event sets a "
+                          "tunable parameter or an unconnected input)")
+            why = var.unsupported()
+            if why:
+                raise err(vkey, f"'{target}' is {why}")
+            try:
+                sets.append((cname, vname, fmitypes.parse(var.ftype, value)))
+            except ValueError as error:
+                raise err(vkey, f"'{target}' {error}") from None
+        resolved.append((k, at, name, sets))
+    resolved.sort(key=lambda e: (e[0], list(run.events).index(e[2])))
+    return resolved
 
 
 def validate(manifest, runs, extra_signals=()):
@@ -530,10 +659,16 @@ def validate(manifest, runs, extra_signals=()):
         recorded.
     """
     err = manifest.error
-    models_per_run, orders, warnings, record = [], [], [], None
+    models_per_run, orders, warnings, record, events_per_run = [], [], [], None, []
     for run in runs:
         models = {}
         for cname, comp in run.components.items():
+            if comp.table is not None:
+                try:
+                    models[cname] = read_table(comp.table, comp.interpolation, comp.units)
+                except TableError as error:
+                    raise err(f"components.{cname}.table", str(error)) from None
+                continue
             try:
                 models[cname] = read_model(comp.fmu)
             except ModelError as error:
@@ -550,14 +685,21 @@ def validate(manifest, runs, extra_signals=()):
                 if var.causality != "parameter":
                     raise err(key, f"'{cname}.{pname}' is {_article(var.causality)}, "
                               "not a parameter")
-                if not _value_ok(var.type, value):
-                    if var.type in ("Integer", "Enumeration") and _value_ok("Real", value) \
-                            and isinstance(value, int):
-                        raise err(key, f"'{cname}.{pname}' = {value!r} is out of the range "
-                                  f"of an FMI Integer ({INT32[0]} .. {INT32[1]})")
-                    raise err(key, f"type mismatch: '{cname}.{pname}' is {var.type}, "
-                              f"got {value!r}")
+                why = var.unsupported()
+                if why:
+                    raise err(key, f"'{cname}.{pname}' is {why}")
+                try:
+                    comp.parameters[pname] = fmitypes.parse(var.ftype, value)
+                except ValueError as error:
+                    problem = str(error)
+                    if problem.startswith("is "):
+                        problem = f"type mismatch: '{cname}.{pname}' {problem}"
+                    else:
+                        problem = f"'{cname}.{pname}' {problem}"
+                    raise err(key, problem) from None
         for name in manifest.sweep:
+            if name.startswith("events."):
+                continue
             cname, pname = name.split(".")
             if cname not in models:
                 raise err(f"sweep.{name}", f"unknown component '{cname}'")
@@ -579,18 +721,23 @@ def validate(manifest, runs, extra_signals=()):
                               f"{_article(var.causality)}, a connection goes output -> input")
                 ends.append(var)
             src, dst = ends
-            if src.type != dst.type:
+            for (cname, _), var in zip((conn.source, conn.target), ends):
+                why = var.unsupported()
+                if why:
+                    raise err(conn.key, f"'{cname}.{var.name}' is {why}")
+            if not fmitypes.compatible(src.ftype, dst.ftype):
                 raise err(conn.key, f"type mismatch: {conn.source[0]}.{src.name} is "
-                          f"{src.type}, {conn.target[0]}.{dst.name} is {dst.type}")
-            if src.type != "Real":
-                raise err(conn.key, f"only Real connections are supported ({conn})")
-            if (src.unit or "") != (dst.unit or ""):
+                          f"{src.type}, {conn.target[0]}.{dst.name} is {dst.type} (no "
+                          "implicit conversion)")
+            # no unit and "1" both mean dimensionless (third-party FMUs often omit it)
+            if (src.unit or "1") != (dst.unit or "1"):
                 raise err(conn.key, f"unit mismatch: {conn.source[0]}.{src.name} is "
                           f"[{src.unit}], {conn.target[0]}.{dst.name} is [{dst.unit}]")
             if conn.target in targets:
                 raise err(f"{conn.key}.to", f"input '{'.'.join(conn.target)}' is already "
                           f"connected by {targets[conn.target].key}")
             targets[conn.target] = conn
+        events_per_run.append(_check_events(manifest, run, models, targets))
         orders.append(feedthrough_order(models, manifest.connections, manifest.path,
                                         manifest.algorithm))
         unconnected = [f"{c}.{v.name}" for c, info in models.items() for v in info.inputs
@@ -613,7 +760,7 @@ def validate(manifest, runs, extra_signals=()):
             if name not in recorded:
                 raise err(source, f"signal '{name}' is not recorded (see [record])")
     return Checked(runs=runs, models=models_per_run, orders=orders, record=record or [],
-                   warnings=warnings)
+                   warnings=warnings, events=events_per_run)
 
 
 def _first_fmu_key(manifest, run):
@@ -627,7 +774,7 @@ def _article(causality):
 def _record_list(manifest, models):
     if manifest.record is None:
         return [f"{c}.{v.name}" for c, info in models.items() for v in info.outputs
-                if v.type == "Real"]
+                if not v.unsupported() and v.ftype.numeric]
     for i, name in enumerate(manifest.record):
         cname, vname = name.split(".")
         key = f"record.variables[{i}]"
@@ -636,7 +783,10 @@ def _record_list(manifest, models):
         var = models[cname].variables.get(vname)
         if var is None:
             raise manifest.error(key, f"unknown variable '{name}'")
-        if var.causality != "output" or var.type != "Real":
-            raise manifest.error(key, f"'{name}' is not a Real output (it is "
+        if var.causality != "output":
+            raise manifest.error(key, f"'{name}' is not an output (it is "
                                  f"{_article(var.causality)} {var.type})")
+        why = var.unsupported()
+        if why:
+            raise manifest.error(key, f"'{name}' is {why}")
     return list(manifest.record)

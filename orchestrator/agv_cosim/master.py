@@ -1,4 +1,9 @@
-"""Fixed-step co-simulation master (Gauss-Seidel or Jacobi) over fmpy FMU2Slave.
+"""Fixed-step co-simulation master (Gauss-Seidel or Jacobi) over fmpy FMU2Slave/FMU3Slave.
+
+FMI 2.0 and 3.0 co-simulation FMUs may be mixed. Values of every scalar type move in
+batched calls: one get (set) per C getter (setter) per FMU and exchange, e.g. one
+``fmi2GetReal`` and one ``fmi2GetInteger`` for an FMU with Real and Integer outputs
+(types: :mod:`agv_cosim.fmitypes`). "Batched get/set" below means those calls.
 
 Semantics (communication points t_k = start + k h, inputs held over each step):
 
@@ -33,11 +38,10 @@ naming component, variable (or FMI call) and time; rows recorded so far are kept
 Every FMU's extraction folder is removed when the run ends, however it ends.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from math import isfinite
 
-import numpy as np
-
+from . import fmitypes
 from .model import FmuInstance
 
 
@@ -67,6 +71,9 @@ class Plan:
     step: float
     algorithm: str
     record_every: int
+    #: scenario events: [(step index k, time [s], name, [(component, variable, value)])],
+    #: sorted by k; applied at t_k = start + k step, before that instant's exchange
+    events: list = field(default_factory=list)
 
 
 def _raw_function(slave, name):
@@ -94,56 +101,193 @@ def _failed(function, status):
 
 
 class _Unit:
-    """One FMU with its preallocated value-reference and value buffers."""
+    """One FMU with its preallocated value-reference and value buffers.
+
+    Variables are grouped by C getter/setter (:mod:`agv_cosim.fmitypes`): one batched
+    call per group, i.e. per type, per FMU and exchange. A group is ``(function, args,
+    buffer, ...)`` with ``args`` the prebuilt argument tuple (FMI 3.0 getters and setters
+    take the value count twice).
+    """
 
     def __init__(self, instance, outputs, inputs):
-        from fmpy.fmi2 import fmi2Real, fmi2ValueReference
+        from ctypes import byref, c_bool, c_double, c_int
 
         self.inst = instance
         self.name = instance.name
-        self.slave = instance.slave
+        self.slave = self.inst.slave
         self.component = self.slave.component
-        self.do_step = _raw_function(self.slave, "fmi2DoStep")
-        self.get_real = _raw_function(self.slave, "fmi2GetReal")
-        self.set_real = _raw_function(self.slave, "fmi2SetReal")
+        self.fmi3 = instance.info.fmi_version == "3.0"
+        vr_type = _vr_type(self.fmi3)
+        self.do_step = _raw_function(self.slave, "fmi3DoStep" if self.fmi3 else "fmi2DoStep")
+        self.step_extra = None
+        if self.fmi3:
+            # fmi3DoStep's out-arguments: eventHandlingNeeded, terminateSimulation,
+            # earlyReturn, lastSuccessfulTime
+            self.flags = (c_bool(), c_bool(), c_bool(), c_double())
+            self.step_extra = tuple(byref(flag) for flag in self.flags)
+        self._byref, self._c_int, self._c_double = byref, c_int, c_double
         self.out_names = [v.name for v in outputs]
+        self.out_types = [v.ftype for v in outputs]
         self.n_out = len(outputs)
-        self.out_vr = (fmi2ValueReference * max(1, len(outputs)))(*[v.vr for v in outputs])
-        self.out_val = (fmi2Real * max(1, len(outputs)))()
-        self.out = np.ctypeslib.as_array(self.out_val)[: len(outputs)]
+        self.address = {}  # output name -> (buffer, position)
+        self.out_groups = []
+        for fname, variables in _grouped(outputs, "get"):
+            ftype = variables[0].ftype
+            vrs = (vr_type * len(variables))(*[v.vr for v in variables])
+            buf = (ftype.ctype * len(variables))()
+            args = (self.component, vrs, len(variables), buf) + \
+                ((len(variables),) if self.fmi3 else ())
+            names = [v.name for v in variables]
+            for pos, v in enumerate(variables):
+                self.address[v.name] = (buf, pos)
+            self.out_groups.append((_raw_function(self.slave, fname), args, buf,
+                                    ftype.is_float, fname, names))
         self.in_names = [v.name for v in inputs]
         self.n_in = len(inputs)
-        self.in_vr = (fmi2ValueReference * max(1, len(inputs)))(*[v.vr for v in inputs])
-        self.in_val = (fmi2Real * max(1, len(inputs)))()
-        self.in_arr = np.ctypeslib.as_array(self.in_val)[: len(inputs)]
-        self.sources = []  # (input position, source unit, output position)
-        self.links = ()    # (input position, source value buffer, output position)
+        self.in_address = {}
+        self.in_groups = []
+        for fname, variables in _grouped(inputs, "set"):
+            ftype = variables[0].ftype
+            vrs = (vr_type * len(variables))(*[v.vr for v in variables])
+            buf = (ftype.ctype * len(variables))()
+            args = (self.component, vrs, len(variables), buf) + \
+                ((len(variables),) if self.fmi3 else ())
+            for pos, v in enumerate(variables):
+                self.in_address[v.name] = (len(self.in_groups), pos)
+            self.in_groups.append([_raw_function(self.slave, fname), args, buf, [], fname])
+        self.sources = []  # (input name, source unit, source output name)
+        # legacy single-buffer view for callers that read all-Real outputs
+        first = self.out_groups[0][2] if self.out_groups else None
+        self.out_val = first
+
+    def link(self, input_name, source, output_name):
+        group, pos = self.in_address[input_name]
+        buf, src_pos = source.address[output_name]
+        self.in_groups[group][3].append((pos, buf, src_pos))
+        self.sources.append((input_name, source, output_name))
+
+    def freeze(self):
+        """Make the groups immutable tuples (after every :meth:`link`)."""
+        self.in_groups = tuple((fn, args, buf, tuple(links), fname)
+                               for fn, args, buf, links, fname in self.in_groups)
+        self.out_groups = tuple(self.out_groups)
 
     def get(self):
-        if self.n_out:
-            status = self.get_real(self.component, self.out_vr, self.n_out, self.out_val)
+        for fn, args, buf, _, fname, _ in self.out_groups:
+            status = fn(*args)
             if status > 1:
-                raise _failed("fmi2GetReal", status)
+                raise _failed(fname, status)
 
     def set(self):
-        if self.n_in:
-            in_val = self.in_val
-            for j, out_val, pos in self.links:
-                in_val[j] = out_val[pos]
-            status = self.set_real(self.component, self.in_vr, self.n_in, in_val)
+        for fn, args, in_val, links, fname in self.in_groups:
+            for j, src, pos in links:
+                in_val[j] = src[pos]
+            status = fn(*args)
             if status > 1:
-                raise _failed("fmi2SetReal", status)
+                raise _failed(fname, status)
+
+    def finite(self):
+        for _, _, buf, is_float, _, _ in self.out_groups:
+            if is_float and not isfinite(sum(buf)):
+                return False
+        return True
+
+    def stop_requested(self):
+        """After a doStep: (True, last successful time) when the FMU asks to end the run.
+
+        FMI 2.0: ``fmi2Discard`` with ``fmi2GetBooleanStatus(fmi2Terminated)`` true (and
+        ``fmi2LastSuccessfulTime``); FMI 3.0: ``terminateSimulation`` (and
+        ``lastSuccessfulTime``) of ``fmi3DoStep``.
+        """
+        if self.fmi3:
+            return bool(self.flags[1].value), float(self.flags[3].value)
+        from fmpy.fmi2 import fmi2LastSuccessfulTime, fmi2Terminated
+
+        flag, when = self._c_int(0), self._c_double(float("nan"))
+        try:
+            status = self.slave.fmi2GetBooleanStatus(self.component, fmi2Terminated,
+                                                     self._byref(flag))
+        except Exception:  # noqa: BLE001 - an FMU that does not answer: not a request
+            return False, None
+        if status > 1 or not flag.value:
+            return False, None
+        try:
+            self.slave.fmi2GetRealStatus(self.component, fmi2LastSuccessfulTime,
+                                         self._byref(when))
+        except Exception:  # noqa: BLE001 - the time is then unknown
+            pass
+        return True, float(when.value)
+
+
+class _TableUnit:
+    """A time table (:mod:`agv_cosim.table`) in the place of an FMU: outputs only.
+
+    Its one output group is a Python function that writes every column's value at the
+    current communication point (``track[2]``) into a float buffer; it has no inputs and
+    is not stepped.
+    """
+
+    fmi3 = False
+    step_extra = None
+    in_groups = ()
+
+    def __init__(self, name, table, track):
+        from ctypes import c_double
+
+        self.name = name
+        self.component = None
+        self.sources = []
+        names = list(table.names)
+        self.out_names = names
+        buf = (c_double * len(names))()
+        self.address = {n: (buf, i) for i, n in enumerate(names)}
+
+        def fill():
+            table.values_at(track[2], buf)
+            return 0
+
+        self.out_groups = ((fill, (), buf, True, "table", names),)
+
+    def freeze(self):
+        pass
+
+    def get(self):
+        self.out_groups[0][0]()
+
+    def set(self):
+        pass
+
+    def finite(self):
+        return True
+
+
+def _vr_type(fmi3):
+    if fmi3:
+        from fmpy.fmi3 import fmi3ValueReference
+        return fmi3ValueReference
+    from fmpy.fmi2 import fmi2ValueReference
+    return fmi2ValueReference
+
+
+def _grouped(variables, what):
+    """``[(C function name, [variables])]`` in first-seen order."""
+    groups = {}
+    for v in variables:
+        groups.setdefault(getattr(v.ftype, what), []).append(v)
+    return list(groups.items())
 
 
 def _set_parameter(slave, var, value):
-    if var.type == "Real":
-        slave.setReal([var.vr], [float(value)])
-    elif var.type in ("Integer", "Enumeration"):
-        slave.setInteger([var.vr], [int(value)])
-    elif var.type == "Boolean":
-        slave.setBoolean([var.vr], [bool(value)])
-    else:
-        slave.setString([var.vr], [str(value)])
+    fmitypes.set_parameter(slave, var.ftype, var.vr, value)
+
+
+def record_types(plan):
+    """The :class:`~agv_cosim.fmitypes.FmiType` of each ``plan.record`` column."""
+    found = []
+    for name in plan.record:
+        cname, vname = name.split(".", 1)
+        found.append(plan.models[cname].variables[vname].ftype)
+    return found
 
 
 #: What a run is doing, by code (``track[1]``; see :func:`simulate`).
@@ -161,7 +305,7 @@ def describe_track(track, names):
     return f"component '{name}' during {PHASES[phase]} at t={t!r} s"
 
 
-def simulate(plan, write_row, progress=None, track=None, on_message=None):
+def simulate(plan, write_row, progress=None, track=None, on_message=None, outcome=None):
     """Run one co-simulation.
 
     Parameters
@@ -179,6 +323,13 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None):
         run whose process died (:func:`describe_track`).
     on_message : callable, optional
         ``on_message(component, status, text)`` for every message an FMU logs.
+    outcome : dict, optional
+        Filled with ``ended_by`` (``"<component> requested stop at t=<t> s"``) and
+        ``stop_time`` when an FMU asked to end the run (FMI 2.0 ``fmi2Discard`` with
+        ``fmi2Terminated``, FMI 3.0 ``terminateSimulation``): every FMU finishes that
+        macro step, the row of its end is recorded (if the FMU reached it; the FMU that
+        stopped gets no more inputs) and the run ends normally. A Discard without the
+        termination flag stays an error.
 
     Returns
     -------
@@ -201,9 +352,11 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None):
     track[0], track[1], track[2] = -1, _INSTANTIATION, plan.start
     rows = 0
     try:
+        tables = {c for c, info in plan.models.items() if info.table is not None}
         for cname in plan.models:
             track[0] = index[cname]
-            instances[cname] = FmuInstance(plan.models[cname], cname, on_message)
+            if cname not in tables:
+                instances[cname] = FmuInstance(plan.models[cname], cname, on_message)
         connected = {}
         for conn in plan.connections:
             connected.setdefault(conn.target[0], []).append(conn)
@@ -216,25 +369,30 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None):
         for cname, info in plan.models.items():
             outs = [v for v in info.outputs if v.name in needed_out[cname]]
             ins = [info.variables[c.target[1]] for c in connected.get(cname, [])]
-            units[cname] = _Unit(instances[cname], outs, ins)
+            units[cname] = (_TableUnit(cname, info.table, track) if cname in tables else
+                            _Unit(instances[cname], outs, ins))
             units[cname].index = index[cname]
         for cname, unit in units.items():
-            for j, conn in enumerate(connected.get(cname, [])):
-                src = units[conn.source[0]]
-                unit.sources.append((j, src, src.out_names.index(conn.source[1])))
-            unit.links = tuple((j, src.out_val, pos) for j, src, pos in unit.sources)
-        record_idx = [(units[n.split(".")[0]], units[n.split(".")[0]].out_names.index(
-            n.split(".")[1])) for n in plan.record]
+            for conn in connected.get(cname, []):
+                unit.link(conn.target[1], units[conn.source[0]], conn.source[1])
+            unit.freeze()
+        record_from = [(i, *units[n.split(".")[0]].address[n.split(".")[1]])
+                       for i, n in enumerate(plan.record, start=1)]
 
         track[1] = _INITIALISATION
-        for cname in plan.models:
+        for cname in instances:
             track[0] = index[cname]
             slave = instances[cname].slave
-            slave.setupExperiment(startTime=plan.start, stopTime=plan.stop)
             info = plan.models[cname]
-            for pname, value in plan.parameters.get(cname, {}).items():
-                _set_parameter(slave, info.variables[pname], value)
-            slave.enterInitializationMode()
+            if units[cname].fmi3:
+                for pname, value in plan.parameters.get(cname, {}).items():
+                    _set_parameter(slave, info.variables[pname], value)
+                slave.enterInitializationMode(startTime=plan.start, stopTime=plan.stop)
+            else:
+                slave.setupExperiment(startTime=plan.start, stopTime=plan.stop)
+                for pname, value in plan.parameters.get(cname, {}).items():
+                    _set_parameter(slave, info.variables[pname], value)
+                slave.enterInitializationMode()
         all_units = list(units.values())
         if plan.algorithm == "jacobi":
             # libcosim's initialisation: as many Jacobi exchanges as there are FMUs while
@@ -249,33 +407,36 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None):
                     track[0] = unit.index
                     unit.set()
         track[1] = _INITIALISATION
-        for cname in plan.models:
+        for cname in instances:
             track[0] = index[cname]
             instances[cname].slave.exitInitializationMode()
 
-        step_plan = [(u.index, u.component, u.do_step) for u in all_units]
+        step_plan = [(u.index, u.component, u.do_step, u.step_extra, u) for u in all_units
+                     if u.name not in tables]
         n_steps = int(round((plan.stop - plan.start) / plan.step))
         h = plan.step
-        row = [0.0] * (1 + len(record_idx))
-        record_from = [(i, unit.out_val, pos)
-                       for i, (unit, pos) in enumerate(record_idx, start=1)]
+        row = [0.0] * (1 + len(record_from))
 
         def check(unit, t):
-            # Callers may skip this when sum(unit.out_val) is finite: a sum is finite only
-            # if every term is (NaN and inf propagate); an overflowed sum lands here.
-            values = unit.out
-            if unit.n_out and not np.isfinite(values).all():
-                pos = int(np.flatnonzero(~np.isfinite(values))[0])
-                raise SimulationError(f"component '{unit.name}': output "
-                                      f"'{unit.out_names[pos]}' is {float(values[pos])!r} at "
-                                      f"t={t!r} s")
+            # Callers may skip this when every float buffer's sum is finite: a sum is
+            # finite only if every term is (NaN and inf propagate); an overflowed sum
+            # lands here.
+            for _, _, buf, is_float, _, names in unit.out_groups:
+                if not is_float:
+                    continue
+                for pos, value in enumerate(buf):
+                    if not isfinite(value):
+                        raise SimulationError(f"component '{unit.name}': output "
+                                              f"'{names[pos]}' is {float(value)!r} at "
+                                              f"t={t!r} s")
 
-        # The Gauss-Seidel pass, unrolled: per unit (name, component, set function, input
-        # references, count, buffer, links, get function, output references, count,
-        # buffer); a unit without inputs (outputs) skips the set (get), as _Unit does.
-        gs_plan = [(u.index, u.component, u.set_real, u.in_vr, u.n_in, u.in_val, u.links,
-                    u.get_real, u.out_vr, u.n_out, u.out_val, u) for u in
-                   (units[c] for c in plan.order)]
+        def pass_plan(stopped=()):
+            # The Gauss-Seidel pass, unrolled: per unit (index, input groups, output
+            # groups, unit); a unit that asked to stop gets no more sets.
+            return [(u.index, () if u.name in stopped else u.in_groups, u.out_groups, u)
+                    for u in (units[c] for c in plan.order)]
+
+        gs_plan = pass_plan()
 
         # Units whose outputs feed a unit visited before them (or themselves): their
         # outputs are read first, so that unit sees the value of this instant and not the
@@ -286,24 +447,23 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None):
                     if position[src.name] >= position[unit.name]}
         pre_read = [units[name] for name in plan.order if name in backward]
 
-        def gs_pass(t):
+        def gs_pass(t, gs_plan=gs_plan):
             for unit in pre_read:
                 track[0] = unit.index
                 unit.get()
-            for (i, comp, set_real, in_vr, n_in, in_val, links, get_real, out_vr, n_out,
-                 out_val, unit) in gs_plan:
+            for i, in_groups, out_groups, unit in gs_plan:
                 track[0] = i
-                if n_in:
+                for fn, args, in_val, links, fname in in_groups:
                     for j, src, pos in links:
                         in_val[j] = src[pos]
-                    status = set_real(comp, in_vr, n_in, in_val)
+                    status = fn(*args)
                     if status > 1:
-                        raise _failed("fmi2SetReal", status)
-                if n_out:
-                    status = get_real(comp, out_vr, n_out, out_val)
+                        raise _failed(fname, status)
+                for fn, args, out_val, is_float, fname, _ in out_groups:
+                    status = fn(*args)
                     if status > 1:
-                        raise _failed("fmi2GetReal", status)
-                    if not isfinite(sum(out_val)):
+                        raise _failed(fname, status)
+                    if is_float and not isfinite(sum(out_val)):
                         check(unit, t)
 
         def record(t):
@@ -317,14 +477,34 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None):
                 raise _WriteFailed(error) from None
             rows += 1
 
-        track[1] = _PROPAGATION
-        jacobi = plan.algorithm == "jacobi"
-        if jacobi:
+        def jacobi_get(t):
             for unit in all_units:
                 track[0] = unit.index
                 unit.get()
-                if not isfinite(sum(unit.out_val)):
-                    check(unit, plan.start)
+                if not unit.finite():
+                    check(unit, t)
+
+        # scenario events by step index: the values are set (fmpy's setters, one call
+        # per variable) after the FMUs stepped to t_k and before t_k's exchange, so the
+        # row of t_k already shows their effect on feedthrough outputs
+        pending = [(k, [(instances[c].slave, plan.models[c].variables[v], value)
+                        for c, v, value in sets]) for k, _, _, sets in plan.events]
+        pending.reverse()
+        next_event = pending[-1][0] if pending else -1
+
+        def apply_events(k):
+            nonlocal next_event
+            while pending and pending[-1][0] == k:
+                for slave, var, value in pending.pop()[1]:
+                    _set_parameter(slave, var, value)
+            next_event = pending[-1][0] if pending else -1
+
+        track[1] = _PROPAGATION
+        jacobi = plan.algorithm == "jacobi"
+        if next_event == 0:
+            apply_events(0)
+        if jacobi:
+            jacobi_get(plan.start)
             record(plan.start)
             for unit in all_units:
                 track[0] = unit.index
@@ -334,24 +514,49 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None):
             record(plan.start)
         every = plan.record_every
         done = 0
+        stops = []  # (component, last successful time) of FMUs that asked to end the run
         for k in range(n_steps):
             t = plan.start + k * h
             track[2] = t
             track[1] = _DO_STEP
-            for i, comp, do_step in step_plan:
+            for i, comp, do_step, extra, unit in step_plan:
                 track[0] = i
-                status = do_step(comp, t, h, 1)
-                if status > 1:
-                    raise _failed("fmi2DoStep", status)
+                if extra is None:
+                    status = do_step(comp, t, h, 1)
+                    if status > 1:
+                        asked, when = unit.stop_requested() if status == 2 else (False, 0)
+                        if not asked:
+                            raise _failed("fmi2DoStep", status)
+                        stops.append((unit.name, when))
+                else:
+                    status = do_step(comp, t, h, True, *extra)
+                    if status > 2:
+                        raise _failed("fmi3DoStep", status)
+                    if unit.flags[1].value:
+                        stops.append((unit.name, unit.stop_requested()[1]))
+                    elif status == 2:
+                        raise _failed("fmi3DoStep", status)
             t_next = plan.start + (k + 1) * h
             track[2] = t_next
+            if k + 1 == next_event and not stops:
+                apply_events(k + 1)
+            if stops:
+                track[1] = _GET if jacobi else _GS_PASS
+                name, when = stops[0]
+                outcome_ = outcome if outcome is not None else {}
+                outcome_["ended_by"] = f"{name} requested stop at t={when!r} s"
+                outcome_["stop_time"] = when
+                # the last row: only when the FMU reached the communication point
+                if when is not None and abs(when - t_next) <= 1e-9 * max(1.0, abs(t_next)):
+                    if jacobi:
+                        jacobi_get(t_next)
+                    else:
+                        gs_pass(t_next, pass_plan({n for n, _ in stops}))
+                    record(t_next)
+                break
             if jacobi:
                 track[1] = _GET
-                for unit in all_units:
-                    track[0] = unit.index
-                    unit.get()
-                    if not isfinite(sum(unit.out_val)):
-                        check(unit, t_next)
+                jacobi_get(t_next)
                 track[1] = _SET
                 for unit in all_units:
                     track[0] = unit.index

@@ -1,12 +1,19 @@
-"""FMU loading and model-description access.
+"""FMU loading and model-description access (FMI 2.0 and 3.0 co-simulation).
 
 :func:`read_model` reads ``modelDescription.xml`` straight from the FMU archive (no
-extraction) into a :class:`ModelInfo`: variables with value reference, type, causality,
-unit and description, and each output's direct dependencies. An output whose
-``<Unknown>`` carries no ``dependencies`` attribute depends, per FMI 2.0, on every input.
+extraction) into a :class:`ModelInfo`: variables with value reference, type (see
+:mod:`agv_cosim.fmitypes`), causality, unit and description, and each output's direct
+dependencies. An output whose ``<Unknown>`` (FMI 2.0) or ``<Output>`` (FMI 3.0) carries no
+``dependencies`` attribute depends, per the standard, on every input. A model-exchange-only
+FMU is refused with a message saying so.
+
+The master steps with a fixed communication step and never saves or restores FMU state,
+so ``canHandleVariableCommunicationStepSize="false"`` and ``canGetAndSetFMUstate="false"``
+need nothing from it (both flags are read into :class:`ModelInfo` for the record).
 
 :class:`FmuInstance` extracts an FMU into a private temporary folder, instantiates it with
-fmpy's ``FMU2Slave`` and collects its own log messages (each instance its own, see
+fmpy's ``FMU2Slave`` or ``FMU3Slave`` (fmpy passes the resources location: a ``file:`` URI
+for FMI 2.0, a path for FMI 3.0) and collects its own log messages (each instance its own, see
 :func:`_logger`); :meth:`FmuInstance.close` frees it and
 removes the folder, also after a failure.
 """
@@ -22,11 +29,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from xml.etree import ElementTree
 
-TYPES = ("Real", "Integer", "Boolean", "String", "Enumeration")
+from . import fmitypes
 
 
 class ModelError(Exception):
-    """An FMU is missing, unreadable or not an FMI 2.0 co-simulation FMU."""
+    """An FMU is missing, unreadable or not an FMI 2.0/3.0 co-simulation FMU."""
 
 
 @dataclass(frozen=True)
@@ -41,6 +48,21 @@ class Variable:
     unit: str | None
     description: str
     start: str | None
+    fmi: str = "2.0"     # FMI version of the FMU (selects the fmitypes table)
+    dims: tuple = ()     # FMI 3.0 array dimensions (empty: a scalar)
+
+    @property
+    def ftype(self):
+        """Its :class:`~agv_cosim.fmitypes.FmiType`, or None (Binary, Clock)."""
+        return fmitypes.of(self)
+
+    def unsupported(self):
+        """Why this variable cannot be connected, set or recorded ('' if it can)."""
+        if self.dims:
+            return "an array variable (only scalars are supported)"
+        if self.ftype is None:
+            return f"of type {self.type} (not supported)"
+        return ""
 
 
 @dataclass
@@ -58,6 +80,10 @@ class ModelInfo:
     description: str
     variables: dict = field(default_factory=dict)
     dependencies: dict = field(default_factory=dict)
+    fmi_version: str = "2.0"
+    can_handle_variable_step: bool = True
+    can_get_set_state: bool = False
+    table: object = None  # a time table (agv_cosim.table.Table) instead of an FMU
 
     def of_causality(self, causality):
         """Variables with the given causality, in model-description order."""
@@ -145,34 +171,30 @@ def _parse_model(path, xml):
         root = ElementTree.fromstring(xml)
     except ElementTree.ParseError as error:
         raise ModelError(f"broken FMU (modelDescription.xml: {error}): '{path}'") from None
-    if root.get("fmiVersion") != "2.0":
-        raise ModelError(f"not an FMI 2.0 FMU (fmiVersion={root.get('fmiVersion')!r}): "
+    version = root.get("fmiVersion") or ""
+    version = "3.0" if version.startswith("3.") else version
+    if version not in ("2.0", "3.0"):
+        raise ModelError(f"not an FMI 2.0 or 3.0 FMU (fmiVersion={root.get('fmiVersion')!r}): "
                          f"'{path}'")
     cosim = root.find("CoSimulation")
     if cosim is None or not cosim.get("modelIdentifier"):
+        if root.find("ModelExchange") is not None:
+            raise ModelError(f"a model-exchange-only FMU: agv-cosim runs co-simulation FMUs "
+                             f"only: '{path}'")
         raise ModelError(f"not a co-simulation FMU: '{path}'")
+    token = root.get("guid" if version == "2.0" else "instantiationToken", "")
+    state_flag = "canGetAndSetFMUstate" if version == "2.0" else "canGetAndSetFMUState"
     info = ModelInfo(path=path, sha256=file_sha256(path), model_name=root.get("modelName", ""),
-                     identifier=cosim.get("modelIdentifier"), guid=root.get("guid", ""),
-                     description=root.get("description", ""))
-    ordered = []
-    for scalar in root.find("ModelVariables") if root.find("ModelVariables") is not None else []:
-        kind = next((child for child in scalar if child.tag in TYPES), None)
-        if kind is None:
-            raise ModelError(f"broken FMU (variable '{scalar.get('name')}' has no type): "
-                             f"'{path}'")
-        if not scalar.get("name"):
-            raise ValueError(f"ScalarVariable {len(ordered) + 1} has no name")
-        variable = Variable(name=scalar.get("name"),
-                            vr=_integer(scalar, "valueReference",
-                                        f"variable '{scalar.get('name')}'"),
-                            type=kind.tag, causality=scalar.get("causality", "local"),
-                            variability=scalar.get("variability", "continuous"),
-                            unit=kind.get("unit"), description=scalar.get("description", ""),
-                            start=kind.get("start"))
+                     identifier=cosim.get("modelIdentifier"), guid=token,
+                     description=root.get("description", ""), fmi_version=version,
+                     can_handle_variable_step=cosim.get(
+                         "canHandleVariableCommunicationStepSize", "false") == "true",
+                     can_get_set_state=cosim.get(state_flag, "false") == "true")
+    ordered = _variables_2(path, root) if version == "2.0" else _variables_3(path, root)
+    for variable in ordered:
         info.variables[variable.name] = variable
-        ordered.append(variable)
     input_names = [v.name for v in ordered if v.causality == "input"]
-    outputs = root.find("ModelStructure/Outputs")
+
     def indexed(text, what):
         try:
             index = int(text)
@@ -182,19 +204,87 @@ def _parse_model(path, xml):
             raise ValueError(f"{what} {index} is not a variable index (1..{len(ordered)})")
         return ordered[index - 1]
 
-    for unknown in outputs if outputs is not None else []:
-        variable = indexed(unknown.get("index"), "Outputs/Unknown index")
-        deps = unknown.get("dependencies")
+    by_vr = {}
+    for variable in ordered:
+        by_vr.setdefault(variable.vr, variable)
+
+    def referenced(text, what):
+        try:
+            vr = int(text)
+        except (TypeError, ValueError):
+            raise ValueError(f"{what} {text!r} is not an integer") from None
+        if vr not in by_vr:
+            raise ValueError(f"{what} {vr} is not a value reference")
+        return by_vr[vr]
+
+    if version == "2.0":
+        outputs = root.find("ModelStructure/Outputs")
+        entries = [(indexed(u.get("index"), "Outputs/Unknown index"), u.get("dependencies"))
+                   for u in (outputs if outputs is not None else [])]
+        resolve = indexed
+    else:
+        entries = [(referenced(u.get("valueReference"), "Output valueReference"),
+                    u.get("dependencies")) for u in root.findall("ModelStructure/Output")]
+        resolve = referenced
+    for variable, deps in entries:
         if deps is None:
             info.dependencies[variable.name] = list(input_names)
         else:
-            names = [indexed(i, "Outputs/Unknown dependency").name for i in deps.split()]
+            names = [resolve(i, "Output dependency").name for i in deps.split()]
             info.dependencies[variable.name] = [n for n in names if n in input_names]
     for variable in ordered:
         if variable.causality == "output" and variable.name not in info.dependencies:
             info.dependencies[variable.name] = list(input_names)
     _CACHE[key] = info
     return info
+
+
+def _variables_2(path, root):
+    ordered = []
+    types = fmitypes.NAMES["2.0"]
+    for scalar in root.find("ModelVariables") if root.find("ModelVariables") is not None else []:
+        kind = next((child for child in scalar if child.tag in types), None)
+        if kind is None:
+            raise ModelError(f"broken FMU (variable '{scalar.get('name')}' has no type): "
+                             f"'{path}'")
+        if not scalar.get("name"):
+            raise ValueError(f"ScalarVariable {len(ordered) + 1} has no name")
+        ordered.append(Variable(name=scalar.get("name"),
+                                vr=_integer(scalar, "valueReference",
+                                            f"variable '{scalar.get('name')}'"),
+                                type=kind.tag, causality=scalar.get("causality", "local"),
+                                variability=scalar.get("variability", "continuous"),
+                                unit=kind.get("unit"),
+                                description=scalar.get("description", ""),
+                                start=kind.get("start"), fmi="2.0"))
+    return ordered
+
+
+def _variables_3(path, root):
+    ordered = []
+    types = fmitypes.NAMES["3.0"]
+    variables = root.find("ModelVariables")
+    for node in variables if variables is not None else []:
+        if node.tag not in types:
+            raise ModelError(f"broken FMU (variable '{node.get('name')}' has an unknown "
+                             f"type {node.tag!r}): '{path}'")
+        if not node.get("name"):
+            raise ValueError(f"variable {len(ordered) + 1} has no name")
+        dims = tuple(d.get("start") or f"vr:{d.get('valueReference')}"
+                     for d in node.findall("Dimension"))
+        start = node.get("start")
+        if start is None and node.tag in ("String", "Binary"):
+            child = node.find("Start")
+            start = child.get("value") if child is not None else None
+        default = "continuous" if node.tag.startswith("Float") else "discrete"
+        ordered.append(Variable(name=node.get("name"),
+                                vr=_integer(node, "valueReference",
+                                            f"variable '{node.get('name')}'"),
+                                type=node.tag, causality=node.get("causality", "local"),
+                                variability=node.get("variability", default),
+                                unit=node.get("unit"), description=node.get("description", ""),
+                                start=start, fmi="3.0", dims=dims))
+    return ordered
 
 
 def find_fmus(path):
@@ -255,6 +345,22 @@ def _logger():
     return _ROUTER[0]
 
 
+def _route3(environment, status, category, message):
+    receive = _ROUTES.get(environment or 0)
+    if receive is not None:
+        receive(int(status), message.decode("utf-8", "replace") if message else "")
+
+
+def _logger3():
+    """The FMI 3.0 counterpart of :func:`_logger` (the environment names the instance)."""
+    if len(_ROUTER) < 2:
+        _logger()
+        from fmpy.fmi3 import fmi3LogMessageCallback
+
+        _ROUTER.append(fmi3LogMessageCallback(_route3))
+    return _ROUTER[1]
+
+
 class FmuInstance:
     """One instantiated FMU in a private extraction folder.
 
@@ -290,6 +396,9 @@ class FmuInstance:
             with zipfile.ZipFile(info.path) as archive:
                 archive.extractall(self.unzip_dir)
 
+            if info.fmi_version == "3.0":
+                self._instantiate_3(info, instance_name)
+                return
             callbacks = fmi2CallbackFunctions()
             callbacks.logger = _logger()
             callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
@@ -309,6 +418,25 @@ class FmuInstance:
         except BaseException:
             self.close()
             raise
+
+    def _instantiate_3(self, info, instance_name):
+        """FMI 3.0: ``fmi3InstantiateCoSimulation`` with our environment key and logger."""
+        from fmpy.fmi3 import (FMU3Slave, fmi3Boolean, fmi3InstanceEnvironment,
+                               fmi3IntermediateUpdateCallback, fmi3ValueReference)
+
+        slave = FMU3Slave(guid=info.guid, unzipDirectory=self.unzip_dir,
+                          modelIdentifier=info.identifier, instanceName=instance_name)
+        self.slave = slave
+        resources = str(Path(self.unzip_dir, "resources")) + "/"
+        slave.logMessage = _logger3()
+        slave.intermediateUpdate = fmi3IntermediateUpdateCallback()
+        slave.component = slave.fmi3InstantiateCoSimulation(
+            instance_name.encode("utf-8"), info.guid.encode("utf-8"),
+            resources.encode("utf-8"), fmi3Boolean(False), fmi3Boolean(True),
+            fmi3Boolean(False), fmi3Boolean(False), (fmi3ValueReference * 0)(), 0,
+            fmi3InstanceEnvironment(self._key), slave.logMessage, slave.intermediateUpdate)
+        if not slave.component:
+            raise RuntimeError("fmi3InstantiateCoSimulation failed")
 
     def _receive(self, status, text):
         self.messages.append((status, text))

@@ -90,6 +90,8 @@ class RunData:
     time: np.ndarray
     signals: dict = field(default_factory=dict)
     partial: bool = False
+    #: scenario events (time [s], name): drawn as vertical dotted lines on time axes
+    events: list = field(default_factory=list)
 
 
 # --------------------------------------------------------------------------- validation
@@ -247,7 +249,10 @@ def signals_figure(runs, spec):
         else:
             x = _values(run, spec["x"], "x")
         for i, (ax, name) in enumerate(zip(axes, names)):
-            ax.plot(x, _values(run, name, f"signals[{i}]"), **_style(run))
+            line, = ax.plot(x, _values(run, name, f"signals[{i}]"), **_style(run))
+            if spec["x"] == "time":
+                for when, _ in run.events:
+                    ax.axvline(when, color=line.get_color(), linestyle=":", linewidth=1.0)
     for ax, name in zip(axes, names):
         ax.set_ylabel(_label(name, units))
         ax.grid(True, linewidth=0.4, alpha=0.6)

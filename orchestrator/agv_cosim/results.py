@@ -30,15 +30,22 @@ class CsvSink:
     #: Rows between flushes to disk: a run whose process dies keeps what was flushed.
     FLUSH_EVERY = 1000
 
-    def __init__(self, path, columns):
+    def __init__(self, path, columns, formats=None):
         self.path = Path(path)
         self.stream = open(self.path, "w", encoding="utf-8", newline="")
         self.stream.write(",".join(["time"] + list(columns)) + "\n")
         self.pending = 0
+        # formats: one callable per column (value -> text, fmitypes.record_format);
+        # None (every column a float) keeps the plain repr path
+        self.formats = None if formats is None else [repr] + list(formats)
 
     def write(self, row):
-        """Append one row (sequence of float)."""
-        self.stream.write(",".join(map(repr, map(float, row))) + "\n")
+        """Append one row (time, then the column values)."""
+        if self.formats is None:
+            text = ",".join(map(repr, map(float, row)))
+        else:
+            text = ",".join([f(v) for f, v in zip(self.formats, row)])
+        self.stream.write(text + "\n")
         self.pending += 1
         if self.pending >= self.FLUSH_EVERY:
             self.stream.flush()

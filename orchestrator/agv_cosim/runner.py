@@ -32,10 +32,10 @@ from multiprocessing import get_context
 from multiprocessing.connection import wait
 from pathlib import Path
 
-from . import __version__, metrics, plots
+from . import __version__, fmitypes, metrics, plots
 from .lifetime import die_with_parent, scratch_dir
 from .manifest import ManifestError, load_manifest, plan_runs, validate
-from .master import Plan, SimulationError, describe_track, simulate
+from .master import Plan, SimulationError, describe_track, record_types, simulate
 from .results import AtomicDir, CsvSink, read_timeseries, write_json, write_summary
 
 
@@ -56,15 +56,12 @@ class Job:
 
 
 def _start_value(var):
-    if var.start is None:
+    if var.start is None or var.unsupported():
         return None
-    if var.type == "Real":
-        return float(var.start)
-    if var.type in ("Integer", "Enumeration"):
-        return int(var.start)
-    if var.type == "Boolean":
-        return var.start in ("true", "1")
-    return var.start
+    try:
+        return fmitypes.parse_text(var.ftype, var.start)
+    except ValueError:
+        return var.start
 
 
 def _signal_sources(manifest):
@@ -117,14 +114,15 @@ def prepare(manifest_path, variants=None, sets=(), source=None):
     checked = validate(manifest, runs, _signal_sources(manifest))
     every = int(round(manifest.record_interval / manifest.step))
     jobs = []
-    for run, models, order in zip(runs, checked.models, checked.orders):
+    for run, models, order, events in zip(runs, checked.models, checked.orders,
+                                          checked.events):
         params = {c: dict(comp.parameters) for c, comp in run.components.items()}
         effective = {c: {v.name: params[c].get(v.name, _start_value(v))
                          for v in info.parameters} for c, info in models.items()}
         plan = Plan(models=models, parameters=params, connections=manifest.connections,
                     order=order, record=checked.record, start=manifest.start,
                     stop=manifest.stop, step=manifest.step, algorithm=manifest.algorithm,
-                    record_every=every)
+                    record_every=every, events=events)
         jobs.append(Job(label=run.label, variant=run.variant, point=run.point, plan=plan,
                         parameters=effective,
                         fmu_sha256={c: info.sha256 for c, info in models.items()},
@@ -172,8 +170,11 @@ def run_job(job, run_dir, progress=None, track=None, on_message=None):
     """
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    sink = CsvSink(run_dir / "timeseries.csv", job.plan.record)
-    rows, error = 0, None
+    types = record_types(job.plan)
+    sink = CsvSink(run_dir / "timeseries.csv", job.plan.record,
+                   None if all(t.is_float for t in types) else
+                   [fmitypes.record_format(t) for t in types])
+    rows, error, outcome = 0, None, {}
     begin = time.perf_counter()
 
     def write(row):
@@ -182,7 +183,7 @@ def run_job(job, run_dir, progress=None, track=None, on_message=None):
         rows += 1
 
     try:
-        simulate(job.plan, write, progress, track, on_message)
+        simulate(job.plan, write, progress, track, on_message, outcome)
     except SimulationError as failure:
         error = str(failure)
     except OSError as failure:  # writing the results failed (disk full, ...)
@@ -202,10 +203,11 @@ def run_job(job, run_dir, progress=None, track=None, on_message=None):
                                                   base_dir=Path(job.manifest_path).parent))
         except Exception as failure:  # noqa: BLE001 - reported in run.json
             metrics_error = f"{type(failure).__name__}: {failure}"
-    return _finish(job, run_dir, rows, status, error, wall, values, metrics_error)
+    return _finish(job, run_dir, rows, status, error, wall, values, metrics_error,
+                   outcome.get("ended_by"))
 
 
-def _finish(job, run_dir, rows, status, error, wall, values, metrics_error):
+def _finish(job, run_dir, rows, status, error, wall, values, metrics_error, ended_by=None):
     """Write metrics.json and run.json of a run; return its summary dict."""
     write_json(run_dir / "metrics.json", values)
     write_json(run_dir / "run.json", {
@@ -217,7 +219,11 @@ def _finish(job, run_dir, rows, status, error, wall, values, metrics_error):
         "start": job.plan.start, "stop": job.plan.stop, "step": job.plan.step,
         "record_every": job.plan.record_every, "rows": rows,
         "versions": versions(), "wall_time_s": wall, "status": status, "error": error,
-        "metrics_error": metrics_error, "partial": status != "complete"})
+        "metrics_error": metrics_error, "partial": status != "complete",
+        "ended_by": ended_by or ("stop time" if status == "complete" else None),
+        "events": [{"name": name, "at": at, "set": {f"{c}.{v}": value
+                                                    for c, v, value in sets}}
+                   for _, at, name, sets in job.plan.events]})
     return {"label": job.label, "status": status, "error": error, "rows": rows,
             "metrics": values, "metrics_error": metrics_error, "point": job.point,
             "variant": job.variant}
@@ -523,7 +529,9 @@ def _plots(manifest, jobs, results, out_dir):
                 continue
             t, signals = read_timeseries(out_dir / job.label / "timeseries.csv", wanted)
             runs.append(plots.RunData(label=job.label, time=t, signals=signals,
-                                       partial=result["status"] != "complete"))
+                                       partial=result["status"] != "complete",
+                                       events=[(at, name) for _, at, name, _ in
+                                               job.plan.events]))
         if runs:
             plots.plot_runs(runs, manifest.plots, out_dir,
                             base_dir=Path(manifest.path).parent)

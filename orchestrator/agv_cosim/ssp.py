@@ -52,6 +52,7 @@ from pathlib import Path, PurePosixPath
 from urllib.parse import unquote, urlparse
 from xml.etree import ElementTree
 
+from . import fmitypes
 from .manifest import ManifestError, load_manifest, plan_runs, validate
 from .lifetime import scratch_dir
 from .results import OutputError, check_name
@@ -88,12 +89,9 @@ def _number_text(value):
     return repr(float(value))
 
 
-def _value_text(vtype, value):
-    if vtype == "Real":
-        return _number_text(value)
-    if vtype == "Boolean":
-        return "true" if value else "false"
-    return str(int(value)) if vtype == "Integer" else str(value)
+def _ssp_type(var):
+    """The SSP type name of an FMU variable (SSP's names are FMI 2.0's), or None."""
+    return None if var.unsupported() else var.ftype.ssp_type
 
 
 # ---------------------------------------------------------------------------- export
@@ -161,11 +159,11 @@ def build_ssd(name, models, parameters, connections, start, stop, step, algorith
         connectors = ElementTree.SubElement(comp, _q("ssd", "Connectors"))
         fmu_units = None
         for var in info.variables.values():
-            if var.causality not in ("input", "output") or var.type not in _TYPES:
+            if var.causality not in ("input", "output") or _ssp_type(var) not in _TYPES:
                 continue
             node = ElementTree.SubElement(connectors, _q("ssd", "Connector"),
                                           {"name": var.name, "kind": var.causality})
-            kind = ElementTree.SubElement(node, _q("ssc", var.type))
+            kind = ElementTree.SubElement(node, _q("ssc", _ssp_type(var)))
             if var.unit:
                 kind.set("unit", var.unit)
                 if var.unit not in used_units:
@@ -183,10 +181,10 @@ def build_ssd(name, models, parameters, connections, start, stop, step, algorith
             for pname, value in values.items():
                 var = info.variables[pname]
                 param = ElementTree.SubElement(plist, _q("ssv", "Parameter"), {"name": pname})
-                attrs = {"value": _value_text(var.type, value)}
-                if var.type == "Real" and var.unit:
+                attrs = {"value": fmitypes.format_text(var.ftype, value)}
+                if var.ftype.is_float and var.unit:
                     attrs["unit"] = var.unit
-                ElementTree.SubElement(param, _q("ssv", var.type), attrs)
+                ElementTree.SubElement(param, _q("ssv", _ssp_type(var)), attrs)
     conns = ElementTree.SubElement(system, _q("ssd", "Connections"))
     for conn in connections:
         ElementTree.SubElement(conns, _q("ssd", "Connection"), {
@@ -346,22 +344,15 @@ def _parse_value(package, key, node):
     text = kind.get("value")
     if text is None:
         raise SspError(package, key, "missing attribute 'value'")
-    unit = kind.get("unit") if vtype == "Real" else None
+    ftype = fmitypes.lookup("2.0", vtype)  # SSP's type names are FMI 2.0's
+    unit = kind.get("unit") if ftype.is_float else None
     try:
-        if vtype == "Real":
-            value = float(text)
-            if not math.isfinite(value):
-                raise ValueError(text)
-            return vtype, value, unit
-        if vtype == "Integer":
-            return vtype, int(text), None
-        if vtype == "Boolean":
-            if text not in ("true", "false", "1", "0"):
-                raise ValueError(text)
-            return vtype, text in ("true", "1"), None
+        value = fmitypes.parse_text(ftype, text)
+        if ftype.is_float and not math.isfinite(value):
+            raise ValueError(text)
     except ValueError:
         raise SspError(package, key, f"{text!r} is not a valid {vtype}") from None
-    return vtype, text, None
+    return vtype, value, unit
 
 
 #: SI base units of FMI 2.0 / SSP unit definitions (exponents).
@@ -524,7 +515,7 @@ def _check_connectors(package, cname, fmu, node):
         if typed is None:
             continue
         vtype = typed.tag.split("}")[1]
-        if vtype != var.type:
+        if vtype != _ssp_type(var):
             raise SspError(package, key, f"type {vtype}, but the FMU's variable is "
                            f"{var.type}")
         unit = typed.get("unit")
@@ -577,7 +568,7 @@ def _bound_parameters(package, components, component_bound, system_bound):
                 raise SspError(package, where, f"{cname} ({info.model_name}) has "
                                f"{what}{' ' + repr(pname) if var is None else ''}, "
                                "not a parameter")
-            if vtype == "Real" and var.type != "Real":
+            if vtype == "Real" and (var.unsupported() or not var.ftype.is_float):
                 raise SspError(package, where, f"a Real value for the {var.type} "
                                f"parameter '{pname}'")
             params[cname][pname] = _convert(package, where, value, unit, definition, var,

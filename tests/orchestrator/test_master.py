@@ -41,8 +41,8 @@ def test_gauss_seidel_vs_jacobi_closed_form(chain, tmp_path):
                                rtol=0, atol=1e-12)
     # the difference is not zero: two steps of lag on the ramp of slope K b
     assert jc["int.y"][-1] == pytest.approx(y_gs[-1] - H * H * K * B * (2 * N - 3), abs=1e-12)
-    # default record = every Real output, in manifest order
-    assert list(gs) == ["src.y", "src.t_out", "gain.y", "gain2.y", "int.y"]
+    # default record = every numeric output (Integer too), in manifest order
+    assert list(gs) == ["src.y", "src.t_out", "src.count", "gain.y", "gain2.y", "int.y"]
 
 
 def test_record_interval(chain, tmp_path):

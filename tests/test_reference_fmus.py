@@ -1,0 +1,216 @@
+"""Third-party FMU tier: the FMI standard's Reference FMUs run through ``agv-cosim run``.
+
+The FMUs are built once per session from the C sources in
+``../shared/third-party/Reference-FMUs`` (``cmake -DFMI_VERSION=2`` and ``3``, then
+``make install``) into a temporary folder; the tier is skipped, with the reason, only when
+that folder or cmake is missing. Each model's ``<Model>_out.csv`` (written by the
+standard's own ``fmusim``) is the reference.
+
+Tolerance: rtol 1e-9, atol 1e-12. The models use a fixed internal solver step that the
+communication step (the reference's output interval) is a multiple of, so the only
+expected difference is the decimal printing of the reference CSV (16-17 significant
+digits); 1e-9 leaves room for that and would still catch any solver or exchange
+difference (a different step or a one-step lag moves these values by 1e-4 or more).
+"""
+
+import csv
+import io
+import json
+import os
+import shutil
+import subprocess
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agv_cosim import cli
+from agv_cosim.build import build_one
+
+ROOT = Path(__file__).resolve().parent.parent
+SOURCES = Path(os.environ.get("AGV_REFERENCE_FMUS",
+                              ROOT.parent / "shared" / "third-party" / "Reference-FMUs"))
+if not (SOURCES / "CMakeLists.txt").is_file():
+    # worktrees live beside the shared folder; the main checkout may be elsewhere
+    SOURCES = Path("/work/shared/third-party/Reference-FMUs")
+RTOL, ATOL = 1e-9, 1e-12
+#: (model, communication step [s], stop [s]) as the reference CSVs were written
+MODELS = [("BouncingBall", 0.01, 3.0), ("Dahlquist", 0.1, 10.0), ("VanDerPol", 0.01, 20.0),
+          ("Stair", 0.2, 10.0), ("Resource", 1.0, 1.0)]
+
+
+@pytest.fixture(scope="session")
+def reference_fmus(tmp_path_factory):
+    """FMI version ("2", "3") -> folder of the built Reference FMUs."""
+    if not (SOURCES / "CMakeLists.txt").is_file():
+        pytest.skip(f"Reference FMU sources not found at {SOURCES}")
+    if shutil.which("cmake") is None:
+        pytest.skip("cmake is not installed (needed to build the Reference FMUs)")
+    root = tmp_path_factory.mktemp("reference_fmus")
+    folders = {}
+    for version in ("2", "3"):
+        build, install = root / f"build{version}", root / f"fmi{version}"
+        build.mkdir()
+        for command in (["cmake", f"-DFMI_VERSION={version}",
+                         f"-DCMAKE_INSTALL_PREFIX={install}", str(SOURCES)],
+                        ["make", "-j2", "install"]):
+            done = subprocess.run(command, cwd=build, capture_output=True, text=True)
+            assert done.returncode == 0, f"{' '.join(command)} failed:\n{done.stderr[-2000:]}"
+        folders[version] = install
+    return folders
+
+
+@pytest.fixture(scope="session")
+def types_fmu(tmp_path_factory):
+    out = tmp_path_factory.mktemp("types_fmu")
+    return build_one(ROOT / "tests" / "fmu_src" / "agv_test_types.py", out).fmu
+
+
+def _run(tmp_path, text, name="m", expect=0):
+    manifest = tmp_path / f"{name}.toml"
+    manifest.write_text(text)
+    out = tmp_path / f"out_{name}"
+    code = cli.main(["run", str(manifest), "--out", str(out), "--jobs", "1", "--quiet"])
+    assert code == expect
+    return out / "base"
+
+
+def _reference(model):
+    with open(SOURCES / model / f"{model}_out.csv", newline="") as stream:
+        rows = list(csv.reader(stream))
+    return rows[0], np.array(rows[1:], dtype=float)
+
+
+def _ours(run_dir):
+    with open(run_dir / "timeseries.csv", newline="") as stream:
+        rows = list(csv.reader(stream))
+    return rows[0], rows[1:]
+
+
+@pytest.mark.parametrize("version", ["2", "3"])
+@pytest.mark.parametrize("model,step,stop", MODELS)
+def test_reference_output(reference_fmus, tmp_path, version, model, step, stop):
+    fmu = reference_fmus[version] / f"{model}.fmu"
+    run = _run(tmp_path, f'[simulation]\nstop = {stop}\nstep = {step}\n'
+                         f'[components.m]\nfmu = "{fmu}"\n')
+    info = json.loads((run / "run.json").read_text())
+    assert info["status"] == "complete"
+    header, rows = _ours(run)
+    ref_header, ref = _reference(model)
+    assert header == ["time"] + [f"m.{c}" for c in ref_header[1:]]
+    ours = np.array(rows, dtype=float)
+    assert ours.shape == ref.shape
+    np.testing.assert_allclose(ours, ref, rtol=RTOL, atol=ATOL)
+    if model == "Stair":
+        # the FMU asks to stop when its counter reaches 10 (t = 9 s): the run ends there,
+        # complete, with every row
+        assert info["ended_by"] == "m requested stop at t=9.0 s"
+        assert ours[-1].tolist() == [9.0, 10.0]
+        assert rows[-1] == ["9.0", "10"]  # Integer recorded as an integer
+    else:
+        assert info["ended_by"] == "stop time"
+
+
+def test_feedthrough_every_fmi2_type(reference_fmus, types_fmu, tmp_path):
+    """Our typed source drives FMI 2.0 and FMI 3.0 Feedthrough; every type passes."""
+    ft2, ft3 = (reference_fmus[v] / "Feedthrough.fmu" for v in ("2", "3"))
+    text = (f'[simulation]\nstop = 0.5\nstep = 0.1\n'
+            f'[components.src]\nfmu = "{types_fmu}"\n'
+            f'[components.ft2]\nfmu = "{ft2}"\n[components.ft3]\nfmu = "{ft3}"\n'
+            f'[components.ft3b]\nfmu = "{ft3}"\n'
+            '[record]\nvariables = ["src.r", "src.i", "src.b", "src.s", '
+            '"ft2.Float64_continuous_output", "ft2.Int32_output", "ft2.Boolean_output", '
+            '"ft2.String_output", "ft2.Enumeration_output", '
+            '"ft3.Float64_continuous_output", "ft3.Int32_output", "ft3.Boolean_output", '
+            '"ft3.String_output", "ft3b.Float32_continuous_output", "ft3b.Int8_output", '
+            '"ft3b.UInt64_output", "ft3b.Enumeration_output", "src.ro", "src.io", '
+            '"src.bo", "src.so"]\n')
+    for src, dst in [("src.r", "ft2.Float64_continuous_input"), ("src.i", "ft2.Int32_input"),
+                     ("src.b", "ft2.Boolean_input"), ("src.s", "ft2.String_input"),
+                     ("src.r", "ft3.Float64_continuous_input"), ("src.i", "ft3.Int32_input"),
+                     ("src.b", "ft3.Boolean_input"), ("src.s", "ft3.String_input"),
+                     ("ft3.Float32_continuous_output", "ft3b.Float32_continuous_input"),
+                     ("ft3.Int8_output", "ft3b.Int8_input"),
+                     ("ft3.UInt64_output", "ft3b.UInt64_input"),
+                     ("ft3.Enumeration_output", "ft3b.Enumeration_input"),
+                     ("ft3.Float64_continuous_output", "src.ri"),
+                     ("ft3.Int32_output", "src.ii"), ("ft3.Boolean_output", "src.bi"),
+                     ("ft2.String_output", "src.si")]:
+        text += f'[[connections]]\nfrom = "{src}"\nto = "{dst}"\n'
+    run = _run(tmp_path, text)
+    assert json.loads((run / "run.json").read_text())["status"] == "complete"
+    header, rows = _ours(run)
+    assert len(rows) == 6
+    col = {name: [row[i] for row in rows] for i, name in enumerate(header)}
+    k = np.arange(6)
+    np.testing.assert_array_equal(np.array(col["src.r"], dtype=float), 0.5 * k)
+    assert col["src.i"] == [str(3 * j - 7) for j in k]
+    assert col["src.b"] == [str(j % 2) for j in k]
+    assert col["src.s"] == [f'step {j}, "q"' for j in k]  # comma and quotes round-trip
+    for ft in ("ft2", "ft3"):  # each type arrives unchanged, in the same instant (GS)
+        assert col[f"{ft}.Float64_continuous_output"] == col["src.r"]
+        assert col[f"{ft}.Int32_output"] == col["src.i"]
+        assert col[f"{ft}.Boolean_output"] == col["src.b"]
+        assert col[f"{ft}.String_output"] == col["src.s"]
+    # and back into the FMI 2.0 source's echo inputs
+    assert col["src.ro"] == col["src.r"] and col["src.io"] == col["src.i"]
+    assert col["src.bo"] == col["src.b"] and col["src.so"] == col["src.s"]
+    assert col["ft2.Enumeration_output"] == ["1"] * 6
+    assert col["ft3b.Enumeration_output"] == ["1"] * 6
+    assert col["ft3b.Int8_output"] == ["0"] * 6 and col["ft3b.UInt64_output"] == ["0"] * 6
+
+
+@pytest.mark.parametrize("src,dst", [("src.i", "ft.Float64_continuous_input"),
+                                     ("src.r", "ft.Int32_input"),
+                                     ("src.b", "ft.Int32_input")])
+def test_no_implicit_type_conversion(reference_fmus, types_fmu, tmp_path, capsys, src, dst):
+    ft = reference_fmus["3"] / "Feedthrough.fmu"
+    _run(tmp_path, f'[simulation]\nstop = 0.2\nstep = 0.1\n'
+                   f'[components.src]\nfmu = "{types_fmu}"\n[components.ft]\nfmu = "{ft}"\n'
+                   f'[[connections]]\nfrom = "{src}"\nto = "{dst}"\n', expect=2)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "connections[0]: type mismatch" in err[0]
+    assert "no implicit conversion" in err[0]
+
+
+def test_parameter_types_checked(reference_fmus, tmp_path, capsys):
+    ft = reference_fmus["3"] / "Feedthrough.fmu"
+    base = f'[simulation]\nstop = 0.2\nstep = 0.1\n[components.ft]\nfmu = "{ft}"\n'
+    run = _run(tmp_path, base + "parameters = { Float64_tunable_parameter = 2 }\n", "ok")
+    info = json.loads((run / "run.json").read_text())
+    assert info["parameters"]["ft"]["Float64_tunable_parameter"] == 2.0
+    _run(tmp_path, base + "parameters = { Float64_tunable_parameter = true }\n", "bad",
+         expect=2)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].endswith("type mismatch: 'ft.Float64_tunable_parameter' is Float64, "
+                            "got True")
+
+
+def test_array_variables_refused(reference_fmus, tmp_path, capsys):
+    """StateSpace (FMI 3.0) has array variables: recording one is refused, one line."""
+    fmu = reference_fmus["3"] / "StateSpace.fmu"
+    _run(tmp_path, f'[simulation]\nstop = 1.0\nstep = 1.0\n[components.m]\nfmu = "{fmu}"\n'
+                   '[record]\nvariables = ["m.y"]\n', expect=2)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'m.y' is an array variable (only scalars are supported)" in err[0]
+
+
+def test_model_exchange_only_refused(reference_fmus, tmp_path, capsys):
+    """An FMU without <CoSimulation> is refused with a message saying why."""
+    source = reference_fmus["2"] / "Dahlquist.fmu"
+    target = tmp_path / "DahlquistME.fmu"
+    with zipfile.ZipFile(source) as zin, zipfile.ZipFile(target, "w") as zout:
+        for item in zin.infolist():
+            data = zin.read(item)
+            if item.filename == "modelDescription.xml":
+                text = data.decode()
+                start = text.index("<CoSimulation")
+                end = text.index(">", text.index("</CoSimulation>") if "</CoSimulation>"
+                                 in text else start) + 1
+                data = (text[:start] + text[end:]).encode()
+            zout.writestr(item, data)
+    _run(tmp_path, f'[simulation]\nstop = 1.0\nstep = 0.1\n'
+                   f'[components.m]\nfmu = "{target}"\n', expect=2)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "a model-exchange-only FMU" in err[0]
