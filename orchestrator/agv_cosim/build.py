@@ -37,11 +37,7 @@ from pythonfmu.builder import FmuBuilder
 BUILD_FORMAT = 2
 
 #: What the host Python needs to run the bundled core (shipped in every FMU).
-HOST_REQUIREMENTS = "numpy>=1.24
-scipy>=1.10
-osqp>=1.0
-scikit-fuzzy>=0.5
-"
+HOST_REQUIREMENTS = "numpy>=1.24\nscipy>=1.10\nosqp>=1.0\nscikit-fuzzy>=0.5\n"
 
 BOOT_SCRIPT = "agv_boot.py"
 LOADER_SOURCE = Path("fmu_loader") / "agv_fmu_loader.c"
