@@ -29,11 +29,17 @@ same slave class body runs as an FMI 3.0 co-simulation FMU:
 pythonfmu3 0.3.4's C++ wrapper releases the slave's class, instance and log queue when a
 Python exception leaves a slave method and again in ``fmi3FreeInstance`` (the defect of
 pythonfmu 0.7, see :mod:`agv_core.fmi_slave`); this adapter keeps one extra reference to
-each before an exception leaves it, as the FMI 2.0 adapter does.
+each before an exception leaves it, as the FMI 2.0 adapter does. Its exit-time defect
+(also pythonfmu 0.7's) is avoided in Python hosts by an ``atexit`` hook (see
+``_finalize_wrappers``).
 """
 
+import atexit
+import ctypes
 import json
 import math
+import os
+import sys
 from pathlib import Path
 from xml.etree.ElementTree import Element, SubElement
 
@@ -60,6 +66,40 @@ _PYTYPE = {Float64: float, Int32: int, Boolean: bool, String: str}
 # See the module docstring: one extra reference to class, instance and log queue per
 # exception that leaves the adapter, so pythonfmu3's second release frees nothing live.
 _KEPT_FOR_PYTHONFMU3 = []
+
+# pythonfmu3 0.3.4's library has pythonfmu 0.7's exit-time defect: at process exit C++
+# static destruction destroys its global shared_ptr<PyState>, then the library's unload
+# hook (finalizePythonInterpreter) assigns to the destroyed pointer and releases its freed
+# control block again (valgrind: invalid read in finalizePythonInterpreter from
+# _dl_call_fini; 2 of 30 fmpy processes aborted with "corrupted double-linked list").
+# In a Python host the adapter calls that hook itself from Python's atexit, while the
+# pointer is alive: it is then empty when the static destructor and the unload hook run.
+# The library handle kept here also keeps the library loaded until process exit, so a
+# host's dlclose cannot run the faulty unload earlier. Library path -> ctypes handle.
+_WRAPPERS_TO_FINALIZE = {}
+
+
+def _finalize_wrappers():
+    for library in _WRAPPERS_TO_FINALIZE.values():
+        library.finalizePythonInterpreter()
+
+
+def _finalize_at_exit(resources, identifier):
+    """Register the FMU's loaded pythonfmu3 library (if any) for ``_finalize_wrappers``."""
+    if not sys.platform.startswith("linux"):
+        return
+    path = str(Path(resources).parent / "binaries" / "x86_64-linux" / f"{identifier}.so")
+    if path in _WRAPPERS_TO_FINALIZE:
+        return
+    try:  # only a library the host has loaded (not at build time)
+        library = ctypes.CDLL(path, mode=os.RTLD_NOLOAD | os.RTLD_NOW)
+        library.finalizePythonInterpreter.restype = None
+    except (OSError, AttributeError):
+        return
+    if not _WRAPPERS_TO_FINALIZE:
+        atexit.register(_finalize_wrappers)
+    _WRAPPERS_TO_FINALIZE[path] = library
+
 
 __all__ = ["AgvSlave", "Boolean", "DefaultExperiment", "Fmi3Slave", "Float64", "Int32",
            "Integer", "Real", "String"]
@@ -99,6 +139,8 @@ class AgvSlave(Fmi3Slave):
                                        variability=Fmi3Variability.continuous,
                                        description="Simulation time", unit="s"))
         self._check_bundle()
+        if self.resources is not None:
+            _finalize_at_exit(self.resources, self.modelName)
 
     def _check_bundle(self):
         """Refuse to run another build's slave code in this FMU's name (as in FMI 2.0)."""
