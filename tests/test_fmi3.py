@@ -196,6 +196,9 @@ def test_twin_validates_clean_and_declares_what_its_fmi2_twin_does(component_fmu
     units = {u.get("name") for u in root3.iterfind("UnitDefinitions/Unit")}
     float64 = [v for v in root3.find("ModelVariables") if v.tag == "Float64"]
     assert all(v.get("unit") in units for v in float64)
+    # starts in repr's exact form (pythonfmu3's 16 digits do not round-trip every double)
+    starts = [v.get("start") for v in float64 if v.get("start") is not None]
+    assert starts and all(text == repr(float(text)) for text in starts)
 
 
 @pytest.mark.parametrize("name", SCRIPTS)

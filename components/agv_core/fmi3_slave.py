@@ -143,6 +143,12 @@ class AgvSlave(SlaveLogic, Fmi3Slave):
         if info is not None:
             root.set("instantiationToken", info["guid"])
         self._insert_unit_definitions(root)
+        for node in root.find("ModelVariables"):
+            if node.tag == "Float64" and node.get("start") is not None:
+                # pythonfmu3 writes 16 significant digits, which do not round-trip every
+                # double (radians(112)): write repr's shortest exact form, so a host that
+                # writes the start value back sets the value the FMU uses.
+                node.set("start", repr(float(getattr(self, node.get("name")))))
         reference = {v.name: v.value_reference for v in self.vars.values()}
         for unknown in root.find("ModelStructure").iterfind("Output"):
             name = self.vars[int(unknown.get("valueReference"))].name
