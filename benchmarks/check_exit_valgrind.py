@@ -8,6 +8,14 @@ pythonfmu only
     the same FMUs with pythonfmu's own library put back as the binary (how pythonfmu 0.7
     ships them): the "before".
 
+and two of the FMI 3.0 twins (``agv-cosim build --fmi 3``, pythonfmu3's own library):
+
+FMI 3.0 twin
+    as built (the adapter calls the library's ``finalizePythonInterpreter`` from Python's
+    ``atexit``, agv_core/fmi3_slave.py);
+FMI 3.0 twin, no exit hook
+    the same twins with that call taken out of the bundled adapter: the "before".
+
 Hosts: (1) a Python host (fmpy: ``simulate_fmu`` of the vehicle and of the preview
 controller, which imports scipy, then a normal interpreter exit); (2) the plain C host of
 tests/c_host (the preview controller), loader build only, since the pythonfmu-only build
@@ -23,7 +31,7 @@ and the ones that do not exit with status 0 are counted. Usage::
 
     python benchmarks/check_exit_valgrind.py [--runs 30]
 
-Needs valgrind and gcc. Takes about 1-2 minutes.
+Needs valgrind and gcc. Takes about 3-5 minutes.
 """
 
 import argparse
@@ -72,6 +80,23 @@ def pythonfmu_only(fmu, out):
     return target
 
 
+def without_exit_hook(fmu, out):
+    """A copy of FMI 3.0 twin ``fmu`` whose adapter registers no exit hook."""
+    target = Path(out) / Path(fmu).name
+    with zipfile.ZipFile(fmu) as source, zipfile.ZipFile(target, "w",
+                                                         zipfile.ZIP_DEFLATED) as copy:
+        for name in source.namelist():
+            data = source.read(name)
+            if name == "resources/agv_core/fmi3_slave.py":
+                patched = data.replace(b"_finalize_at_exit(self.resources, self.modelName)",
+                                       b"pass")
+                if patched == data:
+                    sys.exit("check_exit_valgrind: the FMI 3.0 adapter's exit hook moved")
+                data = patched
+            copy.writestr(name, data)
+    return target
+
+
 def valgrind(command, env=None):
     """Run under valgrind; (total errors, error blocks other than the loader read-ahead)."""
     done = subprocess.run(["valgrind", "--num-callers=30", *command], capture_output=True,
@@ -102,13 +127,19 @@ def main(argv=None):
         loader = [build_one(slaves / f"{name}.py", tmp / "loader").fmu for name in FMUS]
         (tmp / "plain").mkdir()
         plain = [pythonfmu_only(fmu, tmp / "plain") for fmu in loader]
+        twins = [build_one(slaves / f"{name}.py", tmp / "fmi3", fmi_version=3).fmu
+                 for name in FMUS]
+        (tmp / "fmi3_plain").mkdir()
+        twins_plain = [without_exit_hook(fmu, tmp / "fmi3_plain") for fmu in twins]
+        builds = (("pythonfmu only", plain), ("loader", loader),
+                  ("FMI 3.0 twin, no exit hook", twins_plain), ("FMI 3.0 twin", twins))
         script = tmp / "host.py"
         script.write_text(PYTHON_HOST)
 
         total, ours, _ = valgrind([sys.executable, "-c", "import fmpy, numpy, scipy.linalg"])
         print(f"baseline Python (imports only): {total} valgrind errors, {len(ours)} other "
               "than the loader read-ahead")
-        for label, fmus in (("pythonfmu only", plain), ("loader", loader)):
+        for label, fmus in builds:
             total, ours, code = valgrind([sys.executable, str(script), *map(str, fmus)])
             print(f"Python host, {label}: exit status {code}, {total} valgrind errors, "
                   f"{len(ours)} other than the loader read-ahead, "
@@ -134,7 +165,7 @@ def main(argv=None):
         for block in ours[:2]:
             print("   ", first_lines(block).replace("\n", "\n    "))
 
-        for label, fmus in (("pythonfmu only", plain), ("loader", loader)):
+        for label, fmus in builds:
             failed = []
             for _ in range(args.runs):
                 done = subprocess.run([sys.executable, str(script), *map(str, fmus)],

@@ -13,8 +13,20 @@ build Python's headers, fmpy's FMI 2.0 headers) into each FMU as
 ``<modelIdentifier>.pythonfmu.so``: the loader starts the build's Python in hosts that have
 none (or the one named by ``AGV_COSIM_PYTHON``), forwards the FMI calls, and unloads the
 wrapper cleanly (see the C source for why and how).
+
+``fmi_version=3`` builds the FMI 3.0 twin of each slave script with pythonfmu3 instead
+(``agv-cosim build --fmi 3``): the same slave script and core, run on the FMI 3.0 adapter
+``agv_core/fmi3_slave.py``. pythonfmu3 takes the slave class from a ``class`` line that
+names ``Fmi3Slave``, so the build bundles the slave script unchanged under the name
+``<stem>_fmi3_body.py`` and writes a two-line wrapper script ``<stem>_fmi3.py`` whose class
+derives from the script's class and names ``Fmi3Slave``. The bundled ``agv_core`` has
+``fmi_slave`` as an alias of ``fmi3_slave`` (and a BUILD_ID of its own), so the script's
+``core.fmi_slave.AgvSlave`` is the FMI 3.0 adapter. FMI 3.0 twins ship pythonfmu3's own
+binary: the C loader speaks FMI 2.0 only, so they need a host with Python in its process
+(see docs/using-the-fmus.md).
 """
 
+import ast
 import functools
 import hashlib
 import json
@@ -45,9 +57,20 @@ LOADER_SOURCE = Path("fmu_loader") / "agv_fmu_loader.c"
 WRAPPER_SUFFIX = ".pythonfmu.so"
 INDEX_FILE = "build-index.json"
 
+#: FMI versions ``build_fmus`` can write.
+FMI_VERSIONS = (2, 3)
+#: Suffixes of the generated FMI 3.0 wrapper script and of the bundled slave script.
+FMI3_WRAPPER_SUFFIX = "_fmi3"
+FMI3_BODY_SUFFIX = "_fmi3_body"
+#: The FMI 3.0 bundle's ``agv_core/fmi_slave.py``: the FMI 3.0 adapter under the FMI 2.0 name.
+FMI3_ALIAS = ('"""In FMI 3.0 twins agv_core.fmi_slave is the FMI 3.0 adapter '
+              '(written by agv-cosim build)."""\n\n'
+              "from .fmi3_slave import *  # noqa: F401,F403\n"
+              "from .fmi3_slave import AgvSlave, DefaultExperiment  # noqa: F401\n")
+
 
 class BuildError(RuntimeError):
-    """An FMU could not be built, or the built FMU is not valid FMI 2.0."""
+    """An FMU could not be built, or the built FMU is not valid FMI."""
 
 
 @dataclass(frozen=True)
@@ -192,8 +215,12 @@ def reference_experiment(model_description_xml):
         raise BuildError("DefaultExperiment needs numeric startTime, stopTime and "
                          "stepSize") from None
     inputs = {}
-    for node in root.iterfind("VendorAnnotations/Tool[@name='org.agv-cosim']/"
-                              "ReferenceInputs/Input"):
+    nodes = root.iterfind("VendorAnnotations/Tool[@name='org.agv-cosim']/"  # FMI 2.0
+                          "ReferenceInputs/Input")
+    if root.get("fmiVersion", "").startswith("3"):
+        nodes = root.iterfind("Annotations/Annotation[@type='org.agv-cosim']/"
+                              "ReferenceInputs/Input")
+    for node in nodes:
         inputs[node.get("name")] = [(float(h.get("time")), float(h.get("value")))
                                     for h in node.iterfind("Hold")]
     return {"start": start, "stop": stop, "step": step, "inputs": inputs}
@@ -235,12 +262,13 @@ def simulate_reference(fmu_path, input_csv, output_csv):
         experiment = reference_experiment(archive.read("modelDescription.xml"))
     md = fmpy.read_model_description(str(fmu_path))
     outputs = [v.name for v in md.modelVariables
-               if v.causality == "output" and v.type == "Real"]
+               if v.causality == "output" and v.type in ("Real", "Float64")]
     signals = read_csv(input_csv) if input_csv else None
     errors = []
 
-    def logger(component, instance, status, category, message):
-        if status >= 3:  # fmi2Error, fmi2Fatal
+    def logger(*args):  # FMI 2.0: (env, instance, status, category, message); 3.0: no instance
+        status, message = args[-3], args[-1]
+        if status >= 3:  # error, fatal
             errors.append(message.decode(errors="replace").strip())
 
     try:
@@ -293,14 +321,19 @@ def _ship_reference(fmu_path):
             archive.writestr(f"{REFERENCE_DIR}/{name}", data)
 
 
-def fmu_guid(script, boot, tag):
+def fmu_guid(script, boot, tag, fmi_version=2):
     """GUID of the FMU built from ``script``: a hash of all its sources and the tool chain."""
     digest = hashlib.sha256()
     python = host_python()
-    for part in (script.name.encode(), script.read_bytes(), boot.read_bytes(), tag.encode(),
-                 pythonfmu.__version__.encode(), str(BUILD_FORMAT).encode(),
-                 HOST_REQUIREMENTS.encode(), _loader_source().read_bytes(),
-                 python["executable"].encode(), python["libpython"].encode()):
+    parts = [script.name.encode(), script.read_bytes(), boot.read_bytes(), tag.encode(),
+             pythonfmu.__version__.encode(), str(BUILD_FORMAT).encode(),
+             HOST_REQUIREMENTS.encode(), _loader_source().read_bytes(),
+             python["executable"].encode(), python["libpython"].encode()]
+    if fmi_version == 3:  # FMI 2.0 GUIDs stay as they were
+        import pythonfmu3
+
+        parts += [b"fmi3", pythonfmu3.__version__.encode(), FMI3_ALIAS.encode()]
+    for part in parts:
         digest.update(part + b"\0")
     return str(uuid.UUID(digest.hexdigest()[:32]))
 
@@ -312,46 +345,117 @@ def fmu_guid_of(fmu_path):
             root = ElementTree.fromstring(archive.read("modelDescription.xml"))
     except (OSError, KeyError, zipfile.BadZipFile, ElementTree.ParseError):
         return None
-    return root.get("guid")
+    return root.get("guid") or root.get("instantiationToken")  # FMI 2.0 or 3.0
 
 
-def _stage(script, core_dir, boot, tag, guid, stage_dir):
-    shutil.copy2(script, stage_dir / script.name)
+def fmi3_core_tag(tag):
+    """BUILD_ID tag of the FMI 3.0 bundle of the core with FMI 2.0 tag ``tag``.
+
+    The FMI 3.0 bundle differs (``fmi_slave`` is the FMI 3.0 adapter), so it must never be
+    taken for the FMI 2.0 bundle of the same sources in one process (agv_boot.py).
+    """
+    return hashlib.sha256(f"{tag}\0fmi3\0{FMI3_ALIAS}".encode()).hexdigest()[:16]
+
+
+def slave_class_name(script):
+    """Name of the one top-level class a slave script defines (BuildError otherwise)."""
+    try:
+        tree = ast.parse(Path(script).read_text(), filename=str(script))
+    except SyntaxError as error:
+        raise BuildError(f"{Path(script).name}: {error}") from None
+    names = [node.name for node in tree.body if isinstance(node, ast.ClassDef)]
+    if len(names) != 1:
+        raise BuildError(f"{Path(script).name}: a slave script defines exactly one class "
+                         f"at top level, found {len(names)}")
+    return names[0]
+
+
+def fmi3_wrapper_source(script):
+    """Source of the FMI 3.0 wrapper script of ``script`` (see the module docstring)."""
+    name = slave_class_name(script)
+    body = script.stem + FMI3_BODY_SUFFIX
+    return (f'"""FMI 3.0 twin of the slave script {script.name}, written by '
+            "'agv-cosim build --fmi 3'.\n\n"
+            "pythonfmu3 takes the slave class from a class line naming Fmi3Slave; the class\n"
+            f"body is {script.name}'s, bundled beside this file as {body}.py, whose\n"
+            "core.fmi_slave is the FMI 3.0 adapter (agv_core/fmi3_slave.py) in this FMU.\n"
+            '"""\n\n'
+            f"from {body} import {name} as _Body, core\n\n\n"
+            f"class {name}(_Body, core.fmi_slave.Fmi3Slave):\n"
+            "    __doc__ = _Body.__doc__\n")
+
+
+def _stage(script, core_dir, boot, tag, guid, stage_dir, fmi_version=2):
+    """Stage the FMU's files; return (the script to build from, the project files)."""
+    if fmi_version == 3:
+        staged_script = stage_dir / f"{script.stem}{FMI3_WRAPPER_SUFFIX}.py"
+        staged_script.write_text(fmi3_wrapper_source(script))
+        shutil.copy2(script, stage_dir / f"{script.stem}{FMI3_BODY_SUFFIX}.py")
+        extra = [stage_dir / f"{script.stem}{FMI3_BODY_SUFFIX}.py"]
+    else:
+        staged_script = stage_dir / script.name
+        shutil.copy2(script, staged_script)
+        extra = []
     shutil.copy2(boot, stage_dir / BOOT_SCRIPT)
     core_copy = stage_dir / "agv_core"
     for path in _core_files(core_dir):
         target = core_copy / path.relative_to(core_dir)
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(path, target)
+    if fmi_version == 3:
+        (core_copy / "fmi_slave.py").write_text(FMI3_ALIAS)
     (core_copy / "BUILD_ID").write_text(tag + "\n")
     python = host_python()
-    (stage_dir / "agv_build.json").write_text(
-        json.dumps({"guid": guid, "core_tag": tag, "script": script.name,
-                    "pythonfmu": pythonfmu.__version__, "build_format": BUILD_FORMAT,
-                    "python": python["executable"], "libpython": python["libpython"]},
-                   indent=1) + "\n")
+    info = {"guid": guid, "core_tag": tag, "script": script.name,
+            "pythonfmu": pythonfmu.__version__, "build_format": BUILD_FORMAT,
+            "python": python["executable"], "libpython": python["libpython"]}
+    if fmi_version == 3:
+        import pythonfmu3
+
+        info.update(fmi_version=3, pythonfmu3=pythonfmu3.__version__)
+    (stage_dir / "agv_build.json").write_text(json.dumps(info, indent=1) + "\n")
     (stage_dir / "requirements.txt").write_text(HOST_REQUIREMENTS)
-    return [core_copy, stage_dir / BOOT_SCRIPT, stage_dir / "agv_build.json",
-            stage_dir / "requirements.txt"]
+    return staged_script, [core_copy, stage_dir / BOOT_SCRIPT, stage_dir / "agv_build.json",
+                           stage_dir / "requirements.txt", *extra]
 
 
-def _validate(fmu_path):
+def _validate(fmu_path, fmi_version=2):
     from fmpy.validation import validate_fmu
 
     problems = validate_fmu(str(fmu_path))
     if problems:
-        raise BuildError(f"{fmu_path.name} is not valid FMI 2.0: " + "; ".join(problems))
+        raise BuildError(f"{fmu_path.name} is not valid FMI {fmi_version}.0: "
+                         + "; ".join(problems))
 
 
-def build_one(script, out_dir, core_dir=None, force=False, index=None):
-    """Build the FMU of one slave script into ``out_dir`` (skipped if up to date)."""
+def _fmi_version_of(fmu_path):
+    """The fmiVersion an existing FMU declares, or None if unreadable."""
+    try:
+        with zipfile.ZipFile(fmu_path) as archive:
+            return ElementTree.fromstring(archive.read("modelDescription.xml")).get(
+                "fmiVersion")
+    except (OSError, KeyError, zipfile.BadZipFile, ElementTree.ParseError):
+        return None
+
+
+def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_version=2):
+    """Build the FMU (FMI ``fmi_version``) of one slave script into ``out_dir``.
+
+    Skipped if up to date. An FMU of the other FMI version of the same name in
+    ``out_dir`` is never replaced (BuildError): the twins go into separate folders.
+    """
+    if fmi_version not in FMI_VERSIONS:
+        raise BuildError(f"FMI version {fmi_version!r}: must be one of "
+                         + ", ".join(map(str, FMI_VERSIONS)))
     script = Path(script).resolve()
     core_dir = Path(core_dir) if core_dir else default_components_dir() / "agv_core"
     boot = default_components_dir() / "slaves" / BOOT_SCRIPT
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     tag = core_tag(core_dir)
-    guid = fmu_guid(script, boot, tag)
+    if fmi_version == 3:
+        tag = fmi3_core_tag(tag)
+    guid = fmu_guid(script, boot, tag, fmi_version)
     index = {} if index is None else index
     known = index.get(script.name)
     if not force and known and fmu_guid_of(out_dir / known) == guid:
@@ -360,26 +464,48 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None):
     with tempfile.TemporaryDirectory(prefix="agv_build_") as tmp:
         stage_dir = Path(tmp) / "stage"
         stage_dir.mkdir()
-        project_files = _stage(script, core_dir, boot, tag, guid, stage_dir)
-        staged_script = stage_dir / script.name
+        staged_script, project_files = _stage(script, core_dir, boot, tag, guid, stage_dir,
+                                              fmi_version)
         saved_path = list(sys.path)
+        own_modules = {script.stem, script.stem + FMI3_WRAPPER_SUFFIX,
+                       script.stem + FMI3_BODY_SUFFIX}
         try:
-            fmu_path = FmuBuilder.build_FMU(
-                staged_script, dest=Path(tmp) / "out", project_files=project_files,
-                needsExecutionTool=True, canGetAndSetFMUstate=True, canSerializeFMUstate=True,
-            )
+            if fmi_version == 3:
+                from pythonfmu3.builder import FmuBuilder as Fmu3Builder
+
+                fmu_path = Fmu3Builder.build_FMU(
+                    staged_script, dest=Path(tmp) / "out", project_files=project_files,
+                    needsExecutionTool=True, canGetAndSetFMUState=True,
+                    canSerializeFMUState=True,
+                    # pythonfmu3 0.3.4 writes another option's value here unless given
+                    canHandleVariableCommunicationStepSize=True,
+                )
+            else:
+                fmu_path = FmuBuilder.build_FMU(
+                    staged_script, dest=Path(tmp) / "out", project_files=project_files,
+                    needsExecutionTool=True, canGetAndSetFMUstate=True,
+                    canSerializeFMUstate=True,
+                )
+        except BuildError:
+            raise
         except Exception as error:  # noqa: BLE001 - pythonfmu raises many kinds
-            raise BuildError(f"{script.name}: pythonfmu build failed: "
+            tool = "pythonfmu3" if fmi_version == 3 else "pythonfmu"
+            raise BuildError(f"{script.name}: {tool} build failed: "
                              f"{type(error).__name__}: {error}") from error
         finally:
             sys.path[:] = saved_path
             for module in [m for m in sys.modules
-                           if m == script.stem or m.startswith("agv_core_")]:
+                           if m in own_modules or m.startswith("agv_core_")]:
                 del sys.modules[module]
-        _install_loader(fmu_path, loader_binary())
-        _validate(fmu_path)
+        if fmi_version == 2:
+            _install_loader(fmu_path, loader_binary())
+        _validate(fmu_path, fmi_version)
         _ship_reference(fmu_path)
         target = out_dir / fmu_path.name
+        other = _fmi_version_of(target) if target.exists() else None
+        if other is not None and other != f"{fmi_version}.0":
+            raise BuildError(f"'{target}' is an FMI {other} FMU; build the FMI "
+                             f"{fmi_version}.0 twins into another folder")
         partial = target.with_suffix(".fmu.partial")
         shutil.copy2(fmu_path, partial)
         partial.replace(target)
@@ -387,8 +513,11 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None):
     return BuildResult(script, target, guid, rebuilt=True)
 
 
-def build_fmus(out_dir, scripts=None, force=False):
-    """Build every slave script (or ``scripts``) into ``out_dir``; return the results."""
+def build_fmus(out_dir, scripts=None, force=False, fmi_version=2):
+    """Build every slave script (or ``scripts``) into ``out_dir``; return the results.
+
+    ``fmi_version`` 3 builds the FMI 3.0 twins (see the module docstring).
+    """
     out_dir = Path(out_dir)
     scripts = slave_scripts(default_components_dir()) if scripts is None else scripts
     index_path = out_dir / INDEX_FILE
@@ -399,7 +528,8 @@ def build_fmus(out_dir, scripts=None, force=False):
     results = []
     try:
         for script in scripts:
-            results.append(build_one(script, out_dir, force=force, index=index))
+            results.append(build_one(script, out_dir, force=force, index=index,
+                                     fmi_version=fmi_version))
     finally:
         out_dir.mkdir(parents=True, exist_ok=True)
         index_path.write_text(json.dumps(index, indent=1, sort_keys=True) + "\n")

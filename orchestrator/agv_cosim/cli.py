@@ -26,7 +26,7 @@ def _cmd_build(args):
     from .build import BuildError, build_fmus
 
     try:
-        results = build_fmus(args.out, force=args.force)
+        results = build_fmus(args.out, force=args.force, fmi_version=args.fmi)
     except BuildError as error:
         print(f"agv-cosim build: error: {error}", file=sys.stderr)
         return 1
@@ -118,6 +118,9 @@ def make_parser():
                            parents=[debug])
     build.add_argument("--out", default="fmus", help="output folder (default: fmus)")
     build.add_argument("--force", action="store_true", help="rebuild every FMU")
+    build.add_argument("--fmi", type=int, choices=(2, 3), default=2,
+                       help="FMI version of the FMUs: 2 (default) or 3 (the FMI 3.0 twins, "
+                            "built with pythonfmu3; need a host with Python)")
     build.set_defaults(func=_cmd_build)
 
     selection = argparse.ArgumentParser(add_help=False)

@@ -1,0 +1,178 @@
+"""The thin FMI 3.0 co-simulation adapter of the agv-cosim FMUs' FMI 3.0 twins (pythonfmu3).
+
+The slave scripts are written once, against the FMI 2.0 adapter's interface
+(:mod:`agv_core.fmi_slave`): ``input`` / ``output`` / ``parameter`` declarations with
+units, descriptions and direct dependencies, and the hooks ``make_core``, ``advance`` and
+``publish``. This module offers the same interface on pythonfmu3's ``Fmi3Slave``, so the
+same slave class body runs as an FMI 3.0 co-simulation FMU:
+
+- ``Real`` is ``Float64`` and ``Integer`` is ``Int32``; ``Boolean`` and ``String`` keep
+  their names. Real inputs are continuous, other inputs and outputs discrete, parameters
+  fixed.
+- The FMU's ``agv_core`` bundle carries this module also under the name ``fmi_slave``
+  (``agv-cosim build --fmi 3`` writes that alias), so ``core.fmi_slave.AgvSlave`` in a
+  slave script and ``from .fmi_slave import AgvSlave`` in ``actuator_fmi`` /
+  ``tracking_fmi`` resolve to the class below; the FMI 2.0 adapter is not in FMI 3.0
+  FMUs.
+- FMI 3.0's independent variable ``time`` [s] is the adapter's clock ``self.time``.
+- The model description gets what pythonfmu3 does not write by itself: the unit
+  definitions and ``unit`` of every Float64, output ``dependencies`` (value references of
+  the inputs an output depends on directly, empty when none), a deterministic header
+  (no clock, ``instantiationToken`` from ``resources/agv_build.json``) and
+  ``reference_inputs`` as an ``org.agv-cosim`` annotation.
+- The behaviour is the FMI 2.0 adapter's: the core is built at
+  ``fmi3ExitInitializationMode``, outputs read in initialisation mode come from a
+  provisional core, feedthrough outputs are re-published lazily after an input was set,
+  state save/restore covers the variables and the core's ``get_state()``. Outputs are
+  therefore bit-identical to the FMI 2.0 twin's (tests/test_fmi3.py).
+
+The behaviour shared with the FMI 2.0 adapter, including the compensation for the
+wrappers' double release of a failed slave (pythonfmu3 0.3.4 has pythonfmu 0.7's), is in
+:mod:`agv_core.slave_base`. pythonfmu3's exit-time defect
+(also pythonfmu 0.7's) is avoided in Python hosts by an ``atexit`` hook (see
+``_finalize_wrappers``).
+"""
+
+import atexit
+import ctypes
+import os
+import sys
+from pathlib import Path
+from xml.etree.ElementTree import Element
+
+from pythonfmu3 import Boolean, Fmi3Causality, Fmi3Slave, Fmi3Variability, Float64, Int32, String
+from pythonfmu3.default_experiment import DefaultExperiment
+from pythonfmu3.enums import Fmi3Status
+
+from .slave_base import BUILD_INFO, REFERENCE_TOOL, SlaveLogic
+
+#: The FMI 2.0 adapter's type names, for slave scripts written against it.
+Real = Float64
+Integer = Int32
+
+# pythonfmu3 0.3.4's library has pythonfmu 0.7's exit-time defect: at process exit C++
+# static destruction destroys its global shared_ptr<PyState>, then the library's unload
+# hook (finalizePythonInterpreter) assigns to the destroyed pointer and releases its freed
+# control block again (valgrind: invalid read in finalizePythonInterpreter from
+# _dl_call_fini; 2 of 30 fmpy processes aborted with "corrupted double-linked list").
+# In a Python host the adapter calls that hook itself from Python's atexit, while the
+# pointer is alive: it is then empty when the static destructor and the unload hook run.
+# The library handle kept here also keeps the library loaded until process exit, so a
+# host's dlclose cannot run the faulty unload earlier. Library path -> ctypes handle.
+_WRAPPERS_TO_FINALIZE = {}
+
+
+def _finalize_wrappers():
+    for library in _WRAPPERS_TO_FINALIZE.values():
+        library.finalizePythonInterpreter()
+
+
+def _finalize_at_exit(resources, identifier):
+    """Register the FMU's loaded pythonfmu3 library (if any) for ``_finalize_wrappers``."""
+    if not sys.platform.startswith("linux"):
+        return
+    path = str(Path(resources).parent / "binaries" / "x86_64-linux" / f"{identifier}.so")
+    if path in _WRAPPERS_TO_FINALIZE:
+        return
+    try:  # only a library the host has loaded (not at build time)
+        library = ctypes.CDLL(path, mode=os.RTLD_NOLOAD | os.RTLD_NOW)
+        library.finalizePythonInterpreter.restype = None
+    except (OSError, AttributeError):
+        return
+    if not _WRAPPERS_TO_FINALIZE:
+        atexit.register(_finalize_wrappers)
+    _WRAPPERS_TO_FINALIZE[path] = library
+
+
+__all__ = ["AgvSlave", "BUILD_INFO", "Boolean", "DefaultExperiment", "Fmi3Slave", "Float64",
+           "Int32", "Integer", "REFERENCE_TOOL", "Real", "String"]
+
+
+class AgvSlave(SlaveLogic, Fmi3Slave):
+    """Base class of every agv-cosim FMI 3.0 slave (see the module docstring and SlaveLogic)."""
+
+    _TOOL = "pythonfmu3"
+    _REAL = Float64
+    _PYTYPE = {Float64: float, Int32: int, Boolean: bool, String: str}
+    _INPUT, _OUTPUT, _PARAMETER = (Fmi3Causality.input, Fmi3Causality.output,
+                                   Fmi3Causality.parameter)
+    _CONTINUOUS, _DISCRETE, _FIXED, _TUNABLE = (
+        Fmi3Variability.continuous, Fmi3Variability.discrete, Fmi3Variability.fixed,
+        Fmi3Variability.tunable)
+    _ERROR = Fmi3Status.error
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        # pythonfmu3 sets these on the instance (None); the class attributes say them.
+        for name in ("author", "license", "version", "description", "default_experiment"):
+            setattr(self, name, getattr(type(self), name))
+        # FMI 3.0 wants its one independent variable declared: the adapter's own clock.
+        self._units["time"] = "s"
+        self.register_variable(Float64("time", causality=Fmi3Causality.independent,
+                                       variability=Fmi3Variability.continuous,
+                                       description="Simulation time", unit="s"))
+        if self.resources is not None:
+            _finalize_at_exit(self.resources, self.modelName)
+
+    def _variable(self, kind, name, causality, variability, description, unit):
+        extra = {"unit": unit} if kind is Float64 else {}
+        return kind(name, causality=causality, variability=variability,
+                    description=description, **extra)
+
+    # ------------------------------------------------------------------ FMI calls
+    def set_float64(self, vrs, values):
+        self._inputs_set(super().set_float64, vrs, values)
+
+    def set_int32(self, vrs, values):
+        self._inputs_set(super().set_int32, vrs, values)
+
+    def set_boolean(self, vrs, values):
+        self._inputs_set(super().set_boolean, vrs, values)
+
+    def set_string(self, vrs, values):
+        self._inputs_set(super().set_string, vrs, values)
+
+    def get_float64(self, vrs):
+        self._fresh_outputs()
+        return self._guarded(super().get_float64, vrs)
+
+    # a feedthrough output of any type is recomputed after a set, as in the FMI 2.0 twin
+    def get_int32(self, vrs):
+        self._fresh_outputs()
+        return self._guarded(super().get_int32, vrs)
+
+    def get_boolean(self, vrs):
+        self._fresh_outputs()
+        return self._guarded(super().get_boolean, vrs)
+
+    def get_string(self, vrs):
+        self._fresh_outputs()
+        return self._guarded(super().get_string, vrs)
+
+    # ------------------------------------------------------------------ model description
+    def to_xml(self, model_options=None):
+        root = super().to_xml(model_options or {})
+        root.attrib.pop("generationDateAndTime", None)  # a rebuild must not differ by clock
+        info = self._build_info()
+        if info is not None:
+            root.set("instantiationToken", info["guid"])
+        self._insert_unit_definitions(root)
+        for node in root.find("ModelVariables"):
+            if node.tag == "Float64" and node.get("start") is not None:
+                # pythonfmu3 writes 16 significant digits, which do not round-trip every
+                # double (radians(112)): write repr's shortest exact form, so a host that
+                # writes the start value back sets the value the FMU uses.
+                node.set("start", repr(float(getattr(self, node.get("name")))))
+        reference = {v.name: v.value_reference for v in self.vars.values()}
+        for unknown in root.find("ModelStructure").iterfind("Output"):
+            name = self.vars[int(unknown.get("valueReference"))].name
+            unknown.set("dependencies",
+                        " ".join(str(reference[d]) for d in self._dependencies[name]))
+        table = self._reference_inputs_element()
+        if table is not None:  # an annotation (the build reads it), last in FMI 3.0
+            annotation = Element("Annotation", type=REFERENCE_TOOL)
+            annotation.append(table)
+            annotations = Element("Annotations")
+            annotations.append(annotation)
+            root.append(annotations)
+        return root

@@ -1,0 +1,308 @@
+"""The FMI-version-independent half of the FMU slave adapters.
+
+:mod:`agv_core.fmi_slave` (FMI 2.0, pythonfmu) and :mod:`agv_core.fmi3_slave` (FMI 3.0,
+pythonfmu3) each define ``AgvSlave`` as ``SlaveLogic`` plus their library's slave class.
+Everything a slave script sees is here: the ``input`` / ``output`` / ``parameter``
+declarations, the hooks ``make_core`` / ``advance`` / ``publish``, initialisation,
+stepping, lazy re-publication of feedthrough outputs, state save/restore, and the parts
+of the model description both versions share (unit definitions, reference inputs). An
+adapter supplies its variable types, enums and status values as class attributes, its
+typed get/set methods (which call ``_fresh_outputs`` / ``_inputs_set``), and the rest of
+``to_xml``. This module imports no FMI library, so it is bundled in both kinds of FMU.
+"""
+
+import json
+import math
+from pathlib import Path
+from xml.etree.ElementTree import Element, SubElement
+
+from . import __version__
+from .errors import ParameterError
+from .units import base_unit_attributes
+
+#: Name of the build-info file the build writes into every FMU's ``resources/``.
+BUILD_INFO = "agv_build.json"
+
+#: Tool name (FMI 2.0) / annotation type (FMI 3.0) that carries ``reference_inputs``.
+REFERENCE_TOOL = "org.agv-cosim"
+
+# pythonfmu 0.7 and pythonfmu3 0.3.4: when a Python exception escapes a slave method, the
+# C++ handler releases the slave's class, instance and log queue (cleanPyObject) without
+# forgetting them, and FreeInstance releases the same three again. Before any exception
+# leaves an adapter one extra reference to each is kept here, so the second release
+# cannot free live objects (a failed instance is then never freed: a small leak instead
+# of a corrupted heap). This balances the double release visible in the wrappers'
+# sources. A host that runs several failing instances of one FMU can still see its heap
+# damaged (measured with PYTHONMALLOC=debug, cause not located), which is why the
+# orchestrator runs every simulation in a child process of its own (agv_cosim/runner.py).
+_KEPT_FOR_PYTHONFMU = []
+
+
+class SlaveLogic:
+    """The adapters' common behaviour (see the module docstring).
+
+    Subclasses (the adapters' ``AgvSlave``) set the class attributes below the line
+    "supplied by the adapter". Slave classes set ``description``, ``default_experiment``
+    (a ``DefaultExperiment`` with start, stop and step: the FMU's reference experiment)
+    and, if the experiment drives inputs, ``reference_inputs``: input name -> breakpoints
+    ``((t0, value0), (t1, value1), ...)``, each value held from its time on (the first
+    time is the start time; inputs not named keep their start values). The build runs
+    the experiment and ships its result in the FMU (fmi-ls-ref, see agv_cosim.build).
+    """
+
+    author = "agv-cosim"
+    license = "MIT"
+    version = __version__
+    description = None
+    default_experiment = None
+    reference_inputs = {}
+
+    # supplied by the adapter
+    #: the wrapper library's name, for messages
+    _TOOL = None
+    #: the Real (FMI 2.0) / Float64 (FMI 3.0) variable class, which needs a unit
+    _REAL = None
+    #: variable class -> Python type of its value
+    _PYTYPE = {}
+    #: causality and variability enum members
+    _INPUT = _OUTPUT = _PARAMETER = _CONTINUOUS = _DISCRETE = _FIXED = _TUNABLE = None
+    #: status of a logged error
+    _ERROR = None
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self._units = {}
+        self._dependencies = {}
+        self._input_names = []
+        self._output_names = []
+        self._parameter_names = []
+        self._stale = False
+        self._initializing = False
+        self.core = None
+        self.time = 0.0
+        self._check_bundle()
+
+    def _check_bundle(self):
+        """Refuse to run another build's slave code in this FMU's name.
+
+        pythonfmu imports a slave module once per process by file name, so a second FMU
+        with the same slave script but other sources would silently run the first one's
+        code. The package this class came from is named ``agv_core_<tag>`` by the boot
+        loader; the FMU's own bundle says its tag in ``agv_core/BUILD_ID``.
+        """
+        if self.resources is None:
+            return
+        build_id = Path(self.resources) / "agv_core" / "BUILD_ID"
+        package = __name__.rpartition(".")[0]
+        if not build_id.is_file() or not package.startswith("agv_core_"):
+            return
+        bundled = "agv_core_" + build_id.read_text().strip()
+        if bundled != package:
+            raise RuntimeError(
+                f"{type(self).__name__}: this FMU bundles {bundled}, but this process "
+                f"already runs {type(self).__name__} from another build ({package}); "
+                f"{self._TOOL} loads one slave module per name per process")
+
+    # ------------------------------------------------------------------ declaration
+    def _variable(self, kind, name, causality, variability, description, unit):
+        """The adapter's variable object (override where the library takes a unit)."""
+        return kind(name, causality=causality, variability=variability,
+                    description=description)
+
+    def _declare(self, kind, name, causality, variability, start, unit, description):
+        if kind not in self._PYTYPE:
+            raise ValueError(f"variable '{name}': unsupported kind {kind!r}")
+        if not description:
+            raise ValueError(f"variable '{name}' needs a description")
+        if kind is self._REAL and unit is None:
+            raise ValueError(f"{kind.__name__} variable '{name}' needs a unit")
+        if unit is not None:
+            base_unit_attributes(unit)  # KeyError for an undefined unit
+            self._units[name] = unit
+        setattr(self, name, self._PYTYPE[kind](start))
+        self.register_variable(self._variable(kind, name, causality, variability,
+                                              description, unit))
+
+    def input(self, name, start, unit, description, kind=None):
+        """Declare an input (a continuous Real by default) with its start value."""
+        kind = kind or self._REAL
+        variability = self._CONTINUOUS if kind is self._REAL else self._DISCRETE
+        self._declare(kind, name, self._INPUT, variability, start, unit, description)
+        self._input_names.append(name)
+
+    def output(self, name, unit, description, depends_on=(), kind=None, start=0.0):
+        """Declare an output; ``depends_on`` names the inputs it depends on directly."""
+        kind = kind or self._REAL
+        unknown = [d for d in depends_on if d not in self._input_names]
+        if unknown:
+            raise ValueError(f"output '{name}' depends on undeclared inputs {unknown}")
+        variability = self._CONTINUOUS if kind is self._REAL else self._DISCRETE
+        self._declare(kind, name, self._OUTPUT, variability, start, unit, description)
+        self._output_names.append(name)
+        self._dependencies[name] = tuple(depends_on)
+
+    def parameter(self, name, start, unit, description, kind=None, tunable=False):
+        """Declare a parameter: fixed (set before initialisation, then constant), or
+        ``tunable`` (a master may change it between steps; the slave reads the attribute
+        in ``advance``/``publish``, the core is not rebuilt)."""
+        kind = kind or self._REAL
+        variability = self._TUNABLE if tunable else self._FIXED
+        self._declare(kind, name, self._PARAMETER, variability, start, unit, description)
+        self._parameter_names.append(name)
+
+    # ------------------------------------------------------------------ hooks
+    def make_core(self):
+        """Build the core from the parameters (override)."""
+        raise NotImplementedError
+
+    def advance(self, t, h):
+        """Advance the core from ``t`` to ``t + h`` (override)."""
+        raise NotImplementedError
+
+    def publish(self):
+        """Copy the core's outputs onto the output attributes (override)."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ FMI calls
+    def setup_experiment(self, start_time, stop_time=None, tolerance=None):
+        self.time = float(start_time)
+
+    def enter_initialization_mode(self):
+        self._initializing = True
+
+    def exit_initialization_mode(self):
+        self._initializing = False
+        try:
+            self.core = self.make_core()
+            self.publish()
+        except ParameterError as error:
+            self._fail(str(error))
+        except Exception as error:  # noqa: BLE001 - reported to the host, then re-raised
+            self._fail(f"initialisation failed: {type(error).__name__}: {error}")
+        self._stale = False
+
+    def do_step(self, current_time, step_size):
+        try:
+            self.advance(float(current_time), float(step_size))
+            self.time = float(current_time) + float(step_size)
+            self.publish()
+        except Exception as error:  # noqa: BLE001 - reported to the host, then re-raised
+            self._fail(f"step at t={current_time:.9g} s failed: {type(error).__name__}: {error}")
+        self._stale = False
+        return True
+
+    def _guarded(self, call, *args):
+        try:
+            return call(*args)
+        except Exception:
+            self._keep_for_pythonfmu()
+            raise
+
+    def _inputs_set(self, setter, vrs, values):
+        """Call the library's ``setter``; outputs are re-published before the next read."""
+        self._guarded(setter, vrs, values)
+        self._stale = True
+
+    def _fresh_outputs(self):
+        """Make the outputs current before a read (called by the adapter's getters)."""
+        if self.core is None and self._initializing:
+            self._initial_outputs()
+        elif self._stale and self.core is not None:
+            self._guarded(self.publish)
+            self._stale = False
+
+    def _initial_outputs(self):
+        """Outputs in initialisation mode, from the parameters and inputs set so far.
+
+        FMI lets a master read outputs (the InitialUnknowns) before leaving
+        initialisation mode, and masters that propagate values then (libcosim) do. A
+        provisional core is built for the reading and dropped: the core that runs is
+        built at exit from the final parameters. Invalid parameters leave the start
+        values (the error is reported at exit, naming the parameter).
+        """
+        try:
+            self.core = self.make_core()
+            self.publish()
+        except Exception:  # noqa: BLE001 - reported by exit_initialization_mode
+            pass
+        finally:
+            self.core = None
+
+    def _fail(self, message):
+        text = f"{self.modelName} '{self.instance_name}': {message}"
+        self.log(text, self._ERROR)
+        self._keep_for_pythonfmu()
+        raise RuntimeError(text)
+
+    def _keep_for_pythonfmu(self):
+        """Balance the wrapper's double release before an exception leaves (see above)."""
+        _KEPT_FOR_PYTHONFMU.extend((type(self), self, self.log_queue))
+
+    # ------------------------------------------------------------------ state
+    def _get_fmu_state(self):
+        variables = {v.name: v.getter() for v in self.vars.values()}
+        core_state = self.core.get_state() if self.core is not None else None
+        return {"variables": variables, "time": self.time, "core": core_state}
+
+    def _set_fmu_state(self, state):
+        self._guarded(self._restore, state)
+
+    def _restore(self, state):
+        for name, value in state["variables"].items():
+            setattr(self, name, value)
+        self.time = state["time"]
+        if state["core"] is not None:
+            if self.core is None:
+                self.core = self.make_core()
+            self.core.set_state(state["core"])
+        self._stale = False
+
+    # ------------------------------------------------------------------ model description
+    def _build_info(self):
+        if self.resources is None:
+            return None
+        path = Path(self.resources) / BUILD_INFO
+        if not path.is_file():
+            return None
+        return json.loads(path.read_text())
+
+    def _insert_unit_definitions(self, root):
+        """Put ``<UnitDefinitions>`` of the units used right after ``<CoSimulation>``."""
+        used = sorted(set(self._units.values()))
+        if not used:
+            return
+        unit_defs = Element("UnitDefinitions")
+        for unit in used:
+            node = SubElement(unit_defs, "Unit", name=unit)
+            attributes = base_unit_attributes(unit)
+            if attributes:
+                SubElement(node, "BaseUnit", attributes)
+        root.insert(list(root).index(root.find("CoSimulation")) + 1, unit_defs)
+
+    def _reference_inputs_element(self):
+        """``<ReferenceInputs>`` of ``reference_inputs`` (None if there are none)."""
+        if not self.reference_inputs:
+            return None
+        experiment = type(self).default_experiment  # the libraries set an instance None
+        if experiment is None:
+            raise ValueError("reference_inputs need a default_experiment")
+        table = Element("ReferenceInputs")
+        for name, breakpoints in self.reference_inputs.items():
+            if name not in self._input_names:
+                raise ValueError(f"reference_inputs: '{name}' is not an input")
+            times = [float(t) for t, _ in breakpoints]
+            if not times or times[0] != float(experiment.start_time) or times != sorted(
+                    set(times)):
+                raise ValueError(f"reference_inputs['{name}']: times must rise strictly "
+                                 "from the start time")
+            node = SubElement(table, "Input", name=name)
+            for t, value in breakpoints:
+                SubElement(node, "Hold", time=repr(float(t)), value=repr(float(value)))
+        return table
+
+    # ------------------------------------------------------------------ helpers
+    def finite_or_fail(self, **values):
+        """Raise naming the first non-finite value among ``values`` (name=value)."""
+        for name, value in values.items():
+            if not math.isfinite(value):
+                raise FloatingPointError(f"'{name}' became {value}")
