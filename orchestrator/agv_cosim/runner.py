@@ -148,9 +148,10 @@ def run_job(job, run_dir, progress=None):
     values, metrics_error = {}, None
     if job.metrics_spec and rows:
         try:
-            t, signals = read_timeseries(run_dir / "timeseries.csv")
-            values = dict(metrics.compute_metrics(t, signals, job.metrics_spec,
-                                                  base_dir=Path(job.manifest_path).parent))
+            # streamed from the file in chunks: memory does not grow with the run's length
+            values = dict(metrics.compute_metrics_csv(run_dir / "timeseries.csv",
+                                                      job.metrics_spec,
+                                                      base_dir=Path(job.manifest_path).parent))
         except Exception as failure:  # noqa: BLE001 - reported in run.json
             metrics_error = f"{type(failure).__name__}: {failure}"
     return _finish(job, run_dir, rows, status, error, wall, values, metrics_error)
