@@ -30,6 +30,21 @@ Every key is optional; a figure is written only when its key is present.
 
 Runs marked ``partial`` (stopped early) are drawn dashed and labelled ``"<label> (partial)"``.
 
+Long runs
+---------
+A line is drawn from a bounded number of points, whatever the run's length (M4
+aggregation: Jugel et al., "M4: a visualization-oriented time series data aggregation",
+VLDB 2014). Its samples are cut into consecutive buckets and each bucket keeps its first
+and last sample and those of its minimum and maximum (for the trajectory: of x and of y),
+in their order. A signal line has 2 buckets per pixel column of the figure's width (8 in x
+``dpi``), so each column still spans the same minimum and maximum and peaks stay visible;
+the trajectory has 8 buckets per column, so that on a curve of radius R the chord between
+kept points (length c) leaves the arc by c^2 / (8 R), below a pixel for any path the
+experiments drive. A line with no more samples than its buckets would keep is drawn
+whole, as before (every existing experiment's run: at most 7 201 rows, while a signal
+line at 120 dpi keeps up to 7 680 points). :func:`read_run` reads a ``timeseries.csv`` in
+chunks into these points, so the plotting process never holds a run's time series.
+
 Complete example::
 
     [plots]
@@ -56,6 +71,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from .metrics import check_signal_name
+from .results import CHUNK_ROWS, count_rows, iter_timeseries, timeseries_columns
 
 #: File names of the figures (stable, so that a rerun overwrites them).
 SIGNALS_FILE = "signals.png"
@@ -68,6 +84,11 @@ _TRAJECTORY_KEYS = ("x", "y", "path")
 _PATH_POINTS = 2000
 #: Points per run projected onto an unbounded path to find the stretch to draw.
 _PROJECTED_POINTS = 400
+#: Width [in] of every figure.
+_WIDTH = 8.0
+#: Buckets per pixel column of the figure's width: signal lines, trajectory.
+_SIGNAL_BUCKETS_PER_COLUMN = 2
+_TRAJECTORY_BUCKETS_PER_COLUMN = 8
 
 
 @dataclass
@@ -84,12 +105,17 @@ class RunData:
         Recorded signals by name ``"component.variable"``, each of shape (n,).
     partial : bool
         True when the run stopped before its stop time (drawn dashed).
+    lines : dict, optional
+        The lines already decimated, ``(x name, y name) -> (x, y)`` arrays (x name
+        ``"time"`` for the time), as :func:`read_run` gives them; when set, ``time`` and
+        ``signals`` are not used.
     """
 
     label: str
     time: np.ndarray
     signals: dict = field(default_factory=dict)
     partial: bool = False
+    lines: dict | None = None
 
 
 # --------------------------------------------------------------------------- validation
@@ -183,7 +209,160 @@ def referenced_signals(spec):
     return list(dict.fromkeys(names))
 
 
+# --------------------------------------------------------------------------- decimation
+
+class Decimator:
+    """M4 decimation of one line (x, y) whose ``n`` samples arrive in chunks.
+
+    The samples are cut into consecutive buckets of ``ceil(n / buckets)``; each bucket keeps
+    its first and last sample and the first sample of its minimum and of its maximum of y
+    (``both``: also of x), in their order. Fed in any chunks, the result is the one of the
+    whole arrays: a bucket split by a chunk boundary carries only its kept samples over
+    (the extremes of a union are among the extremes of its parts, the earlier one on a
+    tie). When ``n`` is at most the points the buckets would keep, every sample is kept.
+
+    Parameters
+    ----------
+    n : int
+        Samples that will be fed.
+    buckets : int
+        Number of buckets (>= 1).
+    both : bool
+        Keep the extremes of x too (an x-y trajectory).
+    """
+
+    def __init__(self, n, buckets, both=False):
+        self.both = both
+        self.size = 1 if n <= (6 if both else 4) * buckets else -(-n // buckets)
+        self.row = 0
+        self._carry = None
+        self._x, self._y = [], []
+
+    def _extremes(self, x, y):
+        keys = [0, x.size - 1, int(np.argmin(y)), int(np.argmax(y))]
+        if self.both:
+            keys += [int(np.argmin(x)), int(np.argmax(x))]
+        index = np.unique(keys)
+        return x[index], y[index]
+
+    def add(self, x, y):
+        """Feed the next samples (1-D arrays of equal length)."""
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        if self.size == 1:
+            self._x.append(x)
+            self._y.append(y)
+            self.row += x.size
+            return
+        pos = 0
+        while pos < x.size:
+            end = (self.row // self.size + 1) * self.size
+            take = min(x.size - pos, end - self.row)
+            bx, by = x[pos:pos + take], y[pos:pos + take]
+            if self._carry is not None:
+                bx, by = np.concatenate((self._carry[0], bx)), np.concatenate((self._carry[1], by))
+            pos += take
+            self.row += take
+            self._carry = self._extremes(bx, by)
+            if self.row == end:
+                self._flush()
+
+    def _flush(self):
+        if self._carry is not None:
+            self._x.append(self._carry[0])
+            self._y.append(self._carry[1])
+            self._carry = None
+
+    def result(self):
+        """(x, y) of the kept samples."""
+        self._flush()
+        if not self._x:
+            return np.empty(0), np.empty(0)
+        if len(self._x) == 1:
+            return self._x[0], self._y[0]
+        return np.concatenate(self._x), np.concatenate(self._y)
+
+
+def _buckets(spec, trajectory=False):
+    per_column = _TRAJECTORY_BUCKETS_PER_COLUMN if trajectory else _SIGNAL_BUCKETS_PER_COLUMN
+    return per_column * int(round(_WIDTH * spec["dpi"]))
+
+
+def _line_specs(spec):
+    """The lines the figures draw: (x name, y name, x key, y key, is trajectory)."""
+    lines = [(spec["x"], name, "x", f"signals[{i}]", False)
+             for i, name in enumerate(spec.get("signals", []))]
+    if "trajectory" in spec:
+        traj = spec["trajectory"]
+        lines.append((traj["x"], traj["y"], "trajectory.x", "trajectory.y", True))
+    return lines
+
+
+def read_run(path, spec, label, *, partial=False, rows=None, chunk_rows=None):
+    """The lines of one run's ``timeseries.csv`` as the ``[plots]`` table draws them,
+    read in chunks of ``chunk_rows`` rows and decimated (see "Long runs").
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The run's ``timeseries.csv``.
+    spec : dict
+        The ``[plots]`` table.
+    label : str
+        Legend label of the run.
+    partial : bool
+        True when the run stopped early (drawn dashed).
+    rows : int, optional
+        Rows of the file, when known (otherwise counted first).
+    chunk_rows : int, optional
+        Rows read at a time (default ``results.CHUNK_ROWS``).
+
+    Returns
+    -------
+    RunData
+        With ``lines`` set; memory bounded by the chunk and the buckets.
+
+    Raises
+    ------
+    ValueError
+        If the file lacks a signal the table names (the message names the key).
+    """
+    spec = _validate(spec)
+    present = set(timeseries_columns(path))
+    lines = _line_specs(spec)
+    for xname, yname, xkey, ykey, _ in lines:
+        for name, key in ((xname, xkey), (yname, ykey)):
+            if name != "time" and name not in present:
+                raise ValueError(f"plots.{key}: run {label!r} has no signal {name!r}")
+    n = count_rows(path) if rows is None else rows
+    chunk_rows = chunk_rows or CHUNK_ROWS
+    decimators = {(x, y): Decimator(n, _buckets(spec, both), both)
+                  for x, y, _, _, both in lines}
+    names = list(dict.fromkeys(name for x, y, *_ in lines for name in (x, y)
+                               if name != "time"))
+    for t, signals in iter_timeseries(path, names, chunk_rows):
+        for (x, y), decimator in decimators.items():
+            decimator.add(t if x == "time" else signals[x], signals[y])
+    return RunData(label=label, time=np.empty(0), partial=partial,
+                   lines={key: decimator.result() for key, decimator in decimators.items()})
+
+
 # --------------------------------------------------------------------------- drawing
+
+def _line(run, xname, yname, xkey, ykey, buckets, both=False):
+    """(x, y) of one line of ``run``, decimated to ``buckets``."""
+    if run.lines is not None:
+        if (xname, yname) not in run.lines:
+            raise ValueError(f"plots.{ykey}: run {run.label!r} was read without the line "
+                             f"{yname!r} against {xname!r}")
+        return run.lines[(xname, yname)]
+    x = np.asarray(run.time, dtype=float) if xname == "time" else _values(run, xname, xkey)
+    y = _values(run, yname, ykey)
+    decimator = Decimator(x.size, buckets, both)
+    if decimator.size == 1:
+        return x, y
+    decimator.add(x, y)
+    return decimator.result()
+
 
 def _values(run, name, key):
     if name not in run.signals:
@@ -239,15 +418,13 @@ def signals_figure(runs, spec):
     names = spec["signals"]
     units = dict(spec["units"])
     units.setdefault("time", "s")
-    figure = Figure(figsize=(8.0, 1.0 + 2.0 * len(names)), layout="constrained")
+    figure = Figure(figsize=(_WIDTH, 1.0 + 2.0 * len(names)), layout="constrained")
     axes = figure.subplots(len(names), 1, sharex=True, squeeze=False)[:, 0]
+    buckets = _buckets(spec)
     for run in runs:
-        if spec["x"] == "time":
-            x = np.asarray(run.time, dtype=float)
-        else:
-            x = _values(run, spec["x"], "x")
         for i, (ax, name) in enumerate(zip(axes, names)):
-            ax.plot(x, _values(run, name, f"signals[{i}]"), **_style(run))
+            x, y = _line(run, spec["x"], name, "x", f"signals[{i}]", buckets)
+            ax.plot(x, y, **_style(run))
     for ax, name in zip(axes, names):
         ax.set_ylabel(_label(name, units))
         ax.grid(True, linewidth=0.4, alpha=0.6)
@@ -259,7 +436,11 @@ def signals_figure(runs, spec):
     return figure
 
 
-def _reference_polyline(path, runs, traj):
+def _trajectory(run, traj, buckets):
+    return _line(run, traj["x"], traj["y"], "trajectory.x", "trajectory.y", buckets, True)
+
+
+def _reference_polyline(path, runs, traj, buckets):
     """x, y [m] of the reference ``path`` (a ReferencePath) over the stretch worth drawing."""
     length = float(getattr(path, "length", math.inf))
     if math.isfinite(length):
@@ -268,8 +449,7 @@ def _reference_polyline(path, runs, traj):
         # unbounded path: from its start to the furthest projection of any run's point
         s1 = 0.0
         for run in runs:
-            x = _values(run, traj["x"], "trajectory.x")
-            y = _values(run, traj["y"], "trajectory.y")
+            x, y = _trajectory(run, traj, buckets)
             keep = np.isfinite(x) & np.isfinite(y)
             x, y = x[keep], y[keep]
             step = max(1, len(x) // _PROJECTED_POINTS)
@@ -306,16 +486,17 @@ def trajectory_figure(runs, spec, geometry=None):
         raise ValueError("plots.trajectory: missing")
     traj = spec["trajectory"]
     units = spec["units"]
-    figure = Figure(figsize=(8.0, 6.0), layout="constrained")
+    buckets = _buckets(spec, trajectory=True)
+    figure = Figure(figsize=(_WIDTH, 6.0), layout="constrained")
     ax = figure.add_subplot()
     if geometry is not None:
-        polyline = _reference_polyline(geometry, runs, traj)
+        polyline = _reference_polyline(geometry, runs, traj, buckets)
         if polyline is not None:
             ax.plot(polyline[0], polyline[1], color="0.55", linewidth=2.5, alpha=0.7,
                     label="reference path", zorder=1)
     for run in runs:
-        ax.plot(_values(run, traj["x"], "trajectory.x"),
-                _values(run, traj["y"], "trajectory.y"), zorder=2, **_style(run))
+        x, y = _trajectory(run, traj, buckets)
+        ax.plot(x, y, zorder=2, **_style(run))
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(_label(traj["x"], units))
     ax.set_ylabel(_label(traj["y"], units))
@@ -359,6 +540,10 @@ def plot_runs(runs, spec, out_dir, *, base_dir=None):
         if not isinstance(run, RunData):
             raise TypeError(f"plot_runs: expected RunData, got {type(run).__name__}")
         # every signal checked before any file is written
+        if run.lines is not None:
+            for xname, yname, xkey, ykey, both in _line_specs(spec):
+                _line(run, xname, yname, xkey, ykey, 1, both)
+            continue
         for i, name in enumerate(spec.get("signals", [])):
             _values(run, name, f"signals[{i}]")
         if spec["x"] != "time" and "signals" in spec:

@@ -34,7 +34,7 @@ from pathlib import Path
 from . import __version__, metrics, plots
 from .manifest import ManifestError, load_manifest, plan_runs, validate
 from .master import Plan, SimulationError, simulate
-from .results import AtomicDir, CsvSink, read_timeseries, write_json, write_summary
+from .results import AtomicDir, CsvSink, count_rows, write_json, write_summary
 
 
 @dataclass
@@ -197,7 +197,7 @@ def _child(job, run_dir, channel, scratch):
 def _died(job, run_dir, exitcode):
     """The summary of a run whose child process died before it reported."""
     csv = Path(run_dir) / "timeseries.csv"
-    rows = max(0, len(csv.read_text().splitlines()) - 1) if csv.is_file() else 0
+    rows = count_rows(csv) if csv.is_file() else 0
     how = f"signal {-exitcode}" if exitcode < 0 else f"exit code {exitcode}"
     error = f"the run's process died ({how}) after {rows} recorded rows"
     Path(run_dir).mkdir(parents=True, exist_ok=True)
@@ -321,13 +321,13 @@ def _plots(manifest, jobs, results, out_dir):
     if not manifest.plots:
         return None
     try:
-        wanted = list(plots.referenced_signals(manifest.plots)) or None
         runs = []
         for job, result in zip(jobs, results):
             if not result["rows"]:
                 continue
-            t, signals = read_timeseries(out_dir / job.label / "timeseries.csv", wanted)
-            runs.append(plots.RunData(label=job.label, time=t, signals=signals,
+            # read in chunks and decimated: the parent never holds a run's time series
+            runs.append(plots.read_run(out_dir / job.label / "timeseries.csv",
+                                       manifest.plots, job.label, rows=result["rows"],
                                        partial=result["status"] != "complete"))
         if runs:
             plots.plot_runs(runs, manifest.plots, out_dir,
