@@ -37,13 +37,15 @@ aggregation: Jugel et al., "M4: a visualization-oriented time series data aggreg
 VLDB 2014). Its samples are cut into consecutive buckets and each bucket keeps its first
 and last sample and those of its minimum and maximum (for the trajectory: of x and of y),
 in their order. A signal line has 2 buckets per pixel column of the figure's width (8 in x
-``dpi``), so each column still spans the same minimum and maximum and peaks stay visible;
-the trajectory has 8 buckets per column, so that on a curve of radius R the chord between
-kept points (length c) leaves the arc by c^2 / (8 R), below a pixel for any path the
-experiments drive. A line with no more samples than its buckets would keep is drawn
-whole, as before (every existing experiment's run: at most 7 201 rows, while a signal
-line at 120 dpi keeps up to 7 680 points). :func:`read_run` reads a ``timeseries.csv`` in
-chunks into these points, so the plotting process never holds a run's time series.
+``dpi``), so each column still spans the same minimum and maximum and peaks stay visible.
+The trajectory has 8 buckets per column; where a bucket covers a length c of a curve of
+radius R, the drawn chord leaves the curve by at most c^2 / (8 R) (1 h at 1 m/s and 120
+dpi: c <= 0.47 m, 5.5 mm on a 5 m radius; much longer runs on tight loops get visibly
+coarser). A line with no more samples than its buckets would keep is drawn whole, as
+before (the plotted runs of the existing experiments have at most 3 001 rows; a signal
+line keeps up to 4 x 2 x 8 x ``dpi`` points, 7 040 at 110 dpi). :func:`read_run` reads a
+``timeseries.csv`` in chunks into these points, so the plotting process never holds a
+run's time series.
 
 Complete example::
 
