@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from agv_cosim.metrics import PairwiseSum, compute_metrics, compute_metrics_csv
-from agv_cosim.results import CsvSink, iter_timeseries, read_timeseries
+from agv_cosim.results import CsvSink, count_rows, iter_timeseries, read_timeseries
 
 SPEC = {
     "lateral_error": "s.e",
@@ -148,3 +148,9 @@ def test_iter_timeseries_concatenates_to_read_timeseries(tmp_path):
     assert np.array_equal(np.concatenate([c[0] for c in chunks]), t_all)
     for name in ("s.e", "v.x"):
         assert np.array_equal(np.concatenate([c[1][name] for c in chunks]), s_all[name])
+    assert count_rows(path) == 101
+    cut = tmp_path / "cut.csv"      # a process that died mid-line: the piece counts as a row
+    cut.write_bytes(path.read_bytes()[:-7])
+    assert count_rows(cut) == 101
+    cut.write_bytes(b"time,a\n")
+    assert count_rows(cut) == 0
