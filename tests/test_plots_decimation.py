@@ -95,3 +95,16 @@ def test_read_run_equals_in_memory_decimation(tmp_path):
     assert len(line.get_ydata()) <= 4 * 160 < n and max(line.get_ydata()) == 7.0
     with pytest.raises(ValueError, match=r"plots\.signals\[1\]: run 'r' has no signal 's\.w'"):
         read_run(tmp_path / "timeseries.csv", {"signals": ["s.e", "s.w"]}, "r")
+
+
+def test_only_figures_with_decimated_lines_are_drawn_in_chunks(tmp_path):
+    from agv_cosim.plots import plot_runs
+
+    long_t, long_y = _signal(5_000)
+    short = RunData("short", long_t[:300], {"s.e": long_y[:300], "s.u": long_y[:300]})
+    long = RunData("long", long_t, {"s.e": long_y, "s.u": -long_y})
+    spec = {"signals": ["s.e", "s.u"], "dpi": 10}
+    assert not getattr(signals_figure([short], spec), "agv_decimated", False)
+    assert signals_figure([short, long], spec).agv_decimated
+    (written,) = plot_runs([short, long], spec, tmp_path)
+    assert written.stat().st_size > 0
