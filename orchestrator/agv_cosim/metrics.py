@@ -1,8 +1,10 @@
 """Path-tracking metrics computed from a run's recorded signals.
 
-The orchestrator calls :func:`compute_metrics` with the run's time grid, its recorded
-signals (named ``"component.variable"``) and the manifest's ``[metrics]`` table, and
-:func:`referenced_signals` beforehand to know what it must record.
+:func:`compute_metrics` takes a run's time grid, its recorded signals (named
+``"component.variable"``) and the manifest's ``[metrics]`` table; the orchestrator calls
+:func:`compute_metrics_csv`, the same computation streamed from the run's
+``timeseries.csv`` (see "Bounded memory"), and :func:`referenced_signals` beforehand to
+know what it must record.
 
 The ``[metrics]`` table
 -----------------------
@@ -97,6 +99,35 @@ For a lateral-error signal e (prefix ``P`` = ``lateral_error`` or ``path_error``
 ``control_rms``; ``saturated_fraction`` [1] = (time with |signal| >= limit - tolerance) / T,
 exact for the piecewise-linear signal; ``saturated_time`` [s] that time; ``duration`` = T [s].
 
+Bounded memory
+--------------
+:func:`compute_metrics` takes whole arrays; :func:`compute_metrics_csv` (what a run uses)
+computes the same result from a ``timeseries.csv`` with memory that does not grow with the
+run's length. It reads the file once in chunks of ``results.CHUNK_ROWS`` rows and spools
+the signals the metrics use (and the path offsets of ``reference``, computed on the way
+with the projection hint carried across chunks) as float64 to anonymous temporary files
+on disk. Everything is then computed from chunks of that spool, each chunk with the
+previous sample prepended so that every piece between two samples is the one of the whole
+signal:
+
+- maxima, the initial error, the overshoot and the last sample outside the settling band
+  are order-free (one pass; the settling time is interpolated from that sample and the
+  next, read back from the spool);
+- every integral (mean, RMS, |e| mean, effort, saturated time) is the sum of the same
+  per-piece terms in the same order as ``numpy.sum`` adds them (:class:`PairwiseSum`
+  walks numpy's pairwise-summation tree, whose shape depends only on the count, known
+  after the first read);
+- quantities that need a value known only at the end take another pass over the spool:
+  the standard deviation (about the mean), the settled window (which starts at the
+  settling time; its interpolated first sample is computed with ``numpy.interp`` on the
+  two samples around it), and the settled standard deviation (a third pass).
+
+So the streamed result equals :func:`compute_metrics` bit for bit (no tolerance), which
+``tests/test_metrics_streaming.py`` checks with chunk boundaries on the settling and
+overshoot samples (and :class:`PairwiseSum` against ``numpy.sum``, so a numpy that changed
+its summation order would be caught there). Memory: a chunk, the per-level partial sums (about log2(n / 128)) and one pending
+block of at most 128 values per sum. Disk: 8 bytes per sample per spooled signal.
+
 Undefined values
 ----------------
 The result never holds NaN or inf: a metric that is undefined is reported as ``None``
@@ -112,6 +143,7 @@ The result never holds NaN or inf: a metric that is undefined is reported as ``N
 """
 
 import math
+import tempfile
 from collections.abc import Mapping
 
 import numpy as np
@@ -263,13 +295,18 @@ def _abs_mean(t, f):
     duration = float(t[-1] - t[0])
     if duration <= 0:
         return None
-    a, b, dt = f[:-1], f[1:], np.diff(t)
+    area = _abs_pieces(f) * np.diff(t)
+    return float(np.sum(area)) / duration
+
+
+def _abs_pieces(f):
+    """Mean of |f| over each linear piece between consecutive samples (exact)."""
+    a, b = f[:-1], f[1:]
     same = a * b >= 0
     with np.errstate(divide="ignore", invalid="ignore"):
         # a linear piece through zero: two triangles, (a^2 + b^2) / (2 |a - b|) * dt
         crossing = (a * a + b * b) / (2.0 * np.abs(a - b))
-    area = np.where(same, 0.5 * (np.abs(a) + np.abs(b)), crossing) * dt
-    return float(np.sum(area)) / duration
+    return np.where(same, 0.5 * (np.abs(a) + np.abs(b)), crossing)
 
 
 def _measure_at_least(a, b, threshold):
@@ -285,9 +322,13 @@ def saturated_time(t, f, threshold):
     """Time [s] during which |f| >= ``threshold`` (> 0), f piecewise linear over ``t``."""
     if len(t) < 2:
         return 0.0
+    return float(np.sum(_saturated_fractions(f, threshold) * np.diff(t)))
+
+
+def _saturated_fractions(f, threshold):
+    """Fraction of each linear piece between consecutive samples where |f| >= threshold."""
     a, b = f[:-1], f[1:]
-    fraction = _measure_at_least(a, b, threshold) + _measure_at_least(-a, -b, threshold)
-    return float(np.sum(fraction * np.diff(t)))
+    return _measure_at_least(a, b, threshold) + _measure_at_least(-a, -b, threshold)
 
 
 def settling_time(t, e, band):
@@ -384,13 +425,17 @@ def path_offsets(path, x, y, base_dir=None):
         Folder that relative file names in ``path`` are relative to.
     """
     geometry = load_path(path, "metrics.reference.path", base_dir)
+    return _offsets(geometry, x, y, None)[0]
+
+
+def _offsets(geometry, x, y, s_hint):
+    """Offsets of (x, y) from ``geometry`` and the last point's arc length (next hint)."""
     offsets = np.empty(len(x))
-    s_hint = None
     for i, (xi, yi) in enumerate(zip(x, y)):
         projection = geometry.project(float(xi), float(yi), s_hint)
         offsets[i] = projection.offset
         s_hint = projection.s
-    return offsets
+    return offsets, s_hint
 
 
 def _clean(metrics):
@@ -499,3 +544,384 @@ def compute_metrics(time, signals, spec, *, base_dir=None):
             duration = result["duration"]
             result["saturated_fraction"] = seconds / duration if duration > 0 else None
     return _clean(result)
+
+
+# --------------------------------------------------------------------------- streaming
+
+class PairwiseSum:
+    """Sum of ``n`` doubles fed in pieces, bit-identical to ``numpy.sum`` of all of them.
+
+    numpy sums a contiguous float64 array pairwise: an array of more than 128 values is
+    split in two at half its length rounded down to a multiple of 8, each half summed the
+    same way, and a block of at most 128 values is summed by a fixed loop. The split
+    points depend only on ``n``, so with ``n`` known in advance the same tree can be
+    walked while the values arrive: each block is summed by ``numpy.sum`` itself when it is
+    complete, and the partial sums are added in the tree's order. State: one pending block
+    (<= 128 values) and one partial sum per tree level (about log2(n / 128)).
+
+    Parameters
+    ----------
+    n : int
+        Number of values that will be fed (>= 0).
+    """
+
+    _BLOCK = 128
+
+    def __init__(self, n):
+        self.n = n
+        self.result = 0.0 if n == 0 else None
+        self._tree = self._walk(n)
+        self._need = next(self._tree) if n else None
+        self._parts, self._have = [], 0
+
+    @classmethod
+    def _walk(cls, n):
+        if n <= cls._BLOCK:
+            block = yield n
+            return np.sum(block)
+        half = n // 2
+        half -= half % 8
+        left = yield from cls._walk(half)
+        right = yield from cls._walk(n - half)
+        return left + right
+
+    def add(self, values):
+        """Feed the next values (1-D array); more than ``n`` in all is an error."""
+        values = np.asarray(values, dtype=float)
+        pos, size = 0, values.size
+        while pos < size:
+            if self._need is None:
+                raise ValueError(f"PairwiseSum: more than {self.n} values")
+            take = min(self._need - self._have, size - pos)
+            self._parts.append(values[pos:pos + take])
+            self._have += take
+            pos += take
+            if self._have == self._need:
+                block = self._parts[0] if len(self._parts) == 1 else np.concatenate(self._parts)
+                self._parts, self._have = [], 0
+                try:
+                    self._need = self._tree.send(block)
+                except StopIteration as done:
+                    self.result, self._need = float(done.value), None
+
+    def total(self):
+        """The sum; an error if fewer than ``n`` values were fed."""
+        if self.result is None:
+            raise ValueError(f"PairwiseSum: fewer than {self.n} values fed")
+        return self.result
+
+
+class _Spool:
+    """Columns of float64 kept on disk (anonymous temporary files), read back in chunks."""
+
+    def __init__(self, chunk_rows):
+        self.chunk_rows = chunk_rows
+        self.files = {}
+        self.rows = 0
+        self.first_time = self.last_time = None
+
+    def append(self, name, values):
+        if name not in self.files:
+            self.files[name] = tempfile.TemporaryFile()
+        np.ascontiguousarray(values, dtype=float).tofile(self.files[name])
+
+    def close(self):
+        for stream in self.files.values():
+            stream.close()
+
+    def chunks(self, name, first=0):
+        """Arrays of at most ``chunk_rows`` values of column ``name`` from row ``first``."""
+        stream = self.files[name]
+        stream.flush()
+        stream.seek(8 * first)
+        while True:
+            values = np.fromfile(stream, dtype=float, count=self.chunk_rows)
+            if values.size == 0:
+                return
+            yield values
+
+    def rows_at(self, name, first, count):
+        """``count`` values of column ``name`` from row ``first``."""
+        stream = self.files[name]
+        stream.flush()
+        stream.seek(8 * first)
+        return np.fromfile(stream, dtype=float, count=count)
+
+
+def _pieces(spool, name, first_row, lead=None):
+    """Chunks of (t, f) with the previous sample prepended, so that the pieces between
+    consecutive samples (``f[1:]``, ``f[:-1]``, ``np.diff(t)``) of each chunk are exactly
+    those of the whole signal; ``lead`` = (t, f) is an extra first sample (a window's
+    interpolated start), rows start at ``first_row``."""
+    previous = lead
+    for t, f in zip(spool.chunks("time", first_row), spool.chunks(name, first_row)):
+        if previous is not None:
+            t = np.concatenate(([previous[0]], t))
+            f = np.concatenate(([previous[1]], f))
+        yield t, f
+        previous = (t[-1], f[-1])
+
+
+def _sums(spool, name, first_row=0, lead=None, *, mean=None, squares=True, absolute=False,
+          threshold=None):
+    """One pass over a signal (rows from ``first_row``, after the sample ``lead``).
+
+    Returns the piecewise sums that the in-memory functions compute with ``np.sum``, each
+    bit-identical: ``"f"`` (trapezoid of f), ``"f2"`` (of f^2), ``"abs"`` (exact |f|),
+    ``"dev2"`` (trapezoid of (f - mean)^2), ``"sat"`` (time at or past ``threshold``), and
+    ``"max_abs"``; ``"duration"`` = last time - first time.
+    """
+    count = spool.rows - first_row + (lead is not None)
+    names = ["f"] + ["f2"] * squares + ["abs"] * absolute + ["dev2"] * (mean is not None) \
+        + ["sat"] * (threshold is not None)
+    sums = {key: PairwiseSum(max(0, count - 1)) for key in names}
+    out = {"max_abs": 0.0 if lead is None else abs(float(lead[1])), "first": None,
+           "last": None}
+    for t, f in _pieces(spool, name, first_row, lead):
+        if out["first"] is None:
+            out["first"] = float(t[0])
+        out["last"] = float(t[-1])
+        dt = np.diff(t)
+        sums["f"].add(0.5 * (f[1:] + f[:-1]) * dt)
+        if squares:
+            g = f * f
+            sums["f2"].add(0.5 * (g[1:] + g[:-1]) * dt)
+        if absolute:
+            sums["abs"].add(_abs_pieces(f) * dt)
+        if mean is not None:
+            d = f - mean
+            g = d * d
+            sums["dev2"].add(0.5 * (g[1:] + g[:-1]) * dt)
+        if threshold is not None:
+            sums["sat"].add(_saturated_fractions(f, threshold) * dt)
+        out["max_abs"] = max(out["max_abs"], float(np.max(np.abs(f))))
+    out.update({key: total.total() for key, total in sums.items()})
+    return out
+
+
+def _time_average(total, duration):
+    return total / duration if duration > 0 else None
+
+
+def _sqrt_or_none(value):
+    return math.sqrt(value) if value is not None else None
+
+
+def _first_after(spool, start):
+    """Index of the first sample with time > ``start`` (``np.searchsorted(side='right')``)."""
+    row = 0
+    for t in spool.chunks("time"):
+        k = int(np.searchsorted(t, start, side="right"))
+        if k < t.size:
+            return row + k
+        row += t.size
+    return row
+
+
+def _window_stats(spool, column, start):
+    """Mean/RMS/std sums of the signal over [start, t_N], its first value interpolated as
+    :func:`_window` does; None when the window is empty."""
+    if start is None or start >= spool.last_time:
+        return None
+    k = _first_after(spool, start)
+    t_pair = spool.rows_at("time", k - 1, 2)
+    f_pair = spool.rows_at(column, k - 1, 2)
+    lead = (start, float(np.interp(start, t_pair, f_pair)))
+    first = _sums(spool, column, k, lead, absolute=True)
+    span = first["last"] - first["first"]
+    mean = _time_average(first["f"], span)
+    std = None
+    if mean is not None:
+        second = _sums(spool, column, k, lead, mean=mean, squares=False)
+        std = math.sqrt(max(0.0, _time_average(second["dev2"], span)))
+    return {"max": first["max_abs"], "mean": _time_average(first["abs"], span),
+            "rms": _sqrt_or_none(_time_average(first["f2"], span)),
+            "signed_mean": mean, "std": std}
+
+
+def _lateral_stream(prefix, spool, column, band, settle_after):
+    """:func:`_lateral_metrics` of a spooled signal, bit for bit."""
+    first = _sums(spool, column, absolute=True)
+    duration = spool.last_time - spool.first_time
+    out = {f"{prefix}_max": first["max_abs"],
+           f"{prefix}_mean": _time_average(first["abs"], duration),
+           f"{prefix}_rms": _sqrt_or_none(_time_average(first["f2"], duration))}
+    mean = _time_average(first["f"], duration)
+    std = None
+    if mean is not None:
+        second = _sums(spool, column, mean=mean, squares=False)
+        std = math.sqrt(max(0.0, _time_average(second["dev2"], duration)))
+    out[f"{prefix}_signed_mean"], out[f"{prefix}_std"] = mean, std
+    # settling: the last sample outside the band, and the one after it
+    e0 = float(spool.rows_at(column, 0, 1)[0])
+    sign = -math.copysign(1.0, e0)
+    last_outside, overshoot, row = -1, -math.inf, 0
+    for f in spool.chunks(column):
+        outside = np.flatnonzero(np.abs(f) > band)
+        if outside.size:
+            last_outside = row + int(outside[-1])
+        overshoot = max(overshoot, float(np.max(sign * f)))
+        row += f.size
+    if last_outside < 0:
+        t_settle = spool.first_time
+    elif last_outside == spool.rows - 1:
+        t_settle = None
+    else:
+        t = spool.rows_at("time", last_outside, 2)
+        e = spool.rows_at(column, last_outside, 2)
+        target = math.copysign(band, e[0])
+        tau = (target - e[0]) / (e[1] - e[0])
+        t_settle = float(t[0] + tau * (t[1] - t[0]))
+    out[f"{prefix}_settling_time"] = None if t_settle is None else t_settle - spool.first_time
+    start = spool.first_time + settle_after if settle_after is not None else t_settle
+    window = _window_stats(spool, column, start)
+    for name in ("max", "mean", "rms", "signed_mean", "std"):
+        out[f"{prefix}_settled_{name}"] = None if window is None else window[name]
+    if e0 == 0.0:
+        out[f"{prefix}_overshoot"] = out[f"{prefix}_overshoot_ratio"] = None
+    else:
+        out[f"{prefix}_overshoot"] = max(0.0, overshoot)
+        out[f"{prefix}_overshoot_ratio"] = out[f"{prefix}_overshoot"] / abs(e0)
+    return out
+
+
+def compute_metrics_csv(path, spec, *, base_dir=None, chunk_rows=None):
+    """:func:`compute_metrics` of a ``timeseries.csv``, in memory bounded by the chunk.
+
+    The file is read once, ``chunk_rows`` rows at a time; the signals the metrics use (and
+    the path offsets of ``reference``) are spooled as float64 to anonymous temporary files
+    and read back in chunks for the passes that need a value known only at the end (see
+    "Bounded memory" in the module docstring). The result equals :func:`compute_metrics` of
+    the whole arrays bit for bit, keys in the same order.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A ``timeseries.csv`` as written by ``results.CsvSink``.
+    spec, base_dir
+        As for :func:`compute_metrics`.
+    chunk_rows : int, optional
+        Rows per chunk (default ``results.CHUNK_ROWS``).
+
+    Raises
+    ------
+    ValueError
+        As :func:`compute_metrics`.
+    """
+    from .results import CHUNK_ROWS, iter_timeseries, timeseries_columns
+
+    spec = _validate(spec)
+    chunk_rows = chunk_rows or CHUNK_ROWS
+    present = set(timeseries_columns(path))
+    used = {key: spec[key] for key in _SIGNAL_KEYS if key in spec}
+    checks = [(key, name) for key, name in used.items() if key == "lateral_error"]
+    if "reference" in spec:
+        checks += [("reference.x", spec["reference"]["x"]),
+                   ("reference.y", spec["reference"]["y"])]
+    checks += [(key, name) for key, name in used.items() if key != "lateral_error"]
+    if "saturation" in spec:
+        checks.append(("saturation.signal", spec["saturation"]["signal"]))
+    for key, name in checks:
+        if name not in present:
+            raise ValueError(f"metrics.{key}: signal {name!r} is not in the results")
+    names = list(dict.fromkeys(name for _, name in checks))
+    geometry = None
+    if "reference" in spec:
+        geometry = load_path(spec["reference"]["path"], "metrics.reference.path", base_dir)
+    spool = _Spool(chunk_rows)
+    try:
+        finite = dict.fromkeys(names, True)
+        path_finite = {"xy": True, "e": True}
+        s_hint, previous = None, None
+        for t, signals in iter_timeseries(path, names, chunk_rows):
+            if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0) \
+                    or (previous is not None and t[0] <= previous):
+                raise ValueError("metrics: time must be finite and strictly increasing")
+            if previous is None:
+                spool.first_time = float(t[0])
+            previous = t[-1]
+            spool.append("time", t)
+            for name in names:
+                spool.append(name, signals[name])
+                finite[name] = finite[name] and bool(np.all(np.isfinite(signals[name])))
+            if geometry is not None and path_finite["xy"] and path_finite["e"]:
+                x, y = signals[spec["reference"]["x"]], signals[spec["reference"]["y"]]
+                if np.all(np.isfinite(x)) and np.all(np.isfinite(y)):
+                    e, s_hint = _offsets(geometry, x, y, s_hint)
+                    spool.append("path_error", e)
+                    path_finite["e"] = bool(np.all(np.isfinite(e)))
+                else:
+                    path_finite["xy"] = False
+            spool.rows += t.size
+        if spool.rows == 0:
+            raise ValueError("metrics: time must be a non-empty 1-D array")
+        spool.last_time = float(previous)
+        return _clean(_stream_metrics(spool, spec, finite, path_finite))
+    finally:
+        spool.close()
+
+
+def _stream_metrics(spool, spec, finite, path_finite):
+    band = spec["settle_band"]
+    settle_after = spec.get("settle_after")
+    duration = spool.last_time - spool.first_time
+    n = spool.rows
+    result = {"duration": duration}
+    lateral_names = ("max", "mean", "rms", "signed_mean", "std", "settling_time",
+                     "settled_max", "settled_mean", "settled_rms", "settled_signed_mean",
+                     "settled_std", "overshoot", "overshoot_ratio")
+
+    def skip(names):
+        result.update({name: None for name in names})
+
+    if "lateral_error" in spec:
+        name = spec["lateral_error"]
+        if finite[name]:
+            result.update(_lateral_stream("lateral_error", spool, name, band, settle_after))
+        else:
+            skip(f"lateral_error_{m}" for m in lateral_names)
+    if "reference" in spec:
+        if path_finite["xy"] and path_finite["e"]:
+            result.update(_lateral_stream("path_error", spool, "path_error", band,
+                                          settle_after))
+        else:
+            skip(f"path_error_{m}" for m in lateral_names)
+
+    def rms_and_peak(key, rms_name, peak_name, order):
+        name = spec[key]
+        if not finite[name]:
+            skip([rms_name, peak_name] if order == "rms" else [peak_name, rms_name])
+            return None
+        sums = _sums(spool, name)
+        values = {rms_name: _sqrt_or_none(_time_average(sums["f2"], duration)),
+                  peak_name: sums["max_abs"]}
+        for key_name in ([rms_name, peak_name] if order == "rms" else [peak_name, rms_name]):
+            result[key_name] = values[key_name]
+        return sums
+
+    if "heading_error" in spec:
+        rms_and_peak("heading_error", "heading_error_rms", "heading_error_max", "rms")
+    if "steering_angle" in spec:
+        rms_and_peak("steering_angle", "steering_angle_rms", "steering_angle_peak", "peak")
+    if "steering_rate" in spec:
+        rms_and_peak("steering_rate", "steering_rate_rms", "steering_rate_peak", "peak")
+    if "control" in spec:
+        name = spec["control"]
+        if finite[name]:
+            sums = _sums(spool, name)
+            result["control_effort"] = sums["f2"] if n >= 2 else None
+            result["control_peak"] = sums["max_abs"]
+            result["control_rms"] = _sqrt_or_none(_time_average(sums["f2"], duration))
+        else:
+            skip(["control_effort", "control_peak", "control_rms"])
+    if "saturation" in spec:
+        sat = spec["saturation"]
+        name = sat["signal"]
+        if finite[name]:
+            sums = _sums(spool, name, squares=False,
+                         threshold=sat["limit"] - sat["tolerance"])
+            result["saturated_time"] = sums["sat"]
+            result["saturated_fraction"] = _time_average(sums["sat"], duration)
+        else:
+            skip(["saturated_fraction", "saturated_time"])
+    return result

@@ -30,6 +30,23 @@ Every key is optional; a figure is written only when its key is present.
 
 Runs marked ``partial`` (stopped early) are drawn dashed and labelled ``"<label> (partial)"``.
 
+Long runs
+---------
+A line is drawn from a bounded number of points, whatever the run's length (M4
+aggregation: Jugel et al., "M4: a visualization-oriented time series data aggregation",
+VLDB 2014). Its samples are cut into consecutive buckets and each bucket keeps its first
+and last sample and those of its minimum and maximum (for the trajectory: of x and of y),
+in their order. A signal line has 2 buckets per pixel column of the figure's width (8 in x
+``dpi``), so each column still spans the same minimum and maximum and peaks stay visible.
+The trajectory has 8 buckets per column; where a bucket covers a length c of a curve of
+radius R, the drawn chord leaves the curve by at most c^2 / (8 R) (1 h at 1 m/s and 120
+dpi: c <= 0.47 m, 5.5 mm on a 5 m radius; much longer runs on tight loops get visibly
+coarser). A line with no more samples than its buckets would keep is drawn whole, as
+before (the plotted runs of the existing experiments have at most 3 001 rows; a signal
+line keeps up to 4 x 2 x 8 x ``dpi`` points, 7 040 at 110 dpi). :func:`read_run` reads a
+``timeseries.csv`` in chunks into these points, so the plotting process never holds a
+run's time series.
+
 Complete example::
 
     [plots]
@@ -52,10 +69,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from matplotlib import rc_context
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from .metrics import check_signal_name
+from .results import CHUNK_ROWS, count_rows, iter_timeseries, timeseries_columns
 
 #: File names of the figures (stable, so that a rerun overwrites them).
 SIGNALS_FILE = "signals.png"
@@ -68,6 +87,13 @@ _TRAJECTORY_KEYS = ("x", "y", "path")
 _PATH_POINTS = 2000
 #: Points per run projected onto an unbounded path to find the stretch to draw.
 _PROJECTED_POINTS = 400
+#: Width [in] of every figure.
+_WIDTH = 8.0
+#: Buckets per pixel column of the figure's width: signal lines, trajectory.
+_SIGNAL_BUCKETS_PER_COLUMN = 2
+_TRAJECTORY_BUCKETS_PER_COLUMN = 8
+#: Points per piece when Agg draws a figure with decimated lines (``agg.path.chunksize``).
+_AGG_CHUNK = 1000
 
 
 @dataclass
@@ -84,12 +110,20 @@ class RunData:
         Recorded signals by name ``"component.variable"``, each of shape (n,).
     partial : bool
         True when the run stopped before its stop time (drawn dashed).
+    lines : dict, optional
+        The lines already decimated, ``(x name, y name) -> (x, y)`` arrays (x name
+        ``"time"`` for the time), as :func:`read_run` gives them; when set, ``time`` and
+        ``signals`` are not used.
+    decimated : bool
+        True when some of ``lines`` has fewer points than the run has samples.
     """
 
     label: str
     time: np.ndarray
     signals: dict = field(default_factory=dict)
     partial: bool = False
+    lines: dict | None = None
+    decimated: bool = False
     #: scenario events (time [s], name): drawn as vertical dotted lines on time axes
     events: list = field(default_factory=list)
 
@@ -185,7 +219,166 @@ def referenced_signals(spec):
     return list(dict.fromkeys(names))
 
 
+# --------------------------------------------------------------------------- decimation
+
+class Decimator:
+    """M4 decimation of one line (x, y) whose ``n`` samples arrive in chunks.
+
+    The samples are cut into consecutive buckets of ``ceil(n / buckets)``; each bucket keeps
+    its first and last sample and the first sample of its minimum and of its maximum of y
+    (``both``: also of x), in their order. Fed in any chunks, the result is the one of the
+    whole arrays: a bucket split by a chunk boundary carries only its kept samples over
+    (the extremes of a union are among the extremes of its parts, the earlier one on a
+    tie). When ``n`` is at most the points the buckets would keep, every sample is kept.
+
+    Parameters
+    ----------
+    n : int
+        Samples that will be fed.
+    buckets : int
+        Number of buckets (>= 1).
+    both : bool
+        Keep the extremes of x too (an x-y trajectory).
+    """
+
+    def __init__(self, n, buckets, both=False):
+        self.both = both
+        self.size = 1 if n <= (6 if both else 4) * buckets else -(-n // buckets)
+        self.row = 0
+        self._carry = None
+        self._x, self._y = [], []
+
+    def _extremes(self, x, y):
+        keys = [0, x.size - 1, int(np.argmin(y)), int(np.argmax(y))]
+        if self.both:
+            keys += [int(np.argmin(x)), int(np.argmax(x))]
+        index = np.unique(keys)
+        return x[index], y[index]
+
+    def add(self, x, y):
+        """Feed the next samples (1-D arrays of equal length)."""
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        if self.size == 1:
+            self._x.append(x)
+            self._y.append(y)
+            self.row += x.size
+            return
+        pos = 0
+        while pos < x.size:
+            end = (self.row // self.size + 1) * self.size
+            take = min(x.size - pos, end - self.row)
+            bx, by = x[pos:pos + take], y[pos:pos + take]
+            if self._carry is not None:
+                bx, by = np.concatenate((self._carry[0], bx)), np.concatenate((self._carry[1], by))
+            pos += take
+            self.row += take
+            self._carry = self._extremes(bx, by)
+            if self.row == end:
+                self._flush()
+
+    def _flush(self):
+        if self._carry is not None:
+            self._x.append(self._carry[0])
+            self._y.append(self._carry[1])
+            self._carry = None
+
+    def result(self):
+        """(x, y) of the kept samples."""
+        self._flush()
+        if not self._x:
+            return np.empty(0), np.empty(0)
+        if len(self._x) == 1:
+            return self._x[0], self._y[0]
+        return np.concatenate(self._x), np.concatenate(self._y)
+
+
+def _buckets(spec, trajectory=False):
+    per_column = _TRAJECTORY_BUCKETS_PER_COLUMN if trajectory else _SIGNAL_BUCKETS_PER_COLUMN
+    return per_column * int(round(_WIDTH * spec["dpi"]))
+
+
+def _line_specs(spec):
+    """The lines the figures draw: (x name, y name, x key, y key, is trajectory)."""
+    lines = [(spec["x"], name, "x", f"signals[{i}]", False)
+             for i, name in enumerate(spec.get("signals", []))]
+    if "trajectory" in spec:
+        traj = spec["trajectory"]
+        lines.append((traj["x"], traj["y"], "trajectory.x", "trajectory.y", True))
+    return lines
+
+
+def read_run(path, spec, label, *, partial=False, rows=None, chunk_rows=None):
+    """The lines of one run's ``timeseries.csv`` as the ``[plots]`` table draws them,
+    read in chunks of ``chunk_rows`` rows and decimated (see "Long runs").
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The run's ``timeseries.csv``.
+    spec : dict
+        The ``[plots]`` table.
+    label : str
+        Legend label of the run.
+    partial : bool
+        True when the run stopped early (drawn dashed).
+    rows : int, optional
+        Rows of the file, when known (otherwise counted first).
+    chunk_rows : int, optional
+        Rows read at a time (default ``results.CHUNK_ROWS``).
+
+    Returns
+    -------
+    RunData
+        With ``lines`` set; memory bounded by the chunk and the buckets.
+
+    Raises
+    ------
+    ValueError
+        If the file lacks a signal the table names (the message names the key).
+    """
+    spec = _validate(spec)
+    present = set(timeseries_columns(path))
+    lines = _line_specs(spec)
+    for xname, yname, xkey, ykey, _ in lines:
+        for name, key in ((xname, xkey), (yname, ykey)):
+            if name != "time" and name not in present:
+                raise ValueError(f"plots.{key}: run {label!r} has no signal {name!r}")
+    n = count_rows(path) if rows is None else rows
+    chunk_rows = chunk_rows or CHUNK_ROWS
+    decimators = {(x, y): Decimator(n, _buckets(spec, both), both)
+                  for x, y, _, _, both in lines}
+    names = list(dict.fromkeys(name for x, y, *_ in lines for name in (x, y)
+                               if name != "time"))
+    for t, signals in iter_timeseries(path, names, chunk_rows):
+        for (x, y), decimator in decimators.items():
+            decimator.add(t if x == "time" else signals[x], signals[y])
+    return RunData(label=label, time=np.empty(0), partial=partial,
+                   lines={key: decimator.result() for key, decimator in decimators.items()},
+                   decimated=any(decimator.size > 1 for decimator in decimators.values()))
+
+
 # --------------------------------------------------------------------------- drawing
+
+def _line(run, xname, yname, xkey, ykey, buckets, both=False, figure=None):
+    """(x, y) of one line of ``run``, decimated to ``buckets``; a decimated line marks
+    ``figure`` (see :func:`_save`)."""
+    if run.lines is not None:
+        if (xname, yname) not in run.lines:
+            raise ValueError(f"plots.{ykey}: run {run.label!r} was read without the line "
+                             f"{yname!r} against {xname!r}")
+        if run.decimated and figure is not None:
+            figure.agv_decimated = True
+        return run.lines[(xname, yname)]
+    x = np.asarray(run.time, dtype=float) if xname == "time" else _values(run, xname, xkey)
+    y = _values(run, yname, ykey)
+    decimator = Decimator(x.size, buckets, both)
+    if decimator.size == 1:
+        return x, y
+    if figure is not None:
+        figure.agv_decimated = True
+    decimator.add(x, y)
+    return decimator.result()
+
 
 def _values(run, name, key):
     if name not in run.signals:
@@ -216,7 +409,15 @@ def _legend(figure, ax):
 
 
 def _save(figure, path, dpi):
-    figure.savefig(path, dpi=dpi, format="png", metadata={"Software": None})
+    if getattr(figure, "agv_decimated", False):
+        # A decimated line of a long run can go from a column's minimum to its maximum
+        # and back in every column; Agg's memory for one path grows with the pixels its
+        # outline crosses (4 h run: +18.5 MiB to draw, +6.7 MiB in chunks of 1000 points).
+        # Only such figures are drawn in chunks, so the others keep their exact bytes.
+        with rc_context({"agg.path.chunksize": _AGG_CHUNK}):
+            figure.savefig(path, dpi=dpi, format="png", metadata={"Software": None})
+    else:
+        figure.savefig(path, dpi=dpi, format="png", metadata={"Software": None})
     return path
 
 
@@ -241,15 +442,13 @@ def signals_figure(runs, spec):
     names = spec["signals"]
     units = dict(spec["units"])
     units.setdefault("time", "s")
-    figure = Figure(figsize=(8.0, 1.0 + 2.0 * len(names)), layout="constrained")
+    figure = Figure(figsize=(_WIDTH, 1.0 + 2.0 * len(names)), layout="constrained")
     axes = figure.subplots(len(names), 1, sharex=True, squeeze=False)[:, 0]
+    buckets = _buckets(spec)
     for run in runs:
-        if spec["x"] == "time":
-            x = np.asarray(run.time, dtype=float)
-        else:
-            x = _values(run, spec["x"], "x")
         for i, (ax, name) in enumerate(zip(axes, names)):
-            line, = ax.plot(x, _values(run, name, f"signals[{i}]"), **_style(run))
+            x, y = _line(run, spec["x"], name, "x", f"signals[{i}]", buckets, figure=figure)
+            line, = ax.plot(x, y, **_style(run))
             if spec["x"] == "time":
                 for when, _ in run.events:
                     ax.axvline(when, color=line.get_color(), linestyle=":", linewidth=1.0)
@@ -264,7 +463,12 @@ def signals_figure(runs, spec):
     return figure
 
 
-def _reference_polyline(path, runs, traj):
+def _trajectory(run, traj, buckets, figure=None):
+    return _line(run, traj["x"], traj["y"], "trajectory.x", "trajectory.y", buckets, True,
+                 figure)
+
+
+def _reference_polyline(path, runs, traj, buckets):
     """x, y [m] of the reference ``path`` (a ReferencePath) over the stretch worth drawing."""
     length = float(getattr(path, "length", math.inf))
     if math.isfinite(length):
@@ -273,8 +477,7 @@ def _reference_polyline(path, runs, traj):
         # unbounded path: from its start to the furthest projection of any run's point
         s1 = 0.0
         for run in runs:
-            x = _values(run, traj["x"], "trajectory.x")
-            y = _values(run, traj["y"], "trajectory.y")
+            x, y = _trajectory(run, traj, buckets)
             keep = np.isfinite(x) & np.isfinite(y)
             x, y = x[keep], y[keep]
             step = max(1, len(x) // _PROJECTED_POINTS)
@@ -311,16 +514,17 @@ def trajectory_figure(runs, spec, geometry=None):
         raise ValueError("plots.trajectory: missing")
     traj = spec["trajectory"]
     units = spec["units"]
-    figure = Figure(figsize=(8.0, 6.0), layout="constrained")
+    buckets = _buckets(spec, trajectory=True)
+    figure = Figure(figsize=(_WIDTH, 6.0), layout="constrained")
     ax = figure.add_subplot()
     if geometry is not None:
-        polyline = _reference_polyline(geometry, runs, traj)
+        polyline = _reference_polyline(geometry, runs, traj, buckets)
         if polyline is not None:
             ax.plot(polyline[0], polyline[1], color="0.55", linewidth=2.5, alpha=0.7,
                     label="reference path", zorder=1)
     for run in runs:
-        ax.plot(_values(run, traj["x"], "trajectory.x"),
-                _values(run, traj["y"], "trajectory.y"), zorder=2, **_style(run))
+        x, y = _trajectory(run, traj, buckets, figure)
+        ax.plot(x, y, zorder=2, **_style(run))
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(_label(traj["x"], units))
     ax.set_ylabel(_label(traj["y"], units))
@@ -364,6 +568,10 @@ def plot_runs(runs, spec, out_dir, *, base_dir=None):
         if not isinstance(run, RunData):
             raise TypeError(f"plot_runs: expected RunData, got {type(run).__name__}")
         # every signal checked before any file is written
+        if run.lines is not None:
+            for xname, yname, xkey, ykey, both in _line_specs(spec):
+                _line(run, xname, yname, xkey, ykey, 1, both)
+            continue
         for i, name in enumerate(spec.get("signals", [])):
             _values(run, name, f"signals[{i}]")
         if spec["x"] != "time" and "signals" in spec:

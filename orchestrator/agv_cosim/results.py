@@ -7,6 +7,7 @@ folder that looks complete.
 """
 
 import csv
+import itertools
 import json
 import os
 import re
@@ -72,6 +73,64 @@ def read_timeseries(path, columns=None):
     if data.shape[0] == 0:
         data = np.zeros((0, len(index)))
     return data[:, 0].copy(), {c: data[:, i + 1].copy() for i, c in enumerate(wanted)}
+
+
+#: Rows per chunk when a ``timeseries.csv`` is read in pieces (:func:`iter_timeseries`).
+#: Parsing a chunk of 10 000 rows of 10 columns peaked 6-10 MiB above one of 2 000 (as
+#: fast), which showed in the peak of a long run against a short one.
+CHUNK_ROWS = 2_000
+
+
+def timeseries_columns(path):
+    """Column names of a ``timeseries.csv`` after ``time`` (its header)."""
+    with open(path, encoding="utf-8") as stream:
+        return stream.readline().strip().split(",")[1:]
+
+
+def iter_timeseries(path, columns=None, chunk_rows=CHUNK_ROWS):
+    """Read a ``timeseries.csv`` in pieces of at most ``chunk_rows`` rows.
+
+    Memory is bounded by the chunk, whatever the length of the file. The values are the
+    doubles :func:`read_timeseries` gives (same parser); concatenating the chunks gives its
+    arrays.
+
+    Yields
+    ------
+    (numpy.ndarray, dict of str -> numpy.ndarray)
+        Time [s] and the requested (default: all) columns of the next rows.
+
+    Raises
+    ------
+    ValueError
+        If a requested column is not in the file (the message names it).
+    """
+    if chunk_rows < 1:
+        raise ValueError(f"chunk_rows must be >= 1, got {chunk_rows!r}")
+    with open(path, encoding="utf-8") as stream:
+        header = stream.readline().strip().split(",")
+        wanted = header[1:] if columns is None else list(columns)
+        for name in wanted:
+            if name not in header[1:]:
+                raise ValueError(f"{path}: no column {name!r}")
+        index = [0] + [header.index(c) for c in wanted]
+        while True:
+            lines = list(itertools.islice(stream, chunk_rows))
+            if not lines:
+                return
+            data = np.loadtxt(lines, delimiter=",", usecols=index, ndmin=2)
+            yield data[:, 0].copy(), {c: data[:, i + 1].copy() for i, c in enumerate(wanted)}
+
+
+def count_rows(path):
+    """Rows of a ``timeseries.csv`` after its header, counted in fixed-size blocks
+    (a last line without its newline counts too)."""
+    lines, last = 0, b"\n"
+    with open(path, "rb") as stream:
+        while block := stream.read(1 << 20):
+            lines += block.count(b"\n")
+            last = block[-1:]
+    lines += last != b"\n"
+    return max(0, lines - 1)
 
 
 def write_json(path, data):

@@ -36,7 +36,7 @@ from . import __version__, fmitypes, metrics, plots
 from .lifetime import die_with_parent, scratch_dir
 from .manifest import ManifestError, load_manifest, plan_runs, validate
 from .master import Plan, SimulationError, describe_track, record_types, simulate
-from .results import AtomicDir, CsvSink, read_timeseries, write_json, write_summary
+from .results import AtomicDir, CsvSink, count_rows, write_json, write_summary
 
 
 @dataclass
@@ -198,9 +198,10 @@ def run_job(job, run_dir, progress=None, track=None, on_message=None):
     values, metrics_error = {}, None
     if job.metrics_spec and rows:
         try:
-            t, signals = read_timeseries(run_dir / "timeseries.csv")
-            values = dict(metrics.compute_metrics(t, signals, job.metrics_spec,
-                                                  base_dir=Path(job.manifest_path).parent))
+            # streamed from the file in chunks: memory does not grow with the run's length
+            values = dict(metrics.compute_metrics_csv(run_dir / "timeseries.csv",
+                                                      job.metrics_spec,
+                                                      base_dir=Path(job.manifest_path).parent))
         except Exception as failure:  # noqa: BLE001 - reported in run.json
             metrics_error = f"{type(failure).__name__}: {failure}"
     return _finish(job, run_dir, rows, status, error, wall, values, metrics_error,
@@ -275,7 +276,7 @@ def _died(job, run_dir, exitcode, track, last_message):
     ``last_message`` is the last message an FMU of the run logged (or None).
     """
     csv = Path(run_dir) / "timeseries.csv"
-    rows = max(0, len(csv.read_text().splitlines()) - 1) if csv.is_file() else 0
+    rows = count_rows(csv) if csv.is_file() else 0
     how = f"signal {-exitcode}" if exitcode < 0 else f"exit code {exitcode}"
     error = (f"the run's process died ({how}) in {describe_track(track, list(job.plan.models))}"
              f" after {rows} recorded rows"
@@ -522,16 +523,16 @@ def _plots(manifest, jobs, results, out_dir):
     if not manifest.plots:
         return None
     try:
-        wanted = list(plots.referenced_signals(manifest.plots)) or None
         runs = []
         for job, result in zip(jobs, results):
             if not result["rows"]:
                 continue
-            t, signals = read_timeseries(out_dir / job.label / "timeseries.csv", wanted)
-            runs.append(plots.RunData(label=job.label, time=t, signals=signals,
-                                       partial=result["status"] != "complete",
-                                       events=[(at, name) for _, at, name, _ in
-                                               job.plan.events]))
+            # read in chunks and decimated: the parent never holds a run's time series
+            run = plots.read_run(out_dir / job.label / "timeseries.csv", manifest.plots,
+                                 job.label, rows=result["rows"],
+                                 partial=result["status"] != "complete")
+            run.events = [(at, name) for _, at, name, _ in job.plan.events]
+            runs.append(run)
         if runs:
             plots.plot_runs(runs, manifest.plots, out_dir,
                             base_dir=Path(manifest.path).parent)
