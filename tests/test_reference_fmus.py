@@ -187,13 +187,80 @@ def test_parameter_types_checked(reference_fmus, tmp_path, capsys):
                             "got True")
 
 
-def test_array_variables_refused(reference_fmus, tmp_path, capsys):
-    """StateSpace (FMI 3.0) has array variables: recording one is refused, one line."""
+def _state_space_reference():
+    """StateSpace_out.csv: one ``y`` column holding the vector as space-separated text."""
+    header, rows = None, []
+    with open(SOURCES / "StateSpace" / "StateSpace_out.csv", newline="") as stream:
+        for row in csv.reader(stream):
+            if header is None:
+                header = row
+                continue
+            rows.append([float(row[0])] + [float(x) for x in row[1].split()])
+    assert header == ["time", "y"]
+    return np.array(rows)
+
+
+def test_state_space_arrays(reference_fmus, tmp_path):
+    """StateSpace (FMI 3.0 only: the sources build it only for FMI_VERSION 3) has array
+    variables. Its output vector y is recorded element by element as ``m.y[1]`` ..
+    ``m.y[3]`` (1-based, row-major) and matches the reference within the tier tolerance."""
     fmu = reference_fmus["3"] / "StateSpace.fmu"
+    assert not (reference_fmus["2"] / "StateSpace.fmu").exists()
+    run = _run(tmp_path, f'[simulation]\nstop = 10.0\nstep = 1.0\n'
+                         f'[components.m]\nfmu = "{fmu}"\n')
+    info = json.loads((run / "run.json").read_text())
+    assert info["status"] == "complete" and info["ended_by"] == "stop time"
+    header, rows = _ours(run)
+    assert header == ["time", "m.y[1]", "m.y[2]", "m.y[3]"]
+    ref = _state_space_reference()
+    ours = np.array(rows, dtype=float)
+    assert ours.shape == ref.shape == (11, 4)
+    np.testing.assert_allclose(ours, ref, rtol=RTOL, atol=ATOL)
+
+
+def test_state_space_array_parameters(reference_fmus, tmp_path):
+    """Whole arrays set as parameters (flat lists, row-major). With D = 0 and B having
+    its only 1 in row 3, column 1: x1 = x2 = 0 and x3' = x3 + u1, which is the reference
+    run's x1 (x1' = x1 + u1), so y = (0, 0, y1_ref - u1). Column-major order would put
+    the 1 at row 1, column 3 (x1' = x1 + u3) and give (y3_ref - 3, 0, 0) instead."""
+    fmu = reference_fmus["3"] / "StateSpace.fmu"
+    run = _run(tmp_path, f'[simulation]\nstop = 3.0\nstep = 1.0\n'
+                         f'[components.m]\nfmu = "{fmu}"\n'
+                         'parameters = { D = [0, 0, 0, 0, 0, 0, 0, 0, 0], '
+                         'B = [0, 0, 0, 0, 0, 0, 1, 0, 0] }\n'
+                         '[record]\nvariables = ["m.y[3]", "m.y[1]", "m.y[2]"]\n')
+    info = json.loads((run / "run.json").read_text())
+    assert info["parameters"]["m"]["B"] == [0.0] * 6 + [1.0, 0.0, 0.0]
+    header, rows = _ours(run)
+    assert header == ["time", "m.y[3]", "m.y[1]", "m.y[2]"]
+    ours = np.array(rows, dtype=float)
+    ref = _state_space_reference()[:4]
+    np.testing.assert_allclose(ours[:, 1], ref[:, 1] - 1.0, rtol=RTOL, atol=ATOL)
+    assert ours[:, 2].tolist() == [0.0] * 4 and ours[:, 3].tolist() == [0.0] * 4
+
+
+@pytest.mark.parametrize("extra,message", [
+    ('[record]\nvariables = ["m.y"]\n',
+     "record.variables[0]: 'm.y' is an array variable (record its elements, 'y[1]' ..)"),
+    ('[record]\nvariables = ["m.y[4]"]\n',
+     "record.variables[0]: unknown variable 'm.y[4]'"),
+    ('[components.m.parameters]\nD = [1, 2]\n', "'m.D' has 9 elements, got a list of 2"),
+    ('[components.m.parameters]\nD = 1.0\n',
+     "type mismatch: 'm.D' is an array of 9 Float64"),
+    ('[components.m.parameters]\nD = [0, 0, 0, 0, true, 0, 0, 0, 0]\n',
+     "type mismatch: 'm.D' is an array of Float64: element 5 is Float64, got True"),
+    ('[components.ft]\nfmu = "FT"\n[[connections]]\nfrom = "m.y[1]"\n'
+     'to = "ft.Float64_continuous_input"\n',
+     "connections[0]: 'm.y[1]' is an array element (only recorded; set the whole array "
+     "as a parameter)"),
+])
+def test_array_misuse_refused(reference_fmus, tmp_path, capsys, extra, message):
+    fmu = reference_fmus["3"] / "StateSpace.fmu"
+    extra = extra.replace("FT", str(reference_fmus["3"] / "Feedthrough.fmu"))
     _run(tmp_path, f'[simulation]\nstop = 1.0\nstep = 1.0\n[components.m]\nfmu = "{fmu}"\n'
-                   '[record]\nvariables = ["m.y"]\n', expect=2)
+                   + extra, expect=2)
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "'m.y' is an array variable (only scalars are supported)" in err[0]
+    assert len(err) == 1 and message in err[0], err
 
 
 def test_model_exchange_only_refused(reference_fmus, tmp_path, capsys):

@@ -685,11 +685,13 @@ def validate(manifest, runs, extra_signals=()):
                 if var.causality != "parameter":
                     raise err(key, f"'{cname}.{pname}' is {_article(var.causality)}, "
                               "not a parameter")
-                why = var.unsupported()
+                why = var.unsupported("parameter")
                 if why:
                     raise err(key, f"'{cname}.{pname}' is {why}")
                 try:
-                    comp.parameters[pname] = fmitypes.parse(var.ftype, value)
+                    comp.parameters[pname] = (
+                        fmitypes.parse_array(var.ftype, value, var.size) if var.dims
+                        else fmitypes.parse(var.ftype, value))
                 except ValueError as error:
                     problem = str(error)
                     if problem.startswith("is "):
@@ -774,7 +776,7 @@ def _article(causality):
 def _record_list(manifest, models):
     if manifest.record is None:
         return [f"{c}.{v.name}" for c, info in models.items() for v in info.outputs
-                if not v.unsupported() and v.ftype.numeric]
+                if not v.unsupported("record") and v.ftype.numeric]
     for i, name in enumerate(manifest.record):
         cname, vname = name.split(".")
         key = f"record.variables[{i}]"
@@ -786,7 +788,7 @@ def _record_list(manifest, models):
         if var.causality != "output":
             raise manifest.error(key, f"'{name}' is not an output (it is "
                                  f"{_article(var.causality)} {var.type})")
-        why = var.unsupported()
+        why = var.unsupported("record")
         if why:
             raise manifest.error(key, f"'{name}' is {why}")
     return list(manifest.record)

@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 from math import isfinite
 
 from . import fmitypes
-from .model import FmuInstance
+from .model import FmuInstance, element_names
 
 
 class SimulationError(Exception):
@@ -131,15 +131,26 @@ class _Unit:
         self.n_out = len(outputs)
         self.address = {}  # output name -> (buffer, position)
         self.out_groups = []
+        arrays = instance.info.variables
         for fname, variables in _grouped(outputs, "get"):
             ftype = variables[0].ftype
-            vrs = (vr_type * len(variables))(*[v.vr for v in variables])
-            buf = (ftype.ctype * len(variables))()
-            args = (self.component, vrs, len(variables), buf) + \
-                ((len(variables),) if self.fmi3 else ())
-            names = [v.name for v in variables]
-            for pos, v in enumerate(variables):
-                self.address[v.name] = (buf, pos)
+            # an array element is read with its whole array (FMI 3.0: one value
+            # reference, all its values in row-major order)
+            whole, offset = {}, 0
+            for v in variables:
+                base = arrays[v.element[0]] if v.element else v
+                if base.name not in whole:
+                    whole[base.name] = (base, offset)
+                    offset += base.size
+            vrs = (vr_type * len(whole))(*[b.vr for b, _ in whole.values()])
+            buf = (ftype.ctype * offset)()
+            args = (self.component, vrs, len(whole), buf) + ((offset,) if self.fmi3 else ())
+            names = []  # per buffer position (for error messages)
+            for base, _ in whole.values():
+                names += element_names(base.name, base.shape) if base.dims else [base.name]
+            for v in variables:
+                at = whole[v.element[0]][1] + v.element[1] if v.element else whole[v.name][1]
+                self.address[v.name] = (buf, at)
             self.out_groups.append((_raw_function(self.slave, fname), args, buf,
                                     ftype.is_float, fname, names))
         self.in_names = [v.name for v in inputs]

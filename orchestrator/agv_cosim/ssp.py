@@ -248,6 +248,12 @@ def export_ssp(manifest_path, out_path, variant=None, sets=()):
     checked = validate(manifest, runs)
     run, models = runs[0], checked.models[0]
     params = {c: dict(comp.parameters) for c, comp in run.components.items()}
+    for cname, values in params.items():
+        for pname, value in values.items():
+            if isinstance(value, tuple):
+                raise ManifestError(manifest.path, f"components.{cname}.parameters.{pname}",
+                                    "an FMI 3.0 array parameter cannot be written to an "
+                                    "SSP package (SSP parameters are scalars)")
     name = manifest.name + (f"_{run.variant}" if run.variant else "")
     root = build_ssd(name, models, params, manifest.connections, manifest.start,
                      manifest.stop, manifest.step, manifest.algorithm, checked.record,
