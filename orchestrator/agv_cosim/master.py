@@ -301,6 +301,9 @@ def record_types(plan):
     return found
 
 
+#: FMI 2.0 / 3.0 status codes above OK (the same numbers in both versions)
+_STATUS_NAMES = {1: "Warning", 2: "Discard", 3: "Error", 4: "Fatal", 5: "Pending"}
+
 #: What a run is doing, by code (``track[1]``; see :func:`simulate`).
 PHASES = ("instantiation", "initialisation", "initialisation exchange",
           "initial propagation", "doStep", "fmi2GetReal", "fmi2SetReal",
@@ -588,8 +591,12 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None, outcom
     except FMICallException as error:
         name = names[int(track[0])] if int(track[0]) >= 0 else "?"
         detail = instances[name].last_error() if name in instances else ""
+        status = _STATUS_NAMES.get(int(error.status), "")
+        if status == "Discard" and error.function.endswith("DoStep"):
+            status += ", no stop requested"
         raise SimulationError(f"component '{name}': {error.function} returned status "
-                              f"{error.status} during {PHASES[int(track[1])]} at "
+                              f"{error.status}{f' ({status})' if status else ''} during "
+                              f"{PHASES[int(track[1])]} at "
                               f"t={track[2]!r} s" + (f": {detail}" if detail else "")) \
             from None
     except SimulationError:
