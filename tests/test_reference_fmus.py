@@ -281,3 +281,52 @@ def test_model_exchange_only_refused(reference_fmus, tmp_path, capsys):
                    f'[components.m]\nfmu = "{target}"\n', expect=2)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "a model-exchange-only FMU" in err[0]
+
+
+def test_ssp_enumeration_connectors_round_trip(reference_fmus, tmp_path):
+    """Enumeration connectors are exported as ``ssc:Enumeration name="Option"`` with the
+    items in ``ssd:Enumerations`` (FMI 2.0 SimpleType and FMI 3.0 EnumerationType give the
+    same one), read back into the same connections, and the .ssp runs like the manifest."""
+    from xml.etree import ElementTree
+
+    from agv_cosim import ssp
+    from agv_cosim.manifest import load_manifest
+
+    ft2, ft3 = (reference_fmus[v] / "Feedthrough.fmu" for v in ("2", "3"))
+    manifest = tmp_path / "enum.toml"
+    manifest.write_text(
+        f'[simulation]\nstop = 0.3\nstep = 0.1\nalgorithm = "gauss-seidel"\n'
+        f'[components.a]\nfmu = "{ft2}"\n[components.b]\nfmu = "{ft3}"\n'
+        f'[components.c]\nfmu = "{ft3}"\n'
+        '[[connections]]\nfrom = "a.Enumeration_output"\nto = "b.Enumeration_input"\n'
+        '[[connections]]\nfrom = "b.Enumeration_output"\nto = "c.Enumeration_input"\n'
+        '[record]\nvariables = ["a.Enumeration_output", "b.Enumeration_output", '
+        '"c.Enumeration_output"]\n')
+    package = ssp.export_ssp(manifest, tmp_path / "enum.ssp")
+    with zipfile.ZipFile(package) as archive:
+        root = ElementTree.fromstring(archive.read("SystemStructure.ssd"))
+    ns = ssp.NS
+    for comp, kinds in (("a", {"output"}), ("b", {"input", "output"}), ("c", {"input"})):
+        found = root.findall(f"ssd:System/ssd:Elements/ssd:Component[@name='{comp}']/"
+                             "ssd:Connectors/ssd:Connector", ns)
+        enums = {c.get("name"): (c.get("kind"), c.find("ssc:Enumeration", ns))
+                 for c in found if c.find("ssc:Enumeration", ns) is not None}
+        assert {k for k, _ in enums.values()} >= kinds
+        assert all(e.get("name") == "Option" for _, e in enums.values())
+    defined = root.findall("ssd:Enumerations/ssc:Enumeration", ns)
+    assert [e.get("name") for e in defined] == ["Option"]
+    assert [(i.get("name"), i.get("value")) for i in defined[0].findall("ssc:Item", ns)] \
+        == [("Option 1", "1"), ("Option 2", "2")]
+    again = load_manifest(ssp.load_ssp_as_manifest(package, tmp_path / "back"))
+    assert [(c.source, c.target) for c in again.connections] == \
+        [(("a", "Enumeration_output"), ("b", "Enumeration_input")),
+         (("b", "Enumeration_output"), ("c", "Enumeration_input"))]
+    out_m, out_s = tmp_path / "out_m", tmp_path / "out_s"
+    for source, out in ((manifest, out_m), (package, out_s)):
+        assert cli.main(["run", str(source), "--out", str(out), "--jobs", "1",
+                         "--quiet"]) == 0
+    ours_m, ours_s = _ours(out_m / "base"), _ours(out_s / "base")
+    assert ours_m == ours_s
+    assert ours_m[0] == ["time", "a.Enumeration_output", "b.Enumeration_output",
+                         "c.Enumeration_output"]
+    assert [r[1:] for r in ours_m[1]] == [["1", "1", "1"]] * 4
