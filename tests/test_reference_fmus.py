@@ -330,3 +330,17 @@ def test_ssp_enumeration_connectors_round_trip(reference_fmus, tmp_path):
     assert ours_m[0] == ["time", "a.Enumeration_output", "b.Enumeration_output",
                          "c.Enumeration_output"]
     assert [r[1:] for r in ours_m[1]] == [["1", "1", "1"]] * 4
+
+
+def test_ssp_export_refuses_array_parameters(reference_fmus, tmp_path, capsys):
+    """SSP parameters are scalars: a manifest setting an FMI 3.0 array is not exported."""
+    fmu = reference_fmus["3"] / "StateSpace.fmu"
+    manifest = tmp_path / "ss.toml"
+    manifest.write_text(f'[simulation]\nstop = 1.0\nstep = 1.0\n[components.m]\n'
+                        f'fmu = "{fmu}"\nparameters = {{ x0 = [1, 2, 3] }}\n')
+    code = cli.main(["export-ssp", str(manifest), "-o", str(tmp_path / "ss.ssp")])
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "components.m.parameters.x0: an FMI 3.0 array parameter " \
+        "cannot be written to an SSP package" in err[0], err
+    assert not (tmp_path / "ss.ssp").exists()

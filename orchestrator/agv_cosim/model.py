@@ -362,7 +362,10 @@ def describe(info):
             deps = info.dependencies.get(v.name, [])
             extra = f"  (feedthrough from {', '.join(deps)})" if deps else ""
         start = f" = {v.start}" if v.start is not None and v.causality != "output" else ""
-        lines.append(f"  {v.causality:<9} {v.type:<7} {v.name}{start} {unit}  "
+        vtype = v.type
+        if v.dims:  # an FMI 3.0 array: its shape (elements recorded as name[i])
+            vtype += f"[{'x'.join(map(str, v.shape)) if v.shape else '?'}]"
+        lines.append(f"  {v.causality:<9} {vtype:<7} {v.name}{start} {unit}  "
                      f"{v.description}{extra}")
     return "\n".join(lines)
 
