@@ -187,13 +187,80 @@ def test_parameter_types_checked(reference_fmus, tmp_path, capsys):
                             "got True")
 
 
-def test_array_variables_refused(reference_fmus, tmp_path, capsys):
-    """StateSpace (FMI 3.0) has array variables: recording one is refused, one line."""
+def _state_space_reference():
+    """StateSpace_out.csv: one ``y`` column holding the vector as space-separated text."""
+    header, rows = None, []
+    with open(SOURCES / "StateSpace" / "StateSpace_out.csv", newline="") as stream:
+        for row in csv.reader(stream):
+            if header is None:
+                header = row
+                continue
+            rows.append([float(row[0])] + [float(x) for x in row[1].split()])
+    assert header == ["time", "y"]
+    return np.array(rows)
+
+
+def test_state_space_arrays(reference_fmus, tmp_path):
+    """StateSpace (FMI 3.0 only: the sources build it only for FMI_VERSION 3) has array
+    variables. Its output vector y is recorded element by element as ``m.y[1]`` ..
+    ``m.y[3]`` (1-based, row-major) and matches the reference within the tier tolerance."""
     fmu = reference_fmus["3"] / "StateSpace.fmu"
+    assert not (reference_fmus["2"] / "StateSpace.fmu").exists()
+    run = _run(tmp_path, f'[simulation]\nstop = 10.0\nstep = 1.0\n'
+                         f'[components.m]\nfmu = "{fmu}"\n')
+    info = json.loads((run / "run.json").read_text())
+    assert info["status"] == "complete" and info["ended_by"] == "stop time"
+    header, rows = _ours(run)
+    assert header == ["time", "m.y[1]", "m.y[2]", "m.y[3]"]
+    ref = _state_space_reference()
+    ours = np.array(rows, dtype=float)
+    assert ours.shape == ref.shape == (11, 4)
+    np.testing.assert_allclose(ours, ref, rtol=RTOL, atol=ATOL)
+
+
+def test_state_space_array_parameters(reference_fmus, tmp_path):
+    """Whole arrays set as parameters (flat lists, row-major). With D = 0 and B having
+    its only 1 in row 3, column 1: x1 = x2 = 0 and x3' = x3 + u1, which is the reference
+    run's x1 (x1' = x1 + u1), so y = (0, 0, y1_ref - u1). Column-major order would put
+    the 1 at row 1, column 3 (x1' = x1 + u3) and give (y3_ref - 3, 0, 0) instead."""
+    fmu = reference_fmus["3"] / "StateSpace.fmu"
+    run = _run(tmp_path, f'[simulation]\nstop = 3.0\nstep = 1.0\n'
+                         f'[components.m]\nfmu = "{fmu}"\n'
+                         'parameters = { D = [0, 0, 0, 0, 0, 0, 0, 0, 0], '
+                         'B = [0, 0, 0, 0, 0, 0, 1, 0, 0] }\n'
+                         '[record]\nvariables = ["m.y[3]", "m.y[1]", "m.y[2]"]\n')
+    info = json.loads((run / "run.json").read_text())
+    assert info["parameters"]["m"]["B"] == [0.0] * 6 + [1.0, 0.0, 0.0]
+    header, rows = _ours(run)
+    assert header == ["time", "m.y[3]", "m.y[1]", "m.y[2]"]
+    ours = np.array(rows, dtype=float)
+    ref = _state_space_reference()[:4]
+    np.testing.assert_allclose(ours[:, 1], ref[:, 1] - 1.0, rtol=RTOL, atol=ATOL)
+    assert ours[:, 2].tolist() == [0.0] * 4 and ours[:, 3].tolist() == [0.0] * 4
+
+
+@pytest.mark.parametrize("extra,message", [
+    ('[record]\nvariables = ["m.y"]\n',
+     "record.variables[0]: 'm.y' is an array variable (record its elements, 'y[1]' ..)"),
+    ('[record]\nvariables = ["m.y[4]"]\n',
+     "record.variables[0]: unknown variable 'm.y[4]'"),
+    ('[components.m.parameters]\nD = [1, 2]\n', "'m.D' has 9 elements, got a list of 2"),
+    ('[components.m.parameters]\nD = 1.0\n',
+     "type mismatch: 'm.D' is an array of 9 Float64"),
+    ('[components.m.parameters]\nD = [0, 0, 0, 0, true, 0, 0, 0, 0]\n',
+     "type mismatch: 'm.D' is an array of Float64: element 5 is Float64, got True"),
+    ('[components.ft]\nfmu = "FT"\n[[connections]]\nfrom = "m.y[1]"\n'
+     'to = "ft.Float64_continuous_input"\n',
+     "connections[0]: 'm.y[1]' is an array element (only recorded; set the whole array "
+     "as a parameter)"),
+])
+def test_array_misuse_refused(reference_fmus, tmp_path, capsys, extra, message):
+    fmu = reference_fmus["3"] / "StateSpace.fmu"
+    extra = extra.replace("FT", str(reference_fmus["3"] / "Feedthrough.fmu"))
     _run(tmp_path, f'[simulation]\nstop = 1.0\nstep = 1.0\n[components.m]\nfmu = "{fmu}"\n'
-                   '[record]\nvariables = ["m.y"]\n', expect=2)
+                   + extra, expect=2)
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "'m.y' is an array variable (only scalars are supported)" in err[0]
+    assert len(err) == 1 and message in err[0], err
 
 
 def test_model_exchange_only_refused(reference_fmus, tmp_path, capsys):
@@ -214,3 +281,66 @@ def test_model_exchange_only_refused(reference_fmus, tmp_path, capsys):
                    f'[components.m]\nfmu = "{target}"\n', expect=2)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "a model-exchange-only FMU" in err[0]
+
+
+def test_ssp_enumeration_connectors_round_trip(reference_fmus, tmp_path):
+    """Enumeration connectors are exported as ``ssc:Enumeration name="Option"`` with the
+    items in ``ssd:Enumerations`` (FMI 2.0 SimpleType and FMI 3.0 EnumerationType give the
+    same one), read back into the same connections, and the .ssp runs like the manifest."""
+    from xml.etree import ElementTree
+
+    from agv_cosim import ssp
+    from agv_cosim.manifest import load_manifest
+
+    ft2, ft3 = (reference_fmus[v] / "Feedthrough.fmu" for v in ("2", "3"))
+    manifest = tmp_path / "enum.toml"
+    manifest.write_text(
+        f'[simulation]\nstop = 0.3\nstep = 0.1\nalgorithm = "gauss-seidel"\n'
+        f'[components.a]\nfmu = "{ft2}"\n[components.b]\nfmu = "{ft3}"\n'
+        f'[components.c]\nfmu = "{ft3}"\n'
+        '[[connections]]\nfrom = "a.Enumeration_output"\nto = "b.Enumeration_input"\n'
+        '[[connections]]\nfrom = "b.Enumeration_output"\nto = "c.Enumeration_input"\n'
+        '[record]\nvariables = ["a.Enumeration_output", "b.Enumeration_output", '
+        '"c.Enumeration_output"]\n')
+    package = ssp.export_ssp(manifest, tmp_path / "enum.ssp")
+    with zipfile.ZipFile(package) as archive:
+        root = ElementTree.fromstring(archive.read("SystemStructure.ssd"))
+    ns = ssp.NS
+    for comp, kinds in (("a", {"output"}), ("b", {"input", "output"}), ("c", {"input"})):
+        found = root.findall(f"ssd:System/ssd:Elements/ssd:Component[@name='{comp}']/"
+                             "ssd:Connectors/ssd:Connector", ns)
+        enums = {c.get("name"): (c.get("kind"), c.find("ssc:Enumeration", ns))
+                 for c in found if c.find("ssc:Enumeration", ns) is not None}
+        assert {k for k, _ in enums.values()} >= kinds
+        assert all(e.get("name") == "Option" for _, e in enums.values())
+    defined = root.findall("ssd:Enumerations/ssc:Enumeration", ns)
+    assert [e.get("name") for e in defined] == ["Option"]
+    assert [(i.get("name"), i.get("value")) for i in defined[0].findall("ssc:Item", ns)] \
+        == [("Option 1", "1"), ("Option 2", "2")]
+    again = load_manifest(ssp.load_ssp_as_manifest(package, tmp_path / "back"))
+    assert [(c.source, c.target) for c in again.connections] == \
+        [(("a", "Enumeration_output"), ("b", "Enumeration_input")),
+         (("b", "Enumeration_output"), ("c", "Enumeration_input"))]
+    out_m, out_s = tmp_path / "out_m", tmp_path / "out_s"
+    for source, out in ((manifest, out_m), (package, out_s)):
+        assert cli.main(["run", str(source), "--out", str(out), "--jobs", "1",
+                         "--quiet"]) == 0
+    ours_m, ours_s = _ours(out_m / "base"), _ours(out_s / "base")
+    assert ours_m == ours_s
+    assert ours_m[0] == ["time", "a.Enumeration_output", "b.Enumeration_output",
+                         "c.Enumeration_output"]
+    assert [r[1:] for r in ours_m[1]] == [["1", "1", "1"]] * 4
+
+
+def test_ssp_export_refuses_array_parameters(reference_fmus, tmp_path, capsys):
+    """SSP parameters are scalars: a manifest setting an FMI 3.0 array is not exported."""
+    fmu = reference_fmus["3"] / "StateSpace.fmu"
+    manifest = tmp_path / "ss.toml"
+    manifest.write_text(f'[simulation]\nstop = 1.0\nstep = 1.0\n[components.m]\n'
+                        f'fmu = "{fmu}"\nparameters = {{ x0 = [1, 2, 3] }}\n')
+    code = cli.main(["export-ssp", str(manifest), "-o", str(tmp_path / "ss.ssp")])
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "components.m.parameters.x0: an FMI 3.0 array parameter " \
+        "cannot be written to an SSP package" in err[0], err
+    assert not (tmp_path / "ss.ssp").exists()

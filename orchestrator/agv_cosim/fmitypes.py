@@ -155,6 +155,27 @@ def parse(ftype, value):
     return value
 
 
+def parse_array(ftype, value, size):
+    """A manifest value for a whole FMI 3.0 array of ``size`` elements: a flat list in
+    row-major order, each element checked by :func:`parse`; returned as a tuple."""
+    if not isinstance(value, list):
+        raise ValueError(f"is an array of {size} {ftype.name} (a flat list in row-major "
+                         f"order), got {value!r}")
+    if len(value) != size:
+        raise ValueError(f"has {size} elements, got a list of {len(value)}")
+    items = []
+    for i, item in enumerate(value):
+        try:
+            items.append(parse(ftype, item))
+        except ValueError as error:
+            problem = str(error)
+            if problem.startswith("is "):  # a type mismatch stays one (see manifest)
+                raise ValueError(f"is an array of {ftype.name}: element {i + 1} "
+                                 f"{problem}") from None
+            raise ValueError(f"element {i + 1} {problem}") from None
+    return tuple(items)
+
+
 def parse_text(ftype, text):
     """A value from model-description or SSP text (``start``, ``ssv`` values)."""
     if ftype.is_float:
@@ -208,7 +229,16 @@ def to_c(ftype, value):
 
 
 def set_parameter(slave, ftype, vr, value):
-    """Set one variable through fmpy's convenience setter (before initialisation)."""
+    """Set one variable through fmpy's convenience setter (before initialisation).
+
+    A tuple ``value`` sets a whole FMI 3.0 array (one call, row-major values)."""
+    if isinstance(value, tuple):
+        getattr(slave, ftype.py_set)([vr], [_py_value(ftype, v) for v in value])
+        return
+    getattr(slave, ftype.py_set)([vr], [_py_value(ftype, value)])
+
+
+def _py_value(ftype, value):
     if ftype.is_float:
         value = float(value)
     elif ftype.is_integer:
@@ -217,4 +247,4 @@ def set_parameter(slave, ftype, vr, value):
         value = bool(value)
     else:
         value = str(value)
-    getattr(slave, ftype.py_set)([vr], [value])
+    return value

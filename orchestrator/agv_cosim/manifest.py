@@ -203,14 +203,27 @@ def _event(manifest, key, table, partial=False):
 
 
 def _event_key(manifest, key, name, events):
-    """``events.<event>.at`` as a sweep / --set name: the event's name, else an error."""
+    """An event field as a sweep / --set name: ``events.<event>.at`` (its time) or
+    ``events.<event>.set.<component>.<variable>`` (a value it sets; a new target is
+    added to the event). Returns the event's name, else raises ManifestError."""
     parts = name.split(".")
-    if len(parts) != 3 or parts[2] != "at":
-        raise ManifestError(manifest, key, f"{name!r}: only an event's time can be swept "
-                            "or set ('events.<name>.at')")
+    if not ((len(parts) == 3 and parts[2] == "at") or
+            (len(parts) == 5 and parts[2] == "set" and all(parts[3:]))):
+        raise ManifestError(manifest, key, f"{name!r}: an event's time or one of its values "
+                            "can be swept or set ('events.<name>.at' or "
+                            "'events.<name>.set.<component>.<variable>')")
     if parts[1] not in events:
         raise ManifestError(manifest, key, f"unknown event '{parts[1]}' in '{name}'")
     return parts[1]
+
+
+def _apply_event_key(events, name, value):
+    """Set the event field named by :func:`_event_key` in ``events`` (a run's copy)."""
+    parts = name.split(".")
+    if parts[2] == "at":
+        events[parts[1]]["at"] = value
+    else:
+        events[parts[1]]["set"][f"{parts[3]}.{parts[4]}"] = value
 
 
 def load_manifest(path):
@@ -447,7 +460,7 @@ def plan_runs(manifest, variants=None, sets=()):
                     event["set"].update(sub.get("set", {}))
             for name, value in list(overrides.items()) + list(point.items()):
                 if name.startswith("events."):
-                    events[name.split(".")[1]]["at"] = value
+                    _apply_event_key(events, name, value)
                     continue
                 cname, pname = name.split(".")
                 comps[cname].parameters[pname] = value
@@ -685,11 +698,13 @@ def validate(manifest, runs, extra_signals=()):
                 if var.causality != "parameter":
                     raise err(key, f"'{cname}.{pname}' is {_article(var.causality)}, "
                               "not a parameter")
-                why = var.unsupported()
+                why = var.unsupported("parameter")
                 if why:
                     raise err(key, f"'{cname}.{pname}' is {why}")
                 try:
-                    comp.parameters[pname] = fmitypes.parse(var.ftype, value)
+                    comp.parameters[pname] = (
+                        fmitypes.parse_array(var.ftype, value, var.size) if var.dims
+                        else fmitypes.parse(var.ftype, value))
                 except ValueError as error:
                     problem = str(error)
                     if problem.startswith("is "):
@@ -774,7 +789,7 @@ def _article(causality):
 def _record_list(manifest, models):
     if manifest.record is None:
         return [f"{c}.{v.name}" for c, info in models.items() for v in info.outputs
-                if not v.unsupported() and v.ftype.numeric]
+                if not v.unsupported("record") and v.ftype.numeric]
     for i, name in enumerate(manifest.record):
         cname, vname = name.split(".")
         key = f"record.variables[{i}]"
@@ -786,7 +801,7 @@ def _record_list(manifest, models):
         if var.causality != "output":
             raise manifest.error(key, f"'{name}' is not an output (it is "
                                  f"{_article(var.causality)} {var.type})")
-        why = var.unsupported()
+        why = var.unsupported("record")
         if why:
             raise manifest.error(key, f"'{name}' is {why}")
     return list(manifest.record)

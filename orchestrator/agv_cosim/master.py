@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 from math import isfinite
 
 from . import fmitypes
-from .model import FmuInstance
+from .model import FmuInstance, element_names
 
 
 class SimulationError(Exception):
@@ -131,15 +131,26 @@ class _Unit:
         self.n_out = len(outputs)
         self.address = {}  # output name -> (buffer, position)
         self.out_groups = []
+        arrays = instance.info.variables
         for fname, variables in _grouped(outputs, "get"):
             ftype = variables[0].ftype
-            vrs = (vr_type * len(variables))(*[v.vr for v in variables])
-            buf = (ftype.ctype * len(variables))()
-            args = (self.component, vrs, len(variables), buf) + \
-                ((len(variables),) if self.fmi3 else ())
-            names = [v.name for v in variables]
-            for pos, v in enumerate(variables):
-                self.address[v.name] = (buf, pos)
+            # an array element is read with its whole array (FMI 3.0: one value
+            # reference, all its values in row-major order)
+            whole, offset = {}, 0
+            for v in variables:
+                base = arrays[v.element[0]] if v.element else v
+                if base.name not in whole:
+                    whole[base.name] = (base, offset)
+                    offset += base.size
+            vrs = (vr_type * len(whole))(*[b.vr for b, _ in whole.values()])
+            buf = (ftype.ctype * offset)()
+            args = (self.component, vrs, len(whole), buf) + ((offset,) if self.fmi3 else ())
+            names = []  # per buffer position (for error messages)
+            for base, _ in whole.values():
+                names += element_names(base.name, base.shape) if base.dims else [base.name]
+            for v in variables:
+                at = whole[v.element[0]][1] + v.element[1] if v.element else whole[v.name][1]
+                self.address[v.name] = (buf, at)
             self.out_groups.append((_raw_function(self.slave, fname), args, buf,
                                     ftype.is_float, fname, names))
         self.in_names = [v.name for v in inputs]
@@ -289,6 +300,9 @@ def record_types(plan):
         found.append(plan.models[cname].variables[vname].ftype)
     return found
 
+
+#: FMI 2.0 / 3.0 status codes above OK (the same numbers in both versions)
+_STATUS_NAMES = {1: "Warning", 2: "Discard", 3: "Error", 4: "Fatal", 5: "Pending"}
 
 #: What a run is doing, by code (``track[1]``; see :func:`simulate`).
 PHASES = ("instantiation", "initialisation", "initialisation exchange",
@@ -577,8 +591,12 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None, outcom
     except FMICallException as error:
         name = names[int(track[0])] if int(track[0]) >= 0 else "?"
         detail = instances[name].last_error() if name in instances else ""
+        status = _STATUS_NAMES.get(int(error.status), "")
+        if status == "Discard" and error.function.endswith("DoStep"):
+            status += ", no stop requested"
         raise SimulationError(f"component '{name}': {error.function} returned status "
-                              f"{error.status} during {PHASES[int(track[1])]} at "
+                              f"{error.status}{f' ({status})' if status else ''} during "
+                              f"{PHASES[int(track[1])]} at "
                               f"t={track[2]!r} s" + (f": {detail}" if detail else "")) \
             from None
     except SimulationError:

@@ -20,12 +20,13 @@ removes the folder, also after a failure.
 
 import hashlib
 import itertools
+import math
 import re
 import shutil
 import tempfile
 import zipfile
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from xml.etree import ElementTree
 
@@ -49,20 +50,51 @@ class Variable:
     description: str
     start: str | None
     fmi: str = "2.0"     # FMI version of the FMU (selects the fmitypes table)
-    dims: tuple = ()     # FMI 3.0 array dimensions (empty: a scalar)
+    dims: tuple = ()     # FMI 3.0 array dimensions as written (empty: a scalar)
+    shape: tuple = None  # the dimensions as integers (None: a dimension is unknown)
+    element: tuple = None  # of an array element "y[2]": (array name, flat index)
 
     @property
     def ftype(self):
         """Its :class:`~agv_cosim.fmitypes.FmiType`, or None (Binary, Clock)."""
         return fmitypes.of(self)
 
-    def unsupported(self):
-        """Why this variable cannot be connected, set or recorded ('' if it can)."""
-        if self.dims:
-            return "an array variable (only scalars are supported)"
+    @property
+    def size(self):
+        """Number of values (1 for a scalar or an element; None if unknown)."""
+        if not self.dims:
+            return 1
+        return math.prod(self.shape) if self.shape is not None else None
+
+    def unsupported(self, use="connect"):
+        """Why this variable cannot be used for ``use`` ('' if it can).
+
+        ``use`` is "connect" (connection, SSP connector, event), "record" or "parameter".
+        A whole array with known dimensions may be set as a parameter (a flat list in
+        row-major order); its elements ``name[i]`` / ``name[i,j]`` may be recorded.
+        """
         if self.ftype is None:
             return f"of type {self.type} (not supported)"
+        if self.dims:
+            if self.shape is None:
+                return "an array variable whose dimensions are not known (not supported)"
+            if use == "parameter":
+                return ""
+            if use == "record" and self.causality == "output":
+                return (f"an array variable (record its elements, "
+                        f"'{element_names(self.name, self.shape)[0]}' ..)")
+            return "an array variable (arrays can be set as parameters and their " \
+                   "output elements recorded, not connected)"
+        if self.element is not None and use != "record":
+            return "an array element (only recorded; set the whole array as a parameter)"
         return ""
+
+
+def element_names(name, shape):
+    """Element names of an array in row-major (FMI 3.0 serialisation) order, 1-based:
+    ``y[1]``, ``y[2]`` for a vector, ``A[1,1]``, ``A[1,2]`` .. for a matrix."""
+    return [f"{name}[{','.join(str(i + 1) for i in index)}]"
+            for index in itertools.product(*(range(n) for n in shape))]
 
 
 @dataclass
@@ -193,6 +225,13 @@ def _parse_model(path, xml):
     ordered = _variables_2(path, root) if version == "2.0" else _variables_3(path, root)
     for variable in ordered:
         info.variables[variable.name] = variable
+        if variable.causality == "output" and variable.shape:
+            # each element of an output array is recordable as its own column
+            starts = (variable.start or "").split()
+            for i, ename in enumerate(element_names(variable.name, variable.shape)):
+                info.variables.setdefault(ename, replace(
+                    variable, name=ename, dims=(), shape=None, element=(variable.name, i),
+                    start=starts[i] if len(starts) == variable.size else None))
     input_names = [v.name for v in ordered if v.causality == "input"]
 
     def indexed(text, what):
@@ -284,6 +323,21 @@ def _variables_3(path, root):
                                 variability=node.get("variability", default),
                                 unit=node.get("unit"), description=node.get("description", ""),
                                 start=start, fmi="3.0", dims=dims))
+    # dimensions given by a structural parameter take its start value (agv-cosim never
+    # changes a structural parameter)
+    by_vr = {v.vr: v for v in ordered if v.causality == "structuralParameter"}
+    for i, v in enumerate(ordered):
+        if v.dims:
+            shape = []
+            for d in v.dims:
+                text = by_vr[int(d[3:])].start if d.startswith("vr:") and \
+                    int(d[3:]) in by_vr else (None if d.startswith("vr:") else d)
+                try:
+                    shape.append(int(text))
+                except (TypeError, ValueError):
+                    shape = None
+                    break
+            ordered[i] = replace(v, shape=tuple(shape) if shape is not None else None)
     return ordered
 
 
@@ -299,7 +353,8 @@ def describe(info):
     """Human-readable listing of an FMU's variables (``agv-cosim list``)."""
     lines = [f"{info.path.name}  ({info.model_name}): {info.description}"]
     order = {"parameter": 0, "input": 1, "output": 2}
-    variables = sorted(info.variables.values(), key=lambda v: (order.get(v.causality, 3), v.vr))
+    variables = sorted((v for v in info.variables.values() if v.element is None),
+                       key=lambda v: (order.get(v.causality, 3), v.vr))
     for v in variables:
         unit = f"[{v.unit}]" if v.unit else ""
         extra = ""
@@ -307,7 +362,10 @@ def describe(info):
             deps = info.dependencies.get(v.name, [])
             extra = f"  (feedthrough from {', '.join(deps)})" if deps else ""
         start = f" = {v.start}" if v.start is not None and v.causality != "output" else ""
-        lines.append(f"  {v.causality:<9} {v.type:<7} {v.name}{start} {unit}  "
+        vtype = v.type
+        if v.dims:  # an FMI 3.0 array: its shape (elements recorded as name[i])
+            vtype += f"[{'x'.join(map(str, v.shape)) if v.shape else '?'}]"
+        lines.append(f"  {v.causality:<9} {vtype:<7} {v.name}{start} {unit}  "
                      f"{v.description}{extra}")
     return "\n".join(lines)
 

@@ -11,7 +11,9 @@ The SSD is written the way libcosim 0.11 reads it (it matches the literal prefix
 ``ssd:``, ``ssc:``, ``ssv:``, ``osp:``, not the namespaces): parameters as inline
 ``ssd:ParameterValues`` (libcosim also reads ``.ssv`` files, but inline keeps the package
 one file shorter and is what it reads first), every connected variable declared as an
-``ssd:Connector`` with an ``ssc:Real``/``ssc:Integer``/... child carrying the unit, and the
+``ssd:Connector`` with an ``ssc:Real``/``ssc:Integer``/... child carrying the unit (an
+``ssc:Enumeration`` names its FMU enumeration type, whose items are written to
+``ssd:Enumerations``; FMI 3.0 array variables and their elements get no connector), and the
 step as ``osp:FixedStepAlgorithm baseStepSize`` in a ``com.opensimulationplatform``
 annotation of ``ssd:DefaultExperiment``. A second annotation, ``org.agv-cosim``, keeps
 what SSP has no place for: our master algorithm, the recorded variables and the record
@@ -106,6 +108,34 @@ def _unit_definitions(fmu_path):
     return units
 
 
+def _enumeration_types(fmu_path):
+    """``{variable name: (type name, [(item name, value text)])}`` of the Enumeration
+    variables of an FMU (FMI 2.0 ``SimpleType``/``Enumeration``, FMI 3.0
+    ``EnumerationType``)."""
+    with zipfile.ZipFile(fmu_path) as archive:
+        root = ElementTree.fromstring(archive.read("modelDescription.xml"))
+    types = {}
+    for simple in root.iterfind("TypeDefinitions/SimpleType"):
+        enum = simple.find("Enumeration")
+        if enum is not None:
+            types[simple.get("name")] = [(i.get("name"), i.get("value"))
+                                         for i in enum.iterfind("Item")]
+    for enum in root.iterfind("TypeDefinitions/EnumerationType"):
+        types[enum.get("name")] = [(i.get("name"), i.get("value"))
+                                   for i in enum.iterfind("Item")]
+    found = {}
+    for node in root.iterfind("ModelVariables/ScalarVariable"):  # FMI 2.0
+        enum = node.find("Enumeration")
+        if enum is not None and enum.get("declaredType") in types:
+            found[node.get("name")] = (enum.get("declaredType"),
+                                       types[enum.get("declaredType")])
+    for node in root.iterfind("ModelVariables/Enumeration"):  # FMI 3.0
+        if node.get("declaredType") in types:
+            found[node.get("name")] = (node.get("declaredType"),
+                                       types[node.get("declaredType")])
+    return found
+
+
 def _fmu_file_names(models):
     """Instance name -> ``resources/<file>`` (one entry per distinct FMU file)."""
     by_hash, names, taken = {}, {}, set()
@@ -152,18 +182,34 @@ def build_ssd(name, models, parameters, connections, start, stop, step, algorith
         system.set("description", description)
     elements = ElementTree.SubElement(system, _q("ssd", "Elements"))
     used_units = {}
+    enumerations = {}  # SSP enumeration name -> [(item name, value text)]
     for cname, info in models.items():
         comp = ElementTree.SubElement(elements, _q("ssd", "Component"),
                                       {"name": cname, "source": sources[cname],
                                        "type": FMU_MIME})
         connectors = ElementTree.SubElement(comp, _q("ssd", "Connectors"))
         fmu_units = None
+        fmu_enums = None
         for var in info.variables.values():
-            if var.causality not in ("input", "output") or _ssp_type(var) not in _TYPES:
+            if var.causality not in ("input", "output") or \
+                    _ssp_type(var) not in _TYPES + ("Enumeration",):
                 continue
             node = ElementTree.SubElement(connectors, _q("ssd", "Connector"),
                                           {"name": var.name, "kind": var.causality})
             kind = ElementTree.SubElement(node, _q("ssc", _ssp_type(var)))
+            if _ssp_type(var) == "Enumeration":
+                # SSP names the enumeration (required), defined in ssd:Enumerations;
+                # two FMUs with one type name but other items get instance-qualified
+                # names
+                if fmu_enums is None:
+                    fmu_enums = _enumeration_types(info.path)
+                tname, items = fmu_enums.get(var.name, (None, None))
+                if tname is None:
+                    tname, items = f"{cname}.{var.name}", []
+                if enumerations.get(tname, items) != items:
+                    tname = f"{cname}.{tname}"
+                enumerations[tname] = items
+                kind.set("name", tname)
             if var.unit:
                 kind.set("unit", var.unit)
                 if var.unit not in used_units:
@@ -190,6 +236,13 @@ def build_ssd(name, models, parameters, connections, start, stop, step, algorith
         ElementTree.SubElement(conns, _q("ssd", "Connection"), {
             "startElement": conn.source[0], "startConnector": conn.source[1],
             "endElement": conn.target[0], "endConnector": conn.target[1]})
+    if enumerations:
+        enums = ElementTree.SubElement(root, _q("ssd", "Enumerations"))
+        for tname in sorted(enumerations):
+            enum = ElementTree.SubElement(enums, _q("ssc", "Enumeration"), {"name": tname})
+            for item, value in enumerations[tname]:
+                ElementTree.SubElement(enum, _q("ssc", "Item"),
+                                       {"name": item, "value": value})
     if used_units:
         units = ElementTree.SubElement(root, _q("ssd", "Units"))
         for uname in sorted(used_units):
@@ -248,6 +301,12 @@ def export_ssp(manifest_path, out_path, variant=None, sets=()):
     checked = validate(manifest, runs)
     run, models = runs[0], checked.models[0]
     params = {c: dict(comp.parameters) for c, comp in run.components.items()}
+    for cname, values in params.items():
+        for pname, value in values.items():
+            if isinstance(value, tuple):
+                raise ManifestError(manifest.path, f"components.{cname}.parameters.{pname}",
+                                    "an FMI 3.0 array parameter cannot be written to an "
+                                    "SSP package (SSP parameters are scalars)")
     name = manifest.name + (f"_{run.variant}" if run.variant else "")
     root = build_ssd(name, models, params, manifest.connections, manifest.start,
                      manifest.stop, manifest.step, manifest.algorithm, checked.record,

@@ -112,3 +112,44 @@ to = "gain.u"
     _run(tmp_path, text, expect=2)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and problem in err[0], err
+
+
+def test_event_values_swept_and_set(fmus, tmp_path):
+    """``events.<name>.set.<component>.<variable>`` changes (or adds) a value an event
+    sets, from --set or [sweep]; the checks are those of a value written in the event."""
+    text = BASE.format(types=fmus["agv_test_types"], algorithm="gauss-seidel") + """
+[events.change]
+at = 0.3
+set = { "src.ii" = 7 }
+"""
+    out = _run(tmp_path, text, ["--set", "events.change.set.src.ii=11",
+                                "--set", 'events.change.set.src.si="new"'], name="set")
+    col = _columns(out / "base")
+    assert col["src.io"] == ["0"] * 3 + ["11"] * 4
+    assert col["src.so"] == [""] * 3 + ["new"] * 4
+    info = json.loads((out / "base" / "run.json").read_text())
+    assert info["events"] == [{"name": "change", "at": 0.3,
+                               "set": {"src.ii": 11, "src.si": "new"}}]
+    swept = text + '[sweep]\n"events.change.set.src.ii" = [-3, 5]\n'
+    out = _run(tmp_path, swept, name="sweep")
+    found = sorted(_columns(out / run.name)["src.io"][-1] for run in out.iterdir()
+                   if run.is_dir())
+    assert found == ["-3", "5"]
+
+
+@pytest.mark.parametrize("setting,problem", [
+    ("events.change.set.src.ii=1.5", "events.change.set.src.ii: 'src.ii' is Integer, got 1.5"),
+    ("events.change.set.src.io=1", "'src.io' is an output (an event sets a tunable"),
+    ("events.change.set.src=1", "'events.change.set.src': an event's time or one of its "
+                                "values can be swept or set"),
+    ("events.nope.set.src.ii=1", "unknown event 'nope' in 'events.nope.set.src.ii'"),
+])
+def test_bad_event_value_sets_are_one_line_errors(fmus, tmp_path, capsys, setting, problem):
+    text = BASE.format(types=fmus["agv_test_types"], algorithm="gauss-seidel") + """
+[events.change]
+at = 0.3
+set = { "src.ii" = 7 }
+"""
+    _run(tmp_path, text, ["--set", setting], expect=2)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and problem in err[0], err
