@@ -404,8 +404,11 @@ def _legend(figure, ax):
     # outside the axes, below them: never hides data, and no costly 'best' placement
     handles, labels = ax.get_legend_handles_labels()
     if handles:
+        # at most 4 columns, and no more than fit the figure's width: a 'small' character
+        # is about 4.6 pt wide and each entry adds about 6 characters of line and padding
+        fit = int(figure.get_figwidth() * 72.0 / 4.6) // (max(map(len, labels)) + 6)
         figure.legend(handles, labels, loc="outside lower center", fontsize="small",
-                      ncols=min(len(handles), 4), frameon=False)
+                      ncols=max(1, min(len(handles), 4, fit)), frameon=False)
 
 
 def _save(figure, path, dpi):
