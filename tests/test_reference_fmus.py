@@ -31,9 +31,6 @@ from agv_cosim.build import build_one
 ROOT = Path(__file__).resolve().parent.parent
 SOURCES = Path(os.environ.get("AGV_REFERENCE_FMUS",
                               ROOT.parent / "shared" / "third-party" / "Reference-FMUs"))
-if not (SOURCES / "CMakeLists.txt").is_file():
-    # worktrees live beside the shared folder; the main checkout may be elsewhere
-    SOURCES = Path("/work/shared/third-party/Reference-FMUs")
 RTOL, ATOL = 1e-9, 1e-12
 #: (model, communication step [s], stop [s]) as the reference CSVs were written
 MODELS = [("BouncingBall", 0.01, 3.0), ("Dahlquist", 0.1, 10.0), ("VanDerPol", 0.01, 20.0),

@@ -41,7 +41,10 @@ fmu = "{fmus['agv_test_source']}"
 
 
 C_FMU = Path(__file__).resolve().parent.parent / "c_fmu"
-FMI_HEADERS = Path("/work/shared/third-party/Reference-FMUs/include")
+#: the Reference FMUs' sources lie in the shared folder beside the checkout (as in CI)
+FMI_HEADERS = Path(os.environ.get(
+    "AGV_REFERENCE_FMUS",
+    Path(__file__).resolve().parents[3] / "shared" / "third-party" / "Reference-FMUs")) / "include"
 
 
 @pytest.fixture(scope="session")
