@@ -1,15 +1,14 @@
-"""FMU slave: per-axle PD with fuzzy-scheduled gains (agv_core.fuzzy_pd)."""
+"""FMU slave: per-axle PD with fuzzy-scheduled gains (agv_core.fuzzy_pd, interface in
+agv_core.axle_pd_fmi)."""
 
 import math
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "fuzzy_pd")
-
-_INPUTS = ("lateral_error", "speed")
+core = load_core("fmi_slave", "fuzzy_pd", "axle_pd_fmi")
 
 
-class AgvFuzzyPd(core.fmi_slave.AgvSlave):
+class AgvFuzzyPd(core.axle_pd_fmi.AxlePdSlave):
     """Seed 003 section 4: lateral error and speed in, axle steering angle out."""
 
     description = ("Seed 003 fuzzy-scheduled PD: a Mamdani system (scikit-fuzzy) sets Kp, Kd "
@@ -24,12 +23,8 @@ class AgvFuzzyPd(core.fmi_slave.AgvSlave):
     reference_inputs = {"lateral_error": ((0.0, 0.0), (0.5, 0.01)),
                         "speed": ((0.0, 14.0 / 3.6),)}
 
-    def __init__(self, **kwargs):
-        super().__init__(**kwargs)
+    def declare_gain_parameters(self):
         S, I = core.fmi_slave.String, core.fmi_slave.Integer
-        self.input("lateral_error", 0.0, "m", "Lateral error e of the axle's tracking point, "
-                   "positive left of the path")
-        self.input("speed", 0.0, "m/s", "Vehicle speed (scheduling variable)")
         self.parameter("kp_rules", core.fuzzy_pd.DEFAULT_KP_RULES, None,
                        "Kp rule table: 5 rows (e NB..PB) of 3 labels (speed low, mid, high) "
                        "from NB NM NS ZE PS PM PB, rows separated by ';'", kind=S)
@@ -45,36 +40,8 @@ class AgvFuzzyPd(core.fmi_slave.AgvSlave):
                        "(multiple of 4)", kind=I)
         self.parameter("v_cells", 40, None, "Gain-grid cells across the speed universe "
                        "(multiple of 2)", kind=I)
-        self.parameter("tau_d", 0.05, "s", "Derivative filter time constant")
-        self.parameter("delta_max", math.radians(35.0), "rad", "Steering saturation")
-        _outputs(self)
 
-    def make_core(self):
-        schedule = core.fuzzy_pd.FuzzySchedule(
+    def make_gains(self):
+        return core.fuzzy_pd.FuzzySchedule(
             self.kp_rules, self.kd_rules, self.e_max, self.v_max * core.fuzzy_pd.KMH,
             math.degrees(self.kp_max), math.degrees(self.kd_max), self.e_cells, self.v_cells)
-        return core.fuzzy_pd.AxlePD(schedule, self.tau_d, self.delta_max)
-
-    def advance(self, t, h):
-        self.core.advance(self.lateral_error, h)
-
-    def publish(self):
-        _publish(self)
-
-
-def _outputs(slave):
-    slave.output("delta", "rad", "Axle-equivalent steering angle, positive left, saturated",
-                 depends_on=_INPUTS)
-    slave.output("Kp_used", "rad/m", "Scheduled proportional gain in use", depends_on=_INPUTS)
-    slave.output("Kd_used", "rad.s/m", "Scheduled derivative gain in use", depends_on=_INPUTS)
-    slave.output("error_rate", "m/s", "Filtered rate of the lateral error",
-                 depends_on=("lateral_error",))
-    slave.output("saturated", None, "True while delta is limited by delta_max",
-                 depends_on=_INPUTS, kind=core.fmi_slave.Boolean, start=False)
-
-
-def _publish(slave):
-    out = slave.core.evaluate(slave.lateral_error, slave.speed)
-    slave.delta, slave.Kp_used, slave.Kd_used = out["delta"], out["Kp"], out["Kd"]
-    slave.error_rate, slave.saturated = out["error_rate"], out["saturated"]
-    slave.finite_or_fail(delta=slave.delta)
