@@ -20,9 +20,9 @@ import statistics
 
 import numpy as np
 
-from agv_core.ltv_mpc import LtvMpc
-from agv_core.ref_trajectory import RefTrajectory
-from agv_core.seed001_loop import run_loop
+from agv_core.ltv_mpc.ltv_mpc import LtvMpc
+from agv_core.ref_trajectory.ref_trajectory import RefTrajectory
+from agv_core.double_steer.seed001_loop import run_loop
 
 T = 0.2
 

@@ -54,7 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agv_cosim.build import build_one, default_components_dir
+from agv_cosim.build import build_one, slave_script
 from agv_cosim.master import simulate
 from agv_cosim.runner import prepare, run_job
 
@@ -110,8 +110,7 @@ def write_manifest(folder, fmus, stop, step, record_interval):
 
 def build(folder):
     """Build the five FMUs into ``folder``; return component name -> FMU path."""
-    slaves = default_components_dir() / "slaves"
-    return {c: build_one(slaves / s, folder).fmu for c, s in SCRIPTS.items()}
+    return {c: build_one(slave_script(Path(s).stem), folder).fmu for c, s in SCRIPTS.items()}
 
 
 # ------------------------------------------------------------------------ orchestrator

@@ -119,15 +119,14 @@ def main(argv=None):
         if shutil.which(tool) is None:
             sys.exit(f"check_exit_valgrind: needs {tool} on PATH")
 
-    from agv_cosim.build import build_one, default_components_dir
+    from agv_cosim.build import build_one, slave_script
 
     with tempfile.TemporaryDirectory(prefix="agv_exit_") as tmp:
         tmp = Path(tmp)
-        slaves = default_components_dir() / "slaves"
-        loader = [build_one(slaves / f"{name}.py", tmp / "loader").fmu for name in FMUS]
+        loader = [build_one(slave_script(name), tmp / "loader").fmu for name in FMUS]
         (tmp / "plain").mkdir()
         plain = [pythonfmu_only(fmu, tmp / "plain") for fmu in loader]
-        twins = [build_one(slaves / f"{name}.py", tmp / "fmi3", fmi_version=3).fmu
+        twins = [build_one(slave_script(name), tmp / "fmi3", fmi_version=3).fmu
                  for name in FMUS]
         (tmp / "fmi3_plain").mkdir()
         twins_plain = [without_exit_hook(fmu, tmp / "fmi3_plain") for fmu in twins]

@@ -13,9 +13,9 @@ Run:  .venv/bin/python experiments/seed001_pid_calibration.py
 
 import math
 
-from agv_core.pid import LateralPid
-from agv_core.ref_trajectory import RefTrajectory
-from agv_core.seed001_loop import run_loop
+from agv_core.lateral_pid.pid import LateralPid
+from agv_core.ref_trajectory.ref_trajectory import RefTrajectory
+from agv_core.double_steer.seed001_loop import run_loop
 
 TARGET = 0.19          # [m] the paper's overshoot
 WINDOW = (33.7, 40.0)  # [s] from the first curvature peak

@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from agv_core.ackermann import axle_angle, turning_curvature, wheel_angles, wheel_distances
+from agv_core.ackermann.ackermann import axle_angle, turning_curvature, wheel_angles, wheel_distances
 
 CASES = [(d, l) for d in (0.12, -0.05, 0.3, -0.4, 1e-9) for l in (8.0, 3.0, -3.0, -8.0)]
 

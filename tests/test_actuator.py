@@ -11,11 +11,10 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from agv_core.actuator import (EQ6_DC_GAIN, EQ6_DEN, EQ6_NUM, DelayedIntegratorActuator,
+from agv_core.steering.actuator import (EQ6_DC_GAIN, EQ6_DEN, EQ6_NUM, DelayedIntegratorActuator,
                                IdentifiedActuator, IntegratorActuator, make_actuator)
 from agv_core.errors import ParameterError
 
-SLAVES = Path(__file__).resolve().parents[1] / "components" / "slaves"
 
 
 def run(act, h, n, u=0.0, alpha_ref=0.0, t0=0.0):
@@ -201,10 +200,10 @@ def _purge_stale_cores():
 
 
 def build(tmp_path, stem):
-    from agv_cosim.build import build_one
+    from agv_cosim.build import build_one, slave_script
 
     _purge_stale_cores()
-    return build_one(SLAVES / f"{stem}.py", tmp_path).fmu
+    return build_one(slave_script(stem), tmp_path).fmu
 
 
 def simulate(fmu, params, inputs, h, n, tmp_path):

@@ -11,9 +11,9 @@ from fmpy.fmi1 import FMICallException
 import pytest
 
 from agv_cosim.build import (BuildError, build_fmus, build_one, default_components_dir,
-                             fmu_guid_of)
+                             fmu_guid_of, slave_script)
 
-VEHICLE = default_components_dir() / "slaves" / "agv_vehicle.py"
+VEHICLE = slave_script("agv_vehicle")
 
 
 def test_unchanged_rebuild_is_skipped_and_keeps_the_guid(tmp_path):
@@ -141,7 +141,7 @@ def test_failing_instances_do_not_corrupt_the_host(component_fmus):
 
 
 def test_failing_runs_do_not_corrupt_the_orchestrator(tmp_path):
-    """The reproducer of the third release (see agv_core/fmi_slave.py): FMUs built in the
+    """The reproducer of the third release (see agv_core/fmi/fmi_slave.py): FMUs built in the
     process, then two runs whose FMU fails, then a garbage collection, with CPython's
     debug allocator (freed memory is overwritten, so a use after free crashes at once)."""
     source = default_components_dir().parent / "tests" / "fmu_src"
@@ -192,7 +192,7 @@ def _variant_of_test_fail(tmp_path, class_body):
 
 def test_a_failing_default_experiment_fails_the_build_naming_it(tmp_path):
     script = _variant_of_test_fail(tmp_path, (
-        "    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0,\n"
+        "    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0,\n"
         "                                                          stop_time=2.0,\n"
         "                                                          step_size=0.1)\n"))
     with pytest.raises(BuildError, match="its default experiment failed.*deliberate failure"):
@@ -202,7 +202,7 @@ def test_a_failing_default_experiment_fails_the_build_naming_it(tmp_path):
 
 def test_reference_inputs_must_name_inputs(tmp_path):
     script = _variant_of_test_fail(tmp_path, (
-        "    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0,\n"
+        "    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0,\n"
         "                                                          stop_time=0.5,\n"
         "                                                          step_size=0.1)\n"
         "    reference_inputs = {'fail_time': ((0.0, 1.0),)}\n"))

@@ -16,14 +16,13 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 from scipy.integrate import solve_ivp
 
-from agv_core import chained_form as cf
+from agv_core.chained_form import chained_form as cf
 from agv_core.errors import ParameterError
-from agv_core.vehicle import Vehicle
-from agv_cosim.build import build_one, default_components_dir
+from agv_core.vehicle.vehicle import Vehicle
+from agv_cosim.build import build_one, slave_script
 
 KD, KP, L = 0.6, 0.09, 2.0
 DMAX = math.pi / 4
-SLAVES = default_components_dir() / "slaves"
 
 
 def closed_form(s, a2_0, a3_0, kd=KD, kp=KP):
@@ -259,7 +258,7 @@ def _build(script, out_dir):
 
 @pytest.fixture(scope="module")
 def fmu(tmp_path_factory):
-    path = _build(SLAVES / "agv_chained_form.py", tmp_path_factory.mktemp("cf"))
+    path = _build(slave_script("agv_chained_form"), tmp_path_factory.mktemp("cf"))
     md = read_model_description(path)
     folder = extract(str(path))
     yield path, md, folder
@@ -331,7 +330,7 @@ def test_fmu_pose_mode_matches_the_core_and_the_exact_sine_projection(fmu):
 
 def test_fmu_closed_loop_with_vehicle_on_the_2_m_step(fmu, tmp_path):
     """Vehicle FMU + controller FMU (pose mode, 'line:step_at=5,step=2'), 6 km/h."""
-    vehicle_fmu = _build(SLAVES / "agv_vehicle.py", tmp_path)
+    vehicle_fmu = _build(slave_script("agv_vehicle"), tmp_path)
     vmd = read_model_description(vehicle_fmu)
     vfolder = extract(str(vehicle_fmu))
     vrefs = {v.name: v.valueReference for v in vmd.modelVariables}

@@ -1,6 +1,6 @@
 """FMI 3.0 twins (``agv-cosim build --fmi 3``): valid, described, and bit-identical to FMI 2.0.
 
-Every slave script in components/slaves is built a second time as an FMI 3.0 co-simulation
+Every slave script in components/agv_core/*/ is built a second time as an FMI 3.0 co-simulation
 FMU with pythonfmu3 (agv_core/fmi3_slave.py). Checked here, per component:
 
 - ``fmpy.validation.validate_fmu`` reports nothing;
@@ -32,7 +32,7 @@ from fmpy.validation import validate_fmu
 
 from agv_cosim import cli
 from agv_cosim.build import BuildError, build_fmus, build_one, default_components_dir, \
-    slave_scripts
+    slave_script, slave_scripts
 
 SCRIPTS = [p.stem for p in slave_scripts(default_components_dir())]
 
@@ -236,7 +236,7 @@ def test_twins_never_replace_fmi2_fmus(component_fmus, tmp_path):
     fmi2 = out / component_fmus["agv_vehicle"].name
     fmi2.write_bytes(component_fmus["agv_vehicle"].read_bytes())
     with pytest.raises(BuildError, match="is an FMI 2.0 FMU; build the FMI 3.0 twins into"):
-        build_one(default_components_dir() / "slaves" / "agv_vehicle.py", out, fmi_version=3)
+        build_one(slave_script("agv_vehicle"), out, fmi_version=3)
     assert fmi2.read_bytes() == component_fmus["agv_vehicle"].read_bytes()
 
 

@@ -3,7 +3,7 @@
 Parametrised over every slave script in components/slaves: a new component is checked the
 moment it is added. What a slave must declare for these tests: ``default_experiment``
 (start, stop, step) and, if its experiment drives inputs, ``reference_inputs`` (see
-agv_core.fmi_slave.AgvSlave); the build does the rest.
+agv_core.fmi.fmi_slave.AgvSlave); the build does the rest.
 """
 
 import io
@@ -165,7 +165,7 @@ def test_seed003_references_hold_the_closed_forms(component_fmus):
         assert errors[f"s{i}"][4] == pytest.approx(x_before, abs=1e-12)
         assert errors[f"s{i}"][-1] == pytest.approx(x_before + 2.0, abs=1e-12)
 
-    from agv_core.fuzzy_pd import FuzzySchedule
+    from agv_core.axle_pd.fuzzy_pd import FuzzySchedule
     kp_fuzzy, kd_fuzzy = FuzzySchedule().gains(0.01, 14.0)
     for name, kp, kd in (("agv_fixed_pd", 710.0, 112.0), ("agv_fuzzy_pd", kp_fuzzy, kd_fuzzy)):
         pd = _reference(component_fmus, name)

@@ -22,7 +22,7 @@ FULL_SPEC = {
 
 def _has_paths():
     try:
-        import agv_core.paths  # noqa: F401
+        import agv_core.numerics.paths  # noqa: F401
     except ImportError:
         return False
     return True
@@ -326,9 +326,9 @@ def test_metrics_of_a_vehicle_fmu_run(tmp_path):
     """
     from fmpy import simulate_fmu
 
-    from agv_cosim.build import build_one, default_components_dir
+    from agv_cosim.build import build_one, slave_script
 
-    script = default_components_dir() / "slaves" / "agv_vehicle.py"
+    script = slave_script("agv_vehicle")
     fmu = build_one(script, tmp_path).fmu
     stop, heading = 4.0, 0.1
     result = simulate_fmu(str(fmu), stop_time=stop, step_size=0.01, output_interval=0.01,

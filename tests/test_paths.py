@@ -7,7 +7,7 @@ import pytest
 from scipy.integrate import quad
 
 from agv_core.errors import ParameterError
-from agv_core.paths import heading_error, parse_path
+from agv_core.numerics.paths import heading_error, parse_path
 
 RNG = np.random.default_rng(12345)
 

@@ -12,7 +12,7 @@ from agv_cosim.plots import (RunData, plot_runs, referenced_signals, signals_fig
 
 def _has_paths():
     try:
-        import agv_core.paths  # noqa: F401
+        import agv_core.numerics.paths  # noqa: F401
     except ImportError:
         return False
     return True
@@ -71,7 +71,7 @@ def test_trajectory_figure_without_path():
 
 @pytest.mark.skipif(not _has_paths(), reason="agv_core.paths not available yet")
 def test_trajectory_reference_path_is_drawn(tmp_path):
-    from agv_core.paths import parse_path
+    from agv_core.numerics.paths import parse_path
 
     # seed 004's sine y = 2 sin(x / 3): wavelength 6 pi
     path = f"sine:amplitude=2,wavelength={6 * math.pi!r}"
@@ -161,9 +161,9 @@ def test_plot_a_vehicle_fmu_run(tmp_path):
     """Two vehicle-FMU runs through fmpy (one cut short as partial) end up in the files."""
     from fmpy import simulate_fmu
 
-    from agv_cosim.build import build_one, default_components_dir
+    from agv_cosim.build import build_one, slave_script
 
-    script = default_components_dir() / "slaves" / "agv_vehicle.py"
+    script = slave_script("agv_vehicle")
     fmu = build_one(script, tmp_path / "fmu").fmu
     runs = []
     for label, alpha, stop in (("alpha=0.1", 0.1, 6.0), ("alpha=0.2", 0.2, 3.0)):

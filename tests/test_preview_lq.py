@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from agv_core.errors import ParameterError
-from agv_core.paths import parse_path
-from agv_core.preview_lq import (DiscretePath, PreviewLQ, arc_pose, discretise, future_point,
+from agv_core.numerics.paths import parse_path
+from agv_core.preview_lq.preview_lq import (DiscretePath, PreviewLQ, arc_pose, discretise, future_point,
                                  lq_gain, variational_model)
-from agv_core.vehicle import Vehicle
+from agv_core.vehicle.vehicle import Vehicle
 
 L, V, TAU = 1.6, 1.5, 0.65
 Q, R = (10.0, 10.0, 10.0, 1.0), (10000.0, 1.0)
@@ -242,9 +242,9 @@ def test_fmu_matches_the_core(tmp_path):
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
-    from agv_cosim.build import build_one, default_components_dir
+    from agv_cosim.build import build_one, slave_script
 
-    fmu = build_one(default_components_dir() / "slaves" / "agv_preview_lq.py", tmp_path).fmu
+    fmu = build_one(slave_script("agv_preview_lq"), tmp_path).fmu
     md = read_model_description(str(fmu))
     vr = {v.name: v.valueReference for v in md.modelVariables}
     unzipped = extract(str(fmu), unzipdir=str(tmp_path / "x"))

@@ -5,7 +5,7 @@ import math
 import pytest
 
 from agv_core.errors import ParameterError
-from agv_core.ref_trajectory import RefTrajectory
+from agv_core.ref_trajectory.ref_trajectory import RefTrajectory
 
 
 def test_circle_closed_form():

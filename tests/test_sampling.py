@@ -12,14 +12,14 @@ import math
 
 import pytest
 
-from agv_core import chained_form as cf
-from agv_core.ltv_mpc import LtvMpc
-from agv_core.paths import parse_path
-from agv_core.pid import LateralPid
-from agv_core.preview_lq import PreviewLQ
-from agv_core.sampling import TIME_EPS, SampleHold, at_instant, in_step, last_index
-from agv_core.sensors import EPS, TotalStation, VisionSensor
-from agv_core.state_feedback import StateFeedback
+from agv_core.chained_form import chained_form as cf
+from agv_core.ltv_mpc.ltv_mpc import LtvMpc
+from agv_core.numerics.paths import parse_path
+from agv_core.lateral_pid.pid import LateralPid
+from agv_core.preview_lq.preview_lq import PreviewLQ
+from agv_core.numerics.sampling import TIME_EPS, SampleHold, at_instant, in_step, last_index
+from agv_core.sensors.sensors import EPS, TotalStation, VisionSensor
+from agv_core.state_feedback.state_feedback import StateFeedback
 
 T = 0.1
 LINE = parse_path("line:")

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from agv_core.state_feedback import PAPER_GAINS, closed_loop, model_b
+from agv_core.state_feedback.state_feedback import PAPER_GAINS, closed_loop, model_b
 from agv_cosim.runner import run_manifest
 
 EXPERIMENTS = __import__("pathlib").Path(__file__).resolve().parents[1] / "experiments"

@@ -23,10 +23,10 @@ import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
 
-from agv_core.ltv_mpc import LtvMpc
-from agv_core.pid import LateralPid
-from agv_core.ref_trajectory import RefTrajectory
-from agv_core.seed001_loop import run_loop
+from agv_core.ltv_mpc.ltv_mpc import LtvMpc
+from agv_core.lateral_pid.pid import LateralPid
+from agv_core.ref_trajectory.ref_trajectory import RefTrajectory
+from agv_core.double_steer.seed001_loop import run_loop
 from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
 

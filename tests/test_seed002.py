@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agv_core.paths import parse_path
+from agv_core.numerics.paths import parse_path
 from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
 
@@ -138,7 +138,7 @@ def sf_linear_response(v0, wheelbase=1.4944, K=0.6, tau=0.05, step=STEP, stop=30
     after which the rear-axle offset stays inside 2 cm.
     """
     import scipy.linalg
-    from agv_core.state_feedback import PAPER_GAINS, model_b
+    from agv_core.state_feedback.state_feedback import PAPER_GAINS, model_b
 
     A, B = model_b(v0, wheelbase, K)
     m = np.zeros((4, 4))

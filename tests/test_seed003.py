@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agv_core.fuzzy_pd import AxlePD, FixedGains, FuzzySchedule
-from agv_core.track_path import PointErrors, parse_track_path
-from agv_core.train import Train, TrainGeometry, steady_offsets
+from agv_core.axle_pd.fuzzy_pd import AxlePD, FixedGains, FuzzySchedule
+from agv_core.axle_pd.track_path import PointErrors, parse_track_path
+from agv_core.train.train import Train, TrainGeometry, steady_offsets
 from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agv_core.paths import parse_path
+from agv_core.numerics.paths import parse_path
 from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
 

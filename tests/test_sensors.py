@@ -8,10 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agv_core.paths import heading_error, parse_path
-from agv_core.sensors import GYRO_DRIFT, EPS, InstantSensor, TotalStation, VisionSensor
+from agv_core.numerics.paths import heading_error, parse_path
+from agv_core.sensors.sensors import GYRO_DRIFT, EPS, InstantSensor, TotalStation, VisionSensor
 
-SLAVES = Path(__file__).resolve().parent.parent / "components" / "slaves"
 
 
 def pose(t):
@@ -171,9 +170,9 @@ def test_vision_fmu_reproduces_projection(tmp_path):
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
-    from agv_cosim.build import build_one
+    from agv_cosim.build import build_one, slave_script
 
-    fmu = build_one(SLAVES / "agv_vision_sensor.py", tmp_path).fmu
+    fmu = build_one(slave_script("agv_vision_sensor"), tmp_path).fmu
     md = read_model_description(str(fmu))
     refs = {v.name: v.valueReference for v in md.modelVariables}
     lateral = next(o for o in md.outputs if o.variable.name == "lateral_error")
@@ -221,9 +220,9 @@ def test_steer_sensor_fmu_noise_and_resolution(tmp_path):
     the noise plus uniform quantisation, sqrt(1e-6 + res^2 / 12), within 10 %.
     """
     import fmpy
-    from agv_cosim.build import build_one, default_components_dir
+    from agv_cosim.build import build_one, slave_script
 
-    fmu = build_one(default_components_dir() / "slaves" / "agv_steer_sensor.py", tmp_path)
+    fmu = build_one(slave_script("agv_steer_sensor"), tmp_path)
     result = fmpy.simulate_fmu(str(fmu.fmu), stop_time=40.0, step_size=0.01,
                                output_interval=0.01, start_values={"alpha": 0.2})
     readings = result["alpha_meas"][1:]

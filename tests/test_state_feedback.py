@@ -10,10 +10,9 @@ import numpy as np
 import pytest
 
 from agv_core.errors import ParameterError
-from agv_core.state_feedback import (PAPER_GAINS, StateFeedback, closed_loop,
+from agv_core.state_feedback.state_feedback import (PAPER_GAINS, StateFeedback, closed_loop,
                                      find_wheelbase, lqr_gains, model_b)
 
-SLAVES = Path(__file__).resolve().parents[1] / "components" / "slaves"
 
 
 def test_law_sign_and_value():
@@ -130,12 +129,12 @@ def _purge_stale_cores():
 
 
 def test_fmu_feedthrough_and_sampling(tmp_path):
-    from agv_cosim.build import build_one
+    from agv_cosim.build import build_one, slave_script
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
     _purge_stale_cores()
-    fmu = build_one(SLAVES / "agv_state_feedback.py", tmp_path).fmu
+    fmu = build_one(slave_script("agv_state_feedback"), tmp_path).fmu
     md = read_model_description(fmu)
     deps = {o.variable.name: {d.name for d in o.dependencies} for o in md.outputs}
     assert deps == {"u": {"alpha", "heading_error", "lateral_error"}}

@@ -7,7 +7,7 @@ import pytest
 from scipy.special import fresnel
 
 from agv_core.errors import ParameterError
-from agv_core.track_path import PointErrors, parse_track_path
+from agv_core.axle_pd.track_path import PointErrors, parse_track_path
 
 QUARTER = math.pi / 2
 

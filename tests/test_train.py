@@ -7,7 +7,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from agv_core.errors import ParameterError
-from agv_core.train import Train, TrainGeometry, steady_axle_angles, steady_pose
+from agv_core.train.train import Train, TrainGeometry, steady_axle_angles, steady_pose
 
 GEOM = TrainGeometry(L1=5.0, L2=3.0, d=2.1, Lm=9.0)
 V = 14 / 3.6

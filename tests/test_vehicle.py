@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from agv_core.errors import ParameterError
-from agv_core.vehicle import Vehicle
+from agv_core.vehicle.vehicle import Vehicle
 
 
 @pytest.mark.parametrize("reference_point", ["front", "rear"])

@@ -22,9 +22,9 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from agv_core.fuzzy_pd import FuzzySchedule
-from agv_core.track_path import parse_track_path
-from agv_core.train import TrainGeometry, steady_offsets
+from agv_core.axle_pd.fuzzy_pd import FuzzySchedule
+from agv_core.axle_pd.track_path import parse_track_path
+from agv_core.train.train import TrainGeometry, steady_offsets
 from agv_cosim.results import read_timeseries
 
 FIG = Path("experiments/figures")

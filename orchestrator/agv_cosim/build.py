@@ -1,10 +1,14 @@
-"""Build the component FMUs from ``components/slaves/*.py`` with pythonfmu.
+"""Build the component FMUs from the slave scripts in ``components/agv_core/<component>/``.
 
-Each FMU bundles its slave script, ``agv_boot.py`` and a copy of ``agv_core`` tagged with
-a content hash (``agv_core/BUILD_ID``), a ``requirements.txt`` for the host Python, and
-``agv_build.json`` with a GUID derived from every source that goes into the FMU. A
-rebuild with unchanged sources is skipped (the FMU's GUID already matches), and a built
-FMU that ``fmpy.validation`` finds fault with fails the build.
+A slave script is a module named ``agv_*.py`` in a component folder of ``agv_core`` (one
+folder per component: its core, its slave scripts, its README and reference result; see
+components/README.md). Each FMU bundles its slave script, the boot loader
+``agv_core/fmi/agv_boot.py`` (at the top of ``resources/``) and a copy of the ``agv_core``
+package without the slave scripts, tagged with a content hash (``agv_core/BUILD_ID``), a
+``requirements.txt`` for the host Python, and ``agv_build.json`` with a GUID derived from
+every source that goes into the FMU. A rebuild with unchanged sources is skipped (the FMU's
+GUID already matches), and a built FMU that ``fmpy.validation`` finds fault with fails the
+build.
 
 pythonfmu's Linux binary needs a Python already in the host process and corrupts the heap
 at exit. The build therefore compiles ``components/fmu_loader/agv_fmu_loader.c`` (gcc, the
@@ -16,14 +20,14 @@ wrapper cleanly (see the C source for why and how).
 
 ``fmi_version=3`` builds the FMI 3.0 twin of each slave script with pythonfmu3 instead
 (``agv-cosim build --fmi 3``): the same slave script and core, run on the FMI 3.0 adapter
-``agv_core/fmi3_slave.py``. pythonfmu3 takes the slave class from a ``class`` line that
+``agv_core/fmi/fmi3_slave.py``. pythonfmu3 takes the slave class from a ``class`` line that
 names ``Fmi3Slave``, so the build bundles the slave script unchanged under the name
 ``<stem>_fmi3_body.py`` and writes a two-line wrapper script ``<stem>_fmi3.py`` whose class
 derives from the script's class and names ``Fmi3Slave``. The bundled ``agv_core`` has
-``fmi_slave`` as an alias of ``fmi3_slave`` (and a BUILD_ID of its own), so the script's
-``core.fmi_slave.AgvSlave`` is the FMI 3.0 adapter. FMI 3.0 twins ship pythonfmu3's own
-binary: the C loader speaks FMI 2.0 only, so they need a host with Python in its process
-(see docs/using-the-fmus.md).
+``fmi/fmi_slave.py`` as an alias of ``fmi/fmi3_slave.py`` (and a BUILD_ID of its own), so
+the script's ``core.fmi.fmi_slave.AgvSlave`` is the FMI 3.0 adapter. FMI 3.0 twins ship
+pythonfmu3's own binary: the C loader speaks FMI 2.0 only, so they need a host with Python in
+its process (see docs/using-the-fmus.md).
 """
 
 import ast
@@ -52,6 +56,11 @@ BUILD_FORMAT = 2
 HOST_REQUIREMENTS = "numpy>=1.24\nscipy>=1.10\nosqp>=1.0\nscikit-fuzzy>=0.5\n"
 
 BOOT_SCRIPT = "agv_boot.py"
+#: Where the boot loader lives, relative to ``components/``.
+BOOT_SOURCE = Path("agv_core") / "fmi" / BOOT_SCRIPT
+#: Slave scripts (and the boot loader) are the ``agv_*.py`` files of ``agv_core``: they run
+#: as top-level modules of an FMU, never as part of the bundled package.
+SLAVE_PATTERN = "agv_*.py"
 LOADER_SOURCE = Path("fmu_loader") / "agv_fmu_loader.c"
 #: pythonfmu's own binary is shipped under this suffix beside the loader.
 WRAPPER_SUFFIX = ".pythonfmu.so"
@@ -62,8 +71,9 @@ FMI_VERSIONS = (2, 3)
 #: Suffixes of the generated FMI 3.0 wrapper script and of the bundled slave script.
 FMI3_WRAPPER_SUFFIX = "_fmi3"
 FMI3_BODY_SUFFIX = "_fmi3_body"
-#: The FMI 3.0 bundle's ``agv_core/fmi_slave.py``: the FMI 3.0 adapter under the FMI 2.0 name.
-FMI3_ALIAS = ('"""In FMI 3.0 twins agv_core.fmi_slave is the FMI 3.0 adapter '
+#: The FMI 3.0 bundle's ``agv_core/fmi/fmi_slave.py``: the FMI 3.0 adapter under the FMI 2.0
+#: name.
+FMI3_ALIAS = ('"""In FMI 3.0 twins agv_core.fmi.fmi_slave is the FMI 3.0 adapter '
               '(written by agv-cosim build)."""\n\n'
               "from .fmi3_slave import *  # noqa: F401,F403\n"
               "from .fmi3_slave import AgvSlave, DefaultExperiment  # noqa: F401\n")
@@ -91,15 +101,35 @@ def default_components_dir():
 
 
 def slave_scripts(components_dir):
-    """The slave scripts in ``components_dir/slaves`` (every ``*.py`` but the boot loader)."""
-    slaves = Path(components_dir) / "slaves"
-    if not slaves.is_dir():
-        raise BuildError(f"no slave scripts: '{slaves}' is not a folder")
-    return sorted(p for p in slaves.glob("*.py") if p.name != BOOT_SCRIPT)
+    """The slave scripts of every component folder ``components_dir/agv_core/<component>/``.
+
+    Every ``agv_*.py`` there but the boot loader, sorted by file name (the file name is the
+    slave's module name in a host process, so it is unique across components).
+    """
+    core = Path(components_dir) / "agv_core"
+    if not core.is_dir():
+        raise BuildError(f"no slave scripts: '{core}' is not a folder")
+    scripts = sorted((p for p in core.glob(f"*/{SLAVE_PATTERN}") if p.name != BOOT_SCRIPT),
+                     key=lambda p: p.name)
+    names = [p.name for p in scripts]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise BuildError(f"slave script names must be unique: {', '.join(twice)}")
+    return scripts
+
+
+def slave_script(stem, components_dir=None):
+    """The slave script named ``stem`` (e.g. ``"agv_vehicle"``), in whichever component folder."""
+    for script in slave_scripts(components_dir or default_components_dir()):
+        if script.stem == stem:
+            return script
+    raise BuildError(f"no slave script named '{stem}.py'")
 
 
 def _core_files(core_dir):
-    return sorted(p for p in core_dir.rglob("*.py") if "__pycache__" not in p.parts)
+    """The bundled sources: every ``*.py`` of the package but the slave scripts and boot."""
+    return sorted(p for p in core_dir.rglob("*.py")
+                  if "__pycache__" not in p.parts and not p.match(SLAVE_PATTERN))
 
 
 def core_tag(core_dir):
@@ -378,10 +408,11 @@ def fmi3_wrapper_source(script):
             "'agv-cosim build --fmi 3'.\n\n"
             "pythonfmu3 takes the slave class from a class line naming Fmi3Slave; the class\n"
             f"body is {script.name}'s, bundled beside this file as {body}.py, whose\n"
-            "core.fmi_slave is the FMI 3.0 adapter (agv_core/fmi3_slave.py) in this FMU.\n"
+            "core.fmi.fmi_slave is the FMI 3.0 adapter (agv_core/fmi/fmi3_slave.py) in this\n"
+            "FMU.\n"
             '"""\n\n'
             f"from {body} import {name} as _Body, core\n\n\n"
-            f"class {name}(_Body, core.fmi_slave.Fmi3Slave):\n"
+            f"class {name}(_Body, core.fmi.fmi_slave.Fmi3Slave):\n"
             "    __doc__ = _Body.__doc__\n")
 
 
@@ -403,7 +434,7 @@ def _stage(script, core_dir, boot, tag, guid, stage_dir, fmi_version=2):
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(path, target)
     if fmi_version == 3:
-        (core_copy / "fmi_slave.py").write_text(FMI3_ALIAS)
+        (core_copy / "fmi" / "fmi_slave.py").write_text(FMI3_ALIAS)
     (core_copy / "BUILD_ID").write_text(tag + "\n")
     python = host_python()
     info = {"guid": guid, "core_tag": tag, "script": script.name,
@@ -449,7 +480,7 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_versi
                          + ", ".join(map(str, FMI_VERSIONS)))
     script = Path(script).resolve()
     core_dir = Path(core_dir) if core_dir else default_components_dir() / "agv_core"
-    boot = default_components_dir() / "slaves" / BOOT_SCRIPT
+    boot = default_components_dir() / BOOT_SOURCE
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     tag = core_tag(core_dir)

@@ -401,7 +401,7 @@ def load_path(path, key, base_dir=None):
         Folder that relative file names in the path string (waypoints) are relative to.
     """
     from agv_core.errors import ParameterError
-    from agv_core.paths import parse_path
+    from agv_core.numerics.paths import parse_path
 
     try:
         return parse_path(path, base_dir=base_dir)

@@ -4,10 +4,10 @@ import os
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave")
+core = load_core("fmi.fmi_slave")
 
 
-class AgvTestCrash(core.fmi_slave.AgvSlave):
+class AgvTestCrash(core.fmi.fmi_slave.AgvSlave):
     """Counts time; aborts its host process from ``crash_time`` on (a crashing FMU)."""
 
     description = "Test FMU that crashes its host at a given time"

@@ -7,10 +7,10 @@ of the refused step (measured): a stop request in the middle of a macro step.
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave")
+core = load_core("fmi.fmi_slave")
 
 
-class AgvTestDiscard(core.fmi_slave.AgvSlave):
+class AgvTestDiscard(core.fmi.fmi_slave.AgvSlave):
     """y = t; refuses every step from discard_time on (a stop request)."""
 
     description = "Test FMU that asks to stop (fmi2Discard + terminated) at a given time"

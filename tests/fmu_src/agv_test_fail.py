@@ -2,10 +2,10 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "errors")
+core = load_core("fmi.fmi_slave", "errors")
 
 
-class AgvTestFail(core.fmi_slave.AgvSlave):
+class AgvTestFail(core.fmi.fmi_slave.AgvSlave):
     """Feedthrough that fails (fmi2DoStep returns an error) from ``fail_time`` on."""
 
     description = "Test FMU that fails at a given time"

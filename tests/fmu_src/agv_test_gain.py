@@ -2,10 +2,10 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave")
+core = load_core("fmi.fmi_slave")
 
 
-class AgvTestGain(core.fmi_slave.AgvSlave):
+class AgvTestGain(core.fmi.fmi_slave.AgvSlave):
     """Static gain for orchestrator tests (output depends directly on the input)."""
 
     description = "Test gain: y = k * u"

@@ -2,10 +2,10 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave")
+core = load_core("fmi.fmi_slave")
 
 
-class AgvTestIntegrator(core.fmi_slave.AgvSlave):
+class AgvTestIntegrator(core.fmi.fmi_slave.AgvSlave):
     """Integrator for orchestrator tests (no direct feedthrough)."""
 
     description = "Test integrator: dy/dt = u"

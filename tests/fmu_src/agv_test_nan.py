@@ -2,10 +2,10 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave")
+core = load_core("fmi.fmi_slave")
 
 
-class AgvTestNan(core.fmi_slave.AgvSlave):
+class AgvTestNan(core.fmi.fmi_slave.AgvSlave):
     """Source whose output becomes NaN from ``nan_time`` on."""
 
     description = "Test FMU that outputs NaN from a given time"

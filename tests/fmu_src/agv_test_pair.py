@@ -6,10 +6,10 @@ component level without a loop between variables; n is an Integer parameter.
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave")
+core = load_core("fmi.fmi_slave")
 
 
-class AgvTestPair(core.fmi_slave.AgvSlave):
+class AgvTestPair(core.fmi.fmi_slave.AgvSlave):
     """Two feedthrough channels for orchestrator tests."""
 
     description = "Test pair: y1 = u1, y2 = n * u2"
@@ -19,7 +19,7 @@ class AgvTestPair(core.fmi_slave.AgvSlave):
         self.input("u1", 0.0, "1", "First input")
         self.input("u2", 0.0, "1", "Second input")
         self.parameter("n", 1, None, "Integer gain of the second channel",
-                       kind=core.fmi_slave.Integer)
+                       kind=core.fmi.fmi_slave.Integer)
         self.output("y1", "1", "u1", depends_on=("u1",))
         self.output("y2", "1", "n * u2", depends_on=("u2",))
 

@@ -2,7 +2,7 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave")
+core = load_core("fmi.fmi_slave")
 
 
 class RampCore:
@@ -25,7 +25,7 @@ class RampCore:
         self.t = float(state["t"])
 
 
-class AgvTestSource(core.fmi_slave.AgvSlave):
+class AgvTestSource(core.fmi.fmi_slave.AgvSlave):
     """Ramp source for orchestrator tests."""
 
     description = "Test source: y = offset + slope * t"
@@ -36,7 +36,8 @@ class AgvTestSource(core.fmi_slave.AgvSlave):
         self.parameter("slope", 1.0, "1/s", "Rate of change")
         self.output("y", "1", "Ramp value")
         self.output("t_out", "s", "Current time")
-        self.output("count", None, "Number of steps taken", kind=core.fmi_slave.Integer, start=0)
+        self.output("count", None, "Number of steps taken", kind=core.fmi.fmi_slave.Integer,
+                    start=0)
 
     def make_core(self):
         return RampCore(self.offset, self.slope, self.time)

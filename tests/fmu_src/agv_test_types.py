@@ -8,7 +8,7 @@ Inputs ``ri``, ``ii``, ``bi``, ``si`` are echoed (feedthrough) on ``ro``, ``io``
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave")
+core = load_core("fmi.fmi_slave")
 
 
 class CounterCore:
@@ -24,7 +24,7 @@ class CounterCore:
         self.k = int(state["k"])
 
 
-class AgvTestTypes(core.fmi_slave.AgvSlave):
+class AgvTestTypes(core.fmi.fmi_slave.AgvSlave):
     """Typed source and echo for orchestrator tests."""
 
     description = "Test source of every FMI 2.0 type, and typed echoes"

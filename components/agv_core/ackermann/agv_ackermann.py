@@ -3,12 +3,12 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "ackermann", "train")
+core = load_core("fmi.fmi_slave", "ackermann.ackermann", "train.train")
 
 _AXLES = (1, 2, 3, 4)
 
 
-class AgvAckermann(core.fmi_slave.AgvSlave):
+class AgvAckermann(core.fmi.fmi_slave.AgvSlave):
     """Seed 003 single-axle coordination: four axle angles in, eight wheel angles out."""
 
     description = ("Seed 003 per-axle Ackermann coordination: each axle's turning centre on "
@@ -17,8 +17,8 @@ class AgvAckermann(core.fmi_slave.AgvSlave):
     #: Reference: the steady R = 20 m left-circle angles (+-asin(L1 / 2R), front +, rear -)
     #: from 0.5 s, then a right turn (signs flipped) from 1.0 s: each wheel angle against
     #: tan(dL) = l t / (l - (d/2) t), tan(dR) = l t / (l + (d/2) t), t = tan(delta).
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.5,
-                                                          step_size=0.1)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.5,
+                                                              step_size=0.1)
     reference_inputs = {f"delta{i}": ((0.0, 0.0), (0.5, sign * 0.1253278311680654),
                                       (1.0, -sign * 0.1253278311680654))
                         for i, sign in zip(_AXLES, (1.0, -1.0, 1.0, -1.0))}
@@ -42,8 +42,8 @@ class AgvAckermann(core.fmi_slave.AgvSlave):
                         "of the car's centre line; 0 = straight)", depends_on=(f"delta{i}",))
 
     def make_core(self):
-        geometry = core.train.TrainGeometry(self.L1, self.L2, self.d)
-        return core.ackermann.TrainCoordination(geometry.axle_offsets, geometry.d)
+        geometry = core.train.train.TrainGeometry(self.L1, self.L2, self.d)
+        return core.ackermann.ackermann.TrainCoordination(geometry.axle_offsets, geometry.d)
 
     def advance(self, t, h):
         pass  # static map: publish() evaluates it from the held inputs
@@ -54,4 +54,5 @@ class AgvAckermann(core.fmi_slave.AgvSlave):
         for i, delta, l, (left, right) in zip(_AXLES, deltas, c.offsets, c.wheels(deltas)):
             setattr(self, f"delta{i}_left", left)
             setattr(self, f"delta{i}_right", right)
-            setattr(self, f"centre_curvature{i}", core.ackermann.turning_curvature(delta, l))
+            setattr(self, f"centre_curvature{i}",
+                    core.ackermann.ackermann.turning_curvature(delta, l))

@@ -3,12 +3,12 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "track_path", "paths")
+core = load_core("fmi.fmi_slave", "axle_pd.track_path", "numerics.paths")
 
 _AXLES = (1, 2, 3, 4)
 
 
-class AgvAxleErrors(core.fmi_slave.AgvSlave):
+class AgvAxleErrors(core.fmi.fmi_slave.AgvSlave):
     """Noise-free probe: four points in, their signed offsets from the path out."""
 
     description = ("Lateral errors of four tracking points (seed 003's axle centres) from "
@@ -16,8 +16,8 @@ class AgvAxleErrors(core.fmi_slave.AgvSlave):
 
     #: Reference: four points held on either side of the default path (the x axis), moved
     #: at 0.5 s: e_i = y_i and s_i = x_i exactly.
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.0,
-                                                          step_size=0.1)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.0,
+                                                              step_size=0.1)
     reference_inputs = {"x1": ((0.0, 10.0), (0.5, 12.0)), "y1": ((0.0, 0.5), (0.5, -0.25)),
                         "x2": ((0.0, 7.0), (0.5, 9.0)), "y2": ((0.0, -0.3), (0.5, 0.125)),
                         "x3": ((0.0, -2.0), (0.5, 0.0)), "y3": ((0.0, 0.2), (0.5, 0.0)),
@@ -30,7 +30,7 @@ class AgvAxleErrors(core.fmi_slave.AgvSlave):
             self.input(f"y{i}", 0.0, "m", f"y of tracking point {i}")
         self.parameter("path", "line", None,
                        "Reference path: 'curve:straight=..,radius=..,angle=..,transition=..' "
-                       "or any agv_core.paths kind", kind=core.fmi_slave.String)
+                       "or any agv_core.paths kind", kind=core.fmi.fmi_slave.String)
         for i in _AXLES:
             self.output(f"e{i}", "m", f"Signed lateral error of point {i}, positive left of "
                         "the path", depends_on=(f"x{i}", f"y{i}"))
@@ -39,7 +39,8 @@ class AgvAxleErrors(core.fmi_slave.AgvSlave):
                         depends_on=(f"x{i}", f"y{i}"))
 
     def make_core(self):
-        return core.track_path.PointErrors(core.track_path.parse_track_path(self.path), 4)
+        track_path = core.axle_pd.track_path
+        return track_path.PointErrors(track_path.parse_track_path(self.path), 4)
 
     def _points(self):
         return [(getattr(self, f"x{i}"), getattr(self, f"y{i}")) for i in _AXLES]

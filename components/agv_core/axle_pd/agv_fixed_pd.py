@@ -5,10 +5,10 @@ import math
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "fuzzy_pd", "axle_pd_fmi")
+core = load_core("fmi.fmi_slave", "axle_pd.fuzzy_pd", "fmi.axle_pd_fmi")
 
 
-class AgvFixedPd(core.axle_pd_fmi.AxlePdSlave):
+class AgvFixedPd(core.fmi.axle_pd_fmi.AxlePdSlave):
     """Same interface as AgvFuzzyPd, constant gains."""
 
     description = ("Fixed-gain PD steering law for one axle: delta = -(Kp e + Kd de/dt), "
@@ -21,8 +21,8 @@ class AgvFixedPd(core.axle_pd_fmi.AxlePdSlave):
     #: Reference: a 1 cm step of the lateral error at 0.5 s: with e held the filter is
     #: exact, error_rate = (e / tau_d) exp(-(t - 0.5) / tau_d), delta = -(Kp e + Kd
     #: error_rate) (0.52 rad peak, below delta_max).
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.0,
-                                                          step_size=0.01)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.0,
+                                                              step_size=0.01)
     reference_inputs = {"lateral_error": ((0.0, 0.0), (0.5, 0.01)),
                         "speed": ((0.0, 14.0 / 3.6),)}
 
@@ -33,4 +33,4 @@ class AgvFixedPd(core.axle_pd_fmi.AxlePdSlave):
                        "Derivative gain (default: the fuzzy Kd at e = 1 cm, 14 km/h)")
 
     def make_gains(self):
-        return core.fuzzy_pd.FixedGains(math.degrees(self.Kp), math.degrees(self.Kd))
+        return core.axle_pd.fuzzy_pd.FixedGains(math.degrees(self.Kp), math.degrees(self.Kd))

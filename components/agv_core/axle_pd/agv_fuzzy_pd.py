@@ -5,10 +5,10 @@ import math
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "fuzzy_pd", "axle_pd_fmi")
+core = load_core("fmi.fmi_slave", "axle_pd.fuzzy_pd", "fmi.axle_pd_fmi")
 
 
-class AgvFuzzyPd(core.axle_pd_fmi.AxlePdSlave):
+class AgvFuzzyPd(core.fmi.axle_pd_fmi.AxlePdSlave):
     """Seed 003 section 4: lateral error and speed in, axle steering angle out."""
 
     description = ("Seed 003 fuzzy-scheduled PD: a Mamdani system (scikit-fuzzy) sets Kp, Kd "
@@ -18,17 +18,17 @@ class AgvFuzzyPd(core.axle_pd_fmi.AxlePdSlave):
     #: filter is exact, error_rate = (e / tau_d) exp(-(t - 0.5) / tau_d) and
     #: delta = -(Kp e + Kd error_rate), Kp, Kd the schedule's gains at (1 cm, 14 km/h)
     #: (709.7 deg/m, 111.8 deg s/m).
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.0,
-                                                          step_size=0.01)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.0,
+                                                              step_size=0.01)
     reference_inputs = {"lateral_error": ((0.0, 0.0), (0.5, 0.01)),
                         "speed": ((0.0, 14.0 / 3.6),)}
 
     def declare_gain_parameters(self):
-        S, I = core.fmi_slave.String, core.fmi_slave.Integer
-        self.parameter("kp_rules", core.fuzzy_pd.DEFAULT_KP_RULES, None,
+        S, I = core.fmi.fmi_slave.String, core.fmi.fmi_slave.Integer
+        self.parameter("kp_rules", core.axle_pd.fuzzy_pd.DEFAULT_KP_RULES, None,
                        "Kp rule table: 5 rows (e NB..PB) of 3 labels (speed low, mid, high) "
                        "from NB NM NS ZE PS PM PB, rows separated by ';'", kind=S)
-        self.parameter("kd_rules", core.fuzzy_pd.DEFAULT_KD_RULES, None,
+        self.parameter("kd_rules", core.axle_pd.fuzzy_pd.DEFAULT_KD_RULES, None,
                        "Kd rule table, same layout", kind=S)
         self.parameter("e_max", 0.05, "m", "Lateral-error universe [-e_max, e_max]")
         self.parameter("v_max", 80.0 / 3.6, "m/s", "Speed universe [0, v_max] (80 km/h)")
@@ -42,6 +42,6 @@ class AgvFuzzyPd(core.axle_pd_fmi.AxlePdSlave):
                        "(multiple of 2)", kind=I)
 
     def make_gains(self):
-        return core.fuzzy_pd.FuzzySchedule(
-            self.kp_rules, self.kd_rules, self.e_max, self.v_max * core.fuzzy_pd.KMH,
+        return core.axle_pd.fuzzy_pd.FuzzySchedule(
+            self.kp_rules, self.kd_rules, self.e_max, self.v_max * core.axle_pd.fuzzy_pd.KMH,
             math.degrees(self.kp_max), math.degrees(self.kd_max), self.e_cells, self.v_cells)

@@ -32,7 +32,7 @@ import math
 import numpy as np
 from scipy.integrate import trapezoid
 
-from .errors import ParameterError
+from ..errors import ParameterError
 
 INPUT_E = ("NB", "NS", "ZE", "PS", "PB")
 INPUT_V = ("low", "mid", "high")

@@ -28,8 +28,8 @@ import math
 
 import numpy as np
 
-from .errors import ParameterError
-from .paths import PathProjection, ReferencePath, parse_path
+from ..errors import ParameterError
+from ..numerics.paths import PathProjection, ReferencePath, parse_path
 
 _GL_X, _GL_W = (tuple(float(v) for v in a) for a in np.polynomial.legendre.leggauss(24))
 

@@ -2,13 +2,13 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "chained_form", "paths")
+core = load_core("fmi.fmi_slave", "chained_form.chained_form", "numerics.paths")
 
 _STATE_INPUTS = ("lateral_error", "heading_error", "curvature", "curvature_rate")
 _POSE_INPUTS = ("x", "y", "heading")
 
 
-class AgvChainedForm(core.fmi_slave.AgvSlave):
+class AgvChainedForm(core.fmi.fmi_slave.AgvSlave):
     """Seed 002 chained-form path following: path-relative state in, steering angle out."""
 
     description = ("Chained-form (Samson) path-following controller, seed 002 eq (23): "
@@ -17,15 +17,15 @@ class AgvChainedForm(core.fmi_slave.AgvSlave):
 
     #: Reference: a 0.1 m lateral error from the start and a 0.05 rad heading error from
     #: 0.5 s (source 'sensor', straight path).
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.0,
-                                                          step_size=0.01)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.0,
+                                                              step_size=0.01)
     reference_inputs = {"lateral_error": ((0.0, 0.1),),
                         "heading_error": ((0.0, 0.0), (0.5, 0.05))}
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        S = core.fmi_slave.String
-        B = core.fmi_slave.Boolean
+        S = core.fmi.fmi_slave.String
+        B = core.fmi.fmi_slave.Boolean
         self.input("lateral_error", 0.0, "m",
                    "Lateral deviation y of the rear-axle centre, positive left of the path "
                    "(source 'sensor')")
@@ -75,7 +75,7 @@ class AgvChainedForm(core.fmi_slave.AgvSlave):
                     start=True)
 
     def make_core(self):
-        return core.chained_form.make_controller(
+        return core.chained_form.chained_form.make_controller(
             self.Kd, self.Kp, self.wheelbase, self.delta_max, self.sample_period,
             self.source, self.path)
 

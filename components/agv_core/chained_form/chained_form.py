@@ -29,9 +29,9 @@ valid for |theta| < pi/2 and y c < 1. The steering angle is then saturated at
 
 import math
 
-from . import paths
-from .errors import ParameterError
-from .sampling import SampleHold
+from ..numerics import paths
+from ..errors import ParameterError
+from ..numerics.sampling import SampleHold
 
 #: Sources of the path-relative state understood by :class:`ChainedFormController`.
 SOURCES = ("sensor", "pose")

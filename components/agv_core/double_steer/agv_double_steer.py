@@ -4,12 +4,12 @@ import math
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "double_steer")
+core = load_core("fmi.fmi_slave", "double_steer.double_steer")
 
 WHEEL_INPUTS = ("theta_f", "v_f", "theta_b", "v_b")
 
 
-class AgvDoubleSteer(core.fmi_slave.AgvSlave):
+class AgvDoubleSteer(core.fmi.fmi_slave.AgvSlave):
     """Rigid-body kinematics of the double-steer AGV, integrated exactly for held inputs."""
 
     description = ("Double-steering-wheel AGV (seed 001): front/rear wheel angles and speeds "
@@ -19,8 +19,8 @@ class AgvDoubleSteer(core.fmi_slave.AgvSlave):
     #: Reference: symmetric steering theta_f = -theta_b = 0.2 rad at 0.5 m/s per wheel for
     #: 20 s: a circle of radius L / (2 sin 0.2) = 2.517 m about the centroid's turn centre
     #: (seed 001 claim G1).
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=20.0,
-                                                          step_size=0.01)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=20.0,
+                                                              step_size=0.01)
     reference_inputs = {"theta_f": ((0.0, 0.2),), "v_f": ((0.0, 0.5),),
                         "theta_b": ((0.0, -0.2),), "v_b": ((0.0, 0.5),)}
 
@@ -52,7 +52,8 @@ class AgvDoubleSteer(core.fmi_slave.AgvSlave):
         self.output("distance", "m", "Distance travelled by the centroid")
 
     def make_core(self):
-        return core.double_steer.DoubleSteerVehicle(self.wheelbase, self.x0, self.y0, self.yaw0)
+        return core.double_steer.double_steer.DoubleSteerVehicle(self.wheelbase, self.x0,
+                                                                 self.y0, self.yaw0)
 
     def _wheels(self):
         return self.theta_f, self.v_f, self.theta_b, self.v_b

@@ -2,18 +2,18 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "double_steer")
+core = load_core("fmi.fmi_slave", "double_steer.double_steer")
 
 
-class AgvDoubleSteerIk(core.fmi_slave.AgvSlave):
+class AgvDoubleSteerIk(core.fmi.fmi_slave.AgvSlave):
     """(v_c, omega) commands to wheel-angle set-points and wheel speeds, theta_b = -theta_f."""
 
     description = ("Double-steer AGV inverse kinematics (seed 001): centroid speed and yaw "
                    "rate commands in, symmetric wheel angles and speeds out")
 
     #: Reference: v_c = 0.4 m/s with omega stepping 0 -> 0.074 -> -0.3 rad/s (1 s each).
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=3.0,
-                                                          step_size=0.1)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=3.0,
+                                                              step_size=0.1)
     reference_inputs = {"v_c": ((0.0, 0.4),), "omega": ((0.0, 0.0), (1.0, 0.074), (2.0, -0.3))}
 
     def __init__(self, **kwargs):
@@ -29,7 +29,7 @@ class AgvDoubleSteerIk(core.fmi_slave.AgvSlave):
         self.output("v_b", "m/s", "Rear wheel speed (= v_f)", depends_on=both)
 
     def make_core(self):
-        return core.double_steer.InverseKinematics(self.wheelbase)
+        return core.double_steer.double_steer.InverseKinematics(self.wheelbase)
 
     def advance(self, t, h):
         pass  # algebraic

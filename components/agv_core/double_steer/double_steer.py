@@ -43,7 +43,7 @@ which the forward kinematics maps back to u = v_c, v = 0, omega exactly.
 
 import math
 
-from .errors import ParameterError
+from ..errors import ParameterError
 
 TWO_PI = 2.0 * math.pi
 

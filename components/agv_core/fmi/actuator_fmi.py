@@ -6,7 +6,7 @@ slave script subclasses :class:`ActuatorSlave` and sets ``model``, ``description
 ``rate_depends_on`` and, where needed, ``declare_model_parameters``.
 """
 
-from .actuator import make_actuator
+from ..steering.actuator import make_actuator
 from .fmi_slave import AgvSlave, DefaultExperiment, String
 
 

@@ -23,7 +23,8 @@ import importlib.util
 import sys
 from pathlib import Path
 
-BOOT_ABI = 1
+#: 2: the bundle has subpackages (one per component, numerics, fmi), re-pointed on reuse
+BOOT_ABI = 2
 
 # pythonfmu 0.7's findClass executes the slave script again at every instantiation, with
 # the module's globals, and then calls Py_DECREF on that globals dict although it only
@@ -51,10 +52,14 @@ def load_core(*submodules):
     name = f"agv_core_{tag}"
     module = sys.modules.get(name)
     if module is not None:
-        # Same tag, same content: point the package at this bundle, since the folder it was
-        # first loaded from may be gone (hosts delete extracted FMUs), and a submodule
-        # that no earlier FMU needed is imported from here.
+        # Same tag, same content: point the package and its loaded subpackages at this
+        # bundle, since the folder they were first loaded from may be gone (hosts delete
+        # extracted FMUs), and a submodule that no earlier FMU needed is imported from here.
         module.__path__[:] = [str(root)]
+        prefix = name + "."
+        for loaded, sub in list(sys.modules.items()):
+            if loaded.startswith(prefix) and hasattr(sub, "__path__"):
+                sub.__path__[:] = [str(root.joinpath(*loaded[len(prefix):].split(".")))]
     else:
         spec = importlib.util.spec_from_file_location(
             name, root / "__init__.py", submodule_search_locations=[str(root)]

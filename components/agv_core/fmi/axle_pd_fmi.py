@@ -9,7 +9,7 @@ returns the gain source of :class:`agv_core.fuzzy_pd.AxlePD` from ``make_gains``
 import math
 
 from .fmi_slave import AgvSlave, Boolean
-from .fuzzy_pd import AxlePD
+from ..axle_pd.fuzzy_pd import AxlePD
 
 INPUTS = ("lateral_error", "speed")
 

@@ -16,9 +16,9 @@ import math
 from pathlib import Path
 from xml.etree.ElementTree import Element, SubElement
 
-from . import __version__
-from .errors import ParameterError
-from .units import base_unit_attributes
+from .. import __version__
+from ..errors import ParameterError
+from ..units import base_unit_attributes
 
 #: Name of the build-info file the build writes into every FMU's ``resources/``.
 BUILD_INFO = "agv_build.json"
@@ -93,7 +93,7 @@ class SlaveLogic:
         if self.resources is None:
             return
         build_id = Path(self.resources) / "agv_core" / "BUILD_ID"
-        package = __name__.rpartition(".")[0]
+        package = __name__.partition(".")[0]  # the root package, agv_core_<tag>
         if not build_id.is_file() or not package.startswith("agv_core_"):
             return
         bundled = "agv_core_" + build_id.read_text().strip()

@@ -2,10 +2,10 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "tracking_fmi", "pid")
+core = load_core("fmi.fmi_slave", "fmi.tracking_fmi", "lateral_pid.pid")
 
 
-class AgvLateralPid(core.tracking_fmi.TrackingSlave):
+class AgvLateralPid(core.fmi.tracking_fmi.TrackingSlave):
     """Sampled PID on the lateral error, constant speed v_r (swap-in for AgvLtvMpc)."""
 
     description = ("Seed-001 comparison PID: pose and reference in, (v_c = v_r, omega) out; "
@@ -13,8 +13,8 @@ class AgvLateralPid(core.tracking_fmi.TrackingSlave):
 
     #: Reference: a held pose 0.1 m left of a reference moving along x at 0.4 m/s, heading
     #: 0: the PID's first 20 samples (open loop: the integral grows, omega saturates).
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=4.0,
-                                                          step_size=0.2)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=4.0,
+                                                              step_size=0.2)
     reference_inputs = {"y": ((0.0, 0.1),), "v_ref": ((0.0, 0.4),)}
 
     def declare_parameters(self):
@@ -28,11 +28,11 @@ class AgvLateralPid(core.tracking_fmi.TrackingSlave):
 
     def declare_extra_outputs(self):
         self.output("integral", "m.s", "Integral of e_lat (held while omega saturates)",
-                    depends_on=core.tracking_fmi.INPUTS)
+                    depends_on=core.fmi.tracking_fmi.INPUTS)
 
     def make_core(self):
-        return core.pid.LateralPid(self.kp, self.ki, self.kd, self.sample_time,
-                                   self.omega_max)
+        return core.lateral_pid.pid.LateralPid(self.kp, self.ki, self.kd, self.sample_time,
+                                               self.omega_max)
 
     def publish_extra(self, out):
         self.integral = out["integral"]

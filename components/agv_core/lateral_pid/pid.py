@@ -19,9 +19,9 @@ Ki [rad/(s^2 m)], Kd [rad/m].
 
 import math
 
-from .errors import ParameterError
-from .ltv_mpc import LtvMpc, errors
-from .sampling import SampleHold
+from ..errors import ParameterError
+from ..ltv_mpc.ltv_mpc import LtvMpc, errors
+from ..numerics.sampling import SampleHold
 
 
 class LateralPid:

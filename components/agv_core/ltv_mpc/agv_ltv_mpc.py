@@ -2,28 +2,28 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "tracking_fmi", "ltv_mpc")
+core = load_core("fmi.fmi_slave", "fmi.tracking_fmi", "ltv_mpc.ltv_mpc")
 
 
-class AgvLtvMpc(core.tracking_fmi.TrackingSlave):
+class AgvLtvMpc(core.fmi.tracking_fmi.TrackingSlave):
     """LTV MPC on the unicycle error model, increments with bounds and slack, OSQP."""
 
     description = ("Seed-001 LTV MPC: pose and reference in, (v_c, omega) out; QP by OSQP "
                    "(warm-started), a QP that is not solved is an FMU error")
-    solve_errors = (core.ltv_mpc.MpcSolveError,)
+    solve_errors = (core.ltv_mpc.ltv_mpc.MpcSolveError,)
 
     #: Reference: a held pose 0.5 m left of a reference moving along x at 0.4 m/s, heading
     #: 0: the MPC's first 20 samples (open loop: the pose input does not move).
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=4.0,
-                                                          step_size=0.2)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=4.0,
+                                                              step_size=0.2)
     reference_inputs = {"y": ((0.0, 0.5),), "v_ref": ((0.0, 0.4),)}
 
     def declare_parameters(self):
         p = self.parameter
         p("sample_time", 0.2, "s", "Sample time T (prediction step and output update)")
-        p("horizon", 5, None, "Prediction horizon N (samples)", kind=core.fmi_slave.Integer)
+        p("horizon", 5, None, "Prediction horizon N (samples)", kind=core.fmi.fmi_slave.Integer)
         p("control_horizon", 0, None, "Control horizon N_c (samples); 0 = N",
-          kind=core.fmi_slave.Integer)
+          kind=core.fmi.fmi_slave.Integer)
         p("q_x", 1.0, "1", "State weight on e_X (cost in SI numbers)")
         p("q_y", 1.0, "1", "State weight on e_Y")
         p("q_heading", 0.5, "1", "State weight on e_alpha")
@@ -38,17 +38,18 @@ class AgvLtvMpc(core.tracking_fmi.TrackingSlave):
         p("dv_max", 0.05, "m/s", "Bound of |Delta v_c| per sample")
         p("domega_max", 0.05, "rad/s", "Bound of |Delta omega| per sample")
         p("eps", 1e-7, "1", "OSQP absolute and relative tolerance")
-        p("max_iter", 4000, None, "OSQP iteration limit per sample", kind=core.fmi_slave.Integer)
+        p("max_iter", 4000, None, "OSQP iteration limit per sample",
+          kind=core.fmi.fmi_slave.Integer)
 
     def declare_extra_outputs(self):
-        deps = core.tracking_fmi.INPUTS
+        deps = core.fmi.tracking_fmi.INPUTS
         self.output("dv_c", "m/s", "Applied increment Delta v_c", depends_on=deps)
         self.output("domega", "rad/s", "Applied increment Delta omega", depends_on=deps)
         self.output("slack", "m", "Slack gamma of the last QP", depends_on=deps)
         self.output("iterations", "1", "OSQP iterations of the last QP", depends_on=deps)
 
     def make_core(self):
-        return core.ltv_mpc.LtvMpc(
+        return core.ltv_mpc.ltv_mpc.LtvMpc(
             sample_time=self.sample_time, horizon=self.horizon,
             control_horizon=self.control_horizon, q=(self.q_x, self.q_y, self.q_heading),
             lam=self.lam, rho=self.rho, slack_max=self.slack_max, e_max=self.e_max,

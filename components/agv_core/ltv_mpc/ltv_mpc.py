@@ -43,9 +43,9 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from .errors import ParameterError
-from .paths import heading_error
-from .sampling import SampleHold
+from ..errors import ParameterError
+from ..numerics.paths import heading_error
+from ..numerics.sampling import SampleHold
 
 
 class MpcSolveError(RuntimeError):

@@ -41,7 +41,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import ellipeinc
 
-from .errors import ParameterError
+from ..errors import ParameterError
 
 TWO_PI = 2.0 * math.pi
 

@@ -2,10 +2,10 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "preview_lq", "paths")
+core = load_core("fmi.fmi_slave", "preview_lq.preview_lq", "numerics.paths")
 
 
-class AgvPreviewLq(core.fmi_slave.AgvSlave):
+class AgvPreviewLq(core.fmi.fmi_slave.AgvSlave):
     """Preview (future point, eq 5) + LQ (eqs 6-12) steering controller of seed 004."""
 
     description = ("Seed-004 preview + LQ tracking controller: measured pose and steering "
@@ -14,8 +14,8 @@ class AgvPreviewLq(core.fmi_slave.AgvSlave):
     #: Reference: the measured pose held 0.1 m left of the default sine path's start with
     #: the path's heading there (atan(2 pi 2 / 18.85) = 0.588 rad), turned 0.1 rad left
     #: at 1 s; 2 s.
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=2.0,
-                                                          step_size=0.01)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=2.0,
+                                                              step_size=0.01)
     reference_inputs = {"y_meas": ((0.0, 0.1),), "heading_meas": ((0.0, 0.588), (1.0, 0.688))}
 
     def __init__(self, **kwargs):
@@ -30,7 +30,7 @@ class AgvPreviewLq(core.fmi_slave.AgvSlave):
                    "Measured steering angle; used when alpha_fixed_point is false")
         self.parameter("path", "sine:amplitude=2,wavelength=18.84955592153876", None,
                        "Reference path string (agv_core.paths.parse_path)",
-                       kind=core.fmi_slave.String)
+                       kind=core.fmi.fmi_slave.String)
         self.parameter("wheelbase", 1.6, "m", "Wheelbase L (Mitsubishi 2501D class tractor)")
         self.parameter("speed", 1.5, "m/s", "Nominal speed V of the rear-axle centre")
         self.parameter("tau", 0.65, "s", "Preview time (total station mean sample time)")
@@ -46,11 +46,11 @@ class AgvPreviewLq(core.fmi_slave.AgvSlave):
                        "Controller sample period; 0 = every communication step")
         self.parameter("dead_reckoning", False, None,
                        "Propagate the fix by fix_age along the kinematic arc (not in the "
-                       "paper)", kind=core.fmi_slave.Boolean)
+                       "paper)", kind=core.fmi.fmi_slave.Boolean)
         self.parameter("alpha_fixed_point", True, None,
                        "Use the command itself as steering angle in eq 12 (fixed point, "
                        "stable with a fast actuator); false = measured angle, eq 12 "
-                       "literally", kind=core.fmi_slave.Boolean)
+                       "literally", kind=core.fmi.fmi_slave.Boolean)
         # fix_age matters only with dead_reckoning, alpha_meas only without
         # alpha_fixed_point; both are declared as direct dependencies (a safe superset).
         self.output("alpha_ref", "rad", "Steering-angle command for the actuator's angle mode",
@@ -64,8 +64,8 @@ class AgvPreviewLq(core.fmi_slave.AgvSlave):
                     depends_on=inputs)
 
     def make_core(self):
-        path = core.paths.parse_path(self.path)
-        return core.preview_lq.PreviewLQ(
+        path = core.numerics.paths.parse_path(self.path)
+        return core.preview_lq.preview_lq.PreviewLQ(
             path, wheelbase=self.wheelbase, speed=self.speed, tau=self.tau, ds=self.ds,
             q=(self.q_x, self.q_y, self.q_theta, self.q_alpha), r=(self.r_v, self.r_u),
             alpha_max=self.alpha_max, sample_period=self.sample_period,

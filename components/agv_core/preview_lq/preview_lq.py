@@ -58,8 +58,8 @@ import math
 
 import numpy as np
 
-from .errors import ParameterError
-from .sampling import SampleHold
+from ..errors import ParameterError
+from ..numerics.sampling import SampleHold
 
 
 def wrap_angle(angle):

@@ -2,23 +2,23 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "ref_trajectory")
+core = load_core("fmi.fmi_slave", "ref_trajectory.ref_trajectory")
 
 
-class AgvRefTrajectory(core.fmi_slave.AgvSlave):
+class AgvRefTrajectory(core.fmi.fmi_slave.AgvSlave):
     """Circle or S-curve travelled at constant speed: reference pose, speed, yaw rate."""
 
     description = ("Reference trajectory (seed 001): circle (v, omega) or S-curve (straight "
                    "tangent to a sine, first curvature peak at peak_time) against time")
 
     #: Reference: the default circle (0.4 m/s, 0.074 rad/s) for one lap, 2 pi / 0.074 = 84.9 s.
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=85.0,
-                                                          step_size=0.1)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=85.0,
+                                                              step_size=0.1)
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.parameter("kind", "circle", None, "'circle' or 'scurve'",
-                       kind=core.fmi_slave.String)
+                       kind=core.fmi.fmi_slave.String)
         self.parameter("speed", 0.4, "m/s", "Reference speed v_r along the path")
         self.parameter("omega", 0.074, "rad/s", "Circle: yaw rate omega_r (< 0: clockwise)")
         self.parameter("amplitude", 1.5, "m", "S-curve: sine amplitude A")
@@ -34,9 +34,9 @@ class AgvRefTrajectory(core.fmi_slave.AgvSlave):
         self.output("s_ref", "m", "Arc length travelled along the reference")
 
     def make_core(self):
-        return core.ref_trajectory.RefTrajectory(self.kind, self.speed, self.omega,
-                                                 self.amplitude, self.wavelength,
-                                                 self.peak_time)
+        return core.ref_trajectory.ref_trajectory.RefTrajectory(self.kind, self.speed, self.omega,
+                                                                self.amplitude, self.wavelength,
+                                                                self.peak_time)
 
     def advance(self, t, h):
         pass  # a function of time; publish() evaluates it at the new time

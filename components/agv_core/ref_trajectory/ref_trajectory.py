@@ -23,8 +23,8 @@ the yaw rate omega_r = kappa_r v_r [rad/s].
 
 import math
 
-from .errors import ParameterError
-from .paths import CirclePath, sine_path
+from ..errors import ParameterError
+from ..numerics.paths import CirclePath, sine_path
 
 KINDS = ("circle", "scurve")
 

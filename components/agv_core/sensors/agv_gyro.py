@@ -2,10 +2,10 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "sensors")
+core = load_core("fmi.fmi_slave", "sensors.sensors")
 
 
-class AgvGyro(core.fmi_slave.AgvSlave):
+class AgvGyro(core.fmi.fmi_slave.AgvSlave):
     """Fibre-optic gyro heading of seed 004: drift, resolution, optional noise."""
 
     description = ("Fibre-optic gyro heading: drift 0.5 deg/h, resolution 0.01 deg, "
@@ -13,24 +13,24 @@ class AgvGyro(core.fmi_slave.AgvSlave):
 
     #: Reference: a constant heading of 0.5 rad for an hour: the drift of 0.5 deg/h,
     #: quantised to 0.01 deg.
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=3600.0,
-                                                          step_size=1.0)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=3600.0,
+                                                              step_size=1.0)
     reference_inputs = {"heading": ((0.0, 0.5),)}
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.input("heading", 0.0, "rad", "True heading, counter-clockwise from x")
-        self.parameter("drift", core.sensors.GYRO_DRIFT, "rad/s",
+        self.parameter("drift", core.sensors.sensors.GYRO_DRIFT, "rad/s",
                        "Heading drift rate (0.5 deg/h)")
-        self.parameter("resolution", core.sensors.GYRO_RESOLUTION, "rad",
+        self.parameter("resolution", core.sensors.sensors.GYRO_RESOLUTION, "rad",
                        "Quantisation step of the reading (0.01 deg); 0 for none")
         self.parameter("noise", 0.0, "rad", "Std. dev. of white noise per sample")
-        self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi_slave.Integer)
+        self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi.fmi_slave.Integer)
         self.output("heading_meas", "rad", "Measured heading", depends_on=("heading",))
 
     def make_core(self):
-        return core.sensors.InstantSensor(self.drift, self.noise, self.resolution, self.seed,
-                                          self.time)
+        return core.sensors.sensors.InstantSensor(self.drift, self.noise, self.resolution,
+                                                  self.seed, self.time)
 
     def advance(self, t, h):
         self.core.step(t, h)

@@ -2,10 +2,10 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "sensors")
+core = load_core("fmi.fmi_slave", "sensors.sensors")
 
 
-class AgvSteerSensor(core.fmi_slave.AgvSlave):
+class AgvSteerSensor(core.fmi.fmi_slave.AgvSlave):
     """Steered-wheel angle displacement sensor (seeds 000 and 004): noise, resolution."""
 
     description = ("Steering-angle sensor: white noise and quantisation, sampled at every "
@@ -13,8 +13,8 @@ class AgvSteerSensor(core.fmi_slave.AgvSlave):
 
     #: Reference: a 0.1 rad step of the wheel angle at 0.5 s, seen with noise and
     #: quantisation (seed 0).
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=2.0,
-                                                          step_size=0.01)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=2.0,
+                                                              step_size=0.01)
     reference_inputs = {"alpha": ((0.0, 0.0), (0.5, 0.1))}
 
     def __init__(self, **kwargs):
@@ -23,13 +23,13 @@ class AgvSteerSensor(core.fmi_slave.AgvSlave):
         self.parameter("noise", 0.001, "rad", "Std. dev. of white noise per sample")
         self.parameter("resolution", 0.001745329251994, "rad",
                        "Quantisation step of the reading (0.1 deg); 0 for none")
-        self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi_slave.Integer)
+        self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi.fmi_slave.Integer)
         self.output("alpha_meas", "rad", "Measured steered-wheel angle",
                     depends_on=("alpha",))
 
     def make_core(self):
-        return core.sensors.InstantSensor(0.0, self.noise, self.resolution, self.seed,
-                                          self.time)
+        return core.sensors.sensors.InstantSensor(0.0, self.noise, self.resolution, self.seed,
+                                                  self.time)
 
     def advance(self, t, h):
         self.core.step(t, h)

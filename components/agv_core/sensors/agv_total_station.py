@@ -2,10 +2,10 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "sensors")
+core = load_core("fmi.fmi_slave", "sensors.sensors")
 
 
-class AgvTotalStation(core.fmi_slave.AgvSlave):
+class AgvTotalStation(core.fmi.fmi_slave.AgvSlave):
     """Robotic total station of seed 004: jittered position fixes sent by radio modem."""
 
     description = ("Robotic total station: position fixes every 0.65 s on average with "
@@ -13,8 +13,8 @@ class AgvTotalStation(core.fmi_slave.AgvSlave):
 
     #: Reference: a prism standing at (1, 2) m; fixes every 0.65 s on average, delayed and
     #: noisy (seed 0).
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=10.0,
-                                                          step_size=0.01)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=10.0,
+                                                              step_size=0.01)
     reference_inputs = {"x": ((0.0, 1.0),), "y": ((0.0, 2.0),)}
 
     def __init__(self, **kwargs):
@@ -26,17 +26,17 @@ class AgvTotalStation(core.fmi_slave.AgvSlave):
                        "Half-width of the uniform spread of each interval (< mean_interval)")
         self.parameter("latency", 0.1, "s", "Radio-modem transmission delay")
         self.parameter("noise", 0.003, "m", "Std. dev. of the noise of each coordinate")
-        self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi_slave.Integer)
+        self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi.fmi_slave.Integer)
         self.parameter("available", True, None, "Fixes reach the vehicle (false: a radio "
                        "or line-of-sight dropout; fixes due then are lost)",
-                       kind=core.fmi_slave.Boolean, tunable=True)
+                       kind=core.fmi.fmi_slave.Boolean, tunable=True)
         self.output("x_meas", "m", "Measured x of the newest fix", depends_on=("x",))
         self.output("y_meas", "m", "Measured y of the newest fix", depends_on=("y",))
         self.output("fix_age", "s", "Time since the shown fix was measured")
 
     def make_core(self):
-        return core.sensors.TotalStation(self.mean_interval, self.jitter, self.latency,
-                                         self.noise, self.seed, self.time)
+        return core.sensors.sensors.TotalStation(self.mean_interval, self.jitter, self.latency,
+                                                 self.noise, self.seed, self.time)
 
     def advance(self, t, h):
         self.core.available = bool(self.available)

@@ -2,12 +2,12 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "paths", "sensors")
+core = load_core("fmi.fmi_slave", "numerics.paths", "sensors.sensors")
 
 _POSE = ("x", "y", "heading")
 
 
-class AgvVisionSensor(core.fmi_slave.AgvSlave):
+class AgvVisionSensor(core.fmi.fmi_slave.AgvSlave):
     """Vision sensor of seed 000: lateral deviation and heading error from a path."""
 
     description = ("Camera measuring lateral deviation and heading error of the tracked "
@@ -15,8 +15,8 @@ class AgvVisionSensor(core.fmi_slave.AgvSlave):
 
     #: Reference: the tracked point 0.1 m left of the default straight path with a 0.05 rad
     #: heading error, moving to 0.2 m at 0.5 s (frames, latency and noise as declared).
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.0,
-                                                          step_size=0.01)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=1.0,
+                                                              step_size=0.01)
     reference_inputs = {"y": ((0.0, 0.1), (0.5, 0.2)), "heading": ((0.0, 0.05),)}
 
     def __init__(self, **kwargs):
@@ -27,14 +27,14 @@ class AgvVisionSensor(core.fmi_slave.AgvSlave):
         self.parameter("path", "line", None,
                        "Reference path 'kind:key=value,...' (see components/README.md); a "
                        "waypoint file is relative to the host's working folder",
-                       kind=core.fmi_slave.String)
+                       kind=core.fmi.fmi_slave.String)
         self.parameter("frame_period", 0.04, "s",
                        "Frame capture period (PAL 25 frames/s); 0 = every communication "
                        "point")
         self.parameter("latency", 0.04, "s", "Image processing delay from capture to output")
         self.parameter("noise_lateral", 0.002, "m", "Std. dev. of the lateral-error noise")
         self.parameter("noise_heading", 0.004, "rad", "Std. dev. of the heading-error noise")
-        self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi_slave.Integer)
+        self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi.fmi_slave.Integer)
         self.output("lateral_error", "m", "Lateral deviation from the path, positive left",
                     depends_on=_POSE)
         self.output("heading_error", "rad",
@@ -46,10 +46,10 @@ class AgvVisionSensor(core.fmi_slave.AgvSlave):
                     depends_on=_POSE)
 
     def make_core(self):
-        path = core.paths.parse_path(self.path)
-        return core.sensors.VisionSensor(path, self.frame_period, self.latency,
-                                         self.noise_lateral, self.noise_heading, self.seed,
-                                         self.time)
+        path = core.numerics.paths.parse_path(self.path)
+        return core.sensors.sensors.VisionSensor(path, self.frame_period, self.latency,
+                                                 self.noise_lateral, self.noise_heading, self.seed,
+                                                 self.time)
 
     def advance(self, t, h):
         self.core.step(t, h, self.x, self.y, self.heading)

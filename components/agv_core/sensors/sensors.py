@@ -34,9 +34,9 @@ from collections import deque
 
 import numpy as np
 
-from .errors import ParameterError
-from .paths import heading_error
-from .sampling import TIME_EPS, at_instant, in_step
+from ..errors import ParameterError
+from ..numerics.paths import heading_error
+from ..numerics.sampling import TIME_EPS, at_instant, in_step
 
 #: Time tolerance [s] for matching sample instants to communication points: the one
 #: tolerance of agv_core.sampling.

@@ -2,10 +2,10 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "state_feedback")
+core = load_core("fmi.fmi_slave", "state_feedback.state_feedback")
 
 
-class AgvStateFeedback(core.fmi_slave.AgvSlave):
+class AgvStateFeedback(core.fmi.fmi_slave.AgvSlave):
     """u = -(Ka alpha + Kb heading_error + Ke lateral_error), seed 000 eqs (9)-(10)."""
 
     description = ("Seed-000 state-feedback steering controller: wheel angle, heading error "
@@ -13,8 +13,8 @@ class AgvStateFeedback(core.fmi_slave.AgvSlave):
 
     #: Reference: a 0.1 m lateral error from the start, a 0.05 rad heading error from
     #: 0.5 s and a -0.02 rad wheel angle from 1 s (u is their weighted sum).
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=2.0,
-                                                          step_size=0.01)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=2.0,
+                                                              step_size=0.01)
     reference_inputs = {"lateral_error": ((0.0, 0.1),),
                         "heading_error": ((0.0, 0.0), (0.5, 0.05)),
                         "alpha": ((0.0, 0.0), (1.0, -0.02))}
@@ -36,8 +36,8 @@ class AgvStateFeedback(core.fmi_slave.AgvSlave):
                     depends_on=("alpha", "heading_error", "lateral_error"))
 
     def make_core(self):
-        return core.state_feedback.StateFeedback(self.Ka, self.Kb, self.Ke,
-                                                 self.sample_period, self.u_max)
+        return core.state_feedback.state_feedback.StateFeedback(self.Ka, self.Kb, self.Ke,
+                                                                self.sample_period, self.u_max)
 
     def advance(self, t, h):
         # a sample instant inside this step is taken from the inputs held over it

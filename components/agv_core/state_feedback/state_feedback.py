@@ -25,8 +25,8 @@ import math
 
 import numpy as np
 
-from .errors import ParameterError
-from .sampling import SampleHold
+from ..errors import ParameterError
+from ..numerics.sampling import SampleHold
 
 #: seed 000 eq 10: [Ka [V/rad], Kb [V/rad], Ke [V/m]]
 PAPER_GAINS = (4.828, 3.767, 4.472)

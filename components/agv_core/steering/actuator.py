@@ -43,7 +43,7 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
-from .errors import ParameterError
+from ..errors import ParameterError
 
 MODES = ("command", "angle")
 

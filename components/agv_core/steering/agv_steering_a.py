@@ -2,10 +2,10 @@
 
 from agv_boot import load_core
 
-core = load_core("actuator_fmi")
+core = load_core("fmi.actuator_fmi")
 
 
-class AgvSteeringA(core.actuator_fmi.ActuatorSlave):
+class AgvSteeringA(core.fmi.actuator_fmi.ActuatorSlave):
     """Steering actuator, seed 000 model a: K exp(-tau s)/s."""
 
     description = ("Steering actuator (seed 000 model a, K exp(-tau s)/s): control voltage u or "

@@ -2,10 +2,10 @@
 
 from agv_boot import load_core
 
-core = load_core("actuator_fmi")
+core = load_core("fmi.actuator_fmi")
 
 
-class AgvSteeringB(core.actuator_fmi.ActuatorSlave):
+class AgvSteeringB(core.fmi.actuator_fmi.ActuatorSlave):
     """Steering actuator, seed 000 model b: K/s."""
 
     description = ("Steering actuator (seed 000 model b, K/s): control voltage u or "

@@ -2,10 +2,10 @@
 
 from agv_boot import load_core
 
-core = load_core("actuator_fmi")
+core = load_core("fmi.actuator_fmi")
 
 
-class AgvSteeringC(core.actuator_fmi.ActuatorSlave):
+class AgvSteeringC(core.fmi.actuator_fmi.ActuatorSlave):
     """Steering actuator, seed 000 model c: identified eq 7 scaled to gain K."""
 
     description = ("Steering actuator (seed 000 model c, identified eq 7 scaled to gain K): "

@@ -2,13 +2,13 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "train", "ackermann")
+core = load_core("fmi.fmi_slave", "train.train", "ackermann.ackermann")
 
 _AXLES = (1, 2, 3, 4)
 _SIDES = ("left", "right")
 
 
-class AgvTrain(core.fmi_slave.AgvSlave):
+class AgvTrain(core.fmi.fmi_slave.AgvSlave):
     """Head car, floating middle car, tail car; axle angles (or wheel angles) in, poses out."""
 
     description = ("Seed 003 three-car virtual-rail train (head car, floating middle car, "
@@ -21,13 +21,13 @@ class AgvTrain(core.fmi_slave.AgvSlave):
     #: turn (omega3 = 0, no side slip at J2), so heading3 = 0 and y_J2 = 0 while the
     #: floating car swings (|J1 - J2| = Lm). (Open loop the Ackermann steady-circle angles
     #: from a straight start jack-knife within seconds: see components/README.md.)
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=10.0,
-                                                          step_size=0.05)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=10.0,
+                                                              step_size=0.05)
     reference_inputs = {"delta1": ((0.0, 0.05),), "dv": ((0.0, 0.0), (5.0, 1.0))}
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        S = core.fmi_slave.String
+        S = core.fmi.fmi_slave.String
         self.input("dv", 0.0, "m/s", "Speed added to v0 (a speed profile; with v0 = 0 the "
                    "head car's longitudinal speed u1, body x velocity)")
         for i in _AXLES:
@@ -85,9 +85,9 @@ class AgvTrain(core.fmi_slave.AgvSlave):
         if self.steering_input not in ("axle", "wheels"):
             raise core.errors.ParameterError(
                 "steering_input", f"must be 'axle' or 'wheels', got '{self.steering_input}'")
-        geometry = core.train.TrainGeometry(self.L1, self.L2, self.d, self.Lm)
-        train = core.train.Train.straight(geometry, self.x0, self.y0, self.heading0,
-                                          self.tolerance)
+        geometry = core.train.train.TrainGeometry(self.L1, self.L2, self.d, self.Lm)
+        train = core.train.train.Train.straight(geometry, self.x0, self.y0, self.heading0,
+                                                self.tolerance)
         train.u1 = float(self.v0 + self.dv)  # moving before the start: u1, u3 outputs at t0
         return train
 
@@ -96,7 +96,7 @@ class AgvTrain(core.fmi_slave.AgvSlave):
         if self.steering_input == "wheels":
             pairs = [(getattr(self, f"delta{i}_left"), getattr(self, f"delta{i}_right"))
                      for i in _AXLES]
-            deltas = [core.ackermann.axle_angle(*p) for p in pairs]
+            deltas = [core.ackermann.ackermann.axle_angle(*p) for p in pairs]
             self.core.step(speed, deltas, h, wheels=pairs)
         else:
             self.core.step(speed, [getattr(self, f"delta{i}") for i in _AXLES], h)

@@ -47,9 +47,9 @@ by ``tolerance`` (the test checks the sum over a run against scipy's DOP853).
 
 import math
 
-from .ackermann import wheel_angles
-from .errors import ParameterError
-from .vehicle import _sinc
+from ..ackermann.ackermann import wheel_angles
+from ..errors import ParameterError
+from ..vehicle.vehicle import _sinc
 
 AXLES = 4
 

@@ -2,10 +2,10 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi_slave", "vehicle")
+core = load_core("fmi.fmi_slave", "vehicle.vehicle")
 
 
-class AgvVehicle(core.fmi_slave.AgvSlave):
+class AgvVehicle(core.fmi.fmi_slave.AgvSlave):
     """Vehicle kinematics, seed 000 eqs (1)-(3) / seed 004 eq (2), integrated exactly."""
 
     description = ("Kinematic single-track AGV: steered-wheel angle and speed in, pose out "
@@ -13,8 +13,8 @@ class AgvVehicle(core.fmi_slave.AgvSlave):
 
     #: Reference: a constant steering angle of 0.2 rad at v0 = 1 m/s for 10 s, a circular
     #: arc of radius L / tan(0.2) = 4.93 m about the turn centre.
-    default_experiment = core.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=10.0,
-                                                          step_size=0.01)
+    default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=10.0,
+                                                              step_size=0.01)
     reference_inputs = {"alpha": ((0.0, 0.2),)}
 
     def __init__(self, **kwargs):
@@ -30,10 +30,10 @@ class AgvVehicle(core.fmi_slave.AgvSlave):
         self.parameter("heading0", 0.0, "rad", "Initial heading, counter-clockwise from x")
         self.parameter("reference_point", "front", None,
                        "Point reported as x, y: 'front' (wheel centre, seed 000) or 'rear' "
-                       "(axle centre, seed 004)", kind=core.fmi_slave.String)
+                       "(axle centre, seed 004)", kind=core.fmi.fmi_slave.String)
         self.parameter("linear", False, None,
                        "Small-angle linear kinematics (seed 000 models b and c)",
-                       kind=core.fmi_slave.Boolean)
+                       kind=core.fmi.fmi_slave.Boolean)
         self.output("x", "m", "x of the reference point")
         self.output("y", "m", "y of the reference point")
         self.output("heading", "rad", "Heading beta, counter-clockwise from the x axis")
@@ -44,8 +44,8 @@ class AgvVehicle(core.fmi_slave.AgvSlave):
         self.output("distance", "m", "Distance travelled by the rear-axle centre")
 
     def make_core(self):
-        return core.vehicle.Vehicle(self.wheelbase, self.x0, self.y0, self.heading0,
-                                    self.reference_point, self.linear)
+        return core.vehicle.vehicle.Vehicle(self.wheelbase, self.x0, self.y0, self.heading0,
+                                            self.reference_point, self.linear)
 
     def advance(self, t, h):
         self.core.step(self.alpha, self.v0 + self.dv, h)

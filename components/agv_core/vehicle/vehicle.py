@@ -24,7 +24,7 @@ the small-angle geometry (x_F = x_R + L, y_F = y_R + L beta).
 
 import math
 
-from .errors import ParameterError
+from ..errors import ParameterError
 
 REFERENCE_POINTS = ("front", "rear")
 

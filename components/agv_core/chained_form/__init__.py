@@ -1,0 +1,3 @@
+"""Chained-form (Samson) path-following steering law (seed 002): core chained_form.py, FMU
+AgvChainedForm.
+"""

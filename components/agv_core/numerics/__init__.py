@@ -1,0 +1,3 @@
+"""Numerics shared by the component cores: angles, finite checks, sample-and-hold, path
+geometry (FMI-free).
+"""

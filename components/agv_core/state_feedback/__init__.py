@@ -1,0 +1,1 @@
+"""Seed-000 state-feedback steering controller: core state_feedback.py, FMU AgvStateFeedback."""

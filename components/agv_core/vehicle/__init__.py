@@ -1,0 +1,1 @@
+"""Kinematic single-track vehicle (seeds 000, 002, 004): core vehicle.py, FMU AgvVehicle."""
