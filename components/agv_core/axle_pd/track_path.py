@@ -29,7 +29,7 @@ import math
 import numpy as np
 
 from ..errors import ParameterError
-from ..numerics.paths import PathProjection, ReferencePath, parse_path
+from ..numerics.paths import PathProjection, ReferencePath, parse_items, parse_path
 
 _GL_X, _GL_W = (tuple(float(v) for v in a) for a in np.polynomial.legendre.leggauss(24))
 
@@ -177,8 +177,8 @@ class CurvePath(ReferencePath):
         return self._at(s, qx, qy)
 
 
-_CURVE_KEYS = {"straight": None, "radius": None, "angle": None, "transition": 0.0,
-               "direction": "ccw", "x0": 0.0, "y0": 0.0, "heading": 0.0}
+_CURVE_REQUIRED = ("straight", "radius", "angle")
+_CURVE_OPTIONAL = {"transition": 0.0, "direction": "ccw", "x0": 0.0, "y0": 0.0, "heading": 0.0}
 
 
 def parse_track_path(spec, base_dir=None):
@@ -189,33 +189,10 @@ def parse_track_path(spec, base_dir=None):
     if not isinstance(spec, str) or spec.strip().partition(":")[0].strip().lower() != "curve":
         return parse_path(spec, base_dir)
     body = spec.strip().partition(":")[2]
-    values = {}
-    for item in (body.split(",") if body.strip() else []):
-        key, eq, text = item.partition("=")
-        key, text = key.strip(), text.strip()
-        if not eq or not key or not text:
-            raise ParameterError("path", f"malformed item '{item.strip()}' in '{spec}'; "
-                                         "expected key=value")
-        if key not in _CURVE_KEYS:
-            raise ParameterError("path", f"unknown key '{key}' for curve; allowed: "
-                                         f"{', '.join(_CURVE_KEYS)}")
-        if key in values:
-            raise ParameterError("path", f"key '{key}' given twice in '{spec}'")
-        if key == "direction":
-            values[key] = text.lower()
-            continue
-        try:
-            values[key] = float(text)
-        except ValueError:
-            raise ParameterError("path", f"curve {key}: '{text}' is not a number") from None
-        if not math.isfinite(values[key]):
-            raise ParameterError("path", f"curve {key} must be finite, got {text}")
-    missing = [k for k, d in _CURVE_KEYS.items() if d is None and k not in values]
-    if missing:
-        raise ParameterError("path", f"curve needs {', '.join(missing)}")
-    args = dict(_CURVE_KEYS, **values)
+    args = parse_items(spec, "curve", body, _CURVE_REQUIRED, _CURVE_OPTIONAL,
+                       text_keys=("direction",))
     return CurvePath(args["straight"], args["radius"], args["angle"], args["transition"],
-                     args["direction"], args["x0"], args["y0"], args["heading"])
+                     args["direction"].lower(), args["x0"], args["y0"], args["heading"])
 
 
 class PointErrors:

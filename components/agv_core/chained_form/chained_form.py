@@ -29,23 +29,14 @@ valid for |theta| < pi/2 and y c < 1. The steering angle is then saturated at
 
 import math
 
-from ..numerics import paths
 from ..errors import ParameterError
+from ..numerics import paths
+from ..numerics.angles import wrap_angle
+from ..numerics.finite import finite as _finite
 from ..numerics.sampling import SampleHold
 
 #: Sources of the path-relative state understood by :class:`ChainedFormController`.
 SOURCES = ("sensor", "pose")
-
-
-def _finite(name, value):
-    if not math.isfinite(value):
-        raise ParameterError(name, f"must be finite, got {value}")
-
-
-def wrap_angle(angle):
-    """Wrap ``angle`` [rad] to (-pi, pi] [rad]."""
-    wrapped = math.remainder(angle, 2.0 * math.pi)
-    return math.pi if wrapped == -math.pi else wrapped
 
 
 def chained_coordinates(lateral_error, heading_error, curvature):

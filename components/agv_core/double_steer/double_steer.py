@@ -44,26 +44,15 @@ which the forward kinematics maps back to u = v_c, v = 0, omega exactly.
 import math
 
 from ..errors import ParameterError
+from ..numerics.arc import sinc as _sinc
+from ..numerics.finite import finite as _finite
 
 TWO_PI = 2.0 * math.pi
-
-
-def _sinc(x):
-    """sin(x) / x with its limit 1 at 0 (accurate to rounding near 0)."""
-    if abs(x) < 1e-4:
-        return 1.0 - x * x / 6.0
-    return math.sin(x) / x
 
 
 def _positive(name, value):
     if not (math.isfinite(value) and value > 0.0):
         raise ParameterError(name, f"must be a positive number, got {value}")
-    return float(value)
-
-
-def _finite(name, value):
-    if not math.isfinite(value):
-        raise ParameterError(name, f"must be finite, got {value}")
     return float(value)
 
 

@@ -42,8 +42,8 @@ import numpy as np
 from scipy.special import ellipeinc
 
 from ..errors import ParameterError
-
-TWO_PI = 2.0 * math.pi
+from .angles import TWO_PI, heading_error  # noqa: F401 - heading_error: part of this API
+from .finite import finite
 
 
 class PathProjection(NamedTuple):
@@ -72,17 +72,6 @@ class PathProjection(NamedTuple):
     curvature: float
     curvature_rate: float
     offset: float
-
-
-def heading_error(vehicle_heading, path_heading):
-    """Vehicle heading minus path heading [rad], wrapped to (-pi, pi]."""
-    d = (float(vehicle_heading) - float(path_heading)) % TWO_PI
-    return d - TWO_PI if d > math.pi else d
-
-
-def _wrap(angle):
-    """Angle [rad] wrapped to (-pi, pi]."""
-    return heading_error(angle, 0.0)
 
 
 class ReferencePath:
@@ -230,7 +219,7 @@ class CirclePath(ReferencePath):
             s = (self.sign * (phi - self.phi0)) % TWO_PI * self.radius
         else:
             phi_h = self.phi0 + self.sign * float(s_hint) / self.radius
-            s = float(s_hint) + self.sign * _wrap(phi - phi_h) * self.radius
+            s = float(s_hint) + self.sign * heading_error(phi - phi_h, 0.0) * self.radius
         # ccw: the centre is on the left, a point inside (r < R) is left of the path
         return self._at(s, self.sign * (self.radius - r))
 
@@ -415,7 +404,7 @@ class GraphPath(ReferencePath):
 def sine_path(amplitude, wavelength, x0=0.0, y0=0.0):
     """:class:`GraphPath` y = y0 + A sin(2 pi (x - x0) / W), x >= x0, tangent before."""
     _check_wave(amplitude, wavelength)
-    x0, y0 = _finite("x0", x0), _finite("y0", y0)
+    x0, y0 = finite("x0", x0, "path"), finite("y0", y0, "path")
     slope = amplitude * TWO_PI / wavelength
     return GraphPath([_LinePiece(-math.inf, x0, x0, y0, slope, 0.0),
                       _SinePiece(x0, y0, amplitude, wavelength, 0.0)], wavelength)
@@ -428,12 +417,6 @@ def scurve_path(straight, amplitude, wavelength):
         raise ParameterError("path", f"scurve straight must be >= 0 m, got {straight}")
     return GraphPath([_LinePiece(-math.inf, straight, 0.0, 0.0, 0.0, 0.0),
                       _SinePiece(straight, 0.0, amplitude, wavelength, straight)], wavelength)
-
-
-def _finite(name, value):
-    if not math.isfinite(value):
-        raise ParameterError("path", f"{name} must be finite, got {value}")
-    return float(value)
 
 
 def _check_wave(amplitude, wavelength):
@@ -566,6 +549,42 @@ _KINDS = {
 _TEXT_KEYS = {"direction", "file"}
 
 
+def parse_items(spec, kind, body, required, optional, text_keys=_TEXT_KEYS):
+    """The ``key=value,...`` ``body`` of the path string ``spec`` of ``kind``, as a dict.
+
+    ``required`` names the keys that must be given, ``optional`` maps the others to their
+    defaults (merged into the result); values are floats but for ``text_keys``. Raises
+    ParameterError("path", ...) naming the culprit. Path kinds defined elsewhere (seed
+    003's ``curve:``, axle_pd/track_path.py) parse with it too.
+    """
+    values = {}
+    for item in (body.split(",") if body.strip() else []):
+        key, eq, text = item.partition("=")
+        key, text = key.strip(), text.strip()
+        if not eq or not key or not text:
+            raise ParameterError("path", f"malformed item '{item.strip()}' in '{spec}'; "
+                                         "expected key=value")
+        if key not in required and key not in optional:
+            raise ParameterError("path", f"unknown key '{key}' for {kind}; allowed: "
+                                         f"{', '.join(tuple(required) + tuple(optional))}")
+        if key in values:
+            raise ParameterError("path", f"key '{key}' given twice in '{spec}'")
+        if key in text_keys:
+            values[key] = text
+        else:
+            try:
+                values[key] = float(text)
+            except ValueError:
+                raise ParameterError("path", f"{kind} {key}: '{text}' is not a number") \
+                    from None
+            if not math.isfinite(values[key]):
+                raise ParameterError("path", f"{kind} {key} must be finite, got {text}")
+    missing = [k for k in required if k not in values]
+    if missing:
+        raise ParameterError("path", f"{kind} needs {', '.join(missing)}")
+    return dict(optional, **values)
+
+
 def parse_path(spec, base_dir=None):
     """Build a :class:`ReferencePath` from ``kind:key=value,...`` (see module docstring).
 
@@ -589,32 +608,7 @@ def parse_path(spec, base_dir=None):
         raise ParameterError("path", f"unknown path kind '{kind}'; expected one of "
                                      f"{', '.join(_KINDS)}")
     required, optional = _KINDS[kind]
-    values = {}
-    for item in (body.split(",") if body.strip() else []):
-        key, eq, text = item.partition("=")
-        key, text = key.strip(), text.strip()
-        if not eq or not key or not text:
-            raise ParameterError("path", f"malformed item '{item.strip()}' in '{spec}'; "
-                                         "expected key=value")
-        if key not in required and key not in optional:
-            raise ParameterError("path", f"unknown key '{key}' for {kind}; allowed: "
-                                         f"{', '.join(required + tuple(optional))}")
-        if key in values:
-            raise ParameterError("path", f"key '{key}' given twice in '{spec}'")
-        if key in _TEXT_KEYS:
-            values[key] = text
-        else:
-            try:
-                values[key] = float(text)
-            except ValueError:
-                raise ParameterError("path", f"{kind} {key}: '{text}' is not a number") \
-                    from None
-            if not math.isfinite(values[key]):
-                raise ParameterError("path", f"{kind} {key} must be finite, got {text}")
-    missing = [k for k in required if k not in values]
-    if missing:
-        raise ParameterError("path", f"{kind} needs {', '.join(missing)}")
-    args = dict(optional, **values)
+    args = parse_items(spec, kind, body, required, optional)
     if kind == "line":
         if (args["step"] is None) != (args["step_at"] is None):
             raise ParameterError("path", "line: step and step_at go together")

@@ -59,13 +59,9 @@ import math
 import numpy as np
 
 from ..errors import ParameterError
+from ..numerics.angles import wrap_angle
+from ..numerics.arc import arc_pose  # the exact arc of eq 2 (numerics/arc.py)
 from ..numerics.sampling import SampleHold
-
-
-def wrap_angle(angle):
-    """Wrap ``angle`` [rad] to (-pi, pi]."""
-    wrapped = math.remainder(angle, 2.0 * math.pi)
-    return math.pi if wrapped == -math.pi else wrapped
 
 
 def future_point(x, y, theta, alpha, speed, wheelbase, tau):
@@ -101,22 +97,6 @@ def future_point(x, y, theta, alpha, speed, wheelbase, tau):
     quad = speed * speed * tau * tau * t / (2.0 * wheelbase)
     return (x + vt * c - quad * s, y + vt * s + quad * c,
             theta + vt * t / wheelbase, alpha)
-
-
-def arc_pose(x, y, theta, alpha, speed, wheelbase, duration):
-    """Exact pose after ``duration`` [s] of eq 2 with ``alpha`` and ``speed`` held.
-
-    Returns
-    -------
-    tuple of float
-        (x [m], y [m], theta [rad]).
-    """
-    w = speed * math.tan(alpha) / wheelbase
-    half = 0.5 * w * duration
-    sinc = 1.0 - half * half / 6.0 if abs(half) < 1e-4 else math.sin(half) / half
-    chord = speed * duration * sinc
-    return (x + chord * math.cos(theta + half), y + chord * math.sin(theta + half),
-            theta + w * duration)
 
 
 def discretise(x, y, wheelbase):

@@ -21,21 +21,14 @@ for every V0, L and K: the loop transfer function from u to e is
 the wheelbase L then moves Ka and Kb only (:func:`find_wheelbase`).
 """
 
-import math
-
 import numpy as np
 
 from ..errors import ParameterError
+from ..numerics.finite import finite as _finite
 from ..numerics.sampling import SampleHold
 
 #: seed 000 eq 10: [Ka [V/rad], Kb [V/rad], Ke [V/m]]
 PAPER_GAINS = (4.828, 3.767, 4.472)
-
-
-def _finite(name, value):
-    if not math.isfinite(value):
-        raise ParameterError(name, f"must be finite, got {value}")
-    return float(value)
 
 
 class StateFeedback:

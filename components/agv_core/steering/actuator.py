@@ -44,6 +44,7 @@ import scipy.linalg
 import scipy.signal
 
 from ..errors import ParameterError
+from ..numerics.finite import finite as _finite
 
 MODES = ("command", "angle")
 
@@ -52,12 +53,6 @@ EQ6_NUM = (100.0 * 8.91, 100.0 * 506.3)
 EQ6_DEN = (1.0, 15.7926, 195.23)
 #: DC gain of eq 6 [rig units], used to scale model c to gain K.
 EQ6_DC_GAIN = EQ6_NUM[1] / EQ6_DEN[2]
-
-
-def _finite(name, value):
-    if not math.isfinite(value):
-        raise ParameterError(name, f"must be finite, got {value}")
-    return float(value)
 
 
 class SteeringActuator:

@@ -49,7 +49,7 @@ import math
 
 from ..ackermann.ackermann import wheel_angles
 from ..errors import ParameterError
-from ..vehicle.vehicle import _sinc
+from ..numerics.arc import sinc as _sinc
 
 AXLES = 4
 

@@ -25,15 +25,9 @@ the small-angle geometry (x_F = x_R + L, y_F = y_R + L beta).
 import math
 
 from ..errors import ParameterError
+from ..numerics.arc import sinc as _sinc  # the exact arc (numerics/arc.py)
 
 REFERENCE_POINTS = ("front", "rear")
-
-
-def _sinc(u):
-    """sin(u) / u, with its limit 1 at u = 0 (accurate to rounding near 0)."""
-    if abs(u) < 1e-4:
-        return 1.0 - u * u / 6.0
-    return math.sin(u) / u
 
 
 class Vehicle:
