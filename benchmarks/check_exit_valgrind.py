@@ -12,7 +12,7 @@ and two of the FMI 3.0 twins (``agv-cosim build --fmi 3``, pythonfmu3's own libr
 
 FMI 3.0 twin
     as built (the adapter calls the library's ``finalizePythonInterpreter`` from Python's
-    ``atexit``, agv_core/fmi3_slave.py);
+    ``atexit``, agv_core/fmi/pythonfmu_workarounds.py);
 FMI 3.0 twin, no exit hook
     the same twins with that call taken out of the bundled adapter: the "before".
 
@@ -87,8 +87,8 @@ def without_exit_hook(fmu, out):
                                                          zipfile.ZIP_DEFLATED) as copy:
         for name in source.namelist():
             data = source.read(name)
-            if name == "resources/agv_core/fmi3_slave.py":
-                patched = data.replace(b"_finalize_at_exit(self.resources, self.modelName)",
+            if name == "resources/agv_core/fmi/fmi3_slave.py":
+                patched = data.replace(b"finalize_at_exit(self.resources, self.modelName)",
                                        b"pass")
                 if patched == data:
                     sys.exit("check_exit_valgrind: the FMI 3.0 adapter's exit hook moved")

@@ -212,7 +212,7 @@ def test_reference_inputs_must_name_inputs(tmp_path):
 
 def test_no_default_experiment_no_reference(tmp_path):
     """A slave that declares no experiment gets no DefaultExperiment and no reference
-    (the tests over components/slaves require one of every component)."""
+    (the tests over components/agv_core/*/ require one of every component)."""
     fmu = build_one(default_components_dir().parent / "tests" / "fmu_src" / "agv_test_gain.py",
                     tmp_path).fmu
     with zipfile.ZipFile(fmu) as archive:

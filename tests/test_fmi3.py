@@ -1,7 +1,7 @@
 """FMI 3.0 twins (``agv-cosim build --fmi 3``): valid, described, and bit-identical to FMI 2.0.
 
 Every slave script in components/agv_core/*/ is built a second time as an FMI 3.0 co-simulation
-FMU with pythonfmu3 (agv_core/fmi3_slave.py). Checked here, per component:
+FMU with pythonfmu3 (agv_core/fmi/fmi3_slave.py). Checked here, per component:
 
 - ``fmpy.validation.validate_fmu`` reports nothing;
 - units, descriptions and output dependencies say what the FMI 2.0 twin says;

@@ -1,6 +1,7 @@
 """Integration tier: every component FMU is correct FMI 2.0 and runs in fmpy and libcosim.
 
-Parametrised over every slave script in components/slaves, so a new component is checked
+Parametrised over every slave script (components/agv_core/*/agv_*.py), so a new component
+is checked
 the moment it is added.
 """
 

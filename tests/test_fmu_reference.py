@@ -1,6 +1,7 @@
 """Every FMU's declared start values are what it uses, and it ships its own reference result.
 
-Parametrised over every slave script in components/slaves: a new component is checked the
+Parametrised over every slave script (components/agv_core/*/agv_*.py): a new component is
+checked the
 moment it is added. What a slave must declare for these tests: ``default_experiment``
 (start, stop, step) and, if its experiment drives inputs, ``reference_inputs`` (see
 agv_core.fmi.fmi_slave.AgvSlave); the build does the rest.

@@ -30,59 +30,21 @@ The behaviour shared with the FMI 2.0 adapter, including the compensation for th
 wrappers' double release of a failed slave (pythonfmu3 0.3.4 has pythonfmu 0.7's), is in
 :mod:`agv_core.slave_base`. pythonfmu3's exit-time defect
 (also pythonfmu 0.7's) is avoided in Python hosts by an ``atexit`` hook (see
-``_finalize_wrappers``).
+:mod:`agv_core.fmi.pythonfmu_workarounds`, which lists every wrapper work-around).
 """
 
-import atexit
-import ctypes
-import os
-import sys
-from pathlib import Path
 from xml.etree.ElementTree import Element
 
 from pythonfmu3 import Boolean, Fmi3Causality, Fmi3Slave, Fmi3Variability, Float64, Int32, String
 from pythonfmu3.default_experiment import DefaultExperiment
 from pythonfmu3.enums import Fmi3Status
 
+from .pythonfmu_workarounds import finalize_at_exit
 from .slave_base import BUILD_INFO, REFERENCE_TOOL, SlaveLogic
 
 #: The FMI 2.0 adapter's type names, for slave scripts written against it.
 Real = Float64
 Integer = Int32
-
-# pythonfmu3 0.3.4's library has pythonfmu 0.7's exit-time defect: at process exit C++
-# static destruction destroys its global shared_ptr<PyState>, then the library's unload
-# hook (finalizePythonInterpreter) assigns to the destroyed pointer and releases its freed
-# control block again (valgrind: invalid read in finalizePythonInterpreter from
-# _dl_call_fini; 2 of 30 fmpy processes aborted with "corrupted double-linked list").
-# In a Python host the adapter calls that hook itself from Python's atexit, while the
-# pointer is alive: it is then empty when the static destructor and the unload hook run.
-# The library handle kept here also keeps the library loaded until process exit, so a
-# host's dlclose cannot run the faulty unload earlier. Library path -> ctypes handle.
-_WRAPPERS_TO_FINALIZE = {}
-
-
-def _finalize_wrappers():
-    for library in _WRAPPERS_TO_FINALIZE.values():
-        library.finalizePythonInterpreter()
-
-
-def _finalize_at_exit(resources, identifier):
-    """Register the FMU's loaded pythonfmu3 library (if any) for ``_finalize_wrappers``."""
-    if not sys.platform.startswith("linux"):
-        return
-    path = str(Path(resources).parent / "binaries" / "x86_64-linux" / f"{identifier}.so")
-    if path in _WRAPPERS_TO_FINALIZE:
-        return
-    try:  # only a library the host has loaded (not at build time)
-        library = ctypes.CDLL(path, mode=os.RTLD_NOLOAD | os.RTLD_NOW)
-        library.finalizePythonInterpreter.restype = None
-    except (OSError, AttributeError):
-        return
-    if not _WRAPPERS_TO_FINALIZE:
-        atexit.register(_finalize_wrappers)
-    _WRAPPERS_TO_FINALIZE[path] = library
-
 
 __all__ = ["AgvSlave", "BUILD_INFO", "Boolean", "DefaultExperiment", "Fmi3Slave", "Float64",
            "Int32", "Integer", "REFERENCE_TOOL", "Real", "String"]
@@ -112,7 +74,7 @@ class AgvSlave(SlaveLogic, Fmi3Slave):
                                        variability=Fmi3Variability.continuous,
                                        description="Simulation time", unit="s"))
         if self.resources is not None:
-            _finalize_at_exit(self.resources, self.modelName)
+            finalize_at_exit(self.resources, self.modelName)
 
     def _variable(self, kind, name, causality, variability, description, unit):
         extra = {"unit": unit} if kind is Float64 else {}

@@ -19,6 +19,7 @@ from xml.etree.ElementTree import Element, SubElement
 from .. import __version__
 from ..errors import ParameterError
 from ..units import base_unit_attributes
+from .pythonfmu_workarounds import keep_for_pythonfmu
 
 #: Name of the build-info file the build writes into every FMU's ``resources/``.
 BUILD_INFO = "agv_build.json"
@@ -26,16 +27,6 @@ BUILD_INFO = "agv_build.json"
 #: Tool name (FMI 2.0) / annotation type (FMI 3.0) that carries ``reference_inputs``.
 REFERENCE_TOOL = "org.agv-cosim"
 
-# pythonfmu 0.7 and pythonfmu3 0.3.4: when a Python exception escapes a slave method, the
-# C++ handler releases the slave's class, instance and log queue (cleanPyObject) without
-# forgetting them, and FreeInstance releases the same three again. Before any exception
-# leaves an adapter one extra reference to each is kept here, so the second release
-# cannot free live objects (a failed instance is then never freed: a small leak instead
-# of a corrupted heap). This balances the double release visible in the wrappers'
-# sources. A host that runs several failing instances of one FMU can still see its heap
-# damaged (measured with PYTHONMALLOC=debug, cause not located), which is why the
-# orchestrator runs every simulation in a child process of its own (agv_cosim/runner.py).
-_KEPT_FOR_PYTHONFMU = []
 
 
 class SlaveLogic:
@@ -235,8 +226,9 @@ class SlaveLogic:
         raise RuntimeError(text)
 
     def _keep_for_pythonfmu(self):
-        """Balance the wrapper's double release before an exception leaves (see above)."""
-        _KEPT_FOR_PYTHONFMU.extend((type(self), self, self.log_queue))
+        """Balance the wrapper's double release before an exception leaves (see
+        pythonfmu_workarounds.py, entry 1)."""
+        keep_for_pythonfmu(self)
 
     # ------------------------------------------------------------------ state
     def _get_fmu_state(self):
