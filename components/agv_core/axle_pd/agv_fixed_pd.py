@@ -5,7 +5,9 @@ import math
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "axle_pd.fuzzy_pd", "fmi.axle_pd_fmi")
+core = load_core("fmi.fmi_slave", "axle_pd.fuzzy_pd", "fmi.axle_pd_fmi", "fmi.defaults")
+DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once), deg
+    core.axle_pd.fuzzy_pd.FixedGains)
 
 
 class AgvFixedPd(core.fmi.axle_pd_fmi.AxlePdSlave):
@@ -27,9 +29,9 @@ class AgvFixedPd(core.fmi.axle_pd_fmi.AxlePdSlave):
                         "speed": ((0.0, 14.0 / 3.6),)}
 
     def declare_gain_parameters(self):
-        self.parameter("Kp", math.radians(710.0), "rad/m",
+        self.parameter("Kp", math.radians(DEFAULTS["kp_deg"]), "rad/m",
                        "Proportional gain (default: the fuzzy Kp at e = 1 cm, 14 km/h)")
-        self.parameter("Kd", math.radians(112.0), "rad.s/m",
+        self.parameter("Kd", math.radians(DEFAULTS["kd_deg"]), "rad.s/m",
                        "Derivative gain (default: the fuzzy Kd at e = 1 cm, 14 km/h)")
 
     def make_gains(self):

@@ -5,7 +5,9 @@ import math
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "axle_pd.fuzzy_pd", "fmi.axle_pd_fmi")
+core = load_core("fmi.fmi_slave", "axle_pd.fuzzy_pd", "fmi.axle_pd_fmi", "fmi.defaults")
+DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once): km/h, deg
+    core.axle_pd.fuzzy_pd.FuzzySchedule)
 
 
 class AgvFuzzyPd(core.fmi.axle_pd_fmi.AxlePdSlave):
@@ -25,20 +27,23 @@ class AgvFuzzyPd(core.fmi.axle_pd_fmi.AxlePdSlave):
 
     def declare_gain_parameters(self):
         S, I = core.fmi.fmi_slave.String, core.fmi.fmi_slave.Integer
-        self.parameter("kp_rules", core.axle_pd.fuzzy_pd.DEFAULT_KP_RULES, None,
+        self.parameter("kp_rules", DEFAULTS["kp_rules"], None,
                        "Kp rule table: 5 rows (e NB..PB) of 3 labels (speed low, mid, high) "
                        "from NB NM NS ZE PS PM PB, rows separated by ';'", kind=S)
-        self.parameter("kd_rules", core.axle_pd.fuzzy_pd.DEFAULT_KD_RULES, None,
+        self.parameter("kd_rules", DEFAULTS["kd_rules"], None,
                        "Kd rule table, same layout", kind=S)
-        self.parameter("e_max", 0.05, "m", "Lateral-error universe [-e_max, e_max]")
-        self.parameter("v_max", 80.0 / 3.6, "m/s", "Speed universe [0, v_max] (80 km/h)")
-        self.parameter("kp_max", math.radians(1500.0), "rad/m",
+        self.parameter("e_max", DEFAULTS["e_max"], "m", "Lateral-error universe [-e_max, e_max]")
+        self.parameter("v_max", DEFAULTS["v_max"] / core.axle_pd.fuzzy_pd.KMH, "m/s",
+                       "Speed universe [0, v_max] (80 km/h)")
+        self.parameter("kp_max", math.radians(DEFAULTS["kp_max"]), "rad/m",
                        "Kp universe [-kp_max, kp_max] (1500 deg/m)")
-        self.parameter("kd_max", math.radians(800.0), "rad.s/m",
+        self.parameter("kd_max", math.radians(DEFAULTS["kd_max"]), "rad.s/m",
                        "Kd universe [-kd_max, kd_max] (800 deg s/m)")
-        self.parameter("e_cells", 100, None, "Gain-grid cells across the error universe "
+        self.parameter("e_cells", DEFAULTS["e_cells"], None,
+                       "Gain-grid cells across the error universe "
                        "(multiple of 4)", kind=I)
-        self.parameter("v_cells", 40, None, "Gain-grid cells across the speed universe "
+        self.parameter("v_cells", DEFAULTS["v_cells"], None,
+                       "Gain-grid cells across the speed universe "
                        "(multiple of 2)", kind=I)
 
     def make_gains(self):

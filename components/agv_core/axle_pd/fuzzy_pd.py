@@ -224,9 +224,12 @@ class FuzzySchedule:
 
 
 class FixedGains:
-    """Constant gains with the interface of :class:`FuzzySchedule` (deg/m, deg s/m)."""
+    """Constant gains with the interface of :class:`FuzzySchedule` (deg/m, deg s/m).
 
-    def __init__(self, kp_deg, kd_deg):
+    Defaults: the fuzzy schedule's gains at e = 1 cm, 14 km/h (709.7, 111.8), rounded.
+    """
+
+    def __init__(self, kp_deg=710.0, kd_deg=112.0):
         for name, value in (("Kp", kp_deg), ("Kd", kd_deg)):
             if not math.isfinite(value):
                 raise ParameterError(name, f"must be finite, got {value}")

@@ -2,7 +2,9 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "chained_form.chained_form", "numerics.paths")
+core = load_core("fmi.fmi_slave", "chained_form.chained_form", "numerics.paths", "fmi.defaults")
+DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
+    core.chained_form.chained_form.make_controller)
 
 _STATE_INPUTS = ("lateral_error", "heading_error", "curvature", "curvature_rate")
 _POSE_INPUTS = ("x", "y", "heading")
@@ -41,19 +43,20 @@ class AgvChainedForm(core.fmi.fmi_slave.AgvSlave):
         self.input("y", 0.0, "m", "y of the rear-axle centre (source 'pose')")
         self.input("heading", 0.0, "rad", "Vehicle heading, counter-clockwise from x "
                    "(source 'pose')")
-        self.parameter("Kd", 0.6, "1/m", "Gain on a3 per unit distance (seed 002: 0.6)")
-        self.parameter("Kp", 0.09, "1/m2", "Gain on a2 per unit distance squared "
+        self.parameter("Kd", DEFAULTS["Kd"], "1/m", "Gain on a3 per unit distance (seed 002: 0.6)")
+        self.parameter("Kp", DEFAULTS["Kp"], "1/m2", "Gain on a2 per unit distance squared "
                        "(seed 002: 0.09)")
-        self.parameter("wheelbase", 2.0, "m", "Wheelbase l, rear-axle centre to front wheel")
-        self.parameter("delta_max", 0.7853981633974483, "rad",
+        self.parameter("wheelbase", DEFAULTS["wheelbase"], "m",
+                       "Wheelbase l, rear-axle centre to front wheel")
+        self.parameter("delta_max", DEFAULTS["delta_max"], "rad",
                        "Steering saturation (seed 002: 45 deg)")
-        self.parameter("sample_period", 0.0, "s",
+        self.parameter("sample_period", DEFAULTS["sample_period"], "s",
                        "Controller sample period, output held between samples; 0 = every step")
-        self.parameter("source", "sensor", None,
+        self.parameter("source", DEFAULTS["source"], None,
                        "Where the path-relative state comes from: 'sensor' (inputs "
                        "lateral_error, heading_error, curvature, curvature_rate) or 'pose' "
                        "(inputs x, y, heading projected on parameter path)", kind=S)
-        self.parameter("path", "", None,
+        self.parameter("path", DEFAULTS["path"], None,
                        "Reference path string for source 'pose', e.g. "
                        "'sine:amplitude=3,wavelength=30'", kind=S)
         every = _STATE_INPUTS + _POSE_INPUTS

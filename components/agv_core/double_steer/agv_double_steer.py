@@ -4,7 +4,9 @@ import math
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "double_steer.double_steer")
+core = load_core("fmi.fmi_slave", "double_steer.double_steer", "fmi.defaults")
+DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
+    core.double_steer.double_steer.DoubleSteerVehicle)
 
 WHEEL_INPUTS = ("theta_f", "v_f", "theta_b", "v_b")
 
@@ -30,10 +32,12 @@ class AgvDoubleSteer(core.fmi.fmi_slave.AgvSlave):
         self.input("v_f", 0.0, "m/s", "Front wheel ground speed (negative: backwards)")
         self.input("theta_b", 0.0, "rad", "Rear wheel angle to the body axis X', positive left")
         self.input("v_b", 0.0, "m/s", "Rear wheel ground speed (negative: backwards)")
-        self.parameter("wheelbase", 1.0, "m", "Distance L between the wheel contact points")
-        self.parameter("x0", 0.0, "m", "Initial x of the centroid")
-        self.parameter("y0", 0.0, "m", "Initial y of the centroid")
-        self.parameter("yaw0", 0.0, "rad", "Initial body yaw, counter-clockwise from x")
+        self.parameter("wheelbase", DEFAULTS["wheelbase"], "m",
+                       "Distance L between the wheel contact points")
+        self.parameter("x0", DEFAULTS["x0"], "m", "Initial x of the centroid")
+        self.parameter("y0", DEFAULTS["y0"], "m", "Initial y of the centroid")
+        self.parameter("yaw0", DEFAULTS["yaw0"], "rad",
+                       "Initial body yaw, counter-clockwise from x")
         self.output("x", "m", "x of the centroid C (midway between the wheels)")
         self.output("y", "m", "y of the centroid C")
         self.output("yaw", "rad", "Body yaw psi (direction of X'), continuous")

@@ -6,7 +6,8 @@ slave script subclasses :class:`ActuatorSlave` and sets ``model``, ``description
 ``rate_depends_on`` and, where needed, ``declare_model_parameters``.
 """
 
-from ..steering.actuator import make_actuator
+from ..steering.actuator import SteeringActuator, make_actuator
+from .defaults import defaults_of
 from .fmi_slave import AgvSlave, DefaultExperiment, String
 
 
@@ -28,15 +29,16 @@ class ActuatorSlave(AgvSlave):
         self.input("u", 0.0, "V", "Motor control voltage (mode 'command'); positive drives "
                    "alpha positive")
         self.input("alpha_ref", 0.0, "rad", "Wheel-angle set-point (mode 'angle')")
-        self.parameter("mode", "command", None,
+        d = defaults_of(SteeringActuator)  # the core's defaults (written once)
+        self.parameter("mode", d["mode"], None,
                        "'command': input u drives the motor; 'angle': inner position loop "
                        "u = servo_gain*(alpha_ref - alpha)", kind=String)
-        self.parameter("K", 0.6, "rad/(V.s)", "Steady rate gain (seed 000 eq 8)")
+        self.parameter("K", d["K"], "rad/(V.s)", "Steady rate gain (seed 000 eq 8)")
         self.declare_model_parameters()
-        self.parameter("alpha0", 0.0, "rad", "Initial wheel angle")
-        self.parameter("alpha_max", 0.0, "rad", "Wheel-angle limit (0 = off)")
-        self.parameter("rate_max", 0.0, "rad/s", "Wheel-rate limit (0 = off)")
-        self.parameter("servo_gain", 10.0, "V/rad", "Position-loop gain of mode 'angle'")
+        self.parameter("alpha0", d["alpha0"], "rad", "Initial wheel angle")
+        self.parameter("alpha_max", d["alpha_max"], "rad", "Wheel-angle limit (0 = off)")
+        self.parameter("rate_max", d["rate_max"], "rad/s", "Wheel-rate limit (0 = off)")
+        self.parameter("servo_gain", d["servo_gain"], "V/rad", "Position-loop gain of mode 'angle'")
         self.output("alpha", "rad", "Steered-wheel angle, positive steers left")
         self.output("alpha_rate", "rad/s", "Wheel rate d(alpha)/dt",
                     depends_on=self.rate_depends_on)

@@ -6,10 +6,9 @@ outputs, so a manifest can swap one for the other. A slave script subclasses
 returns the gain source of :class:`agv_core.fuzzy_pd.AxlePD` from ``make_gains``.
 """
 
-import math
-
-from .fmi_slave import AgvSlave, Boolean
 from ..axle_pd.fuzzy_pd import AxlePD
+from .defaults import defaults_of
+from .fmi_slave import AgvSlave, Boolean
 
 INPUTS = ("lateral_error", "speed")
 
@@ -31,8 +30,9 @@ class AxlePdSlave(AgvSlave):
                    "positive left of the path")
         self.input("speed", 0.0, "m/s", self.speed_description)
         self.declare_gain_parameters()
-        self.parameter("tau_d", 0.05, "s", "Derivative filter time constant")
-        self.parameter("delta_max", math.radians(35.0), "rad", "Steering saturation")
+        d = defaults_of(AxlePD)  # the core's defaults (written once)
+        self.parameter("tau_d", d["tau_d"], "s", "Derivative filter time constant")
+        self.parameter("delta_max", d["delta_max"], "rad", "Steering saturation")
         self.output("delta", "rad", "Axle-equivalent steering angle, positive left, saturated",
                     depends_on=self.gain_depends_on or ("lateral_error",))
         self.output("Kp_used", "rad/m", self.kp_description,

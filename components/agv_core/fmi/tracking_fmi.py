@@ -5,7 +5,8 @@ the other (the orchestrator's FMU substitution). A slave script subclasses
 :class:`TrackingSlave`, declares its parameters in ``declare_parameters``, builds its core
 in ``make_core`` (a core with ``update(t, x, y, heading, ref) -> dict`` (the output at
 t), ``step(t, h, x, y, heading, ref)`` (commits the samples of a step, the rule of
-agv_core.sampling) and ``get_state`` / ``set_state``), and may add outputs in ``declare_extra_outputs`` /
+agv_core.numerics.sampling) and ``get_state`` / ``set_state``), and may add outputs in
+``declare_extra_outputs`` /
 ``publish_extra``. The core's errors of the kinds listed in ``solve_errors`` become an FMU
 error naming the cause.
 """

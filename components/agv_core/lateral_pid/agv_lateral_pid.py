@@ -2,7 +2,9 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "fmi.tracking_fmi", "lateral_pid.pid")
+core = load_core("fmi.fmi_slave", "fmi.tracking_fmi", "lateral_pid.pid", "fmi.defaults")
+DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
+    core.lateral_pid.pid.LateralPid)
 
 
 class AgvLateralPid(core.fmi.tracking_fmi.TrackingSlave):
@@ -19,12 +21,12 @@ class AgvLateralPid(core.fmi.tracking_fmi.TrackingSlave):
 
     def declare_parameters(self):
         p = self.parameter
-        p("sample_time", 0.2, "s", "Sample time T")
-        p("kp", 0.76, "rad/(s.m)",
+        p("sample_time", DEFAULTS["sample_time"], "s", "Sample time T")
+        p("kp", DEFAULTS["kp"], "rad/(s.m)",
           "Proportional gain (seed 001 gives none; calibrated to its 19 cm overshoot)")
-        p("ki", 0.03, "rad/(s2.m)", "Integral gain")
-        p("kd", 1.8, "rad/m", "Derivative gain")
-        p("omega_max", 0.6, "rad/s", "Yaw-rate limit")
+        p("ki", DEFAULTS["ki"], "rad/(s2.m)", "Integral gain")
+        p("kd", DEFAULTS["kd"], "rad/m", "Derivative gain")
+        p("omega_max", DEFAULTS["omega_max"], "rad/s", "Yaw-rate limit")
 
     def declare_extra_outputs(self):
         self.output("integral", "m.s", "Integral of e_lat (held while omega saturates)",

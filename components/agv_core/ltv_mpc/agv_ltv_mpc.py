@@ -2,7 +2,9 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "fmi.tracking_fmi", "ltv_mpc.ltv_mpc")
+core = load_core("fmi.fmi_slave", "fmi.tracking_fmi", "ltv_mpc.ltv_mpc", "fmi.defaults")
+DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
+    core.ltv_mpc.ltv_mpc.LtvMpc)
 
 
 class AgvLtvMpc(core.fmi.tracking_fmi.TrackingSlave):
@@ -20,25 +22,28 @@ class AgvLtvMpc(core.fmi.tracking_fmi.TrackingSlave):
 
     def declare_parameters(self):
         p = self.parameter
-        p("sample_time", 0.2, "s", "Sample time T (prediction step and output update)")
-        p("horizon", 5, None, "Prediction horizon N (samples)", kind=core.fmi.fmi_slave.Integer)
-        p("control_horizon", 0, None, "Control horizon N_c (samples); 0 = N",
+        p("sample_time", DEFAULTS["sample_time"], "s",
+          "Sample time T (prediction step and output update)")
+        p("horizon", DEFAULTS["horizon"], None, "Prediction horizon N (samples)",
+          kind=core.fmi.fmi_slave.Integer)
+        p("control_horizon", DEFAULTS["control_horizon"], None,
+          "Control horizon N_c (samples); 0 = N",
           kind=core.fmi.fmi_slave.Integer)
         p("q_x", 1.0, "1", "State weight on e_X (cost in SI numbers)")
         p("q_y", 1.0, "1", "State weight on e_Y")
         p("q_heading", 0.5, "1", "State weight on e_alpha")
-        p("lam", 0.1, "1", "Input-increment weight: R = lam I_2")
-        p("rho", 10.0, "1", "Slack weight")
-        p("slack_max", 10.0, "m", "Upper bound of the slack")
-        p("e_max", 0.0, "m", "Soft bound on the predicted |e_X|, |e_Y| (0 = none)")
+        p("lam", DEFAULTS["lam"], "1", "Input-increment weight: R = lam I_2")
+        p("rho", DEFAULTS["rho"], "1", "Slack weight")
+        p("slack_max", DEFAULTS["slack_max"], "m", "Upper bound of the slack")
+        p("e_max", DEFAULTS["e_max"], "m", "Soft bound on the predicted |e_X|, |e_Y| (0 = none)")
         p("v_min", 0.0, "m/s", "Lower bound of v_c")
         p("v_max", 0.8, "m/s", "Upper bound of v_c")
         p("omega_min", -0.6, "rad/s", "Lower bound of omega")
         p("omega_max", 0.6, "rad/s", "Upper bound of omega")
         p("dv_max", 0.05, "m/s", "Bound of |Delta v_c| per sample")
         p("domega_max", 0.05, "rad/s", "Bound of |Delta omega| per sample")
-        p("eps", 1e-7, "1", "OSQP absolute and relative tolerance")
-        p("max_iter", 4000, None, "OSQP iteration limit per sample",
+        p("eps", DEFAULTS["eps"], "1", "OSQP absolute and relative tolerance")
+        p("max_iter", DEFAULTS["max_iter"], None, "OSQP iteration limit per sample",
           kind=core.fmi.fmi_slave.Integer)
 
     def declare_extra_outputs(self):

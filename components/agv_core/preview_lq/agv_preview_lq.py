@@ -2,7 +2,9 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "preview_lq.preview_lq", "numerics.paths")
+core = load_core("fmi.fmi_slave", "preview_lq.preview_lq", "numerics.paths", "fmi.defaults")
+DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
+    core.preview_lq.preview_lq.PreviewLQ)
 
 
 class AgvPreviewLq(core.fmi.fmi_slave.AgvSlave):
@@ -28,26 +30,28 @@ class AgvPreviewLq(core.fmi.fmi_slave.AgvSlave):
         self.input("heading_meas", 0.0, "rad", "Measured heading (gyro), continuous")
         self.input("alpha_meas", 0.0, "rad",
                    "Measured steering angle; used when alpha_fixed_point is false")
-        self.parameter("path", "sine:amplitude=2,wavelength=18.84955592153876", None,
+        self.parameter("path", core.preview_lq.preview_lq.DEFAULT_PATH, None,
                        "Reference path string (agv_core.paths.parse_path)",
                        kind=core.fmi.fmi_slave.String)
-        self.parameter("wheelbase", 1.6, "m", "Wheelbase L (Mitsubishi 2501D class tractor)")
-        self.parameter("speed", 1.5, "m/s", "Nominal speed V of the rear-axle centre")
-        self.parameter("tau", 0.65, "s", "Preview time (total station mean sample time)")
-        self.parameter("ds", 0.05, "m", "Polyline vertex spacing along the path")
+        self.parameter("wheelbase", DEFAULTS["wheelbase"], "m",
+                       "Wheelbase L (Mitsubishi 2501D class tractor)")
+        self.parameter("speed", DEFAULTS["speed"], "m/s", "Nominal speed V of the rear-axle centre")
+        self.parameter("tau", DEFAULTS["tau"], "s", "Preview time (total station mean sample time)")
+        self.parameter("ds", DEFAULTS["ds"], "m", "Polyline vertex spacing along the path")
         self.parameter("q_x", 10.0, "1", "LQ state weight on dx")
         self.parameter("q_y", 10.0, "1", "LQ state weight on dy")
         self.parameter("q_theta", 10.0, "1", "LQ state weight on dtheta")
         self.parameter("q_alpha", 1.0, "1", "LQ state weight on dalpha")
         self.parameter("r_v", 10000.0, "1", "LQ input weight on the speed variation dV")
         self.parameter("r_u", 1.0, "1", "LQ input weight on the steering rate du")
-        self.parameter("alpha_max", 0.61, "rad", "Steering-angle command limit (35 deg)")
-        self.parameter("sample_period", 0.0, "s",
+        self.parameter("alpha_max", DEFAULTS["alpha_max"], "rad",
+                       "Steering-angle command limit (35 deg)")
+        self.parameter("sample_period", DEFAULTS["sample_period"], "s",
                        "Controller sample period; 0 = every communication step")
-        self.parameter("dead_reckoning", False, None,
+        self.parameter("dead_reckoning", DEFAULTS["dead_reckoning"], None,
                        "Propagate the fix by fix_age along the kinematic arc (not in the "
                        "paper)", kind=core.fmi.fmi_slave.Boolean)
-        self.parameter("alpha_fixed_point", True, None,
+        self.parameter("alpha_fixed_point", DEFAULTS["alpha_fixed_point"], None,
                        "Use the command itself as steering angle in eq 12 (fixed point, "
                        "stable with a fast actuator); false = measured angle, eq 12 "
                        "literally", kind=core.fmi.fmi_slave.Boolean)

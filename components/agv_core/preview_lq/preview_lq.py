@@ -63,6 +63,9 @@ from ..numerics.angles import wrap_angle
 from ..numerics.arc import arc_pose  # the exact arc of eq 2 (numerics/arc.py)
 from ..numerics.sampling import SampleHold
 
+#: Default path of the FMU: seed 004's sine y = 2 sin(x / 3) [m] (wavelength 6 pi m).
+DEFAULT_PATH = "sine:amplitude=2,wavelength=18.84955592153876"
+
 
 def future_point(x, y, theta, alpha, speed, wheelbase, tau):
     """Future point Q after ``tau`` at constant steering angle (seed 004 eq 5).

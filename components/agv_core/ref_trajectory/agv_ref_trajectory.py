@@ -2,7 +2,9 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "ref_trajectory.ref_trajectory")
+core = load_core("fmi.fmi_slave", "ref_trajectory.ref_trajectory", "fmi.defaults")
+DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
+    core.ref_trajectory.ref_trajectory.RefTrajectory)
 
 
 class AgvRefTrajectory(core.fmi.fmi_slave.AgvSlave):
@@ -17,13 +19,14 @@ class AgvRefTrajectory(core.fmi.fmi_slave.AgvSlave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.parameter("kind", "circle", None, "'circle' or 'scurve'",
+        self.parameter("kind", DEFAULTS["kind"], None, "'circle' or 'scurve'",
                        kind=core.fmi.fmi_slave.String)
-        self.parameter("speed", 0.4, "m/s", "Reference speed v_r along the path")
-        self.parameter("omega", 0.074, "rad/s", "Circle: yaw rate omega_r (< 0: clockwise)")
-        self.parameter("amplitude", 1.5, "m", "S-curve: sine amplitude A")
-        self.parameter("wavelength", 12.0, "m", "S-curve: sine wavelength W")
-        self.parameter("peak_time", 33.7, "s",
+        self.parameter("speed", DEFAULTS["speed"], "m/s", "Reference speed v_r along the path")
+        self.parameter("omega", DEFAULTS["omega"], "rad/s",
+                       "Circle: yaw rate omega_r (< 0: clockwise)")
+        self.parameter("amplitude", DEFAULTS["amplitude"], "m", "S-curve: sine amplitude A")
+        self.parameter("wavelength", DEFAULTS["wavelength"], "m", "S-curve: sine wavelength W")
+        self.parameter("peak_time", DEFAULTS["peak_time"], "s",
                        "S-curve: time of the first curvature maximum (sets the straight)")
         self.output("x_ref", "m", "Reference x")
         self.output("y_ref", "m", "Reference y")

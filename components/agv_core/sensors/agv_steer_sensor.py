@@ -20,8 +20,9 @@ class AgvSteerSensor(core.fmi.fmi_slave.AgvSlave):
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.input("alpha", 0.0, "rad", "True steered-wheel angle, positive left")
-        self.parameter("noise", 0.001, "rad", "Std. dev. of white noise per sample")
-        self.parameter("resolution", 0.001745329251994, "rad",
+        self.parameter("noise", core.sensors.sensors.STEER_NOISE, "rad",
+                       "Std. dev. of white noise per sample")
+        self.parameter("resolution", core.sensors.sensors.STEER_RESOLUTION, "rad",
                        "Quantisation step of the reading (0.1 deg); 0 for none")
         self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi.fmi_slave.Integer)
         self.output("alpha_meas", "rad", "Measured steered-wheel angle",

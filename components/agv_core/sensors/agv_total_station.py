@@ -2,7 +2,9 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "sensors.sensors")
+core = load_core("fmi.fmi_slave", "sensors.sensors", "fmi.defaults")
+DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
+    core.sensors.sensors.TotalStation)
 
 
 class AgvTotalStation(core.fmi.fmi_slave.AgvSlave):
@@ -21,12 +23,13 @@ class AgvTotalStation(core.fmi.fmi_slave.AgvSlave):
         super().__init__(**kwargs)
         self.input("x", 0.0, "m", "x of the prism (tracked point)")
         self.input("y", 0.0, "m", "y of the prism (tracked point)")
-        self.parameter("mean_interval", 0.65, "s", "Mean time between fixes")
-        self.parameter("jitter", 0.15, "s",
+        self.parameter("mean_interval", DEFAULTS["mean_interval"], "s", "Mean time between fixes")
+        self.parameter("jitter", DEFAULTS["jitter"], "s",
                        "Half-width of the uniform spread of each interval (< mean_interval)")
-        self.parameter("latency", 0.1, "s", "Radio-modem transmission delay")
-        self.parameter("noise", 0.003, "m", "Std. dev. of the noise of each coordinate")
-        self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi.fmi_slave.Integer)
+        self.parameter("latency", DEFAULTS["latency"], "s", "Radio-modem transmission delay")
+        self.parameter("noise", DEFAULTS["noise"], "m", "Std. dev. of the noise of each coordinate")
+        self.parameter("seed", DEFAULTS["seed"], None, "Random seed (>= 0)",
+                       kind=core.fmi.fmi_slave.Integer)
         self.parameter("available", True, None, "Fixes reach the vehicle (false: a radio "
                        "or line-of-sight dropout; fixes due then are lost)",
                        kind=core.fmi.fmi_slave.Boolean, tunable=True)

@@ -2,7 +2,9 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "numerics.paths", "sensors.sensors")
+core = load_core("fmi.fmi_slave", "numerics.paths", "sensors.sensors", "fmi.defaults")
+DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
+    core.sensors.sensors.VisionSensor)
 
 _POSE = ("x", "y", "heading")
 
@@ -28,13 +30,17 @@ class AgvVisionSensor(core.fmi.fmi_slave.AgvSlave):
                        "Reference path 'kind:key=value,...' (see components/README.md); a "
                        "waypoint file is relative to the host's working folder",
                        kind=core.fmi.fmi_slave.String)
-        self.parameter("frame_period", 0.04, "s",
+        self.parameter("frame_period", DEFAULTS["frame_period"], "s",
                        "Frame capture period (PAL 25 frames/s); 0 = every communication "
                        "point")
-        self.parameter("latency", 0.04, "s", "Image processing delay from capture to output")
-        self.parameter("noise_lateral", 0.002, "m", "Std. dev. of the lateral-error noise")
-        self.parameter("noise_heading", 0.004, "rad", "Std. dev. of the heading-error noise")
-        self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi.fmi_slave.Integer)
+        self.parameter("latency", DEFAULTS["latency"], "s",
+                       "Image processing delay from capture to output")
+        self.parameter("noise_lateral", DEFAULTS["noise_lateral"], "m",
+                       "Std. dev. of the lateral-error noise")
+        self.parameter("noise_heading", DEFAULTS["noise_heading"], "rad",
+                       "Std. dev. of the heading-error noise")
+        self.parameter("seed", DEFAULTS["seed"], None, "Random seed (>= 0)",
+                       kind=core.fmi.fmi_slave.Integer)
         self.output("lateral_error", "m", "Lateral deviation from the path, positive left",
                     depends_on=_POSE)
         self.output("heading_error", "rad",

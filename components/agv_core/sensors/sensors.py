@@ -360,3 +360,8 @@ class InstantSensor:
 #: Defaults of the seed-004 fibre-optic gyro: drift 0.5 deg/h, resolution 0.01 deg.
 GYRO_DRIFT = math.radians(0.5) / 3600.0
 GYRO_RESOLUTION = math.radians(0.01)
+#: Defaults of the steering-angle (displacement) sensor: noise 0.001 rad, resolution 0.1 deg
+#: as the first version wrote it (0.001745329251994, 13 digits; math.radians(0.1) differs
+#: in the last ones and would move every result that uses the default).
+STEER_NOISE = 0.001
+STEER_RESOLUTION = 0.001745329251994

@@ -2,7 +2,9 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "state_feedback.state_feedback")
+core = load_core("fmi.fmi_slave", "state_feedback.state_feedback", "fmi.defaults")
+DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
+    core.state_feedback.state_feedback.StateFeedback)
 
 
 class AgvStateFeedback(core.fmi.fmi_slave.AgvSlave):
@@ -26,12 +28,12 @@ class AgvStateFeedback(core.fmi.fmi_slave.AgvSlave):
                    "Vehicle heading minus path heading, positive pointing left of the path")
         self.input("lateral_error", 0.0, "m",
                    "Signed distance of the front-wheel centre from the path, positive left")
-        self.parameter("Ka", 4.828, "V/rad", "Gain on the wheel angle (seed 000 eq 10)")
-        self.parameter("Kb", 3.767, "V/rad", "Gain on the heading error (seed 000 eq 10)")
-        self.parameter("Ke", 4.472, "V/m", "Gain on the lateral error (seed 000 eq 10)")
-        self.parameter("sample_period", 0.0, "s",
+        self.parameter("Ka", DEFAULTS["Ka"], "V/rad", "Gain on the wheel angle (seed 000 eq 10)")
+        self.parameter("Kb", DEFAULTS["Kb"], "V/rad", "Gain on the heading error (seed 000 eq 10)")
+        self.parameter("Ke", DEFAULTS["Ke"], "V/m", "Gain on the lateral error (seed 000 eq 10)")
+        self.parameter("sample_period", DEFAULTS["sample_period"], "s",
                        "Sample-and-hold period, at multiples of it (0 = every step)")
-        self.parameter("u_max", 0.0, "V", "Output limit (0 = off)")
+        self.parameter("u_max", DEFAULTS["u_max"], "V", "Output limit (0 = off)")
         self.output("u", "V", "Actuator command, positive drives alpha positive",
                     depends_on=("alpha", "heading_error", "lateral_error"))
 

@@ -2,7 +2,7 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi.actuator_fmi")
+core = load_core("fmi.actuator_fmi", "fmi.defaults", "steering.actuator")
 
 
 class AgvSteeringA(core.fmi.actuator_fmi.ActuatorSlave):
@@ -14,7 +14,8 @@ class AgvSteeringA(core.fmi.actuator_fmi.ActuatorSlave):
     rate_depends_on = ()  # the dead time (tau > 0) separates the rate from the inputs
 
     def declare_model_parameters(self):
-        self.parameter("tau", 0.05, "s", "Dead time (seed 000 eq 8), > 0")
+        default = core.fmi.defaults.defaults_of(core.steering.actuator.DelayedIntegratorActuator)
+        self.parameter("tau", default["tau"], "s", "Dead time (seed 000 eq 8), > 0")
 
     def model_parameters(self):
         return {"tau": self.tau}

@@ -2,7 +2,9 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "train.train", "ackermann.ackermann")
+core = load_core("fmi.fmi_slave", "train.train", "ackermann.ackermann", "fmi.defaults")
+DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
+    core.train.train.Train, core.train.train.TrainGeometry)
 
 _AXLES = (1, 2, 3, 4)
 _SIDES = ("left", "right")
@@ -39,10 +41,12 @@ class AgvTrain(core.fmi.fmi_slave.AgvSlave):
                 self.input(f"delta{i}_{side}", 0.0, "rad",
                            f"{side.capitalize()} wheel angle of axle {i}, positive left "
                            "(steering_input 'wheels')")
-        self.parameter("L1", 5.0, "m", "Axle spacing of each powered car (head-car wheelbase)")
-        self.parameter("L2", 3.0, "m", "Inner axle (head: rear, tail: front) to the car's hinge")
-        self.parameter("d", 2.1, "m", "Track width (wheel slip diagnostics)")
-        self.parameter("Lm", 9.0, "m", "Floating car, hinge J1 to hinge J2")
+        self.parameter("L1", DEFAULTS["L1"], "m",
+                       "Axle spacing of each powered car (head-car wheelbase)")
+        self.parameter("L2", DEFAULTS["L2"], "m",
+                       "Inner axle (head: rear, tail: front) to the car's hinge")
+        self.parameter("d", DEFAULTS["d"], "m", "Track width (wheel slip diagnostics)")
+        self.parameter("Lm", DEFAULTS["Lm"], "m", "Floating car, hinge J1 to hinge J2")
         self.parameter("v0", 14.0 / 3.6, "m/s", "Constant part of the head car's longitudinal "
                        "speed u1 (14 km/h); u1 = v0 + dv")
         self.parameter("x0", 0.0, "m", "Initial x of axle 1's centre (train straight)")
@@ -53,7 +57,7 @@ class AgvTrain(core.fmi.fmi_slave.AgvSlave):
                        "'axle': inputs delta1..delta4; 'wheels': inputs deltaI_left/right, "
                        "converted by the exact Ackermann inverse cot(delta) = mean of the "
                        "wheel cotangents", kind=S)
-        self.parameter("tolerance", 1e-12, "rad",
+        self.parameter("tolerance", DEFAULTS["tolerance"], "rad",
                        "Bound on the estimated local error of the articulation angles per step")
         self.output("x_J1", "m", "x of hinge J1 (head car / floating car)")
         self.output("y_J1", "m", "y of hinge J1")

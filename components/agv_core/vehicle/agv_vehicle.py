@@ -2,7 +2,9 @@
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "vehicle.vehicle")
+core = load_core("fmi.fmi_slave", "vehicle.vehicle", "fmi.defaults")
+DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
+    core.vehicle.vehicle.Vehicle)
 
 
 class AgvVehicle(core.fmi.fmi_slave.AgvSlave):
@@ -25,13 +27,14 @@ class AgvVehicle(core.fmi.fmi_slave.AgvSlave):
         self.parameter("v0", 1.0, "m/s", "Constant part of the speed of the rear-axle centre; "
                        "the speed is v0 + dv")
         self.parameter("wheelbase", 1.0, "m", "Wheelbase L, rear-axle centre to front wheel")
-        self.parameter("x0", 0.0, "m", "Initial x of the reference point")
-        self.parameter("y0", 0.0, "m", "Initial y of the reference point")
-        self.parameter("heading0", 0.0, "rad", "Initial heading, counter-clockwise from x")
-        self.parameter("reference_point", "front", None,
+        self.parameter("x0", DEFAULTS["x0"], "m", "Initial x of the reference point")
+        self.parameter("y0", DEFAULTS["y0"], "m", "Initial y of the reference point")
+        self.parameter("heading0", DEFAULTS["heading0"], "rad",
+                       "Initial heading, counter-clockwise from x")
+        self.parameter("reference_point", DEFAULTS["reference_point"], None,
                        "Point reported as x, y: 'front' (wheel centre, seed 000) or 'rear' "
                        "(axle centre, seed 004)", kind=core.fmi.fmi_slave.String)
-        self.parameter("linear", False, None,
+        self.parameter("linear", DEFAULTS["linear"], None,
                        "Small-angle linear kinematics (seed 000 models b and c)",
                        kind=core.fmi.fmi_slave.Boolean)
         self.output("x", "m", "x of the reference point")

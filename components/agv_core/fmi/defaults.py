@@ -1,0 +1,24 @@
+"""Parameter defaults are written once, in the core; a slave script reads them from there.
+
+A core states its defaults (with units) in its constructor's signature or as module
+constants. A slave script declares each FMU parameter with the core's value,
+``d = defaults_of(core.vehicle.vehicle.Vehicle)`` then ``self.parameter("x0", d["x0"],
+...)``, so the slave, the core and the modelDescription.xml cannot drift apart; each
+component README's parameter table is checked against the built FMU
+(tests/test_components.py).
+"""
+
+import inspect
+
+
+def defaults_of(*factories):
+    """Keyword defaults of the core classes or functions ``factories``, by parameter name.
+
+    A name defined by several factories takes the first one's default.
+    """
+    defaults = {}
+    for factory in reversed(factories):
+        defaults.update({name: p.default
+                         for name, p in inspect.signature(factory).parameters.items()
+                         if p.default is not inspect.Parameter.empty})
+    return defaults
