@@ -31,7 +31,7 @@ class AgvTestTypes(core.fmi.fmi_slave.AgvSlave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        fs = core.fmi_slave
+        fs = core.fmi.fmi_slave
         self.input("ri", 0.0, "1", "Real input")
         self.input("ii", 0, None, "Integer input", kind=fs.Integer)
         self.input("bi", False, None, "Boolean input", kind=fs.Boolean)
