@@ -16,6 +16,7 @@ import scipy.linalg
 
 from agv_core.state_feedback.state_feedback import PAPER_GAINS, closed_loop, model_b
 from agv_cosim.runner import run_manifest
+from manifests import localise
 
 EXPERIMENTS = __import__("pathlib").Path(__file__).resolve().parents[1] / "experiments"
 WHEELBASE = 1.4944   # [m], find_wheelbase(), as in the manifests
@@ -23,22 +24,11 @@ K_ACT = 0.6          # [rad/(V.s)]
 E0 = 0.1             # [m] initial lateral offset of the front wheel (the step)
 STEP = 0.001         # [s] the manifests' communication step
 
-#: FMU file name in the manifests -> slave script stem (component_fmus keys)
-STEMS = {"AgvVehicle": "agv_vehicle", "AgvVisionSensor": "agv_vision_sensor",
-         "AgvSteerSensor": "agv_steer_sensor", "AgvStateFeedback": "agv_state_feedback",
-         "AgvSteeringA": "agv_steering_a", "AgvSteeringB": "agv_steering_b",
-         "AgvSteeringC": "agv_steering_c"}
-
-
-def _localise(name, tmp_path, fmus, edit=lambda text: text):
+def _localise(name, tmp_path, fmus, resub=()):
     """Copy manifest ``name`` into tmp_path with fmu paths pointing at ``fmus``."""
     text = (EXPERIMENTS / name).read_text()
     assert re.search(r"^step = 0\.001$", text, re.M), "the manifests use a 1 ms step"
-    text = re.sub(r'"\.\./fmus/(\w+)\.fmu"',
-                  lambda m: '"' + fmus[STEMS[m.group(1)]].as_posix() + '"', text)
-    path = tmp_path / name
-    path.write_text(edit(text))
-    return path
+    return localise(EXPERIMENTS / name, tmp_path, fmus, resub=resub)
 
 
 def _series(out, run):
@@ -60,12 +50,8 @@ def abc(component_fmus, tmp_path_factory):
 @pytest.fixture(scope="module")
 def speed(component_fmus, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("seed000_speed")
-
-    def trim(text):
-        text = re.sub(r'^"vehicle\.v0" = \[.*\]', '"vehicle.v0" = [1.0, 2.0, 3.0, 4.0]',
-                      text, flags=re.M)
-        return re.sub(r"^stop = 15\.0$", "stop = 10.0", text, flags=re.M)
-
+    trim = [(r'^"vehicle\.v0" = \[.*\]', '"vehicle.v0" = [1.0, 2.0, 3.0, 4.0]'),
+            (r"^stop = 15\.0$", "stop = 10.0")]
     out, results, _ = run_manifest(_localise("seed000_speed.toml", tmp, component_fmus, trim),
                                    out_dir=tmp / "out", quiet=True)
     assert all(r["status"] == "complete" for r in results) and len(results) == 8

@@ -15,7 +15,6 @@ of the commanded (ideal) front-wheel angle.
 
 import json
 import math
-import re
 from pathlib import Path
 
 import fmpy
@@ -29,6 +28,7 @@ from agv_core.ref_trajectory.ref_trajectory import RefTrajectory
 from agv_core.double_steer.seed001_loop import run_loop
 from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
+from manifests import localise
 
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
 T = 0.2
@@ -36,18 +36,9 @@ LAMBDAS = ("0.05", "0.1", "1.0", "5.0", "10.0")
 HORIZONS = ("5", "6", "7", "8")
 
 
-def _stem(class_name):
-    """AgvLtvMpc -> agv_ltv_mpc (the slave script's stem)."""
-    return re.sub(r"(?<!^)([A-Z])", r"_\1", class_name).lower()
-
-
 def _run(name, component_fmus, tmp_path_factory):
     tmp = tmp_path_factory.mktemp(name)
-    text = (EXPERIMENTS / f"{name}.toml").read_text(encoding="utf-8")
-    text = re.sub(r'"\.\./fmus/(Agv\w+)\.fmu"',
-                  lambda m: json.dumps(str(component_fmus[_stem(m.group(1))])), text)
-    manifest = tmp / f"{name}.toml"
-    manifest.write_text(text, encoding="utf-8")
+    manifest = localise(EXPERIMENTS / f"{name}.toml", tmp, component_fmus)
     out, results, _ = run_manifest(manifest, tmp / "out", workers=2, quiet=True)
     assert all(r["status"] == "complete" for r in results), results
     runs = {}
@@ -229,15 +220,10 @@ def rate_limit_runs(component_fmus, tmp_path_factory):
     """experiments/seed001_rate_limit.toml shortened to 8 s and N in {6, 7} (4 runs at a
     10 ms step: the post-transient peaks fall at 3.5-5 s)."""
     tmp = tmp_path_factory.mktemp("seed001_rate_limit")
-    text = (EXPERIMENTS / "seed001_rate_limit.toml").read_text(encoding="utf-8")
-    text = re.sub(r'"\.\./fmus/(Agv\w+)\.fmu"',
-                  lambda m: json.dumps(str(component_fmus[_stem(m.group(1))])), text)
-    for old, new in (("stop = 80.0", "stop = 8.0"), ("settle_after = 60.0", "settle_after = 6.0"),
-                     ('"ctrl.horizon" = [5, 6, 7, 8]', '"ctrl.horizon" = [6, 7]')):
-        assert old in text
-        text = text.replace(old, new)
-    manifest = tmp / "seed001_rate_limit.toml"
-    manifest.write_text(text, encoding="utf-8")
+    manifest = localise(EXPERIMENTS / "seed001_rate_limit.toml", tmp, component_fmus,
+                        replace=[("stop = 80.0", "stop = 8.0"),
+                                 ("settle_after = 60.0", "settle_after = 6.0"),
+                                 ('"ctrl.horizon" = [5, 6, 7, 8]', '"ctrl.horizon" = [6, 7]')])
     out, results, _ = run_manifest(manifest, tmp / "out", workers=2, quiet=True)
     assert all(r["status"] == "complete" for r in results), results
     return {r["label"]: read_timeseries(out / r["label"] / "timeseries.csv") for r in results}

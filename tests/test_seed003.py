@@ -8,9 +8,7 @@ speed and radius comparisons use the same cores in a plain-Python closed loop
 sweep costs ~1 s per run instead of ~10 s.
 """
 
-import json
 import math
-import re
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +19,7 @@ from agv_core.axle_pd.track_path import PointErrors, parse_track_path
 from agv_core.train.train import Train, TrainGeometry, steady_offsets
 from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
+from manifests import localise
 
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
 GEOM = TrainGeometry(5.0, 3.0, 2.1, 9.0)
@@ -30,19 +29,11 @@ STOP = 29.0
 FIXED = (710.0, 112.0)      # deg/m, deg s/m: AgvFixedPd's defaults
 
 
-def _stem(class_name):
-    return re.sub(r"(?<!^)([A-Z])", r"_\1", class_name).lower()
-
-
 @pytest.fixture(scope="module")
 def curve_runs(component_fmus, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("seed003")
-    text = (EXPERIMENTS / "seed003_curve.toml").read_text(encoding="utf-8")
-    text = re.sub(r'"\.\./fmus/(Agv\w+)\.fmu"',
-                  lambda m: json.dumps(str(component_fmus[_stem(m.group(1))])), text)
-    assert "stop = 36.0" in text
-    manifest = tmp / "seed003_curve.toml"
-    manifest.write_text(text.replace("stop = 36.0", f"stop = {STOP}"), encoding="utf-8")
+    manifest = localise(EXPERIMENTS / "seed003_curve.toml", tmp, component_fmus,
+                        replace=[("stop = 36.0", f"stop = {STOP}")])
     out, results, _ = run_manifest(manifest, tmp / "out", variants=["fuzzy", "fixed"],
                                    workers=2, quiet=True)
     assert [r["status"] for r in results] == ["complete"] * 2, results

@@ -10,7 +10,6 @@ machine; the margins absorb the shorter window, not randomness.
 """
 
 import json
-import re
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +18,7 @@ import pytest
 from agv_core.numerics.paths import parse_path
 from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
+from manifests import localise
 
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
 STOP = 25.0          # [s] shortened run
@@ -28,23 +28,11 @@ PATHS = {"sine": "sine:amplitude=2,wavelength=18.84955592153876",
          "r277": "circle:radius=2.77"}
 
 
-def _stem(class_name):
-    """AgvSteeringA -> agv_steering_a (the slave script's stem)."""
-    return re.sub(r"(?<!^)([A-Z])", r"_\1", class_name).lower()
-
-
 def _copy_manifest(name, tmp_path, component_fmus, drop=()):
-    text = (EXPERIMENTS / name).read_text(encoding="utf-8")
-    text = re.sub(r'"\.\./fmus/(Agv\w+)\.fmu"',
-                  lambda m: json.dumps(str(component_fmus[_stem(m.group(1))])), text)
-    assert "stop = 45.0" in text and f"settle_after = {T_FROM}" in text
-    text = text.replace("stop = 45.0", f"stop = {STOP}")
-    for block in drop:
-        assert block in text
-        text = text.replace(block, "")
-    path = tmp_path / name
-    path.write_text(text, encoding="utf-8")
-    return path
+    assert f"settle_after = {T_FROM}" in (EXPERIMENTS / name).read_text(encoding="utf-8")
+    return localise(EXPERIMENTS / name, tmp_path, component_fmus,
+                    replace=[("stop = 45.0", f"stop = {STOP}")]
+                    + [(block, "") for block in drop])
 
 
 def _stats(out, run, prefix="lateral_error"):

@@ -19,6 +19,7 @@ from agv_cosim import ssp
 from agv_cosim.manifest import ManifestError, load_manifest, plan_runs
 from agv_cosim.master import simulate
 from agv_cosim.runner import prepare
+from manifests import localise_text
 
 ROOT = Path(__file__).resolve().parent.parent
 SEED000 = ROOT / "experiments" / "seed000_models_abc.toml"
@@ -74,13 +75,11 @@ variables = ["vehicle.x", "vehicle.y", "vehicle.heading", "sensor.lateral_error"
 def write_loop_manifest(component_fmus, folder, algorithm="jacobi"):
     """The seed-000 loop manifest (variant a if the experiment file exists), 10 s, with
     the FMUs of this test session and the given algorithm."""
-    text = SEED000.read_text() if SEED000.is_file() else FALLBACK
-    by_model = {Path(p).stem: Path(p) for p in component_fmus.values()}
-    text = re.sub(r'"\.\./fmus/(\w+)\.fmu"', lambda m: f'"{by_model[m.group(1)]}"', text)
-    text = re.sub(r"(?m)^stop = [0-9.e-]+", "stop = 10.0", text)
-    text = re.sub(r"(?m)^step = [0-9.e-]+", "step = 0.01", text)
-    text = re.sub(r"(?m)^interval = [0-9.e-]+", "interval = 0.01", text)
-    text = re.sub(r'(?m)^algorithm = "[a-z-]+"', f'algorithm = "{algorithm}"', text)
+    text = localise_text(  # tests/manifests.py: the suite's one manifest-rewriting helper
+        SEED000.read_text() if SEED000.is_file() else FALLBACK, component_fmus,
+        resub=[(r"^stop = [0-9.e-]+", "stop = 10.0"), (r"^step = [0-9.e-]+", "step = 0.01"),
+               (r"^interval = [0-9.e-]+", "interval = 0.01"),
+               (r'^algorithm = "[a-z-]+"', f'algorithm = "{algorithm}"')])
     path = Path(folder) / f"loop_{algorithm}.toml"
     path.write_text(text)
     return path
