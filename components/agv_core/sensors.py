@@ -225,6 +225,7 @@ class VisionSensor(_Sampled):
         self.next_k = 0 if p == 0.0 else math.ceil((self.t0 - EPS) / p)
         self.next_t = self.t0
         self.s_hint = None
+        self._projected = (None, None, None, None)  # x, y, s_hint, projection of the last
 
     def _next_time(self):
         return self.next_t if self.frame_period == 0.0 else self.next_k * self.frame_period
@@ -251,7 +252,13 @@ class VisionSensor(_Sampled):
 
     def _sample(self, inputs, noise, commit=False):
         x, y, heading = inputs
-        p = self.path.project(x, y, self.s_hint)
+        # a tentative sample and its commit project the same pose (the very same float
+        # objects, so the same values and signs of zero): project once
+        hint = self.s_hint
+        px, py, ph, p = self._projected
+        if not (x is px and y is py and hint is ph):
+            p = self.path.project(x, y, hint)
+            self._projected = (x, y, hint, p)
         if commit:
             self.s_hint = p.s
         lateral, head = p.offset, heading_error(heading, p.heading)

@@ -319,6 +319,140 @@ def describe_track(track, names):
     return f"component '{name}' during {PHASES[phase]} at t={t!r} s"
 
 
+def _instantiate(plan, instances, index, track, on_message):
+    """Phase 1: instantiate the FMUs (into ``instances``, so the caller can close them
+    whatever happens) and build each one's :class:`_Unit` (tables: :class:`_TableUnit`)
+    with its value buffers linked to its sources.
+
+    Returns (units by name, names of the table components, record map: (row position,
+    buffer, position in it) per recorded signal).
+    """
+    units = {}
+    tables = {c for c, info in plan.models.items() if info.table is not None}
+    for cname in plan.models:
+        track[0] = index[cname]
+        if cname not in tables:
+            instances[cname] = FmuInstance(plan.models[cname], cname, on_message)
+    connected = {}
+    for conn in plan.connections:
+        connected.setdefault(conn.target[0], []).append(conn)
+    needed_out = {c: set() for c in plan.models}
+    for conn in plan.connections:
+        needed_out[conn.source[0]].add(conn.source[1])
+    for name in plan.record:
+        cname, vname = name.split(".")
+        needed_out[cname].add(vname)
+    for cname, info in plan.models.items():
+        outs = [v for v in info.outputs if v.name in needed_out[cname]]
+        ins = [info.variables[c.target[1]] for c in connected.get(cname, [])]
+        units[cname] = (_TableUnit(cname, info.table, track) if cname in tables else
+                        _Unit(instances[cname], outs, ins))
+        units[cname].index = index[cname]
+    for cname, unit in units.items():
+        for conn in connected.get(cname, []):
+            unit.link(conn.target[1], units[conn.source[0]], conn.source[1])
+        unit.freeze()
+    record_from = [(i, *units[n.split(".")[0]].address[n.split(".")[1]])
+                   for i, n in enumerate(plan.record, start=1)]
+    return units, tables, record_from
+
+
+def _initialise(plan, instances, units, all_units, index, track):
+    """Phase 2: set up the experiment, set the parameters, enter and exit initialisation
+    mode (with Jacobi, libcosim's exchanges while in initialisation mode)."""
+    track[1] = _INITIALISATION
+    for cname in instances:
+        track[0] = index[cname]
+        slave = instances[cname].slave
+        info = plan.models[cname]
+        if units[cname].fmi3:
+            for pname, value in plan.parameters.get(cname, {}).items():
+                _set_parameter(slave, info.variables[pname], value)
+            slave.enterInitializationMode(startTime=plan.start, stopTime=plan.stop)
+        else:
+            slave.setupExperiment(startTime=plan.start, stopTime=plan.stop)
+            for pname, value in plan.parameters.get(cname, {}).items():
+                _set_parameter(slave, info.variables[pname], value)
+            slave.enterInitializationMode()
+    if plan.algorithm == "jacobi":
+        # libcosim's initialisation: as many Jacobi exchanges as there are FMUs while
+        # they are in initialisation mode, which propagates initial values through
+        # any chain of direct feedthrough
+        track[1] = _EXCHANGE
+        for _ in all_units:
+            for unit in all_units:
+                track[0] = unit.index
+                unit.get()
+            for unit in all_units:
+                track[0] = unit.index
+                unit.set()
+    track[1] = _INITIALISATION
+    for cname in instances:
+        track[0] = index[cname]
+        instances[cname].slave.exitInitializationMode()
+
+
+def _check_finite(unit, t):
+    """Raise naming the first non-finite float output of ``unit`` at ``t`` [s]."""
+    # Callers may skip this when every float buffer's sum is finite: a sum is
+    # finite only if every term is (NaN and inf propagate); an overflowed sum
+    # lands here.
+    for _, _, buf, is_float, _, names in unit.out_groups:
+        if not is_float:
+            continue
+        for pos, value in enumerate(buf):
+            if not isfinite(value):
+                raise SimulationError(f"component '{unit.name}': output "
+                                      f"'{names[pos]}' is {float(value)!r} at "
+                                      f"t={t!r} s")
+
+
+def _gauss_seidel_pass(plan, units, all_units, track):
+    """The Gauss-Seidel pass at one communication point, unrolled into flat tuples.
+
+    Returns ``(gs_pass, pass_plan)``: ``gs_pass(t)`` runs the pass at ``t`` [s];
+    ``pass_plan(stopped)`` is the pass without sets to the units named in ``stopped``
+    (for ``gs_pass(t, pass_plan(stopped))``).
+    """
+    def pass_plan(stopped=()):
+        # The Gauss-Seidel pass, unrolled: per unit (index, input groups, output
+        # groups, unit); a unit that asked to stop gets no more sets.
+        return [(u.index, () if u.name in stopped else u.in_groups, u.out_groups, u)
+                for u in (units[c] for c in plan.order)]
+
+    gs_plan = pass_plan()
+
+    # Units whose outputs feed a unit visited before them (or themselves): their
+    # outputs are read first, so that unit sees the value of this instant and not the
+    # one read in the previous pass. Such an output cannot depend directly on an input
+    # (the order puts every feedthrough source first), so reading it early is exact.
+    position = {name: i for i, name in enumerate(plan.order)}
+    backward = {src.name for unit in all_units for _, src, _ in unit.sources
+                if position[src.name] >= position[unit.name]}
+    pre_read = [units[name] for name in plan.order if name in backward]
+
+    def gs_pass(t, gs_plan=gs_plan):
+        for unit in pre_read:
+            track[0] = unit.index
+            unit.get()
+        for i, in_groups, out_groups, unit in gs_plan:
+            track[0] = i
+            for fn, args, in_val, links, fname in in_groups:
+                for j, src, pos in links:
+                    in_val[j] = src[pos]
+                status = fn(*args)
+                if status > 1:
+                    raise _failed(fname, status)
+            for fn, args, out_val, is_float, fname, _ in out_groups:
+                status = fn(*args)
+                if status > 1:
+                    raise _failed(fname, status)
+                if is_float and not isfinite(sum(out_val)):
+                    _check_finite(unit, t)
+
+    return gs_pass, pass_plan
+
+
 def simulate(plan, write_row, progress=None, track=None, on_message=None, outcome=None):
     """Run one co-simulation.
 
@@ -366,119 +500,22 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None, outcom
     track[0], track[1], track[2] = -1, _INSTANTIATION, plan.start
     rows = 0
     try:
-        tables = {c for c, info in plan.models.items() if info.table is not None}
-        for cname in plan.models:
-            track[0] = index[cname]
-            if cname not in tables:
-                instances[cname] = FmuInstance(plan.models[cname], cname, on_message)
-        connected = {}
-        for conn in plan.connections:
-            connected.setdefault(conn.target[0], []).append(conn)
-        needed_out = {c: set() for c in plan.models}
-        for conn in plan.connections:
-            needed_out[conn.source[0]].add(conn.source[1])
-        for name in plan.record:
-            cname, vname = name.split(".")
-            needed_out[cname].add(vname)
-        for cname, info in plan.models.items():
-            outs = [v for v in info.outputs if v.name in needed_out[cname]]
-            ins = [info.variables[c.target[1]] for c in connected.get(cname, [])]
-            units[cname] = (_TableUnit(cname, info.table, track) if cname in tables else
-                            _Unit(instances[cname], outs, ins))
-            units[cname].index = index[cname]
-        for cname, unit in units.items():
-            for conn in connected.get(cname, []):
-                unit.link(conn.target[1], units[conn.source[0]], conn.source[1])
-            unit.freeze()
-        record_from = [(i, *units[n.split(".")[0]].address[n.split(".")[1]])
-                       for i, n in enumerate(plan.record, start=1)]
+        # phase 1: instantiate every FMU, wire the preallocated buffers
+        units, tables, record_from = _instantiate(plan, instances, index, track, on_message)
 
-        track[1] = _INITIALISATION
-        for cname in instances:
-            track[0] = index[cname]
-            slave = instances[cname].slave
-            info = plan.models[cname]
-            if units[cname].fmi3:
-                for pname, value in plan.parameters.get(cname, {}).items():
-                    _set_parameter(slave, info.variables[pname], value)
-                slave.enterInitializationMode(startTime=plan.start, stopTime=plan.stop)
-            else:
-                slave.setupExperiment(startTime=plan.start, stopTime=plan.stop)
-                for pname, value in plan.parameters.get(cname, {}).items():
-                    _set_parameter(slave, info.variables[pname], value)
-                slave.enterInitializationMode()
+        # phase 2: parameters, initialisation mode (Jacobi: libcosim's exchanges)
         all_units = list(units.values())
-        if plan.algorithm == "jacobi":
-            # libcosim's initialisation: as many Jacobi exchanges as there are FMUs while
-            # they are in initialisation mode, which propagates initial values through
-            # any chain of direct feedthrough
-            track[1] = _EXCHANGE
-            for _ in all_units:
-                for unit in all_units:
-                    track[0] = unit.index
-                    unit.get()
-                for unit in all_units:
-                    track[0] = unit.index
-                    unit.set()
-        track[1] = _INITIALISATION
-        for cname in instances:
-            track[0] = index[cname]
-            instances[cname].slave.exitInitializationMode()
+        _initialise(plan, instances, units, all_units, index, track)
 
+        # phase 3: the stepping loop (the Gauss-Seidel pass and the recorder below)
         step_plan = [(u.index, u.component, u.do_step, u.step_extra, u) for u in all_units
                      if u.name not in tables]
         n_steps = int(round((plan.stop - plan.start) / plan.step))
         h = plan.step
         row = [0.0] * (1 + len(record_from))
 
-        def check(unit, t):
-            # Callers may skip this when every float buffer's sum is finite: a sum is
-            # finite only if every term is (NaN and inf propagate); an overflowed sum
-            # lands here.
-            for _, _, buf, is_float, _, names in unit.out_groups:
-                if not is_float:
-                    continue
-                for pos, value in enumerate(buf):
-                    if not isfinite(value):
-                        raise SimulationError(f"component '{unit.name}': output "
-                                              f"'{names[pos]}' is {float(value)!r} at "
-                                              f"t={t!r} s")
-
-        def pass_plan(stopped=()):
-            # The Gauss-Seidel pass, unrolled: per unit (index, input groups, output
-            # groups, unit); a unit that asked to stop gets no more sets.
-            return [(u.index, () if u.name in stopped else u.in_groups, u.out_groups, u)
-                    for u in (units[c] for c in plan.order)]
-
-        gs_plan = pass_plan()
-
-        # Units whose outputs feed a unit visited before them (or themselves): their
-        # outputs are read first, so that unit sees the value of this instant and not the
-        # one read in the previous pass. Such an output cannot depend directly on an input
-        # (the order puts every feedthrough source first), so reading it early is exact.
-        position = {name: i for i, name in enumerate(plan.order)}
-        backward = {src.name for unit in all_units for _, src, _ in unit.sources
-                    if position[src.name] >= position[unit.name]}
-        pre_read = [units[name] for name in plan.order if name in backward]
-
-        def gs_pass(t, gs_plan=gs_plan):
-            for unit in pre_read:
-                track[0] = unit.index
-                unit.get()
-            for i, in_groups, out_groups, unit in gs_plan:
-                track[0] = i
-                for fn, args, in_val, links, fname in in_groups:
-                    for j, src, pos in links:
-                        in_val[j] = src[pos]
-                    status = fn(*args)
-                    if status > 1:
-                        raise _failed(fname, status)
-                for fn, args, out_val, is_float, fname, _ in out_groups:
-                    status = fn(*args)
-                    if status > 1:
-                        raise _failed(fname, status)
-                    if is_float and not isfinite(sum(out_val)):
-                        check(unit, t)
+        check = _check_finite
+        gs_pass, pass_plan = _gauss_seidel_pass(plan, units, all_units, track)
 
         def record(t):
             nonlocal rows
