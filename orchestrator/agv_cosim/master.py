@@ -414,14 +414,6 @@ def _gauss_seidel_pass(plan, units, all_units, track):
     ``pass_plan(stopped)`` is the pass without sets to the units named in ``stopped``
     (for ``gs_pass(t, pass_plan(stopped))``).
     """
-    def pass_plan(stopped=()):
-        # The Gauss-Seidel pass, unrolled: per unit (index, input groups, output
-        # groups, unit); a unit that asked to stop gets no more sets.
-        return [(u.index, () if u.name in stopped else u.in_groups, u.out_groups, u)
-                for u in (units[c] for c in plan.order)]
-
-    gs_plan = pass_plan()
-
     # Units whose outputs feed a unit visited before them (or themselves): their
     # outputs are read first, so that unit sees the value of this instant and not the
     # one read in the previous pass. Such an output cannot depend directly on an input
@@ -430,11 +422,28 @@ def _gauss_seidel_pass(plan, units, all_units, track):
     backward = {src.name for unit in all_units for _, src, _ in unit.sources
                 if position[src.name] >= position[unit.name]}
     pre_read = [units[name] for name in plan.order if name in backward]
+    # A pre-read unit none of whose read outputs depends directly on an input shows the
+    # same values after its sets (FMI: only a step changes them): it is read once, at
+    # the start, and its values are checked there.
+    read_once = {u.name for u in pre_read
+                 if not any(plan.models[u.name].dependencies.get(o) for o in u.out_names)}
+    pre_read = [(u, u.name in read_once) for u in pre_read]
+
+    def pass_plan(stopped=()):
+        # The Gauss-Seidel pass, unrolled: per unit (index, input groups, output
+        # groups, unit); a unit that asked to stop gets no more sets.
+        return [(u.index, () if u.name in stopped else u.in_groups,
+                 () if u.name in read_once else u.out_groups, u)
+                for u in (units[c] for c in plan.order)]
+
+    gs_plan = pass_plan()
 
     def gs_pass(t, gs_plan=gs_plan):
-        for unit in pre_read:
+        for unit, once in pre_read:
             track[0] = unit.index
             unit.get()
+            if once and not unit.finite():
+                _check_finite(unit, t)
         for i, in_groups, out_groups, unit in gs_plan:
             track[0] = i
             for fn, args, in_val, links, fname in in_groups:
