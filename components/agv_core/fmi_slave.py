@@ -67,7 +67,10 @@ class AgvSlave(SlaveLogic, Fmi2Slave):
         except Exception:
             self._keep_for_pythonfmu()
             raise
-        self._stale = True
+        # inputs no output depends on directly leave the outputs as they are (a step
+        # changes them): no re-publication before the next read
+        if not self._quiet_inputs.issuperset(vrs):
+            self._stale = True
 
     def set_integer(self, vrs, values):
         self._inputs_set(super().set_integer, vrs, values)
@@ -92,10 +95,15 @@ class AgvSlave(SlaveLogic, Fmi2Slave):
 
     def _map_real_names(self):
         """Value reference -> attribute name of every Real that pythonfmu reads and writes
-        as a plain attribute of this slave (no nested name, not a constant)."""
+        as a plain attribute of this slave (no nested name, not a constant); also the
+        value references of the inputs no output depends on directly."""
         self._real_names = {vr: v.name for vr, v in self.vars.items()
                             if isinstance(v, Real) and "." not in v.name
                             and v.variability != Fmi2Variability.constant}
+        used = {d for deps in self._dependencies.values() for d in deps}
+        self._quiet_inputs = frozenset(vr for vr, v in self.vars.items()
+                                       if v.name in self._input_names
+                                       and v.name not in used)
         return self._real_names
 
     # a feedthrough output of any type is recomputed after a set, not only a Real one
