@@ -93,6 +93,41 @@ def _raw_function(slave, name):
     return function
 
 
+def _bare_call(function, args):
+    """``(function, args)`` for a call without ctypes' per-call argument conversion.
+
+    A raw ctypes function with ``argtypes`` converts every argument at every call. The
+    batched get/set calls always pass the same objects (component, value-reference
+    array, count, value buffer), so they are converted once here: each argument becomes
+    an instance of its declared type (arrays pass as the pointer they are), and the call
+    goes through a pointer to the same C function that has no ``argtypes``. Anything
+    else (fmpy's wrapper, an argument this cannot convert) is returned unchanged.
+    """
+    import ctypes
+
+    argtypes = getattr(function, "argtypes", None)
+    if not isinstance(function, ctypes._CFuncPtr) or not argtypes or \
+            len(argtypes) != len(args):
+        return function, args
+    converted = []
+    for argtype, value in zip(argtypes, args):
+        if isinstance(value, argtype):
+            converted.append(value)
+        elif isinstance(value, ctypes.Array) and isinstance(argtype, type) and \
+                issubclass(argtype, ctypes._Pointer) and value._type_ is argtype._type_:
+            converted.append(value)
+        elif isinstance(argtype, type) and issubclass(argtype, ctypes._SimpleCData) and \
+                not isinstance(value, (ctypes._SimpleCData, ctypes.Array, ctypes._Pointer)):
+            converted.append(argtype(value))
+        else:
+            return function, args
+    bare = ctypes.CFUNCTYPE(function.restype)(ctypes.cast(function, ctypes.c_void_p).value)
+    bare.argtypes = None
+    bare.restype = function.restype
+    bare.keep = function  # the library stays referenced by the slave; this is its entry
+    return bare, tuple(converted)
+
+
 def _failed(function, status):
     """The exception fmpy's wrapper raises for a status above ``fmi2Warning``."""
     from fmpy.fmi1 import FMICallException
@@ -151,7 +186,7 @@ class _Unit:
             for v in variables:
                 at = whole[v.element[0]][1] + v.element[1] if v.element else whole[v.name][1]
                 self.address[v.name] = (buf, at)
-            self.out_groups.append((_raw_function(self.slave, fname), args, buf,
+            self.out_groups.append((*_bare_call(_raw_function(self.slave, fname), args), buf,
                                     ftype.is_float, fname, names))
         self.in_names = [v.name for v in inputs]
         self.n_in = len(inputs)
@@ -165,7 +200,8 @@ class _Unit:
                 ((len(variables),) if self.fmi3 else ())
             for pos, v in enumerate(variables):
                 self.in_address[v.name] = (len(self.in_groups), pos)
-            self.in_groups.append([_raw_function(self.slave, fname), args, buf, [], fname])
+            self.in_groups.append([*_bare_call(_raw_function(self.slave, fname), args), buf, [],
+                                   fname])
         self.sources = []  # (input name, source unit, source output name)
         # legacy single-buffer view for callers that read all-Real outputs
         first = self.out_groups[0][2] if self.out_groups else None
