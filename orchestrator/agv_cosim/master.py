@@ -93,6 +93,41 @@ def _raw_function(slave, name):
     return function
 
 
+def _bare_call(function, args):
+    """``(function, args)`` for a call without ctypes' per-call argument conversion.
+
+    A raw ctypes function with ``argtypes`` converts every argument at every call. The
+    batched get/set calls always pass the same objects (component, value-reference
+    array, count, value buffer), so they are converted once here: each argument becomes
+    an instance of its declared type (arrays pass as the pointer they are), and the call
+    goes through a pointer to the same C function that has no ``argtypes``. Anything
+    else (fmpy's wrapper, an argument this cannot convert) is returned unchanged.
+    """
+    import ctypes
+
+    argtypes = getattr(function, "argtypes", None)
+    if not isinstance(function, ctypes._CFuncPtr) or not argtypes or \
+            len(argtypes) != len(args):
+        return function, args
+    converted = []
+    for argtype, value in zip(argtypes, args):
+        if isinstance(value, argtype):
+            converted.append(value)
+        elif isinstance(value, ctypes.Array) and isinstance(argtype, type) and \
+                issubclass(argtype, ctypes._Pointer) and value._type_ is argtype._type_:
+            converted.append(value)
+        elif isinstance(argtype, type) and issubclass(argtype, ctypes._SimpleCData) and \
+                not isinstance(value, (ctypes._SimpleCData, ctypes.Array, ctypes._Pointer)):
+            converted.append(argtype(value))
+        else:
+            return function, args
+    bare = ctypes.CFUNCTYPE(function.restype)(ctypes.cast(function, ctypes.c_void_p).value)
+    bare.argtypes = None
+    bare.restype = function.restype
+    bare.keep = function  # the library stays referenced by the slave; this is its entry
+    return bare, tuple(converted)
+
+
 def _failed(function, status):
     """The exception fmpy's wrapper raises for a status above ``fmi2Warning``."""
     from fmpy.fmi1 import FMICallException
@@ -151,7 +186,7 @@ class _Unit:
             for v in variables:
                 at = whole[v.element[0]][1] + v.element[1] if v.element else whole[v.name][1]
                 self.address[v.name] = (buf, at)
-            self.out_groups.append((_raw_function(self.slave, fname), args, buf,
+            self.out_groups.append((*_bare_call(_raw_function(self.slave, fname), args), buf,
                                     ftype.is_float, fname, names))
         self.in_names = [v.name for v in inputs]
         self.n_in = len(inputs)
@@ -165,7 +200,8 @@ class _Unit:
                 ((len(variables),) if self.fmi3 else ())
             for pos, v in enumerate(variables):
                 self.in_address[v.name] = (len(self.in_groups), pos)
-            self.in_groups.append([_raw_function(self.slave, fname), args, buf, [], fname])
+            self.in_groups.append([*_bare_call(_raw_function(self.slave, fname), args), buf, [],
+                                   fname])
         self.sources = []  # (input name, source unit, source output name)
         # legacy single-buffer view for callers that read all-Real outputs
         first = self.out_groups[0][2] if self.out_groups else None
@@ -319,6 +355,149 @@ def describe_track(track, names):
     return f"component '{name}' during {PHASES[phase]} at t={t!r} s"
 
 
+def _instantiate(plan, instances, index, track, on_message):
+    """Phase 1: instantiate the FMUs (into ``instances``, so the caller can close them
+    whatever happens) and build each one's :class:`_Unit` (tables: :class:`_TableUnit`)
+    with its value buffers linked to its sources.
+
+    Returns (units by name, names of the table components, record map: (row position,
+    buffer, position in it) per recorded signal).
+    """
+    units = {}
+    tables = {c for c, info in plan.models.items() if info.table is not None}
+    for cname in plan.models:
+        track[0] = index[cname]
+        if cname not in tables:
+            instances[cname] = FmuInstance(plan.models[cname], cname, on_message)
+    connected = {}
+    for conn in plan.connections:
+        connected.setdefault(conn.target[0], []).append(conn)
+    needed_out = {c: set() for c in plan.models}
+    for conn in plan.connections:
+        needed_out[conn.source[0]].add(conn.source[1])
+    for name in plan.record:
+        cname, vname = name.split(".")
+        needed_out[cname].add(vname)
+    for cname, info in plan.models.items():
+        outs = [v for v in info.outputs if v.name in needed_out[cname]]
+        ins = [info.variables[c.target[1]] for c in connected.get(cname, [])]
+        units[cname] = (_TableUnit(cname, info.table, track) if cname in tables else
+                        _Unit(instances[cname], outs, ins))
+        units[cname].index = index[cname]
+    for cname, unit in units.items():
+        for conn in connected.get(cname, []):
+            unit.link(conn.target[1], units[conn.source[0]], conn.source[1])
+        unit.freeze()
+    record_from = [(i, *units[n.split(".")[0]].address[n.split(".")[1]])
+                   for i, n in enumerate(plan.record, start=1)]
+    return units, tables, record_from
+
+
+def _initialise(plan, instances, units, all_units, index, track):
+    """Phase 2: set up the experiment, set the parameters, enter and exit initialisation
+    mode (with Jacobi, libcosim's exchanges while in initialisation mode)."""
+    track[1] = _INITIALISATION
+    for cname in instances:
+        track[0] = index[cname]
+        slave = instances[cname].slave
+        info = plan.models[cname]
+        if units[cname].fmi3:
+            for pname, value in plan.parameters.get(cname, {}).items():
+                _set_parameter(slave, info.variables[pname], value)
+            slave.enterInitializationMode(startTime=plan.start, stopTime=plan.stop)
+        else:
+            slave.setupExperiment(startTime=plan.start, stopTime=plan.stop)
+            for pname, value in plan.parameters.get(cname, {}).items():
+                _set_parameter(slave, info.variables[pname], value)
+            slave.enterInitializationMode()
+    if plan.algorithm == "jacobi":
+        # libcosim's initialisation: as many Jacobi exchanges as there are FMUs while
+        # they are in initialisation mode, which propagates initial values through
+        # any chain of direct feedthrough
+        track[1] = _EXCHANGE
+        for _ in all_units:
+            for unit in all_units:
+                track[0] = unit.index
+                unit.get()
+            for unit in all_units:
+                track[0] = unit.index
+                unit.set()
+    track[1] = _INITIALISATION
+    for cname in instances:
+        track[0] = index[cname]
+        instances[cname].slave.exitInitializationMode()
+
+
+def _check_finite(unit, t):
+    """Raise naming the first non-finite float output of ``unit`` at ``t`` [s]."""
+    # Callers may skip this when every float buffer's sum is finite: a sum is
+    # finite only if every term is (NaN and inf propagate); an overflowed sum
+    # lands here.
+    for _, _, buf, is_float, _, names in unit.out_groups:
+        if not is_float:
+            continue
+        for pos, value in enumerate(buf):
+            if not isfinite(value):
+                raise SimulationError(f"component '{unit.name}': output "
+                                      f"'{names[pos]}' is {float(value)!r} at "
+                                      f"t={t!r} s")
+
+
+def _gauss_seidel_pass(plan, units, all_units, track):
+    """The Gauss-Seidel pass at one communication point, unrolled into flat tuples.
+
+    Returns ``(gs_pass, pass_plan)``: ``gs_pass(t)`` runs the pass at ``t`` [s];
+    ``pass_plan(stopped)`` is the pass without sets to the units named in ``stopped``
+    (for ``gs_pass(t, pass_plan(stopped))``).
+    """
+    # Units whose outputs feed a unit visited before them (or themselves): their
+    # outputs are read first, so that unit sees the value of this instant and not the
+    # one read in the previous pass. Such an output cannot depend directly on an input
+    # (the order puts every feedthrough source first), so reading it early is exact.
+    position = {name: i for i, name in enumerate(plan.order)}
+    backward = {src.name for unit in all_units for _, src, _ in unit.sources
+                if position[src.name] >= position[unit.name]}
+    pre_read = [units[name] for name in plan.order if name in backward]
+    # A pre-read unit none of whose read outputs depends directly on an input shows the
+    # same values after its sets (FMI: only a step changes them): it is read once, at
+    # the start, and its values are checked there.
+    read_once = {u.name for u in pre_read
+                 if not any(plan.models[u.name].dependencies.get(o) for o in u.out_names)}
+    pre_read = [(u, u.name in read_once) for u in pre_read]
+
+    def pass_plan(stopped=()):
+        # The Gauss-Seidel pass, unrolled: per unit (index, input groups, output
+        # groups, unit); a unit that asked to stop gets no more sets.
+        return [(u.index, () if u.name in stopped else u.in_groups,
+                 () if u.name in read_once else u.out_groups, u)
+                for u in (units[c] for c in plan.order)]
+
+    gs_plan = pass_plan()
+
+    def gs_pass(t, gs_plan=gs_plan):
+        for unit, once in pre_read:
+            track[0] = unit.index
+            unit.get()
+            if once and not unit.finite():
+                _check_finite(unit, t)
+        for i, in_groups, out_groups, unit in gs_plan:
+            track[0] = i
+            for fn, args, in_val, links, fname in in_groups:
+                for j, src, pos in links:
+                    in_val[j] = src[pos]
+                status = fn(*args)
+                if status > 1:
+                    raise _failed(fname, status)
+            for fn, args, out_val, is_float, fname, _ in out_groups:
+                status = fn(*args)
+                if status > 1:
+                    raise _failed(fname, status)
+                if is_float and not isfinite(sum(out_val)):
+                    _check_finite(unit, t)
+
+    return gs_pass, pass_plan
+
+
 def simulate(plan, write_row, progress=None, track=None, on_message=None, outcome=None):
     """Run one co-simulation.
 
@@ -366,119 +545,22 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None, outcom
     track[0], track[1], track[2] = -1, _INSTANTIATION, plan.start
     rows = 0
     try:
-        tables = {c for c, info in plan.models.items() if info.table is not None}
-        for cname in plan.models:
-            track[0] = index[cname]
-            if cname not in tables:
-                instances[cname] = FmuInstance(plan.models[cname], cname, on_message)
-        connected = {}
-        for conn in plan.connections:
-            connected.setdefault(conn.target[0], []).append(conn)
-        needed_out = {c: set() for c in plan.models}
-        for conn in plan.connections:
-            needed_out[conn.source[0]].add(conn.source[1])
-        for name in plan.record:
-            cname, vname = name.split(".")
-            needed_out[cname].add(vname)
-        for cname, info in plan.models.items():
-            outs = [v for v in info.outputs if v.name in needed_out[cname]]
-            ins = [info.variables[c.target[1]] for c in connected.get(cname, [])]
-            units[cname] = (_TableUnit(cname, info.table, track) if cname in tables else
-                            _Unit(instances[cname], outs, ins))
-            units[cname].index = index[cname]
-        for cname, unit in units.items():
-            for conn in connected.get(cname, []):
-                unit.link(conn.target[1], units[conn.source[0]], conn.source[1])
-            unit.freeze()
-        record_from = [(i, *units[n.split(".")[0]].address[n.split(".")[1]])
-                       for i, n in enumerate(plan.record, start=1)]
+        # phase 1: instantiate every FMU, wire the preallocated buffers
+        units, tables, record_from = _instantiate(plan, instances, index, track, on_message)
 
-        track[1] = _INITIALISATION
-        for cname in instances:
-            track[0] = index[cname]
-            slave = instances[cname].slave
-            info = plan.models[cname]
-            if units[cname].fmi3:
-                for pname, value in plan.parameters.get(cname, {}).items():
-                    _set_parameter(slave, info.variables[pname], value)
-                slave.enterInitializationMode(startTime=plan.start, stopTime=plan.stop)
-            else:
-                slave.setupExperiment(startTime=plan.start, stopTime=plan.stop)
-                for pname, value in plan.parameters.get(cname, {}).items():
-                    _set_parameter(slave, info.variables[pname], value)
-                slave.enterInitializationMode()
+        # phase 2: parameters, initialisation mode (Jacobi: libcosim's exchanges)
         all_units = list(units.values())
-        if plan.algorithm == "jacobi":
-            # libcosim's initialisation: as many Jacobi exchanges as there are FMUs while
-            # they are in initialisation mode, which propagates initial values through
-            # any chain of direct feedthrough
-            track[1] = _EXCHANGE
-            for _ in all_units:
-                for unit in all_units:
-                    track[0] = unit.index
-                    unit.get()
-                for unit in all_units:
-                    track[0] = unit.index
-                    unit.set()
-        track[1] = _INITIALISATION
-        for cname in instances:
-            track[0] = index[cname]
-            instances[cname].slave.exitInitializationMode()
+        _initialise(plan, instances, units, all_units, index, track)
 
+        # phase 3: the stepping loop (the Gauss-Seidel pass and the recorder below)
         step_plan = [(u.index, u.component, u.do_step, u.step_extra, u) for u in all_units
                      if u.name not in tables]
         n_steps = int(round((plan.stop - plan.start) / plan.step))
         h = plan.step
         row = [0.0] * (1 + len(record_from))
 
-        def check(unit, t):
-            # Callers may skip this when every float buffer's sum is finite: a sum is
-            # finite only if every term is (NaN and inf propagate); an overflowed sum
-            # lands here.
-            for _, _, buf, is_float, _, names in unit.out_groups:
-                if not is_float:
-                    continue
-                for pos, value in enumerate(buf):
-                    if not isfinite(value):
-                        raise SimulationError(f"component '{unit.name}': output "
-                                              f"'{names[pos]}' is {float(value)!r} at "
-                                              f"t={t!r} s")
-
-        def pass_plan(stopped=()):
-            # The Gauss-Seidel pass, unrolled: per unit (index, input groups, output
-            # groups, unit); a unit that asked to stop gets no more sets.
-            return [(u.index, () if u.name in stopped else u.in_groups, u.out_groups, u)
-                    for u in (units[c] for c in plan.order)]
-
-        gs_plan = pass_plan()
-
-        # Units whose outputs feed a unit visited before them (or themselves): their
-        # outputs are read first, so that unit sees the value of this instant and not the
-        # one read in the previous pass. Such an output cannot depend directly on an input
-        # (the order puts every feedthrough source first), so reading it early is exact.
-        position = {name: i for i, name in enumerate(plan.order)}
-        backward = {src.name for unit in all_units for _, src, _ in unit.sources
-                    if position[src.name] >= position[unit.name]}
-        pre_read = [units[name] for name in plan.order if name in backward]
-
-        def gs_pass(t, gs_plan=gs_plan):
-            for unit in pre_read:
-                track[0] = unit.index
-                unit.get()
-            for i, in_groups, out_groups, unit in gs_plan:
-                track[0] = i
-                for fn, args, in_val, links, fname in in_groups:
-                    for j, src, pos in links:
-                        in_val[j] = src[pos]
-                    status = fn(*args)
-                    if status > 1:
-                        raise _failed(fname, status)
-                for fn, args, out_val, is_float, fname, _ in out_groups:
-                    status = fn(*args)
-                    if status > 1:
-                        raise _failed(fname, status)
-                    if is_float and not isfinite(sum(out_val)):
-                        check(unit, t)
+        check = _check_finite
+        gs_pass, pass_plan = _gauss_seidel_pass(plan, units, all_units, track)
 
         def record(t):
             nonlocal rows

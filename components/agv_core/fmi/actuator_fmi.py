@@ -6,6 +6,8 @@ slave script subclasses :class:`ActuatorSlave` and sets ``model``, ``description
 ``rate_depends_on`` and, where needed, ``declare_model_parameters``.
 """
 
+from math import isfinite
+
 from ..steering.actuator import SteeringActuator, make_actuator
 from .defaults import defaults_of
 from .fmi_slave import AgvSlave, DefaultExperiment, String
@@ -62,4 +64,5 @@ class ActuatorSlave(AgvSlave):
     def publish(self):
         self.alpha = self.core.alpha
         self.alpha_rate = self.core.rate(self.u, self.alpha_ref)
-        self.finite_or_fail(alpha=self.alpha, alpha_rate=self.alpha_rate)
+        if not isfinite(self.alpha + self.alpha_rate):  # finite iff every term is
+            self.finite_or_fail(alpha=self.alpha, alpha_rate=self.alpha_rate)

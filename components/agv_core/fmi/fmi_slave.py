@@ -54,7 +54,23 @@ class AgvSlave(SlaveLogic, Fmi2Slave):
 
     # ------------------------------------------------------------------ FMI calls
     def set_real(self, vrs, values):
-        self._inputs_set(super().set_real, vrs, values)
+        # hot path (every input, every step): attribute names by value reference, looked
+        # up once; pythonfmu's own setter (one isinstance and one lambda per variable)
+        # only for what is not a plain Real attribute, which raises its own error
+        names = self._real_names or self._map_real_names()
+        try:
+            for vr, value in zip(vrs, values):
+                setattr(self, names[vr], value)
+        except KeyError:
+            self._inputs_set(super().set_real, vrs, values)
+            return
+        except Exception:
+            self._keep_for_pythonfmu()
+            raise
+        # inputs no output depends on directly leave the outputs as they are (a step
+        # changes them): no re-publication before the next read
+        if not self._quiet_inputs.issuperset(vrs):
+            self._stale = True
 
     def set_integer(self, vrs, values):
         self._inputs_set(super().set_integer, vrs, values)
@@ -66,8 +82,29 @@ class AgvSlave(SlaveLogic, Fmi2Slave):
         self._inputs_set(super().set_string, vrs, values)
 
     def get_real(self, vrs):
-        self._fresh_outputs()
-        return self._guarded(super().get_real, vrs)
+        if self._stale or self.core is None:
+            self._fresh_outputs()
+        names = self._real_names or self._map_real_names()
+        try:
+            return [float(getattr(self, names[vr])) for vr in vrs]
+        except KeyError:
+            return self._guarded(super().get_real, vrs)
+        except Exception:
+            self._keep_for_pythonfmu()
+            raise
+
+    def _map_real_names(self):
+        """Value reference -> attribute name of every Real that pythonfmu reads and writes
+        as a plain attribute of this slave (no nested name, not a constant); also the
+        value references of the inputs no output depends on directly."""
+        self._real_names = {vr: v.name for vr, v in self.vars.items()
+                            if isinstance(v, Real) and "." not in v.name
+                            and v.variability != Fmi2Variability.constant}
+        used = {d for deps in self._dependencies.values() for d in deps}
+        self._quiet_inputs = frozenset(vr for vr, v in self.vars.items()
+                                       if v.name in self._input_names
+                                       and v.name not in used)
+        return self._real_names
 
     # a feedthrough output of any type is recomputed after a set, not only a Real one
     def get_integer(self, vrs):

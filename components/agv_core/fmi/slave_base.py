@@ -69,6 +69,7 @@ class SlaveLogic:
         self._parameter_names = []
         self._stale = False
         self._initializing = False
+        self._real_names = None  # value reference -> attribute (the adapter's fast get/set)
         self.core = None
         self.time = 0.0
         self._check_bundle()
@@ -196,10 +197,15 @@ class SlaveLogic:
 
     def _fresh_outputs(self):
         """Make the outputs current before a read (called by the adapter's getters)."""
-        if self.core is None and self._initializing:
-            self._initial_outputs()
-        elif self._stale and self.core is not None:
-            self._guarded(self.publish)
+        if self.core is None:
+            if self._initializing:
+                self._initial_outputs()
+        elif self._stale:
+            try:
+                self.publish()
+            except Exception:
+                self._keep_for_pythonfmu()
+                raise
             self._stale = False
 
     def _initial_outputs(self):
@@ -294,7 +300,12 @@ class SlaveLogic:
 
     # ------------------------------------------------------------------ helpers
     def finite_or_fail(self, **values):
-        """Raise naming the first non-finite value among ``values`` (name=value)."""
+        """Raise naming the first non-finite value among ``values`` (name=value).
+
+        Hot paths may test ``math.isfinite`` of the values' sum first and call this only
+        when it fails: a sum is finite when every term is (an overflow lands here, which
+        then finds nothing to report).
+        """
         for name, value in values.items():
             if not math.isfinite(value):
                 raise FloatingPointError(f"'{name}' became {value}")

@@ -164,8 +164,10 @@ class LinePath(ReferencePath):
         s = dx * self._c + dy * self._s
         n = -dx * self._s + dy * self._c
         lat = self._lateral(s)
-        p = self.point(s)
-        return p._replace(offset=n - lat)
+        # point(s) with the offset, built once (the same arithmetic as point)
+        return PathProjection(s, self.x0 + s * self._c - lat * self._s,
+                              self.y0 + s * self._s + lat * self._c, self.heading, 0.0, 0.0,
+                              n - lat)
 
 
 # ---------------------------------------------------------------------- circle

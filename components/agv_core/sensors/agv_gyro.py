@@ -1,5 +1,7 @@
 """FMU slave: fibre-optic gyro heading (agv_core.sensors.InstantSensor)."""
 
+from math import isfinite
+
 from agv_boot import load_core
 
 core = load_core("fmi.fmi_slave", "sensors.sensors")
@@ -37,4 +39,5 @@ class AgvGyro(core.fmi.fmi_slave.AgvSlave):
 
     def publish(self):
         self.heading_meas = self.core.measure(self.time, self.heading)
-        self.finite_or_fail(heading_meas=self.heading_meas)
+        if not isfinite(self.heading_meas):
+            self.finite_or_fail(heading_meas=self.heading_meas)

@@ -1,5 +1,7 @@
 """FMU slave: steering-angle sensor (agv_core.sensors.InstantSensor)."""
 
+from math import isfinite
+
 from agv_boot import load_core
 
 core = load_core("fmi.fmi_slave", "sensors.sensors")
@@ -37,4 +39,5 @@ class AgvSteerSensor(core.fmi.fmi_slave.AgvSlave):
 
     def publish(self):
         self.alpha_meas = self.core.measure(self.time, self.alpha)
-        self.finite_or_fail(alpha_meas=self.alpha_meas)
+        if not isfinite(self.alpha_meas):
+            self.finite_or_fail(alpha_meas=self.alpha_meas)

@@ -1,5 +1,7 @@
 """FMU slave: robotic total station (agv_core.sensors.TotalStation)."""
 
+from math import isfinite
+
 from agv_boot import load_core
 
 core = load_core("fmi.fmi_slave", "sensors.sensors", "fmi.defaults")
@@ -48,4 +50,5 @@ class AgvTotalStation(core.fmi.fmi_slave.AgvSlave):
     def publish(self):
         self.core.available = bool(self.available)
         self.x_meas, self.y_meas, self.fix_age = self.core.measure(self.time, self.x, self.y)
-        self.finite_or_fail(x_meas=self.x_meas, y_meas=self.y_meas)
+        if not isfinite(self.x_meas + self.y_meas):  # finite iff every term is
+            self.finite_or_fail(x_meas=self.x_meas, y_meas=self.y_meas)

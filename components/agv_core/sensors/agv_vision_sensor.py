@@ -1,5 +1,7 @@
 """FMU slave: camera measuring path deviation (agv_core.sensors.VisionSensor)."""
 
+from math import isfinite
+
 from agv_boot import load_core
 
 core = load_core("fmi.fmi_slave", "numerics.paths", "sensors.sensors", "fmi.defaults")
@@ -63,4 +65,5 @@ class AgvVisionSensor(core.fmi.fmi_slave.AgvSlave):
     def publish(self):
         (self.lateral_error, self.heading_error, self.s, self.curvature,
          self.curvature_rate) = self.core.measure(self.time, self.x, self.y, self.heading)
-        self.finite_or_fail(lateral_error=self.lateral_error, s=self.s)
+        if not isfinite(self.lateral_error + self.s):  # finite iff every term is
+            self.finite_or_fail(lateral_error=self.lateral_error, s=self.s)

@@ -26,7 +26,11 @@ the start, so earlier frames saw it there.
 
 Randomness: one ``numpy.random.default_rng(seed)`` per sensor; its
 ``bit_generator.state`` is part of ``get_state()``. Draw order per sample is fixed
-(documented per class), so the same seed gives the same outputs.
+(documented per class), so the same seed gives the same outputs. A tentative sample draws
+its noise once per instant and keeps it (with the generator state from before the draw);
+the step that commits the sample uses those numbers, and anything else (another instant,
+a restored state) first puts the generator back: the stream is the one of drawing every
+sample once, in order, however often the outputs are read.
 """
 
 import math
@@ -72,6 +76,8 @@ class _Sampled:
         self.pending = deque()       # (t_available, t_capture, values)
         self.current = None          # (t_capture, values) of the newest available sample
         self.initial = None
+        #: (instant [s], generator state before the draw, noise) of a tentative sample
+        self._drawn = None
         #: False during a dropout: samples due then are drawn (so the random stream
         #: after the dropout is the same as without it) but lost, and the last one
         #: received stays shown
@@ -84,9 +90,32 @@ class _Sampled:
     def _advance_schedule(self):
         raise NotImplementedError
 
-    def _sample(self, inputs, noisy, commit=False):
-        """Sample values for ``inputs``; ``commit`` for a captured (not tentative) one."""
+    def _noise(self):
+        """Draw the noise of one sample (a tuple, in the class's documented order)."""
         raise NotImplementedError
+
+    def _sample(self, inputs, noise, commit=False):
+        """Sample values for ``inputs`` plus ``noise`` (None: noise-free); ``commit`` for
+        a captured (not tentative) one."""
+        raise NotImplementedError
+
+    # noise -----------------------------------------------------------------
+    def _tentative_noise(self, t_k):
+        """The noise of the sample of instant ``t_k``, drawn once and kept."""
+        drawn = self._drawn
+        if drawn is not None:
+            if at_instant(drawn[0], t_k):
+                return drawn[2]
+            self.rng.bit_generator.state = drawn[1]   # drawn for another instant: undo
+        state = self.rng.bit_generator.state
+        self._drawn = drawn = (t_k, state, self._noise())
+        return drawn[2]
+
+    def _undo_tentative(self):
+        """Put back the numbers of a tentative sample that will not be committed next."""
+        if self._drawn is not None:
+            self.rng.bit_generator.state = self._drawn[1]
+            self._drawn = None
 
     # timing ----------------------------------------------------------------
     def _due(self, t):
@@ -95,12 +124,24 @@ class _Sampled:
     def step(self, t, h, *inputs):
         """Advance from ``t`` to ``t + h`` [s] with ``inputs`` held."""
         if self.initial is None:
-            self.initial = (self.t0, self._sample(inputs, noisy=False))
+            self.initial = (self.t0, self._sample(inputs, None))
+        drawn = self._drawn
+        if drawn is not None:
+            # kept numbers are the next draws only for the first instant this step commits
+            t_k = self._next_time()
+            if not (at_instant(drawn[0], t_k) and in_step(t_k, t, h)):
+                self._undo_tentative()
         end = t + h
         while self._next_time() < end - EPS:
             t_k = self._next_time()
             if in_step(t_k, t, h):  # agv_core.sampling's rule (instants before t: skipped)
-                values = self._sample(inputs, True, commit=True)
+                drawn = self._drawn
+                if drawn is not None:
+                    self._drawn = None
+                    noise = drawn[2]
+                else:
+                    noise = self._noise()
+                values = self._sample(inputs, noise, commit=True)
                 if self.available:
                     self.pending.append((t_k + self.latency, t_k, values))
             self._advance_schedule()
@@ -111,20 +152,19 @@ class _Sampled:
     def output(self, t, *inputs):
         """(t_capture, values) the sensor shows at ``t`` [s] for the current inputs."""
         if self.available and self.latency <= EPS and self._due(t):
-            state = self.rng.bit_generator.state
-            values = self._sample(inputs, noisy=True)
-            self.rng.bit_generator.state = state      # the step draws them again
-            return t, values
+            # the step from t commits these same numbers
+            return t, self._sample(inputs, self._tentative_noise(self._next_time()))
         if self.current is not None:
             return self.current
         if self.initial is not None:
             return self.initial
-        return self.t0, self._sample(inputs, noisy=False)
+        return self.t0, self._sample(inputs, None)
 
     # state -----------------------------------------------------------------
     def get_state(self):
         """JSON-safe snapshot of the internal state."""
-        return {"rng": self.rng.bit_generator.state,
+        rng = self.rng.bit_generator.state if self._drawn is None else self._drawn[1]
+        return {"rng": rng,
                 "pending": [[a, c, list(v)] for a, c, v in self.pending],
                 "current": None if self.current is None else [self.current[0],
                                                               list(self.current[1])],
@@ -134,6 +174,7 @@ class _Sampled:
     def set_state(self, state):
         """Restore a snapshot from :meth:`get_state`."""
         self.rng.bit_generator.state = state["rng"]
+        self._drawn = None
         self.pending = deque((a, c, tuple(v)) for a, c, v in state["pending"])
         self.current = None if state["current"] is None else (state["current"][0],
                                                               tuple(state["current"][1]))
@@ -184,6 +225,7 @@ class VisionSensor(_Sampled):
         self.next_k = 0 if p == 0.0 else math.ceil((self.t0 - EPS) / p)
         self.next_t = self.t0
         self.s_hint = None
+        self._projected = (None, None, None, None)  # x, y, s_hint, projection of the last
 
     def _next_time(self):
         return self.next_t if self.frame_period == 0.0 else self.next_k * self.frame_period
@@ -203,15 +245,26 @@ class VisionSensor(_Sampled):
         else:
             super().step(t, h, x, y, heading)
 
-    def _sample(self, inputs, noisy, commit=False):
+    def _noise(self):
+        normal = self.rng.standard_normal
+        lateral = self.noise_lateral * normal()
+        return lateral, self.noise_heading * normal()
+
+    def _sample(self, inputs, noise, commit=False):
         x, y, heading = inputs
-        p = self.path.project(x, y, self.s_hint)
+        # a tentative sample and its commit project the same pose (the very same float
+        # objects, so the same values and signs of zero): project once
+        hint = self.s_hint
+        px, py, ph, p = self._projected
+        if not (x is px and y is py and hint is ph):
+            p = self.path.project(x, y, hint)
+            self._projected = (x, y, hint, p)
         if commit:
             self.s_hint = p.s
         lateral, head = p.offset, heading_error(heading, p.heading)
-        if noisy:
-            lateral += self.noise_lateral * self.rng.standard_normal()
-            head += self.noise_heading * self.rng.standard_normal()
+        if noise is not None:
+            lateral += noise[0]
+            head += noise[1]
         return (lateral, head, p.s, p.curvature, p.curvature_rate)
 
     def measure(self, t, x, y, heading):
@@ -275,11 +328,16 @@ class TotalStation(_Sampled):
     def _advance_schedule(self):
         self.next_t += self.mean_interval + self.jitter * (2.0 * self.rng.random() - 1.0)
 
-    def _sample(self, inputs, noisy, commit=False):
+    def _noise(self):
+        normal = self.rng.standard_normal
+        nx = self.noise * normal()
+        return nx, self.noise * normal()
+
+    def _sample(self, inputs, noise, commit=False):
         x, y = inputs
-        if noisy:
-            x += self.noise * self.rng.standard_normal()
-            y += self.noise * self.rng.standard_normal()
+        if noise is not None:
+            x += noise[0]
+            y += noise[1]
         return (x, y)
 
     def measure(self, t, x, y):
@@ -333,28 +391,33 @@ class InstantSensor:
         self.resolution = _nonneg("resolution", resolution)
         self.rng = np.random.default_rng(_seed(seed))
         self.t0 = float(t0)
+        #: the next normal draw, taken by a reading and not yet committed by a step
+        self._next_normal = None
 
     def measure(self, t, value):
-        """Reading at ``t`` [s] of the true ``value`` (without advancing the generator)."""
+        """Reading at ``t`` [s] of the true ``value`` (the draw is committed by the step)."""
         noise = 0.0
         if self.noise > 0.0:
-            state = self.rng.bit_generator.state
-            noise = self.noise * self.rng.standard_normal()
-            self.rng.bit_generator.state = state
+            if self._next_normal is None:
+                self._next_normal = self.rng.standard_normal()
+            noise = self.noise * self._next_normal
         return _quantize(value + self.drift * (t - self.t0) + noise, self.resolution)
 
     def step(self, t, h):
         """Commit the sample taken at ``t`` and move on to ``t + h`` [s]."""
         if self.noise > 0.0:
-            self.rng.standard_normal()
+            if self._next_normal is None:
+                self.rng.standard_normal()
+            self._next_normal = None
 
     def get_state(self):
-        """JSON-safe snapshot of the internal state."""
-        return {"rng": self.rng.bit_generator.state}
+        """JSON-safe snapshot of the internal state (a draw a reading took is kept)."""
+        return {"rng": self.rng.bit_generator.state, "next_normal": self._next_normal}
 
     def set_state(self, state):
         """Restore a snapshot from :meth:`get_state`."""
         self.rng.bit_generator.state = state["rng"]
+        self._next_normal = state.get("next_normal")
 
 
 #: Defaults of the seed-004 fibre-optic gyro: drift 0.5 deg/h, resolution 0.01 deg.

@@ -1,5 +1,7 @@
 """FMU slave: seed-000 state-feedback steering controller (agv_core.state_feedback)."""
 
+from math import isfinite
+
 from agv_boot import load_core
 
 core = load_core("fmi.fmi_slave", "state_feedback.state_feedback", "fmi.defaults")
@@ -48,4 +50,5 @@ class AgvStateFeedback(core.fmi.fmi_slave.AgvSlave):
     def publish(self):
         self.u = self.core.update(self.time, self.alpha, self.heading_error,
                                   self.lateral_error)
-        self.finite_or_fail(u=self.u)
+        if not isfinite(self.u):
+            self.finite_or_fail(u=self.u)

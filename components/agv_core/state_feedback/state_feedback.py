@@ -64,10 +64,13 @@ class StateFeedback:
             raise ParameterError("u_max", f"must be >= 0 V (0 = off), got {u_max}")
         self.u = 0.0
         self._hold = SampleHold(self.sample_period)
+        # the law in plain floats: Ka a + Kb b + Ke e summed left to right, which is what
+        # numpy's dot of the three gave for every input tried (tests/test_state_feedback.py)
+        self._ka, self._kb, self._ke = (float(g) for g in self.gains)
 
     def law(self, alpha, heading_error, lateral_error):
         """The control law without sampling [V] (limited by ``u_max`` if set)."""
-        u = -float(self.gains @ np.array([alpha, heading_error, lateral_error]))
+        u = -(self._ka * alpha + self._kb * heading_error + self._ke * lateral_error)
         if self.u_max > 0.0:
             u = min(max(u, -self.u_max), self.u_max)
         return u

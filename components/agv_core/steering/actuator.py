@@ -223,30 +223,44 @@ class DelayedIntegratorActuator(SteeringActuator):
 
     def _step_command(self, t, h, u):
         eps = self._eps(h)
-        if self.history and self.history[-1][0] >= t - eps:
-            self.history[-1] = [t, float(u)]
-            if len(self.history) > 1 and self.history[-2][1] == float(u):
-                self.history.pop()
-        elif not self.history or self.history[-1][1] != float(u):
-            self.history.append([t, float(u)])
+        u = float(u)
+        history = self.history
+        if history and history[-1][0] >= t - eps:
+            last = history[-1]
+            last[0], last[1] = t, u
+            if len(history) > 1 and history[-2][1] == u:
+                history.pop()
+        elif not history or history[-1][1] != u:
+            history.append([t, u])
         t_end = t + h
-        # pieces: the delayed command changes at t_i + tau inside (t, t_end)
-        cuts = [time + self.tau for time, _ in self.history
-                if t + eps < time + self.tau < t_end - eps]
+        tau = self.tau
+        # pieces: the delayed command changes at t_i + tau inside (t, t_end). The times
+        # ascend, so t_i + tau does too: the cuts are one run near the front (after
+        # _prune only the breakpoint in force and the newer ones are left).
+        lower, upper = t + eps, t_end - eps
         start = t
-        for stop in cuts + [t_end]:
-            self._advance_constant_rate(self.K * self._delayed(start - self.tau + eps),
-                                        stop - start)
-            start = stop
-        self._prune(t_end - self.tau + eps)
+        for time, _ in history:
+            cut = time + tau
+            if cut >= upper:
+                break
+            if cut > lower:
+                self._advance_constant_rate(self.K * self._delayed(start - tau + eps),
+                                            cut - start)
+                start = cut
+        self._advance_constant_rate(self.K * self._delayed(start - tau + eps),
+                                    t_end - start)
+        self._prune(t_end - tau + eps)
 
     def _prune(self, s):
-        """Drop breakpoints no longer needed after delayed time ``s``."""
+        """Drop breakpoints no longer needed after delayed time ``s``: keep the newest at
+        or before ``s`` (the command in force) and all later ones."""
         keep = 0
         for i, (time, _) in enumerate(self.history):
-            if time <= s:
-                keep = i
-        del self.history[:keep]
+            if time > s:
+                break
+            keep = i
+        if keep:
+            del self.history[:keep]
 
     def rate(self, u=0.0, alpha_ref=0.0):
         # the delayed command at the current time was applied at least tau earlier: it is

@@ -1,5 +1,7 @@
 """FMU slave: kinematic single-track vehicle (agv_core.vehicle)."""
 
+from math import isfinite
+
 from agv_boot import load_core
 
 core = load_core("fmi.fmi_slave", "vehicle.vehicle", "fmi.defaults")
@@ -59,4 +61,5 @@ class AgvVehicle(core.fmi.fmi_slave.AgvSlave):
         self.x_rear, self.y_rear = c.rear()
         self.x_front, self.y_front = c.front()
         self.distance = c.distance
-        self.finite_or_fail(x=self.x, y=self.y, heading=self.heading)
+        if not isfinite(self.x + self.y + self.heading):  # a sum is finite iff every term is
+            self.finite_or_fail(x=self.x, y=self.y, heading=self.heading)

@@ -65,6 +65,16 @@ class Vehicle:
         # state: position of the reference point
         self.x = float(x0)
         self.y = float(y0)
+        self._trig = (math.nan, math.nan, math.nan)  # (heading, cos, sin) last computed
+
+    def _cos_sin(self):
+        """(cos, sin) of the heading, computed once per heading value."""
+        heading, c, s = self._trig
+        if heading != self.heading:           # also true for a first (NaN) entry
+            heading = self.heading
+            c, s = math.cos(heading), math.sin(heading)
+            self._trig = (heading, c, s)
+        return c, s
 
     # ------------------------------------------------------------------ geometry
     def rear(self):
@@ -73,8 +83,8 @@ class Vehicle:
             return self.x, self.y
         if self.linear:
             return self.x - self.wheelbase, self.y - self.wheelbase * self.heading
-        return (self.x - self.wheelbase * math.cos(self.heading),
-                self.y - self.wheelbase * math.sin(self.heading))
+        c, s = self._cos_sin()
+        return self.x - self.wheelbase * c, self.y - self.wheelbase * s
 
     def front(self):
         """Position of the front-wheel centre (x, y) [m]."""
@@ -82,8 +92,8 @@ class Vehicle:
             return self.x, self.y
         if self.linear:
             return self.x + self.wheelbase, self.y + self.wheelbase * self.heading
-        return (self.x + self.wheelbase * math.cos(self.heading),
-                self.y + self.wheelbase * math.sin(self.heading))
+        c, s = self._cos_sin()
+        return self.x + self.wheelbase * c, self.y + self.wheelbase * s
 
     def yaw_rate(self, alpha, v):
         """dbeta/dt [rad/s] for steering angle ``alpha`` [rad] and speed ``v`` [m/s]."""
@@ -113,8 +123,9 @@ class Vehicle:
             if self.reference_point == "rear":
                 self.x, self.y = xr, yr
             else:
-                self.x = xr + self.wheelbase * math.cos(self.heading)
-                self.y = yr + self.wheelbase * math.sin(self.heading)
+                c, s = self._cos_sin()
+                self.x = xr + self.wheelbase * c
+                self.y = yr + self.wheelbase * s
         self.distance += abs(v) * h
 
     # ------------------------------------------------------------------ state

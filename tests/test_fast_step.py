@@ -1,0 +1,214 @@
+"""The per-step fast paths of issue 16 give exactly what the plain rules give.
+
+Each fast path (kept tentative noise, the actuator's short delay-line scan, plain-float
+control law, cached cos/sin, one projection per pose) is checked bit for bit against the
+rule it replaces, written out here in its simplest form, or against a fresh generator.
+"""
+
+import json
+import math
+import random
+
+import numpy as np
+import pytest
+
+from agv_core.steering.actuator import DelayedIntegratorActuator
+from agv_core.numerics.paths import LinePath, heading_error, parse_path
+from agv_core.sensors.sensors import InstantSensor, TotalStation, VisionSensor
+from agv_core.state_feedback.state_feedback import StateFeedback
+from agv_core.vehicle.vehicle import Vehicle
+
+
+def pose(t):
+    return (t, 0.1 * math.sin(t), 0.05 * math.cos(t))
+
+
+# ---------------------------------------------------------------------- sensors
+def run_vision(sensor, h, n, reads):
+    """Outputs after every step; ``reads(k)`` extra reads at each point before the step."""
+    shown = []
+    for k in range(n):
+        t = k * h
+        for _ in range(reads(k)):
+            sensor.measure(t, *pose(t))
+        sensor.step(t, h, *pose(t))
+        shown.append(sensor.measure(t + h, *pose(t + h)))
+    return shown
+
+
+@pytest.mark.parametrize("period, latency", [(0.0, 0.0), (0.04, 0.0), (0.04, 0.04),
+                                             (0.003, 0.0)])
+def test_vision_noise_does_not_depend_on_how_often_outputs_are_read(period, latency):
+    make = lambda: VisionSensor(parse_path("circle:radius=4"), frame_period=period,  # noqa
+                                latency=latency, noise_lateral=0.01, noise_heading=0.02,
+                                seed=5)
+    never = run_vision(make(), 0.01, 60, lambda k: 0)
+    often = run_vision(make(), 0.01, 60, lambda k: k % 3)
+    assert often == never                      # bit for bit
+
+
+def test_vision_committed_noise_is_the_generator_stream_in_order():
+    # frame at every point, no latency: sample k carries draws 2k and 2k + 1
+    path = LinePath()
+    sensor = VisionSensor(path, frame_period=0.0, latency=0.0, noise_lateral=0.01,
+                          noise_heading=0.02, seed=11)
+    shown = run_vision(sensor, 0.01, 20, lambda k: 2)
+    z = np.random.default_rng(11).standard_normal(2 * 21)
+    for k, values in enumerate(shown, start=1):
+        t = (k - 1) * 0.01 + 0.01              # the point run_vision reads at
+        p = path.project(*pose(t)[:2])
+        assert values[0] == p.offset + 0.01 * z[2 * k]
+        assert values[1] == heading_error(pose(t)[2], p.heading) + 0.02 * z[2 * k + 1]
+
+
+def test_vision_kept_noise_is_undone_for_a_skipped_instant_and_in_saved_state():
+    make = lambda: VisionSensor(LinePath(), frame_period=0.0, latency=0.0,  # noqa: E731
+                                noise_lateral=0.01, noise_heading=0.02, seed=2)
+    plain, read = make(), make()
+    read.measure(0.0, *pose(0.0))              # tentative sample of t = 0 ...
+    saved = json.loads(json.dumps(read.get_state()))
+    assert saved == json.loads(json.dumps(plain.get_state()))  # ... not in the state
+    for s in (plain, read):
+        s.step(0.5, 0.01, *pose(0.5))          # ... and t = 0 is never committed
+    assert read.measure(0.51, *pose(0.51)) == plain.measure(0.51, *pose(0.51))
+    restored = make()
+    restored.set_state(saved)
+    fresh = make()
+    for s in (restored, fresh):
+        s.step(0.0, 0.01, *pose(0.0))
+    assert restored.measure(0.01, *pose(0.01)) == fresh.measure(0.01, *pose(0.01))
+
+
+def test_total_station_stream_with_reads_on_fix_instants():
+    # jitter 0 and a 10 ms interval put every fix on a 5 ms communication point
+    make = lambda: TotalStation(mean_interval=0.01, jitter=0.0, latency=0.0,  # noqa: E731
+                                noise=0.003, seed=4)
+
+    def run(station, reads):
+        out = []
+        for k in range(80):
+            t = k * 0.005
+            for _ in range(reads(k)):
+                station.measure(t, t, -t)
+            station.step(t, 0.005, t, -t)
+            out.append(station.measure(t + 0.005, t + 0.005, -t - 0.005))
+        return out
+
+    assert run(make(), lambda k: k % 4) == run(make(), lambda k: 0)
+    jittered = lambda: TotalStation(mean_interval=0.01, jitter=0.004, latency=0.0,  # noqa
+                                    noise=0.003, seed=4)
+    assert run(jittered(), lambda k: 2) == run(jittered(), lambda k: 0)
+
+
+def test_instant_sensor_reads_and_state_keep_the_stream():
+    def run(sensor, reads, save_at=None):
+        out = []
+        for k in range(50):
+            t = k * 0.01
+            for _ in range(reads(k)):
+                sensor.measure(t, 0.2)
+            if k == save_at:
+                state = json.loads(json.dumps(sensor.get_state()))
+                sensor = InstantSensor(noise=0.01, seed=99)
+                sensor.set_state(state)
+            out.append(sensor.measure(t, 0.2))
+            sensor.step(t, 0.01)
+        return out
+
+    never = run(InstantSensor(noise=0.01, seed=7), lambda k: 0)
+    assert run(InstantSensor(noise=0.01, seed=7), lambda k: k % 3) == never
+    assert run(InstantSensor(noise=0.01, seed=7), lambda k: 1, save_at=20) == never
+    z = np.random.default_rng(7).standard_normal(50)
+    assert never == [0.2 + 0.01 * v for v in z]
+
+
+def test_vision_projects_a_pose_once_for_its_sample_and_its_commit():
+    calls = []
+
+    class Counting(LinePath):
+        def project(self, x, y, s_hint=None):
+            calls.append((x, y))
+            return super().project(x, y, s_hint)
+
+    sensor = VisionSensor(Counting(), frame_period=0.0, latency=0.0, noise_lateral=0.0,
+                          noise_heading=0.0)
+    x, y, heading = 1.0, 0.2, 0.0
+    sensor.measure(0.0, x, y, heading)         # tentative sample of t = 0
+    sensor.step(0.0, 0.01, x, y, heading)      # initial value and commit: same objects
+    assert len(calls) == 1
+    sensor.measure(0.01, x, y, heading)        # new hint (the committed s): projected
+    sensor.measure(0.01, x, y, heading)        # read again: kept
+    assert len(calls) == 2
+    sensor.measure(0.01, float("1.0"), y, heading)  # an equal value, another object
+    assert len(calls) == 3
+
+
+# ---------------------------------------------------------------------- actuator
+def reference_step(act, t, h, u):
+    """Model a's step as first written: every breakpoint scanned at every step."""
+    eps = act._eps(h)
+    hist = act.history
+    if hist and hist[-1][0] >= t - eps:
+        hist[-1] = [t, float(u)]
+        if len(hist) > 1 and hist[-2][1] == float(u):
+            hist.pop()
+    elif not hist or hist[-1][1] != float(u):
+        hist.append([t, float(u)])
+    t_end = t + h
+    cuts = [time + act.tau for time, _ in hist if t + eps < time + act.tau < t_end - eps]
+    start = t
+    for stop in cuts + [t_end]:
+        act._advance_constant_rate(act.K * act._delayed(start - act.tau + eps), stop - start)
+        start = stop
+    s = t_end - act.tau + eps
+    keep = 0
+    for i, (time, _) in enumerate(hist):
+        if time <= s:
+            keep = i
+    del hist[:keep]
+
+
+@pytest.mark.parametrize("h, limits", [(0.001, {}), (0.007, {}), (0.02, {}),
+                                       (0.003, {"rate_max": 0.05, "alpha_max": 0.02})])
+def test_delay_line_matches_the_full_scan_bit_for_bit(h, limits):
+    rnd = random.Random(3)
+    fast = DelayedIntegratorActuator(tau=0.05, **limits)
+    slow = DelayedIntegratorActuator(tau=0.05, **limits)
+    longest = 0
+    for k in range(3000):
+        u = rnd.choice([0.0, 0.3, -0.2, rnd.uniform(-1, 1)])  # repeats and changes
+        t = k * h
+        fast.step(t, h, u)
+        reference_step(slow, t, h, u)
+        slow.time = t + h
+        assert fast.alpha == slow.alpha
+        assert fast.history == slow.history
+        assert fast.rate() == slow.rate()
+        longest = max(longest, len(fast.history))
+    # the line holds what the dead time spans, not the whole run
+    assert longest <= math.ceil(0.05 / h) + 2
+
+
+# ---------------------------------------------------------------------- control law
+def test_state_feedback_plain_floats_equal_numpy_dot():
+    rnd = random.Random(8)
+    law = StateFeedback(Ka=4.828, Kb=3.767, Ke=4.472)
+    gains = np.array([4.828, 3.767, 4.472])
+    for _ in range(20000):
+        x = [rnd.uniform(-1, 1) * 10.0 ** rnd.randint(-8, 2) for _ in range(3)]
+        assert law.law(*x) == -float(gains @ np.array(x))
+
+
+# ---------------------------------------------------------------------- vehicle
+def test_vehicle_cos_sin_follow_the_heading_after_a_restore():
+    car = Vehicle(1.5, 0.0, 0.1, 0.2, reference_point="front")
+    for _ in range(10):
+        car.step(0.1, 1.0, 0.01)
+    state = car.get_state()
+    state["heading"] = -0.7
+    car.set_state(state)
+    assert car.rear() == (car.x - 1.5 * math.cos(-0.7), car.y - 1.5 * math.sin(-0.7))
+    rear = Vehicle(1.5, 1.0, 2.0, 0.3, reference_point="rear")
+    rear.step(0.2, 1.0, 0.05)
+    assert rear.front() == (rear.x + 1.5 * math.cos(rear.heading),
+                            rear.y + 1.5 * math.sin(rear.heading))
