@@ -350,3 +350,20 @@ def test_metrics_of_a_vehicle_fmu_run(tmp_path):
     assert m["lateral_error_settling_time"] is None   # ends 0.4 m off a 0.02 m band
     if _has_paths():
         assert m["path_error_rms"] == pytest.approx(m["lateral_error_rms"], abs=1e-9)
+
+
+@pytest.mark.skipif(not _has_paths(), reason="agv_core not importable")
+def test_project_trajectory_follows_a_circle_over_more_than_one_lap():
+    # a point 1 m inside a ccw circle of radius 5 (so 1 m left of it), one and a half
+    # laps: closed form offset 1 m and arc length 5 * angle, the arc continuing past one
+    # lap because each projection starts from the previous one (1e-9 m: far above the
+    # projection's rounding, far below any real error)
+    from agv_core.paths import CirclePath, project_trajectory
+
+    angles = np.linspace(0.1, 3.0 * math.pi, 200)
+    xs, ys = 4.0 * np.sin(angles), 5.0 - 4.0 * np.cos(angles)
+    offsets, arcs = project_trajectory(CirclePath(5.0), xs, ys)
+    np.testing.assert_allclose(offsets, 1.0, atol=1e-9)
+    np.testing.assert_allclose(arcs, 5.0 * angles, atol=1e-9)
+    empty = project_trajectory(CirclePath(5.0), [], [], s_hint=2.0)
+    assert len(empty[0]) == len(empty[1]) == 0

@@ -430,12 +430,10 @@ def path_offsets(path, x, y, base_dir=None):
 
 def _offsets(geometry, x, y, s_hint):
     """Offsets of (x, y) from ``geometry`` and the last point's arc length (next hint)."""
-    offsets = np.empty(len(x))
-    for i, (xi, yi) in enumerate(zip(x, y)):
-        projection = geometry.project(float(xi), float(yi), s_hint)
-        offsets[i] = projection.offset
-        s_hint = projection.s
-    return offsets, s_hint
+    from agv_core.paths import project_trajectory
+
+    offsets, arcs = project_trajectory(geometry, x, y, s_hint)
+    return offsets, (float(arcs[-1]) if len(arcs) else s_hint)
 
 
 def _clean(metrics):

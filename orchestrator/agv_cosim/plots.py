@@ -473,6 +473,8 @@ def _trajectory(run, traj, buckets, figure=None):
 
 def _reference_polyline(path, runs, traj, buckets):
     """x, y [m] of the reference ``path`` (a ReferencePath) over the stretch worth drawing."""
+    from agv_core.paths import project_trajectory
+
     length = float(getattr(path, "length", math.inf))
     if math.isfinite(length):
         s0, s1 = 0.0, length
@@ -484,11 +486,9 @@ def _reference_polyline(path, runs, traj, buckets):
             keep = np.isfinite(x) & np.isfinite(y)
             x, y = x[keep], y[keep]
             step = max(1, len(x) // _PROJECTED_POINTS)
-            s_hint = None
-            for xi, yi in zip(x[::step], y[::step]):
-                projection = path.project(float(xi), float(yi), s_hint)
-                s_hint = projection.s
-                s1 = max(s1, projection.s)
+            _, arcs = project_trajectory(path, x[::step], y[::step])
+            if len(arcs):
+                s1 = max(s1, float(arcs.max()))
         s0 = 0.0
         if s1 <= 0.0:
             return None
