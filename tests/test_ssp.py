@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from agv_cosim import ssp
-from agv_cosim.manifest import ManifestError, load_manifest, plan_runs
+from agv_cosim.manifest import ManifestError, load_manifest
+from agv_cosim.plan import plan_runs
 from agv_cosim.master import simulate
 from agv_cosim.runner import prepare
 

@@ -34,7 +34,9 @@ from pathlib import Path
 
 from . import __version__, fmitypes, metrics, plots
 from .lifetime import die_with_parent, scratch_dir
-from .manifest import ManifestError, load_manifest, plan_runs, validate
+from .manifest import ManifestError, load_manifest
+from .plan import plan_runs
+from .system import validate
 from .master import Plan, SimulationError, describe_track, record_types, simulate
 from .results import AtomicDir, CsvSink, count_rows, write_json, write_summary
 

@@ -55,7 +55,9 @@ from urllib.parse import unquote, urlparse
 from xml.etree import ElementTree
 
 from . import fmitypes
-from .manifest import ManifestError, load_manifest, plan_runs, validate
+from .manifest import ManifestError, load_manifest
+from .plan import plan_runs
+from .system import validate
 from .lifetime import scratch_dir
 from .results import OutputError, check_name
 
