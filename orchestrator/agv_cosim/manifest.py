@@ -96,6 +96,9 @@ class Manifest:
     metrics: dict
     plots: dict
     events: dict = field(default_factory=dict)  # name -> {"at": s, "set": {"c.v": value}}
+    #: the folder an .ssp archive was unpacked into (run.json names its FMUs
+    #: ``<package>!/<entry>``); None for a manifest file
+    unpacked: Path | None = None
 
     def error(self, key, problem):
         return ManifestError(self.path, key, problem)
@@ -218,11 +221,32 @@ def load_manifest(path):
         data = tomllib.loads(raw.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
         raise ManifestError(path, "toml", str(error)) from None
+    return manifest_from_data(data, path, hashlib.sha256(raw).hexdigest())
+
+
+def manifest_from_data(data, path, sha256, base_dir=None):
+    """Check a manifest given as data (the dict TOML gives) and build the Manifest.
+
+    The one schema check for every source: a TOML file (:func:`load_manifest`) or an SSP
+    package (:mod:`agv_cosim.ssp_import`, whose SSD is mapped to this data directly).
+
+    Parameters
+    ----------
+    data : dict
+        The manifest's tables and values.
+    path : path
+        What the messages name (the manifest, or the SSP package).
+    sha256 : str
+        Hash of the source, kept in run.json.
+    base_dir : path, optional
+        Folder relative FMU and table paths are relative to (default: ``path``'s).
+    """
+    path = Path(path)
     unknown = set(data) - _TOP_KEYS
     if unknown:
         raise ManifestError(path, sorted(unknown)[0], "unknown top-level key (allowed: "
                             + ", ".join(sorted(_TOP_KEYS)) + ")")
-    base_dir = path.resolve().parent
+    base_dir = path.resolve().parent if base_dir is None else Path(base_dir)
     sim = _table(path, data, "simulation", required=True)
     start = _number(path, sim, "start", "simulation", 0.0)
     stop = _number(path, sim, "stop", "simulation")
@@ -335,7 +359,7 @@ def load_manifest(path):
     except ValueError as error:
         raise ManifestError(path, "name", f"{error} (it names the default output folder "
                             "results/<name>)") from None
-    return Manifest(path=path, sha256=hashlib.sha256(raw).hexdigest(), name=name,
+    return Manifest(path=path, sha256=sha256, name=name,
                     description=str(data.get("description", "")), start=start, stop=stop,
                     step=step, algorithm=algorithm, components=components,
                     connections=connections, variants=variants, sweep=sweep,

@@ -1,4 +1,4 @@
-"""Stage 3 of the pipeline, the plan: a manifest's runs (variants x sweep points).
+"""Stage 2 of the pipeline, the plan: a manifest's runs (variants x sweep points).
 
 :func:`plan_runs` expands a :class:`~agv_cosim.manifest.Manifest` into one
 :class:`RunSpec` per (chosen variant, or the base) x sweep point, applying ``--set``

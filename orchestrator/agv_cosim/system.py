@@ -1,4 +1,4 @@
-"""Stage 2 of the pipeline, the system: the runs' components checked as one system.
+"""Stage 3 of the pipeline, the system: the runs' components checked as one system.
 
 :func:`validate` reads each component's model description (or time table) and checks,
 for every planned run, the parameter values against the variables (name, causality, type,
