@@ -10,6 +10,7 @@ import re
 from pathlib import Path
 from xml.etree import ElementTree
 
+from . import fmitypes
 from .manifest import ManifestError
 
 NS = {
@@ -23,7 +24,7 @@ OSP_ANNOTATION = "com.opensimulationplatform"
 AGV_ANNOTATION = "org.agv-cosim"
 FMU_MIME = "application/x-fmu-sharedlibrary"
 SSD_NAME = "SystemStructure.ssd"
-_TYPES = ("Real", "Integer", "Boolean", "String")
+_TYPES = fmitypes.SSP_VALUE_TYPES
 PSET_MIME = "application/x-ssp-parameter-set"
 _IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 

@@ -34,42 +34,44 @@ from .ssp import (_TYPES, AGV_ANNOTATION, FMU_MIME, OSP_ANNOTATION, SSD_NAME, _n
 from .system import validate
 
 
+def _model_description(fmu_path):
+    """fmpy's reading of an FMU's modelDescription.xml (schema not re-validated: the
+    FMU was read by :func:`agv_cosim.model.read_model` already)."""
+    from fmpy import read_model_description
+
+    return read_model_description(str(fmu_path), validate=False)
+
+
+#: SI base-unit exponents of a BaseUnit, in the order FMI and SSP write them.
+BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
+
+
 def _unit_definitions(fmu_path):
-    """``{unit name: {BaseUnit attribute: text}}`` from an FMU's modelDescription.xml."""
-    with zipfile.ZipFile(fmu_path) as archive:
-        root = ElementTree.fromstring(archive.read("modelDescription.xml"))
+    """``{unit name: {BaseUnit attribute: text}}`` of an FMU's unit definitions (the
+    attributes that differ from their defaults: exponent 0, factor 1, offset 0)."""
     units = {}
-    for unit in root.iterfind("UnitDefinitions/Unit"):
-        base = unit.find("BaseUnit")
-        units[unit.get("name")] = dict(base.attrib) if base is not None else {}
+    for unit in _model_description(fmu_path).unitDefinitions:
+        base, attrs = unit.baseUnit, {}
+        if base is not None:
+            attrs = {b: str(int(getattr(base, b))) for b in BASE_UNITS if getattr(base, b)}
+            if float(base.factor) != 1.0:
+                attrs["factor"] = _number_text(base.factor)
+            if float(base.offset) != 0.0:
+                attrs["offset"] = _number_text(base.offset)
+        units[unit.name] = attrs
     return units
 
 
 def _enumeration_types(fmu_path):
     """``{variable name: (type name, [(item name, value text)])}`` of the Enumeration
     variables of an FMU (FMI 2.0 ``SimpleType``/``Enumeration``, FMI 3.0
-    ``EnumerationType``)."""
-    with zipfile.ZipFile(fmu_path) as archive:
-        root = ElementTree.fromstring(archive.read("modelDescription.xml"))
-    types = {}
-    for simple in root.iterfind("TypeDefinitions/SimpleType"):
-        enum = simple.find("Enumeration")
-        if enum is not None:
-            types[simple.get("name")] = [(i.get("name"), i.get("value"))
-                                         for i in enum.iterfind("Item")]
-    for enum in root.iterfind("TypeDefinitions/EnumerationType"):
-        types[enum.get("name")] = [(i.get("name"), i.get("value"))
-                                   for i in enum.iterfind("Item")]
+    ``EnumerationType``, both as fmpy reads them)."""
     found = {}
-    for node in root.iterfind("ModelVariables/ScalarVariable"):  # FMI 2.0
-        enum = node.find("Enumeration")
-        if enum is not None and enum.get("declaredType") in types:
-            found[node.get("name")] = (enum.get("declaredType"),
-                                       types[enum.get("declaredType")])
-    for node in root.iterfind("ModelVariables/Enumeration"):  # FMI 3.0
-        if node.get("declaredType") in types:
-            found[node.get("name")] = (node.get("declaredType"),
-                                       types[node.get("declaredType")])
+    for var in _model_description(fmu_path).modelVariables:
+        declared = var.declaredType
+        if var.type == "Enumeration" and declared is not None:
+            found[var.name] = (declared.name, [(item.name, str(item.value))
+                                               for item in declared.items or ()])
     return found
 
 

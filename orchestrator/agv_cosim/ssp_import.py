@@ -41,7 +41,7 @@ from .manifest import ManifestError, manifest_from_data
 from .results import check_name
 from .ssp import (_IDENTIFIER, _TYPES, AGV_ANNOTATION, FMU_MIME, NS, OSP_ANNOTATION,
                   PSET_MIME, SSD_NAME, SspError, _q, _ssp_type, is_ssp)
-from .ssp_export import _unit_definitions
+from .ssp_export import BASE_UNITS, _unit_definitions
 
 
 def _unsafe_reason(info):
@@ -122,13 +122,10 @@ def _parse_value(package, key, node):
 
 
 #: SI base units of FMI 2.0 / SSP unit definitions (exponents).
-_BASE = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
-
-
 def _unit_of(package, key, attrs):
     """(exponents, factor, offset) of a BaseUnit attribute dict."""
     try:
-        exponents = tuple(int(attrs.get(b, 0)) for b in _BASE)
+        exponents = tuple(int(attrs.get(b, 0)) for b in BASE_UNITS)
         factor = float(attrs.get("factor", 1.0))
         offset = float(attrs.get("offset", 0.0))
     except ValueError:
@@ -213,7 +210,7 @@ def _convert(package, where, value, unit, definition, var, fmu_units):
                        "parameter set or the SSD), so it cannot be converted to "
                        f"[{var.unit or '1'}]")
     if var.unit is None:
-        target = ((0,) * len(_BASE), 1.0, 0.0)
+        target = ((0,) * len(BASE_UNITS), 1.0, 0.0)
     elif var.unit in fmu_units:
         target = fmu_units[var.unit]
     else:
