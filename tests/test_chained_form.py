@@ -319,7 +319,7 @@ def test_fmu_pose_mode_matches_the_core_and_the_exact_sine_projection(fmu):
             assert got == pytest.approx(core.update_from_pose(t, x, y, heading), abs=1e-15)
             _, offset, path_heading, c, dc = _sine_project(x, y, None)
             exact = cf.steering_law(offset, heading - path_heading, c, dc, KD, KP, L, DMAX)
-            # agv_core.paths projects to better than 1e-12 m: the same delta to 1e-9 rad
+            # agv_core.numerics.paths projects to better than 1e-12 m: the same delta to 1e-9 rad
             assert got == pytest.approx(exact[0], abs=1e-9)
             slave.doStep(t, 0.01)
             t += 0.01

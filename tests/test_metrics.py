@@ -20,13 +20,6 @@ FULL_SPEC = {
 }
 
 
-def _has_paths():
-    try:
-        import agv_core.numerics.paths  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
 
 # --------------------------------------------------------------------------- closed forms
 
@@ -287,7 +280,6 @@ def test_missing_or_misshapen_signal_and_bad_time():
 
 # --------------------------------------------------------------------------- reference path
 
-@pytest.mark.skipif(not _has_paths(), reason="agv_core.paths not available yet")
 def test_geometric_error_from_reference_path():
     # points at a known offset from a circle of radius 5 (centre (0, 5), counter-clockwise):
     # inside the circle is left of the path, so offset = R - r
@@ -307,7 +299,6 @@ def test_geometric_error_from_reference_path():
     assert m["path_error_settling_time"] == pytest.approx(math.log(0.4 / 0.02), abs=1e-4)
 
 
-@pytest.mark.skipif(not _has_paths(), reason="agv_core.paths not available yet")
 def test_bad_reference_path_names_the_key():
     t = np.array([0.0, 1.0])
     spec = {"reference": {"path": "spiral:r=1", "x": "v.x", "y": "v.y"}}
@@ -350,3 +341,20 @@ def test_metrics_of_a_vehicle_fmu_run(tmp_path):
     assert m["lateral_error_settling_time"] is None   # ends 0.4 m off a 0.02 m band
     if _has_paths():
         assert m["path_error_rms"] == pytest.approx(m["lateral_error_rms"], abs=1e-9)
+
+
+@pytest.mark.skipif(not _has_paths(), reason="agv_core not importable")
+def test_project_trajectory_follows_a_circle_over_more_than_one_lap():
+    # a point 1 m inside a ccw circle of radius 5 (so 1 m left of it), one and a half
+    # laps: closed form offset 1 m and arc length 5 * angle, the arc continuing past one
+    # lap because each projection starts from the previous one (1e-9 m: far above the
+    # projection's rounding, far below any real error)
+    from agv_core.numerics.paths import CirclePath, project_trajectory
+
+    angles = np.linspace(0.1, 3.0 * math.pi, 200)
+    xs, ys = 4.0 * np.sin(angles), 5.0 - 4.0 * np.cos(angles)
+    offsets, arcs = project_trajectory(CirclePath(5.0), xs, ys)
+    np.testing.assert_allclose(offsets, 1.0, atol=1e-9)
+    np.testing.assert_allclose(arcs, 5.0 * angles, atol=1e-9)
+    empty = project_trajectory(CirclePath(5.0), [], [], s_hint=2.0)
+    assert len(empty[0]) == len(empty[1]) == 0

@@ -1,4 +1,4 @@
-"""Tests of agv_core.paths: closed forms first, then brute force, then properties."""
+"""Tests of agv_core.numerics.paths: closed forms first, then brute force, then properties."""
 
 import math
 

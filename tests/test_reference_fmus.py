@@ -286,7 +286,7 @@ def test_ssp_enumeration_connectors_round_trip(reference_fmus, tmp_path):
     same one), read back into the same connections, and the .ssp runs like the manifest."""
     from xml.etree import ElementTree
 
-    from agv_cosim import ssp
+    from agv_cosim import ssp, ssp_export, ssp_import
     from agv_cosim.manifest import load_manifest
 
     ft2, ft3 = (reference_fmus[v] / "Feedthrough.fmu" for v in ("2", "3"))
@@ -299,7 +299,7 @@ def test_ssp_enumeration_connectors_round_trip(reference_fmus, tmp_path):
         '[[connections]]\nfrom = "b.Enumeration_output"\nto = "c.Enumeration_input"\n'
         '[record]\nvariables = ["a.Enumeration_output", "b.Enumeration_output", '
         '"c.Enumeration_output"]\n')
-    package = ssp.export_ssp(manifest, tmp_path / "enum.ssp")
+    package = ssp_export.export_ssp(manifest, tmp_path / "enum.ssp")
     with zipfile.ZipFile(package) as archive:
         root = ElementTree.fromstring(archive.read("SystemStructure.ssd"))
     ns = ssp.NS
@@ -314,7 +314,7 @@ def test_ssp_enumeration_connectors_round_trip(reference_fmus, tmp_path):
     assert [e.get("name") for e in defined] == ["Option"]
     assert [(i.get("name"), i.get("value")) for i in defined[0].findall("ssc:Item", ns)] \
         == [("Option 1", "1"), ("Option 2", "2")]
-    again = load_manifest(ssp.load_ssp_as_manifest(package, tmp_path / "back"))
+    again = ssp_import.load_ssp(package, tmp_path / "back")
     assert [(c.source, c.target) for c in again.connections] == \
         [(("a", "Enumeration_output"), ("b", "Enumeration_input")),
          (("b", "Enumeration_output"), ("c", "Enumeration_input"))]

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agv_core.numerics.paths import parse_path
+from agv_core.numerics.paths import parse_path, project_trajectory
 from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
 from manifests import localise
@@ -79,13 +79,7 @@ def settle_distance(grid, y, target, band=0.02):
 
 def path_offset(path, x, y):
     """True signed offset [m] of the points (x, y) from ``path`` and their arc lengths."""
-    offsets, arcs, hint = [], [], None
-    for px, py in zip(x, y):
-        p = path.project(float(px), float(py), s_hint=hint)
-        hint = p.s
-        offsets.append(p.offset)
-        arcs.append(p.s)
-    return np.array(offsets), np.array(arcs)
+    return project_trajectory(path, x, y)
 
 
 def sine_peaks(x, offset, x_from=40.0, wavelength=30.0, amplitude_sign=None):

@@ -1,4 +1,5 @@
-"""SSP 1.0 export/import (agv_cosim.ssp) and the cross-check against libcosim.
+"""SSP 1.0 export/import (agv_cosim.ssp_export, agv_cosim.ssp_import) and the cross-check
+against libcosim (tests/libcosim_runner.py).
 
 The closed loop is seed 000 model a (experiments/seed000_models_abc.toml, variant a, run
 10 s at 10 ms in Jacobi mode): vehicle -> vision sensor -> controller, actuator ->
@@ -15,11 +16,13 @@ from xml.etree import ElementTree
 import numpy as np
 import pytest
 
-from agv_cosim import ssp
-from agv_cosim.manifest import ManifestError, load_manifest, plan_runs
+from agv_cosim import ssp, ssp_export, ssp_import
+from agv_cosim.manifest import ManifestError, load_manifest
+from agv_cosim.plan import plan_runs
 from agv_cosim.master import simulate
 from agv_cosim.runner import prepare
 from manifests import localise_text
+from libcosim_runner import run_libcosim
 
 ROOT = Path(__file__).resolve().parent.parent
 SEED000 = ROOT / "experiments" / "seed000_models_abc.toml"
@@ -102,7 +105,7 @@ def run_ours(manifest_path, variant=None):
 def package(component_fmus, tmp_path_factory):
     folder = tmp_path_factory.mktemp("ssp")
     manifest = write_loop_manifest(component_fmus, folder)
-    out = ssp.export_ssp(manifest, folder / "loop.ssp", variant=variant_of(manifest))
+    out = ssp_export.export_ssp(manifest, folder / "loop.ssp", variant=variant_of(manifest))
     return manifest, out
 
 
@@ -145,7 +148,7 @@ def test_round_trip_gives_the_same_run(package, tmp_path):
     manifest_path, out = package
     original = load_manifest(manifest_path)
     variant = variant_of(manifest_path)
-    again = load_manifest(ssp.load_ssp_as_manifest(out, tmp_path))
+    again = ssp_import.load_ssp(out, tmp_path)
     assert (again.start, again.stop, again.step, again.algorithm) == \
         (original.start, original.stop, original.step, "jacobi")
     assert [(c.source, c.target) for c in again.connections] == \
@@ -162,14 +165,14 @@ def test_export_refuses_several_runs(component_fmus, tmp_path):
     if not load_manifest(manifest).variants:
         pytest.skip("the loop manifest has no variants")
     with pytest.raises(ManifestError, match="expands to 3 runs"):
-        ssp.export_ssp(manifest, tmp_path / "x.ssp")
+        ssp_export.export_ssp(manifest, tmp_path / "x.ssp")
     assert not (tmp_path / "x.ssp").exists()
 
 
 def test_cli_export(package, tmp_path, capsys):
     manifest, _ = package
     parser = argparse.ArgumentParser()
-    ssp.add_cli(parser.add_subparsers(dest="command"))
+    ssp_export.add_cli(parser.add_subparsers(dest="command"))
     out = tmp_path / "cli.ssp"
     args = parser.parse_args(["export-ssp", str(manifest), "--variant",
                               variant_of(manifest) or "", "-o", str(out)]
@@ -190,7 +193,7 @@ def test_malicious_archive_is_refused(tmp_path):
             archive.writestr(evil, "owned")
         work = tmp_path / "work"
         with pytest.raises(ssp.SspError, match="refused: entry") as caught:
-            ssp.load_ssp_as_manifest(path, work)
+            ssp_import.load_ssp(path, work)
         assert "\n" not in str(caught.value)
         # checked before anything is written
         assert not any(work.rglob("*.ssd"))
@@ -205,7 +208,7 @@ def test_symlink_entry_is_refused(tmp_path):
         info.external_attr = (0o120777 << 16)
         archive.writestr(info, "/etc/passwd")
     with pytest.raises(ssp.SspError, match="symbolic link"):
-        ssp.load_ssp_as_manifest(path, tmp_path / "work")
+        ssp_import.load_ssp(path, tmp_path / "work")
 
 
 @pytest.mark.parametrize("change, message", [
@@ -230,19 +233,19 @@ def test_unsupported_ssd_is_one_line(package, tmp_path, change, message):
         archive.extractall(folder)
     (folder / "SystemStructure.ssd").write_text(changed)
     if message is None:  # unchanged SSD in a folder: reads fine
-        assert load_manifest(ssp.load_ssp_as_manifest(folder, tmp_path)).step == 0.01
+        assert ssp_import.load_ssp(folder, tmp_path).step == 0.01
         return
     with pytest.raises(ssp.SspError, match=re.escape(message)) as caught:
-        ssp.load_ssp_as_manifest(folder, tmp_path)
+        ssp_import.load_ssp(folder, tmp_path)
     assert "\n" not in str(caught.value)
 
 
 def test_ssp_manifest_context_cleans_up(package):
-    with ssp.ssp_manifest(package[1]) as manifest:
-        work = Path(manifest).parent
-        assert load_manifest(manifest).stop == 10.0
+    with ssp_import.opened(package[1]) as manifest:
+        work = manifest.unpacked.parent
+        assert work.is_dir() and manifest.stop == 10.0
     assert not work.exists()
-    with ssp.ssp_manifest("plain.toml") as same:
+    with ssp_import.opened("plain.toml") as same:
         assert same == "plain.toml"
 
 
@@ -251,8 +254,8 @@ def test_libcosim_and_our_jacobi_agree(package, component_fmus, tmp_path, capsys
     pytest.importorskip("libcosimpy")
     manifest, out = package
     # our orchestrator runs the package itself (imported, not the original manifest)
-    names, ours = run_ours(ssp.load_ssp_as_manifest(out, tmp_path))
-    times, theirs = ssp.run_libcosim(out, names)
+    names, ours = run_ours(ssp_import.load_ssp(out, tmp_path))
+    times, theirs = run_libcosim(out, names)
     assert ours.shape == (1001, len(names) + 1)
     np.testing.assert_array_equal(ours[:, 0], times)
     # 1e-9 m / rad / V: the same FMU code gets the same inputs in the same order; the

@@ -178,3 +178,32 @@ def test_manifest_level_errors_name_the_ssp(vehicle, tmp_path, capsys):
                              "refuses to initialise")
     assert "wheelbase" in err[0]
     assert "agv-cosim-" not in err[0]
+
+
+def test_hostile_text_reaches_the_manifest_unchanged(vehicle, tmp_path):
+    """Names and values from an SSD are data, mapped onto the manifest without passing
+    through TOML text. The former route (an SSD written out as TOML and read back)
+    escaped a non-printable character as ``\\uXXXX`` with ``ord(c):04x``: U+E0041 (a
+    format character outside the BMP) became ``\\ue0041``, which TOML reads as U+E004
+    followed by "1". Quotes, backslashes, newlines and '#' would all have had to be
+    escaped as well; here they are simply strings."""
+    from xml.sax.saxutils import escape
+
+    from agv_cosim.ssp_import import load_ssp
+
+    hostile = '"] \\ #\n[components.x]\nfmu = "/etc/passwd" \U000E0041'
+    attribute = escape(hostile, {'"': "&quot;", "\n": "&#10;"})
+    ssp = _package(tmp_path, vehicle, component_bindings=_binding(
+        [("reference_point", "String", attribute, "")]))
+    with zipfile.ZipFile(ssp) as archive:
+        text = archive.read("SystemStructure.ssd").decode()
+    text = text.replace('<ssd:System name="imp">',
+                        f'<ssd:System name="imp" description="{attribute}">')
+    with zipfile.ZipFile(ssp, "w") as archive:
+        archive.writestr("SystemStructure.ssd", text)
+        archive.write(vehicle, "resources/AgvVehicle.fmu")
+    manifest = load_ssp(ssp, tmp_path / "work")
+    assert manifest.description == hostile
+    assert manifest.components["vehicle"].parameters == {"reference_point": hostile}
+    assert list(manifest.components) == ["vehicle"]
+    assert manifest.path == ssp and not list((tmp_path / "work").rglob("*.toml"))

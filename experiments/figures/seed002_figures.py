@@ -23,7 +23,7 @@ from matplotlib.figure import Figure
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from agv_core.paths import parse_path  # noqa: E402
+from agv_core.numerics.paths import parse_path  # noqa: E402
 from test_seed002 import (KMH, LOOPS, SINE, load, on_grid, path_offset,  # noqa: E402
                           settle_distance, sine_peaks, spread, step_closed_form)
 

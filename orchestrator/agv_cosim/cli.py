@@ -13,8 +13,8 @@ import sys
 import traceback
 
 from . import __version__
-from .ssp import add_cli as add_ssp_cli
-from .ssp import ssp_manifest
+from .ssp_export import add_cli as add_ssp_cli
+from .ssp_import import opened
 
 
 def _error(text):
@@ -44,8 +44,7 @@ def _warn(warnings, quiet=False):
 def _cmd_validate(args):
     from .runner import check_initialisation, prepare
 
-    manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set,
-                                       source=args.source)
+    manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set)
     _warn(warnings)
     if not args.no_init:
         check_initialisation(manifest, jobs)
@@ -60,8 +59,7 @@ def _cmd_run(args):
 
     if args.jobs is not None and args.jobs < 1:
         return _error("--jobs: must be >= 1")
-    manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set,
-                                       source=args.source)
+    manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set)
     _warn(warnings)
     target, results = execute(manifest, jobs, args.out, args.jobs, args.quiet,
                               overwrite=args.overwrite)
@@ -168,12 +166,10 @@ def make_parser():
 
 
 def _dispatch(args):
-    # a .ssp package given as the manifest runs through a manifest made from it
-    original = getattr(args, "manifest", None)
-    args.source = None
-    with ssp_manifest(original) as path:
-        if path is not None and path != original:
-            args.manifest, args.source = path, original
+    # a .ssp package given as the manifest is read into the same Manifest a file gives
+    with opened(getattr(args, "manifest", None)) as manifest:
+        if manifest is not None:
+            args.manifest = manifest
         return args.func(args)
 
 

@@ -110,6 +110,11 @@ NAMES = {"2.0": ("Real", "Integer", "Boolean", "String", "Enumeration"),
          "3.0": tuple(n for v, n in TYPES if v == "3.0") + ("Binary", "Clock")}
 
 
+#: Value types of SSP parameters and connectors (SSP uses FMI 2.0's names; Enumeration
+#: and Binary values are not supported).
+SSP_VALUE_TYPES = NAMES["2.0"][:4]
+
+
 def lookup(version, name):
     """The :class:`FmiType` of type ``name`` in FMI ``version``, or None if unsupported."""
     return TYPES.get((version, name))

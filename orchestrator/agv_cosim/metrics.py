@@ -16,7 +16,7 @@ Every key is optional; a metric is computed only when the signals it needs are n
 ``reference`` : table
     ``{path = "<path string>", x = "<signal>", y = "<signal>"}``: the lateral error is
     computed geometrically, as the signed offset of the recorded point (x, y) [m] from the
-    path ``agv_core.paths.parse_path(path)`` (positive left of the path). Gives the
+    path ``agv_core.numerics.paths.parse_path(path)`` (positive left of the path). Gives the
     ``path_error_*`` metrics (same set as ``lateral_error_*``), so a measured and a true
     lateral error can be reported side by side.
 ``heading_error`` : str
@@ -389,7 +389,7 @@ def _lateral_metrics(prefix, t, e, band, settle_after):
 
 
 def load_path(path, key, base_dir=None):
-    """``agv_core.paths.parse_path(path)``, with a bad path string as ValueError naming ``key``.
+    """``agv_core.numerics.paths.parse_path(path)``, with a bad path string as ValueError naming ``key``.
 
     Parameters
     ----------
@@ -418,7 +418,7 @@ def path_offsets(path, x, y, base_dir=None):
     Parameters
     ----------
     path : str
-        Path string understood by ``agv_core.paths.parse_path``.
+        Path string understood by ``agv_core.numerics.paths.parse_path``.
     x, y : numpy.ndarray
         Coordinates [m] of the tracked point.
     base_dir : str or pathlib.Path, optional
@@ -430,12 +430,10 @@ def path_offsets(path, x, y, base_dir=None):
 
 def _offsets(geometry, x, y, s_hint):
     """Offsets of (x, y) from ``geometry`` and the last point's arc length (next hint)."""
-    offsets = np.empty(len(x))
-    for i, (xi, yi) in enumerate(zip(x, y)):
-        projection = geometry.project(float(xi), float(yi), s_hint)
-        offsets[i] = projection.offset
-        s_hint = projection.s
-    return offsets, s_hint
+    from agv_core.numerics.paths import project_trajectory
+
+    offsets, arcs = project_trajectory(geometry, x, y, s_hint)
+    return offsets, (float(arcs[-1]) if len(arcs) else s_hint)
 
 
 def _clean(metrics):

@@ -23,7 +23,7 @@ Every key is optional; a figure is written only when its key is present.
 ``trajectory`` : table
     ``{x = "<signal>", y = "<signal>", path = "<path string, optional>"}``: an x-y plot
     ``trajectory.png`` of every run, with equal axis scales, over the reference path
-    drawn from ``agv_core.paths.parse_path(path).polyline`` (the whole path when it is
+    drawn from ``agv_core.numerics.paths.parse_path(path).polyline`` (the whole path when it is
     bounded, otherwise the stretch the runs cover).
 ``dpi`` : int, default 120
     Resolution of the PNG files.
@@ -473,6 +473,8 @@ def _trajectory(run, traj, buckets, figure=None):
 
 def _reference_polyline(path, runs, traj, buckets):
     """x, y [m] of the reference ``path`` (a ReferencePath) over the stretch worth drawing."""
+    from agv_core.numerics.paths import project_trajectory
+
     length = float(getattr(path, "length", math.inf))
     if math.isfinite(length):
         s0, s1 = 0.0, length
@@ -484,11 +486,9 @@ def _reference_polyline(path, runs, traj, buckets):
             keep = np.isfinite(x) & np.isfinite(y)
             x, y = x[keep], y[keep]
             step = max(1, len(x) // _PROJECTED_POINTS)
-            s_hint = None
-            for xi, yi in zip(x[::step], y[::step]):
-                projection = path.project(float(xi), float(yi), s_hint)
-                s_hint = projection.s
-                s1 = max(s1, projection.s)
+            _, arcs = project_trajectory(path, x[::step], y[::step])
+            if len(arcs):
+                s1 = max(s1, float(arcs.max()))
         s0 = 0.0
         if s1 <= 0.0:
             return None
@@ -504,7 +504,7 @@ def trajectory_figure(runs, spec, geometry=None):
         The runs to draw, in legend order.
     spec : dict
         The ``[plots]`` table; it must have ``trajectory``.
-    geometry : agv_core.paths.ReferencePath, optional
+    geometry : agv_core.numerics.paths.ReferencePath, optional
         The reference path to draw (parsed from ``trajectory.path`` by :func:`plot_runs`).
 
     Returns

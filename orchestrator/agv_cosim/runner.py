@@ -34,7 +34,9 @@ from pathlib import Path
 
 from . import __version__, fmitypes, metrics, plots
 from .lifetime import die_with_parent, scratch_dir
-from .manifest import ManifestError, load_manifest, plan_runs, validate
+from .manifest import Manifest, ManifestError, load_manifest
+from .plan import plan_runs
+from .system import validate
 from .master import Plan, SimulationError, describe_track, record_types, simulate
 from .results import AtomicDir, CsvSink, count_rows, write_json, write_summary
 
@@ -88,12 +90,14 @@ def _signal_sources(manifest):
     return sources
 
 
-def prepare(manifest_path, variants=None, sets=(), source=None):
+def prepare(manifest, variants=None, sets=(), source=None):
     """Load, expand and validate a manifest.
 
-    ``source``: the SSP package a generated manifest was made from (see
-    :func:`agv_cosim.ssp.ssp_manifest`); messages and run.json then name it (and its
-    SHA-256, and the FMUs as ``<package>!/<path inside it>``), not the temporary files.
+    ``manifest``: a manifest file, or a :class:`~agv_cosim.manifest.Manifest` already
+    loaded (an SSP package read by :func:`agv_cosim.ssp_import.opened`: messages and
+    run.json then name the package, its SHA-256, and its FMUs as
+    ``<package>!/<path inside it>``). ``source`` is accepted for older callers and
+    ignored (the package is the Manifest's own path now).
 
     Returns
     -------
@@ -104,12 +108,8 @@ def prepare(manifest_path, variants=None, sets=(), source=None):
     ------
     ManifestError
     """
-    manifest = load_manifest(manifest_path)
-    unpacked = None
-    if source is not None:
-        unpacked = Path(manifest.path).resolve().parent
-        manifest.path = Path(source)
-        manifest.sha256 = _source_sha256(source)
+    if not isinstance(manifest, Manifest):
+        manifest = load_manifest(manifest)
     runs = plan_runs(manifest, variants, sets)
     checked = validate(manifest, runs, _signal_sources(manifest))
     every = int(round(manifest.record_interval / manifest.step))
@@ -128,25 +128,15 @@ def prepare(manifest_path, variants=None, sets=(), source=None):
                         fmu_sha256={c: info.sha256 for c, info in models.items()},
                         manifest_path=str(manifest.path), manifest_sha256=manifest.sha256,
                         metrics_spec=manifest.metrics,
-                        fmu_paths={c: _shown_path(info.path, source, unpacked)
+                        fmu_paths={c: _shown_path(info.path, manifest)
                                    for c, info in models.items()}))
     return manifest, jobs, checked.warnings
 
 
-def _source_sha256(source):
-    """SHA-256 of an SSP source: the .ssp file, or the SSD of a package folder."""
-    from .model import file_sha256
-
-    source = Path(source)
-    return file_sha256(source / "SystemStructure.ssd" if source.is_dir() else source)
-
-
-def _shown_path(path, source, unpacked):
+def _shown_path(path, manifest):
     """How run.json names an FMU: inside an unpacked .ssp as ``<ssp>!/<entry>``."""
-    if source is not None and unpacked is not None:
-        package = unpacked / "package"
-        if package in Path(path).parents:
-            return f"{source}!/{Path(path).relative_to(package).as_posix()}"
+    if manifest.unpacked is not None and manifest.unpacked in Path(path).parents:
+        return f"{manifest.path}!/{Path(path).relative_to(manifest.unpacked).as_posix()}"
     return str(path)
 
 

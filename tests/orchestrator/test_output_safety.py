@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from agv_cosim import cli
-from agv_cosim.manifest import MAX_LABEL, run_label
+from agv_cosim.plan import MAX_LABEL, run_label
 from agv_cosim.results import MARKER, AtomicDir, OutputError, check_name
 
 

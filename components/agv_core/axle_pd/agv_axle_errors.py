@@ -30,7 +30,7 @@ class AgvAxleErrors(core.fmi.fmi_slave.AgvSlave):
             self.input(f"y{i}", 0.0, "m", f"y of tracking point {i}")
         self.parameter("path", "line", None,
                        "Reference path: 'curve:straight=..,radius=..,angle=..,transition=..' "
-                       "or any agv_core.paths kind", kind=core.fmi.fmi_slave.String)
+                       "or any agv_core.numerics.paths kind", kind=core.fmi.fmi_slave.String)
         for i in _AXLES:
             self.output(f"e{i}", "m", f"Signed lateral error of point {i}, positive left of "
                         "the path", depends_on=(f"x{i}", f"y{i}"))

@@ -21,7 +21,7 @@ offset * c < 1, or does not converge) the closest candidate over every piece (li
 projections, samples every 0.25 m then Newton) is taken.
 
 Other kinds (``line``, ``circle``, ``sine``, ``scurve``, ``waypoints``) are passed to
-:func:`agv_core.paths.parse_path`.
+:func:`agv_core.numerics.paths.parse_path`.
 """
 
 import math
@@ -182,7 +182,7 @@ _CURVE_OPTIONAL = {"transition": 0.0, "direction": "ccw", "x0": 0.0, "y0": 0.0, 
 
 
 def parse_track_path(spec, base_dir=None):
-    """``curve:...`` (this module) or any kind of :func:`agv_core.paths.parse_path`.
+    """``curve:...`` (this module) or any kind of :func:`agv_core.numerics.paths.parse_path`.
 
     Raises ParameterError("path", ...) for a malformed string.
     """

@@ -150,7 +150,7 @@ class ChainedFormController:
     path : object, optional
         For :meth:`update_from_pose`: a reference path with ``project(x, y, s_hint)``
         returning an object with ``s, heading, curvature, curvature_rate, offset``
-        (agv_core.paths.ReferencePath).
+        (agv_core.numerics.paths.ReferencePath).
     """
 
     def __init__(self, Kd=0.6, Kp=0.09, wheelbase=2.0, delta_max=math.pi / 4,
@@ -281,7 +281,7 @@ class ChainedFormController:
 
 
 def path_from_spec(spec, base_dir=None):
-    """Parse a path string with :func:`agv_core.paths.parse_path`.
+    """Parse a path string with :func:`agv_core.numerics.paths.parse_path`.
 
     Parameters
     ----------
@@ -292,7 +292,7 @@ def path_from_spec(spec, base_dir=None):
 
     Returns
     -------
-    agv_core.paths.ReferencePath
+    agv_core.numerics.paths.ReferencePath
     """
     return paths.parse_path(spec, base_dir=base_dir)
 

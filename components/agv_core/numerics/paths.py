@@ -624,3 +624,32 @@ def parse_path(spec, base_dir=None):
     if kind == "scurve":
         return scurve_path(args["straight"], args["amplitude"], args["wavelength"])
     return load_waypoints(args["file"], base_dir)
+
+
+def project_trajectory(path, xs, ys, s_hint=None):
+    """Project a trajectory onto ``path``, point by point, in order.
+
+    Each point is projected with the previous point's arc length as the hint (the first
+    with ``s_hint``), so a path that comes close to itself is followed continuously.
+
+    Parameters
+    ----------
+    path : ReferencePath
+    xs, ys : sequence of float
+        Coordinates [m] of the trajectory's points.
+    s_hint : float, optional
+        Arc length [m] to start the search from (e.g. the last one of a previous chunk).
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray)
+        Signed offsets [m] (positive left of the path) and arc lengths [m] of the
+        projections, one per point.
+    """
+    offsets = np.empty(len(xs))
+    arcs = np.empty(len(xs))
+    for i, (x, y) in enumerate(zip(xs, ys)):
+        projection = path.project(float(x), float(y), s_hint)
+        offsets[i] = projection.offset
+        arcs[i] = s_hint = projection.s
+    return offsets, arcs

@@ -31,7 +31,7 @@ class AgvPreviewLq(core.fmi.fmi_slave.AgvSlave):
         self.input("alpha_meas", 0.0, "rad",
                    "Measured steering angle; used when alpha_fixed_point is false")
         self.parameter("path", core.preview_lq.preview_lq.DEFAULT_PATH, None,
-                       "Reference path string (agv_core.paths.parse_path)",
+                       "Reference path string (agv_core.numerics.paths.parse_path)",
                        kind=core.fmi.fmi_slave.String)
         self.parameter("wheelbase", DEFAULTS["wheelbase"], "m",
                        "Wheelbase L (Mitsubishi 2501D class tractor)")

@@ -199,10 +199,10 @@ class DiscretePath:
     ----------
     source : tuple of array_like or path object
         Either ``(x, y)`` vertex arrays [m] (used as they are; ``ds`` ignored) or an
-        ``agv_core.paths.ReferencePath``-like object with ``polyline(s0, s1, ds)``,
+        ``agv_core.numerics.paths.ReferencePath``-like object with ``polyline(s0, s1, ds)``,
         ``project(x, y, s_hint)`` and ``length``; its vertices lie at s = i ds. A finite
         path is discretised whole at construction; an unbounded one (every kind of
-        ``agv_core.paths``: defined for all s, negative too) in fixed chunks of
+        ``agv_core.numerics.paths``: defined for all s, negative too) in fixed chunks of
         ``chunk`` vertices on demand, each with one extra vertex on either side for the
         central differences, so a vertex and its theta, alpha depend only on its index
         (deterministic, whatever the order of the requests).

@@ -1,6 +1,6 @@
 """Time-parameterised reference trajectories of seed 001 (circle and S-curve).
 
-A trajectory is a path of :mod:`agv_core.paths` travelled at constant speed v_r [m/s]:
+A trajectory is a path of :mod:`agv_core.numerics.paths` travelled at constant speed v_r [m/s]:
 s(t) = s_start + v_r t. At every time it gives the reference pose (X_r, Y_r, heading
 alpha_r), the speed v_r, the curvature kappa_r(s) [1/m] (positive turning left) and
 the yaw rate omega_r = kappa_r v_r [rad/s].
@@ -18,7 +18,7 @@ the yaw rate omega_r = kappa_r v_r [rad/s].
     first crest of the sine (first curvature maximum, |kappa| = A (2 pi / W)^2) is
     reached at ``peak_time`` (33.7 s in the paper). Defaults A = 1.5 m, W = 12 m,
     v_r = 0.4 m/s: straight 10.06 m at 38.1 deg, kappa_max = 0.411 1/m. The sine and its
-    straight tangent are :func:`agv_core.paths.sine_path`.
+    straight tangent are :func:`agv_core.numerics.paths.sine_path`.
 """
 
 import math

@@ -187,7 +187,7 @@ class VisionSensor(_Sampled):
 
     Parameters
     ----------
-    path : agv_core.paths.ReferencePath
+    path : agv_core.numerics.paths.ReferencePath
         The reference path.
     frame_period : float
         Capture period [s]; frames at multiples of it; 0 captures at every

@@ -1,0 +1,144 @@
+"""Stage 2 of the pipeline, the plan: a manifest's runs (variants x sweep points).
+
+:func:`plan_runs` expands a :class:`~agv_cosim.manifest.Manifest` into one
+:class:`RunSpec` per (chosen variant, or the base) x sweep point, applying ``--set``
+overrides (:func:`parse_set`). Parameter precedence for one run: FMU default <
+``[components.X.parameters]`` < the variant's parameters < ``--set`` < the sweep point (a
+``--set`` on a swept parameter is an error). Nothing here opens an FMU: the runs are
+checked against the FMUs by :func:`agv_cosim.system.validate`.
+"""
+
+import copy
+import hashlib
+import itertools
+import re
+import tomllib
+from dataclasses import dataclass, field
+
+from .manifest import ManifestError, _dotted, _event_key
+
+
+@dataclass
+class RunSpec:
+    """One run: the resolved components of a variant at one sweep point."""
+
+    label: str
+    variant: str | None
+    point: dict
+    components: dict
+    overrides: dict
+    events: dict = field(default_factory=dict)
+
+
+def _apply_event_key(events, name, value):
+    """Set the event field named by :func:`_event_key` in ``events`` (a run's copy)."""
+    parts = name.split(".")
+    if parts[2] == "at":
+        events[parts[1]]["at"] = value
+    else:
+        events[parts[1]]["set"][f"{parts[3]}.{parts[4]}"] = value
+
+
+def parse_set(manifest, text):
+    """Parse one ``--set comp.param=VALUE`` (VALUE as a TOML value, else a string)."""
+    if "=" not in text:
+        raise ManifestError(manifest.path, "--set", f"{text!r} is not comp.param=VALUE")
+    name, value = text.split("=", 1)
+    if name.strip().startswith("events."):
+        _event_key(manifest.path, "--set", name.strip(), manifest.events)
+    else:
+        _dotted(manifest.path, "--set", name.strip(), "component.parameter")
+    try:
+        parsed = tomllib.loads(f"v = {value}")["v"]
+    except tomllib.TOMLDecodeError:
+        parsed = value
+    return name.strip(), parsed
+
+
+def _slug(text):
+    return re.sub(r"[^A-Za-z0-9._=+-]", "_", text)
+
+
+#: Longest run label (a folder name); longer labels (many or long sweep values) are cut
+#: and end in a hash of the full label, so they stay distinct.
+MAX_LABEL = 100
+
+
+def run_label(parts):
+    """The folder name of a run: its slugged parts joined by ``__``, bounded."""
+    label = "__".join(_slug(p) for p in parts)
+    if len(label) > MAX_LABEL:
+        digest = hashlib.sha256(label.encode()).hexdigest()[:12]
+        label = f"{label[:MAX_LABEL - 13]}-{digest}"
+    return label
+
+
+def plan_runs(manifest, variants=None, sets=()):
+    """Expand a manifest into its runs: (chosen variants or all, or the base) x sweep.
+
+    Parameters
+    ----------
+    manifest : Manifest
+    variants : list of str, optional
+        Variant names to run (default: every declared variant, or the base when there
+        are none).
+    sets : iterable of str
+        ``comp.param=VALUE`` overrides applied to every run.
+    """
+    overrides = dict(parse_set(manifest, s) for s in sets)
+    for name in overrides:
+        if name in manifest.sweep:
+            raise ManifestError(manifest.path, "--set", f"'{name}' is also swept in [sweep]")
+        comp = name.split(".")[0]
+        if comp != "events" and comp not in manifest.components:
+            raise ManifestError(manifest.path, "--set", f"unknown component '{comp}' in "
+                                f"'{name}'")
+    for name in manifest.sweep:
+        if name.split(".")[0] not in manifest.components and not name.startswith("events."):
+            raise ManifestError(manifest.path, f"sweep.{name}",
+                                f"unknown component '{name.split('.')[0]}'")
+    if variants:
+        for name in variants:
+            if name not in manifest.variants:
+                known = ", ".join(manifest.variants) or "none declared"
+                raise ManifestError(manifest.path, "variants",
+                                    f"unknown variant '{name}' (known: {known})")
+        chosen = list(dict.fromkeys(variants))
+    else:
+        chosen = list(manifest.variants) or [None]
+    names = list(manifest.sweep)
+    points = [dict(zip(names, combo)) for combo in
+              itertools.product(*(manifest.sweep[n] for n in names))]
+    runs = []
+    for variant in chosen:
+        for point in points:
+            comps = copy.deepcopy(manifest.components)
+            events = copy.deepcopy(manifest.events)
+            if variant is not None:
+                for cname, sub in manifest.variants[variant]["components"].items():
+                    if sub.fmu is not None:
+                        comps[cname].fmu, comps[cname].table = sub.fmu, None
+                    if sub.table is not None:
+                        comps[cname].fmu, comps[cname].table = None, sub.table
+                        comps[cname].interpolation = sub.interpolation
+                        comps[cname].units = sub.units
+                    comps[cname].parameters.update(sub.parameters)
+                for ename, sub in manifest.variants[variant].get("events", {}).items():
+                    event = events.setdefault(ename, {"at": None, "set": {}})
+                    event["at"] = sub.get("at", event["at"])
+                    event["set"].update(sub.get("set", {}))
+            for name, value in list(overrides.items()) + list(point.items()):
+                if name.startswith("events."):
+                    _apply_event_key(events, name, value)
+                    continue
+                cname, pname = name.split(".")
+                comps[cname].parameters[pname] = value
+            parts = [variant or "base"] + [f"{k}={v!r}" for k, v in point.items()]
+            runs.append(RunSpec(label=run_label(parts), variant=variant,
+                                point=point, components=comps, overrides=overrides,
+                                events=events))
+    labels = [r.label for r in runs]
+    if len(set(labels)) != len(labels):
+        raise ManifestError(manifest.path, "sweep", "two sweep points give the same run "
+                            "label (a value is repeated)")
+    return runs

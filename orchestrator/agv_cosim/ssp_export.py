@@ -1,0 +1,307 @@
+"""SSP 1.0 export: one run of a manifest, as a package libcosim (and others) can run.
+
+Export (:func:`export_ssp`, ``agv-cosim export-ssp MANIFEST [--variant NAME] -o FILE.ssp``)
+writes one run of a manifest (one variant, no sweep) as a self-contained SSP 1.0 archive::
+
+    SystemStructure.ssd     components, connectors (type, unit), connections, units,
+                            inline parameter values, DefaultExperiment
+    resources/<model>.fmu   every FMU the run uses (one copy per distinct file)
+
+The SSD is written the way libcosim 0.11 reads it (it matches the literal prefixes
+``ssd:``, ``ssc:``, ``ssv:``, ``osp:``, not the namespaces): parameters as inline
+``ssd:ParameterValues`` (libcosim also reads ``.ssv`` files, but inline keeps the package
+one file shorter and is what it reads first), every connected variable declared as an
+``ssd:Connector`` with an ``ssc:Real``/``ssc:Integer``/... child carrying the unit (an
+``ssc:Enumeration`` names its FMU enumeration type, whose items are written to
+``ssd:Enumerations``; FMI 3.0 array variables and their elements get no connector), and the
+step as ``osp:FixedStepAlgorithm baseStepSize`` in a ``com.opensimulationplatform``
+annotation of ``ssd:DefaultExperiment``. A second annotation, ``org.agv-cosim``, keeps
+what SSP has no place for: our master algorithm, the recorded variables and the record
+interval. Other tools ignore it.
+"""
+
+import argparse
+import zipfile
+from pathlib import Path
+from xml.etree import ElementTree
+
+from . import fmitypes
+from .manifest import Manifest, ManifestError, load_manifest
+from .plan import plan_runs
+from .results import OutputError
+from .ssp import (_TYPES, AGV_ANNOTATION, FMU_MIME, OSP_ANNOTATION, SSD_NAME, _number_text,
+                  _q, _ssp_type)
+from .system import validate
+
+
+def _model_description(fmu_path):
+    """fmpy's reading of an FMU's modelDescription.xml (schema not re-validated: the
+    FMU was read by :func:`agv_cosim.model.read_model` already)."""
+    from fmpy import read_model_description
+
+    return read_model_description(str(fmu_path), validate=False)
+
+
+#: SI base-unit exponents of a BaseUnit, in the order FMI and SSP write them.
+BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
+
+
+def _unit_definitions(fmu_path):
+    """``{unit name: {BaseUnit attribute: text}}`` of an FMU's unit definitions (the
+    attributes that differ from their defaults: exponent 0, factor 1, offset 0)."""
+    units = {}
+    for unit in _model_description(fmu_path).unitDefinitions:
+        base, attrs = unit.baseUnit, {}
+        if base is not None:
+            attrs = {b: str(int(getattr(base, b))) for b in BASE_UNITS if getattr(base, b)}
+            if float(base.factor) != 1.0:
+                attrs["factor"] = _number_text(base.factor)
+            if float(base.offset) != 0.0:
+                attrs["offset"] = _number_text(base.offset)
+        units[unit.name] = attrs
+    return units
+
+
+def _enumeration_types(fmu_path):
+    """``{variable name: (type name, [(item name, value text)])}`` of the Enumeration
+    variables of an FMU (FMI 2.0 ``SimpleType``/``Enumeration``, FMI 3.0
+    ``EnumerationType``, both as fmpy reads them)."""
+    found = {}
+    for var in _model_description(fmu_path).modelVariables:
+        declared = var.declaredType
+        if var.type == "Enumeration" and declared is not None:
+            found[var.name] = (declared.name, [(item.name, str(item.value))
+                                               for item in declared.items or ()])
+    return found
+
+
+def _fmu_file_names(models):
+    """Instance name -> ``resources/<file>`` (one entry per distinct FMU file)."""
+    by_hash, names, taken = {}, {}, set()
+    for cname, info in models.items():
+        if info.sha256 not in by_hash:
+            stem = Path(info.path).stem
+            candidate, n = f"{stem}.fmu", 2
+            while candidate in taken:
+                candidate, n = f"{stem}_{n}.fmu", n + 1
+            taken.add(candidate)
+            by_hash[info.sha256] = candidate
+        names[cname] = f"resources/{by_hash[info.sha256]}"
+    return names
+
+
+def build_ssd(name, models, parameters, connections, start, stop, step, algorithm,
+              record=None, record_interval=None, description=""):
+    """The ``SystemStructure.ssd`` of one run, as an ElementTree element.
+
+    Parameters
+    ----------
+    name : str
+        System name.
+    models : dict
+        Instance name -> :class:`agv_cosim.model.ModelInfo`.
+    parameters : dict
+        Instance name -> ``{parameter: value}`` (the values to bind; others keep the
+        FMU defaults).
+    connections : list of agv_cosim.manifest.Connection
+    start, stop, step : float
+        Start and stop time and fixed macro step [s].
+    algorithm : {"jacobi", "gauss-seidel"}
+        Our master algorithm (kept in the ``org.agv-cosim`` annotation).
+    record : list of str, optional
+        Recorded ``component.variable`` names.
+    record_interval : float, optional
+        Record interval [s].
+    """
+    sources = _fmu_file_names(models)
+    root = ElementTree.Element(_q("ssd", "SystemStructureDescription"),
+                               {"name": name, "version": "1.0"})
+    system = ElementTree.SubElement(root, _q("ssd", "System"), {"name": name})
+    if description:
+        system.set("description", description)
+    elements = ElementTree.SubElement(system, _q("ssd", "Elements"))
+    used_units = {}
+    enumerations = {}  # SSP enumeration name -> [(item name, value text)]
+    for cname, info in models.items():
+        comp = ElementTree.SubElement(elements, _q("ssd", "Component"),
+                                      {"name": cname, "source": sources[cname],
+                                       "type": FMU_MIME})
+        connectors = ElementTree.SubElement(comp, _q("ssd", "Connectors"))
+        fmu_units = None
+        fmu_enums = None
+        for var in info.variables.values():
+            if var.causality not in ("input", "output") or \
+                    _ssp_type(var) not in _TYPES + ("Enumeration",):
+                continue
+            node = ElementTree.SubElement(connectors, _q("ssd", "Connector"),
+                                          {"name": var.name, "kind": var.causality})
+            kind = ElementTree.SubElement(node, _q("ssc", _ssp_type(var)))
+            if _ssp_type(var) == "Enumeration":
+                # SSP names the enumeration (required), defined in ssd:Enumerations;
+                # two FMUs with one type name but other items get instance-qualified
+                # names
+                if fmu_enums is None:
+                    fmu_enums = _enumeration_types(info.path)
+                tname, items = fmu_enums.get(var.name, (None, None))
+                if tname is None:
+                    tname, items = f"{cname}.{var.name}", []
+                if enumerations.get(tname, items) != items:
+                    tname = f"{cname}.{tname}"
+                enumerations[tname] = items
+                kind.set("name", tname)
+            if var.unit:
+                kind.set("unit", var.unit)
+                if var.unit not in used_units:
+                    if fmu_units is None:
+                        fmu_units = _unit_definitions(info.path)
+                    used_units[var.unit] = fmu_units.get(var.unit, {})
+        values = parameters.get(cname) or {}
+        if values:
+            bindings = ElementTree.SubElement(comp, _q("ssd", "ParameterBindings"))
+            binding = ElementTree.SubElement(bindings, _q("ssd", "ParameterBinding"))
+            holder = ElementTree.SubElement(binding, _q("ssd", "ParameterValues"))
+            pset = ElementTree.SubElement(holder, _q("ssv", "ParameterSet"),
+                                          {"version": "1.0", "name": f"{cname}"})
+            plist = ElementTree.SubElement(pset, _q("ssv", "Parameters"))
+            for pname, value in values.items():
+                var = info.variables[pname]
+                param = ElementTree.SubElement(plist, _q("ssv", "Parameter"), {"name": pname})
+                attrs = {"value": fmitypes.format_text(var.ftype, value)}
+                if var.ftype.is_float and var.unit:
+                    attrs["unit"] = var.unit
+                ElementTree.SubElement(param, _q("ssv", _ssp_type(var)), attrs)
+    conns = ElementTree.SubElement(system, _q("ssd", "Connections"))
+    for conn in connections:
+        ElementTree.SubElement(conns, _q("ssd", "Connection"), {
+            "startElement": conn.source[0], "startConnector": conn.source[1],
+            "endElement": conn.target[0], "endConnector": conn.target[1]})
+    if enumerations:
+        enums = ElementTree.SubElement(root, _q("ssd", "Enumerations"))
+        for tname in sorted(enumerations):
+            enum = ElementTree.SubElement(enums, _q("ssc", "Enumeration"), {"name": tname})
+            for item, value in enumerations[tname]:
+                ElementTree.SubElement(enum, _q("ssc", "Item"),
+                                       {"name": item, "value": value})
+    if used_units:
+        units = ElementTree.SubElement(root, _q("ssd", "Units"))
+        for uname in sorted(used_units):
+            unit = ElementTree.SubElement(units, _q("ssc", "Unit"), {"name": uname})
+            ElementTree.SubElement(unit, _q("ssc", "BaseUnit"), used_units[uname])
+    experiment = ElementTree.SubElement(root, _q("ssd", "DefaultExperiment"),
+                                        {"startTime": _number_text(start),
+                                         "stopTime": _number_text(stop)})
+    notes = ElementTree.SubElement(experiment, _q("ssd", "Annotations"))
+    osp = ElementTree.SubElement(notes, _q("ssc", "Annotation"), {"type": OSP_ANNOTATION})
+    algo = ElementTree.SubElement(osp, _q("osp", "Algorithm"))
+    ElementTree.SubElement(algo, _q("osp", "FixedStepAlgorithm"),
+                           {"baseStepSize": _number_text(step)})
+    ours = ElementTree.SubElement(notes, _q("ssc", "Annotation"), {"type": AGV_ANNOTATION})
+    exp = ElementTree.SubElement(ours, _q("agv", "Experiment"),
+                                 {"algorithm": algorithm, "stepSize": _number_text(step)})
+    if record_interval is not None:
+        exp.set("recordInterval", _number_text(record_interval))
+    for item in record or ():
+        ElementTree.SubElement(exp, _q("agv", "Record"), {"variable": item})
+    ElementTree.indent(root)
+    return root
+
+
+def export_ssp(manifest, out_path, variant=None, sets=()):
+    """Write one run of a manifest as a self-contained SSP 1.0 package.
+
+    Parameters
+    ----------
+    manifest : path or Manifest
+        The experiment manifest (a TOML file, or one already loaded, e.g. from an SSP
+        package by :func:`agv_cosim.ssp_import.opened`).
+    out_path : path
+        The ``.ssp`` file to write (replaced atomically).
+    variant : str, optional
+        The variant to export; required when the manifest declares more than one.
+    sets : iterable of str
+        ``comp.param=VALUE`` overrides, as for ``agv-cosim run --set``.
+
+    Returns
+    -------
+    Path
+        ``out_path``.
+
+    Raises
+    ------
+    ManifestError
+        A manifest problem, or a manifest that expands to more than one run.
+    """
+    if not isinstance(manifest, Manifest):
+        manifest = load_manifest(manifest)
+    runs = plan_runs(manifest, [variant] if variant else None, sets)
+    if len(runs) != 1:
+        key = "sweep" if manifest.sweep else "variants"
+        raise ManifestError(manifest.path, key, f"expands to {len(runs)} runs; an SSP "
+                            "package holds one (choose --variant, remove the sweep or fix "
+                            "it with --set)")
+    checked = validate(manifest, runs)
+    run, models = runs[0], checked.models[0]
+    params = {c: dict(comp.parameters) for c, comp in run.components.items()}
+    for cname, values in params.items():
+        for pname, value in values.items():
+            if isinstance(value, tuple):
+                raise ManifestError(manifest.path, f"components.{cname}.parameters.{pname}",
+                                    "an FMI 3.0 array parameter cannot be written to an "
+                                    "SSP package (SSP parameters are scalars)")
+    name = manifest.name + (f"_{run.variant}" if run.variant else "")
+    root = build_ssd(name, models, params, manifest.connections, manifest.start,
+                     manifest.stop, manifest.step, manifest.algorithm, checked.record,
+                     manifest.record_interval, manifest.description)
+    out_path = Path(out_path)
+    if out_path.is_dir():
+        raise OutputError(f"{out_path}: is a folder; give the name of the .ssp file to "
+                          "write")
+    try:
+        out_path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise OutputError(f"{out_path}: cannot create '{error.filename or out_path.parent}'"
+                          f": {error.strerror}") from None
+    partial = out_path.with_name(out_path.name + ".partial")
+    try:
+        with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as archive:
+            archive.writestr(SSD_NAME, ElementTree.tostring(root, encoding="utf-8",
+                                                            xml_declaration=True))
+            written = set()
+            for cname, source in _fmu_file_names(models).items():
+                if source not in written:
+                    archive.write(models[cname].path, source)
+                    written.add(source)
+        partial.replace(out_path)
+    finally:
+        partial.unlink(missing_ok=True)
+    return out_path
+
+
+def _cmd_export_ssp(args):
+    from .ssp_import import opened
+
+    with opened(args.manifest) as manifest:
+        out = export_ssp(manifest, args.output, args.variant, args.set)
+    print(out)
+    return 0
+
+
+def add_cli(subparsers):
+    """Register ``agv-cosim export-ssp`` on the CLI's subparsers."""
+    parser = subparsers.add_parser(
+        "export-ssp", help="write one run of a manifest as an SSP 1.0 package",
+        description="Write one run (one variant, no sweep) of a manifest as a "
+                    "self-contained SSP 1.0 package: SystemStructure.ssd (components, "
+                    "connectors with units, connections, parameter values, default "
+                    "experiment with the fixed step libcosim reads) and the FMUs under "
+                    "resources/.")
+    parser.add_argument("manifest", help="experiment manifest (TOML)")
+    parser.add_argument("--variant", metavar="NAME", help="the variant to export")
+    parser.add_argument("--set", action="append", default=[], metavar="COMP.PARAM=VALUE",
+                        help="override a parameter (repeatable)")
+    parser.add_argument("-o", "--output", required=True, metavar="FILE.ssp",
+                        help="the package to write")
+    parser.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                        help="show tracebacks on errors")
+    parser.set_defaults(func=_cmd_export_ssp)
+    return parser

@@ -1,0 +1,521 @@
+"""SSP 1.0 import: an ``.ssp`` package read into a :class:`~agv_cosim.manifest.Manifest`.
+
+Import (:func:`load_ssp`, :func:`opened`): the archive is checked entry by entry
+(absolute paths, ``..``, drive letters and symbolic links are refused before anything is
+written), extracted, and its SSD is mapped onto the manifest's data (components,
+connections, parameter values, experiment) and checked by the same schema as a manifest
+file (:func:`agv_cosim.manifest.manifest_from_data`); no manifest text is written, so
+names and values from the SSD stay data (component names must be identifiers and
+connector names free of '.', else refused). The runner then validates and runs it like
+any other manifest. Parameter bindings are applied at every
+level: on components and on the system (names ``component.parameter``), inline
+``ssd:ParameterValues`` or ``.ssv`` files (``source``, with ``prefix``), in document
+order, a system binding overriding the component's own; a Real with a ``unit`` is
+converted through the ``ssc:Unit``/``BaseUnit`` factor and offset (of the parameter set,
+else of the SSD) to the FMU variable's unit (its UnitDefinition), and refused when it
+cannot be. What we do not support is refused with one line naming the .ssp and the
+element: nested systems, signal dictionaries, non-FMU or model-exchange components,
+sources outside the package, connections to system connectors, connection
+transformations, parameter mappings, other binding types, ``sourceBase="component"``,
+parameters of the system itself, Enumeration/Binary values, connectors that are not the
+FMU's variable of that kind, type and unit (connector units are never converted). A
+package without the ``org.agv-cosim`` annotation runs with the Jacobi
+algorithm (the semantics of libcosim, the master SSP packages of this kind come from) and
+records every Real output.
+"""
+
+import contextlib
+import math
+import re
+import shutil
+import stat
+import zipfile
+import zlib
+from pathlib import Path
+from urllib.parse import unquote, urlparse
+from xml.etree import ElementTree
+
+from . import fmitypes
+from .lifetime import scratch_dir
+from .manifest import ManifestError, manifest_from_data
+from .results import check_name
+from .ssp import (_IDENTIFIER, _TYPES, AGV_ANNOTATION, FMU_MIME, NS, OSP_ANNOTATION,
+                  PSET_MIME, SSD_NAME, SspError, _q, _ssp_type, is_ssp)
+from .ssp_export import BASE_UNITS, _unit_definitions
+
+
+def _unsafe_reason(info):
+    name = info.filename
+    if stat.S_ISLNK(info.external_attr >> 16):
+        return "a symbolic link"
+    if name.startswith(("/", "\\")) or re.match(r"^[A-Za-z]:", name):
+        return "an absolute path"
+    if ".." in re.split(r"[\\/]", name):
+        return "a '..' path"
+    return None
+
+
+def safe_extract(archive_path, dest):
+    """Extract a zip archive into ``dest`` after checking every entry.
+
+    Raises
+    ------
+    SspError
+        For an unreadable archive, or an entry with an absolute path, a drive letter,
+        a ``..`` component or a symbolic link (nothing is extracted then).
+    """
+    try:
+        with zipfile.ZipFile(archive_path) as archive:
+            entries = archive.infolist()
+            for info in entries:
+                reason = _unsafe_reason(info)
+                if reason:
+                    raise SspError(archive_path, "archive", f"refused: entry "
+                                   f"'{info.filename}' is {reason}")
+            dest = Path(dest).resolve()
+            for info in entries:
+                target = (dest / info.filename).resolve()
+                if dest != target and dest not in target.parents:
+                    raise SspError(archive_path, "archive",
+                                   f"refused: entry '{info.filename}' leaves the folder")
+            archive.extractall(dest)
+    except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, OSError) as error:
+        raise SspError(archive_path, "archive", f"not a readable zip archive: {error}") \
+            from None
+
+
+def _float_attr(package, key, node, attr, default=None):
+    text = node.get(attr)
+    if text is None:
+        if default is None:
+            raise SspError(package, key, f"missing attribute '{attr}'")
+        return default
+    try:
+        value = float(text)
+    except ValueError:
+        raise SspError(package, key, f"{attr}={text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise SspError(package, key, f"{attr}={text!r} is not finite")
+    return value
+
+
+def _parse_value(package, key, node):
+    """(type, value, unit or None) of an ssv:Parameter."""
+    kind = next((child for child in node if child.tag in
+                 [_q("ssv", t) for t in _TYPES]), None)
+    if kind is None:
+        raise SspError(package, key, "no ssv:Real/Integer/Boolean/String value "
+                       "(Enumeration and Binary are not supported)")
+    vtype = kind.tag.split("}")[1]
+    text = kind.get("value")
+    if text is None:
+        raise SspError(package, key, "missing attribute 'value'")
+    ftype = fmitypes.lookup("2.0", vtype)  # SSP's type names are FMI 2.0's
+    unit = kind.get("unit") if ftype.is_float else None
+    try:
+        value = fmitypes.parse_text(ftype, text)
+        if ftype.is_float and not math.isfinite(value):
+            raise ValueError(text)
+    except ValueError:
+        raise SspError(package, key, f"{text!r} is not a valid {vtype}") from None
+    return vtype, value, unit
+
+
+#: SI base units of FMI 2.0 / SSP unit definitions (exponents).
+def _unit_of(package, key, attrs):
+    """(exponents, factor, offset) of a BaseUnit attribute dict."""
+    try:
+        exponents = tuple(int(attrs.get(b, 0)) for b in BASE_UNITS)
+        factor = float(attrs.get("factor", 1.0))
+        offset = float(attrs.get("offset", 0.0))
+    except ValueError:
+        raise SspError(package, key, f"malformed BaseUnit {attrs}") from None
+    if not (math.isfinite(factor) and factor != 0.0 and math.isfinite(offset)):
+        raise SspError(package, key, f"BaseUnit factor/offset {attrs} is not usable")
+    return exponents, factor, offset
+
+
+def _units(package, holder, prefix):
+    """Unit name -> (exponents, factor, offset) of ``holder``'s ``<prefix>:Units``."""
+    units = {}
+    for unit in holder.iterfind(f"{prefix}:Units/ssc:Unit", NS):
+        base = unit.find("ssc:BaseUnit", NS)
+        units[unit.get("name")] = _unit_of(package, f"Unit '{unit.get('name')}'",
+                                           base.attrib if base is not None else {})
+    return units
+
+
+def _bindings(package, base, element, key, ssd_units):
+    """The parameter values bound on ``element`` (ssd:System or ssd:Component), in order.
+
+    Returns a list of (name, type, value, unit, unit definition or None, key). Every
+    binding of SSP 1.0 is read: inline ssd:ParameterValues or a ``source`` .ssv file
+    in the package, with its ``prefix``; what we cannot apply exactly is refused.
+    """
+    found = []
+    bindings = element.findall("ssd:ParameterBindings/ssd:ParameterBinding", NS)
+    for i, binding in enumerate(bindings, start=1):
+        bkey = f"{key}: ParameterBinding {i}" if len(bindings) > 1 else \
+            f"{key}: ParameterBinding"
+        kind = binding.get("type", PSET_MIME)
+        if kind != PSET_MIME:
+            raise SspError(package, bkey, f"type '{kind}' is not supported (only "
+                           f"{PSET_MIME})")
+        if binding.find("ssd:ParameterMapping", NS) is not None:
+            raise SspError(package, bkey, "ParameterMapping is not supported")
+        if binding.get("sourceBase", "SSD") != "SSD":
+            raise SspError(package, bkey, f"sourceBase '{binding.get('sourceBase')}' is not "
+                           "supported (only 'SSD')")
+        prefix = binding.get("prefix", "")
+        source = binding.get("source")
+        if source:
+            url = urlparse(source)
+            path = None if url.scheme or url.netloc else _inside(base, unquote(url.path))
+            if path is None or not path.is_file():
+                raise SspError(package, bkey, f"source '{source}' is not a file in the "
+                               "package")
+            try:
+                pset = ElementTree.parse(path).getroot()
+            except ElementTree.ParseError as error:
+                raise SspError(package, bkey, f"{source}: not well-formed XML: {error}") \
+                    from None
+            if pset.tag != _q("ssv", "ParameterSet"):
+                raise SspError(package, bkey, f"{source}: root is not ssv:ParameterSet")
+            bkey = f"{bkey} ({source})"
+        else:
+            pset = binding.find("ssd:ParameterValues/ssv:ParameterSet", NS)
+            if pset is None:
+                raise SspError(package, bkey, "no source and no inline ssv:ParameterSet")
+        set_units = _units(package, pset, "ssv")
+        for param in pset.iterfind("ssv:Parameters/ssv:Parameter", NS):
+            pname = param.get("name")
+            pkey = f"{bkey}: parameter '{pname}'"
+            if not pname:
+                raise SspError(package, f"{bkey}: Parameter", "missing attribute 'name'")
+            vtype, value, unit = _parse_value(package, pkey, param)
+            definition = None
+            if unit is not None:
+                definition = set_units.get(unit, ssd_units.get(unit))
+            found.append((prefix + pname, vtype, value, unit, definition, pkey))
+    return found
+
+
+def _convert(package, where, value, unit, definition, var, fmu_units):
+    """``value`` in ``unit`` converted to the unit of the FMU variable ``var``."""
+    if unit is None or (unit == var.unit and (definition is None
+                                              or var.unit not in fmu_units)):
+        return value
+    if definition is None:
+        raise SspError(package, where, f"unit '{unit}' has no ssc:Unit definition (in the "
+                       "parameter set or the SSD), so it cannot be converted to "
+                       f"[{var.unit or '1'}]")
+    if var.unit is None:
+        target = ((0,) * len(BASE_UNITS), 1.0, 0.0)
+    elif var.unit in fmu_units:
+        target = fmu_units[var.unit]
+    else:
+        raise SspError(package, where, f"the FMU's unit '{var.unit}' of '{var.name}' has "
+                       "no UnitDefinition, so the value cannot be converted to it")
+    if definition[0] != target[0]:
+        raise SspError(package, where, f"unit '{unit}' cannot be converted to "
+                       f"[{var.unit or '1'}] of '{var.name}' (other base units)")
+    si = definition[1] * value + definition[2]
+    return (si - target[2]) / target[1]
+
+
+def _inside(base, relative):
+    target = (base / relative).resolve()
+    return target if base == target or base in target.parents else None
+
+
+def _component(package, base, node, ssd_units):
+    cname = node.get("name")
+    key = f"Component '{cname}'"
+    if not cname or not _IDENTIFIER.match(cname):
+        raise SspError(package, key, "component names must be identifiers "
+                       "([A-Za-z_][A-Za-z0-9_]*, used as 'component.variable')")
+    kind = node.get("type", FMU_MIME)
+    if kind != FMU_MIME:
+        raise SspError(package, key, f"type '{kind}' is not supported (only FMUs)")
+    if node.get("implementation", "any").lower() not in ("any", "cosimulation"):
+        raise SspError(package, key, f"implementation '{node.get('implementation')}' is not "
+                       "supported (only CoSimulation)")
+    source = node.get("source") or ""
+    url = urlparse(source)
+    if url.scheme or url.netloc or not source:
+        raise SspError(package, key, f"source '{source}' is not a path inside the package")
+    fmu = _inside(base, unquote(url.path))
+    if fmu is None:
+        raise SspError(package, key, f"source '{source}' is outside the package")
+    if not fmu.is_file():
+        raise SspError(package, key, f"source '{source}' is not in the package")
+    return cname, fmu, _bindings(package, base, node, key, ssd_units)
+
+
+def _check_connectors(package, cname, fmu, node):
+    """Refuse connectors that do not match the FMU (we convert no connector units)."""
+    from .model import ModelError, read_model
+
+    connectors = node.findall("ssd:Connectors/ssd:Connector", NS)
+    if not connectors:
+        return
+    try:
+        info = read_model(fmu)
+    except ModelError as error:
+        raise SspError(package, f"Component '{cname}'", str(error)) from None
+    for connector in connectors:
+        name, kind = connector.get("name"), connector.get("kind")
+        key = f"Component '{cname}': Connector '{name}'"
+        var = info.variables.get(name)
+        if var is None:
+            raise SspError(package, key, f"not a variable of {info.model_name}")
+        if kind not in (None, var.causality) and not (kind == "inout" and
+                                                       var.causality in ("input", "output")):
+            raise SspError(package, key, f"kind '{kind}', but the FMU's variable is "
+                           f"{var.causality}")
+        typed = next((child for child in connector if child.tag in
+                      [_q("ssc", t) for t in _TYPES + ("Enumeration", "Binary")]), None)
+        if typed is None:
+            continue
+        vtype = typed.tag.split("}")[1]
+        if vtype != _ssp_type(var):
+            raise SspError(package, key, f"type {vtype}, but the FMU's variable is "
+                           f"{var.type}")
+        unit = typed.get("unit")
+        if unit is not None and unit != (var.unit or ""):
+            raise SspError(package, key, f"unit '{unit}', but the FMU's variable is in "
+                           f"[{var.unit or '1'}] (connector unit conversion is not "
+                           "supported)")
+
+
+def _bound_parameters(package, components, component_bound, system_bound):
+    """Component -> {parameter: value in the FMU's unit}.
+
+    Precedence (our reading of SSP 1.0): within one element, a later binding overrides
+    an earlier one; a system binding (``component.parameter``) overrides the
+    component's own.
+    """
+    from .model import ModelError, read_model
+
+    chosen = {cname: {} for cname in components}
+    for cname, bound in component_bound.items():
+        for name, *rest in bound:
+            chosen[cname][name] = rest
+    for name, *rest in system_bound:
+        where = rest[-1]
+        cname, dot, pname = name.partition(".")
+        if not dot:
+            raise SspError(package, where, f"'{name}' names no component (a parameter of "
+                           "the system itself is not supported; use 'component.parameter')")
+        if cname not in components:
+            raise SspError(package, where, f"unknown component '{cname}' in '{name}'")
+        chosen[cname][pname] = rest
+    params = {}
+    for cname, values in chosen.items():
+        params[cname] = {}
+        if not values:
+            continue
+        try:
+            info = read_model(components[cname])
+        except ModelError as error:
+            raise SspError(package, f"Component '{cname}'", str(error)) from None
+        fmu_units = {}
+        if any(unit is not None for _, _, unit, _, _ in values.values()):
+            defs = _unit_definitions(info.path)
+            fmu_units = {u: _unit_of(package, f"Component '{cname}'", d)
+                         for u, d in defs.items()}
+        for pname, (vtype, value, unit, definition, where) in values.items():
+            var = info.variables.get(pname)
+            if var is None or var.causality != "parameter":
+                what = "no variable" if var is None else f"'{pname}' is {var.causality}"
+                raise SspError(package, where, f"{cname} ({info.model_name}) has "
+                               f"{what}{' ' + repr(pname) if var is None else ''}, "
+                               "not a parameter")
+            if vtype == "Real" and (var.unsupported() or not var.ftype.is_float):
+                raise SspError(package, where, f"a Real value for the {var.type} "
+                               f"parameter '{pname}'")
+            params[cname][pname] = _convert(package, where, value, unit, definition, var,
+                                            fmu_units)
+    return params
+
+
+def read_ssd(package, ssd_path):
+    """Translate an SSD into the data of a manifest (a plain dict, TOML-shaped).
+
+    Raises
+    ------
+    SspError
+        For a malformed SSD or anything we do not support (see the module docstring).
+    """
+    ssd_path = Path(ssd_path)
+    base = ssd_path.parent.resolve()
+    try:
+        root = ElementTree.parse(ssd_path).getroot()
+    except ElementTree.ParseError as error:
+        raise SspError(package, SSD_NAME, f"not well-formed XML: {error}") from None
+    except OSError:
+        raise SspError(package, SSD_NAME, "missing (not an SSP package)") from None
+    if root.tag != _q("ssd", "SystemStructureDescription"):
+        raise SspError(package, SSD_NAME, "root is not ssd:SystemStructureDescription "
+                       "(SSP 1.0)")
+    system = root.find("ssd:System", NS)
+    if system is None:
+        raise SspError(package, "System", "missing")
+    for tag, what in (("SignalDictionaries", "signal dictionaries"),):
+        if system.find(f"ssd:{tag}", NS) is not None:
+            raise SspError(package, f"System: {tag}", f"{what} are not supported")
+    components, connections, bound = {}, [], {}
+    ssd_units = _units(package, root, "ssd")
+    elements = system.find("ssd:Elements", NS)
+    for node in (elements if elements is not None else []):
+        tag = node.tag.split("}")[-1]
+        if tag != "Component":
+            raise SspError(package, f"Elements: {tag} '{node.get('name')}'",
+                           "only Component elements are supported (no nested systems or "
+                           "signal dictionaries)")
+        cname, fmu, bound[cname] = _component(package, base, node, ssd_units)
+        if cname in components:
+            raise SspError(package, f"Component '{cname}'", "name used twice")
+        _check_connectors(package, cname, fmu, node)
+        components[cname] = fmu
+    if not components:
+        raise SspError(package, "System: Elements", "no components")
+    params = _bound_parameters(package, components, bound,
+                               _bindings(package, base, system, "System", ssd_units))
+    components = {cname: {"fmu": str(fmu), "parameters": params[cname]}
+                  for cname, fmu in components.items()}
+    for node in system.iterfind("ssd:Connections/ssd:Connection", NS):
+        ends = [node.get(a) for a in ("startElement", "startConnector", "endElement",
+                                      "endConnector")]
+        key = f"Connection {ends[0]}.{ends[1]} -> {ends[2]}.{ends[3]}"
+        if not ends[0] or not ends[2]:
+            raise SspError(package, key, "connections to the system's own connectors are "
+                           "not supported")
+        if not ends[1] or not ends[3] or "." in ends[1] + ends[3]:
+            raise SspError(package, key, "connector names must be non-empty and without "
+                           "'.' (used as 'component.variable')")
+        if len(node):
+            raise SspError(package, key, f"{node[0].tag.split('}')[-1]} is not supported")
+        connections.append({"from": f"{ends[0]}.{ends[1]}", "to": f"{ends[2]}.{ends[3]}"})
+
+    experiment = root.find("ssd:DefaultExperiment", NS)
+    if experiment is None:
+        raise SspError(package, "DefaultExperiment", "missing (start, stop and step are "
+                       "needed)")
+    start = _float_attr(package, "DefaultExperiment", experiment, "startTime", 0.0)
+    if experiment.get("stopTime") is None:
+        raise SspError(package, "DefaultExperiment", "no stopTime")
+    stop = _float_attr(package, "DefaultExperiment", experiment, "stopTime")
+    step, algorithm, record, interval = None, "jacobi", None, None
+    for note in experiment.iterfind("ssd:Annotations/ssc:Annotation", NS):
+        if note.get("type") == OSP_ANNOTATION and step is None:
+            fixed = note.find("osp:Algorithm/osp:FixedStepAlgorithm", NS)
+            if fixed is not None:
+                step = _float_attr(package, "osp:FixedStepAlgorithm", fixed, "baseStepSize")
+        elif note.get("type") == AGV_ANNOTATION:
+            ours = note.find("agv:Experiment", NS)
+            if ours is not None:
+                algorithm = ours.get("algorithm", algorithm)
+                if ours.get("stepSize"):
+                    step = _float_attr(package, "agv:Experiment", ours, "stepSize")
+                if ours.get("recordInterval"):
+                    interval = _float_attr(package, "agv:Experiment", ours, "recordInterval")
+                record = [r.get("variable") for r in ours.iterfind("agv:Record", NS)] or None
+    if step is None:
+        raise SspError(package, "DefaultExperiment", "no step size (an "
+                       "osp:FixedStepAlgorithm annotation with baseStepSize is needed)")
+    simulation = {"start": start, "stop": stop, "step": step, "algorithm": algorithm}
+    name = root.get("name") if root.get("name") is not None else system.get("name")
+    if name is None:
+        name = Path(package).stem
+    try:
+        check_name(name, "system name")
+    except ValueError as error:
+        raise SspError(package, "SystemStructureDescription", f"{error} (it names the "
+                       "default output folder results/<name>)") from None
+    data = {"name": name,
+            "description": system.get("description", ""),
+            "simulation": simulation, "components": components, "connections": connections}
+    if record or interval is not None:
+        data["record"] = {}
+        if record:
+            data["record"]["variables"] = record
+        if interval is not None:
+            data["record"]["interval"] = interval
+    return data
+
+
+def _source_sha256(source):
+    """SHA-256 of an SSP source: the .ssp file, or the SSD of a package folder."""
+    from .model import file_sha256
+
+    source = Path(source)
+    return file_sha256(source / SSD_NAME if source.is_dir() else source)
+
+
+def load_ssp(path, workdir):
+    """Read an SSP package into a :class:`~agv_cosim.manifest.Manifest`.
+
+    Parameters
+    ----------
+    path : path
+        An ``.ssp`` archive, or an unpacked package folder, or its ``.ssd`` file.
+    workdir : path
+        Folder to unpack an archive into (must outlive the run: the manifest points at
+        the FMUs in it).
+
+    Returns
+    -------
+    Manifest
+        Named by ``path`` (messages and run.json name the package) with the package's
+        SHA-256; ready for :func:`agv_cosim.runner.prepare`.
+
+    Raises
+    ------
+    SspError
+        Unsafe archive entries, a malformed SSD, or an unsupported SSP feature.
+    ManifestError
+        What the manifest schema refuses (named by the package).
+    """
+    path, workdir = Path(path), Path(workdir)
+    if not path.exists():
+        raise SspError(path, "file", "not found")
+    unpacked = None
+    if path.is_dir():
+        ssd = path / SSD_NAME
+    elif path.suffix.lower() == ".ssd":
+        ssd = path
+    else:
+        unpacked = workdir / "package"
+        unpacked.mkdir(parents=True, exist_ok=True)
+        safe_extract(path, unpacked)
+        ssd = unpacked / SSD_NAME
+    data = read_ssd(path, ssd)
+    manifest = manifest_from_data(data, path, _source_sha256(path), base_dir=ssd.parent)
+    manifest.unpacked = unpacked.resolve() if unpacked is not None else None
+    return manifest
+
+
+@contextlib.contextmanager
+def opened(path):
+    """Context: the manifest to run for ``path``.
+
+    A manifest path (or None) is yielded unchanged; an SSP package is unpacked into a
+    temporary folder that is removed when the context ends, and its
+    :class:`~agv_cosim.manifest.Manifest` is yielded. An error about the package names
+    the entries in it as ``<package>!/<entry>``, never our temporary files.
+    """
+    if not is_ssp(path):
+        yield path
+        return
+    work = scratch_dir("ssp")
+    try:
+        yield load_ssp(path, work)
+    except ManifestError as error:
+        if error.manifest != str(path):
+            raise
+        package = str((Path(work) / "package").resolve()) + "/"
+        problem = error.problem.replace(package, f"{path}!/")
+        raise SspError(path, error.key, problem) from None
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
