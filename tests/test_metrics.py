@@ -327,9 +327,8 @@ def test_metrics_of_a_vehicle_fmu_run(tmp_path):
     t = np.asarray(result["time"])
     signals = {"vehicle.y": np.asarray(result["y"]), "vehicle.x": np.asarray(result["x"])}
     spec = {"lateral_error": "vehicle.y"}
-    if _has_paths():
-        spec["reference"] = {"path": "line:x0=0,y0=0,heading=0", "x": "vehicle.x",
-                             "y": "vehicle.y"}
+    spec["reference"] = {"path": "line:x0=0,y0=0,heading=0", "x": "vehicle.x",
+                         "y": "vehicle.y"}
     m = compute_metrics(t, signals, spec)
     slope = math.sin(heading)
     # exact arc integration (1e-12) and a trapezoid of a quadratic: relative h^2/T^2 ~ 1e-5
@@ -339,11 +338,9 @@ def test_metrics_of_a_vehicle_fmu_run(tmp_path):
     assert m["lateral_error_mean"] == pytest.approx(stop * slope / 2, rel=1e-9)
     assert m["lateral_error_rms"] == pytest.approx(stop * slope / math.sqrt(3), rel=1e-5)
     assert m["lateral_error_settling_time"] is None   # ends 0.4 m off a 0.02 m band
-    if _has_paths():
-        assert m["path_error_rms"] == pytest.approx(m["lateral_error_rms"], abs=1e-9)
+    assert m["path_error_rms"] == pytest.approx(m["lateral_error_rms"], abs=1e-9)
 
 
-@pytest.mark.skipif(not _has_paths(), reason="agv_core not importable")
 def test_project_trajectory_follows_a_circle_over_more_than_one_lap():
     # a point 1 m inside a ccw circle of radius 5 (so 1 m left of it), one and a half
     # laps: closed form offset 1 m and arc length 5 * angle, the arc continuing past one
