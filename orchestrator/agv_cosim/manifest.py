@@ -28,7 +28,8 @@ from .results import check_name
 ALGORITHMS = ("gauss-seidel", "jacobi")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _TOP_KEYS = {"name", "description", "simulation", "components", "connections", "variants",
-             "sweep", "record", "metrics", "plots", "events"}
+             "sweep", "record", "metrics", "plots", "events",
+             "montecarlo"}  # issue 16: parsed by agv_cosim.montecarlo
 
 
 #: Most macro steps of one run: 2**53, where k step stops being exact in a double.
@@ -101,6 +102,7 @@ class Manifest:
     metrics: dict
     plots: dict
     events: dict = field(default_factory=dict)  # name -> {"at": s, "set": {"c.v": value}}
+    montecarlo: object = None  # issue 16: a montecarlo.MonteCarlo, or None
 
     def error(self, key, problem):
         return ManifestError(self.path, key, problem)
@@ -361,13 +363,15 @@ def load_manifest(path):
     except ValueError as error:
         raise ManifestError(path, "name", f"{error} (it names the default output folder "
                             "results/<name>)") from None
+    from . import montecarlo  # issue 16: [montecarlo] is parsed and checked there
+    sampling = montecarlo.parse(path, data.get("montecarlo"), components, sweep)
     return Manifest(path=path, sha256=hashlib.sha256(raw).hexdigest(), name=name,
                     description=str(data.get("description", "")), start=start, stop=stop,
                     step=step, algorithm=algorithm, components=components,
                     connections=connections, variants=variants, sweep=sweep,
                     record=variables, record_interval=interval,
                     metrics=_table(path, data, "metrics"), plots=_table(path, data, "plots"),
-                    events=events)
+                    events=events, montecarlo=sampling)
 
 
 def parse_set(manifest, text):
@@ -468,6 +472,9 @@ def plan_runs(manifest, variants=None, sets=()):
             runs.append(RunSpec(label=run_label(parts), variant=variant,
                                 point=point, components=comps, overrides=overrides,
                                 events=events))
+    if manifest.montecarlo is not None:  # issue 16: each run x the Monte Carlo samples
+        from . import montecarlo
+        runs = montecarlo.expand_runs(manifest, runs)
     labels = [r.label for r in runs]
     if len(set(labels)) != len(labels):
         raise ManifestError(manifest.path, "sweep", "two sweep points give the same run "
@@ -477,8 +484,9 @@ def plan_runs(manifest, variants=None, sets=()):
 
 def _parameter_key(manifest, run, cname, pname):
     full = f"{cname}.{pname}"
-    if full in run.point:
-        return f"sweep.{full}"
+    if full in run.point:  # issue 16: a sampled value is named by its [montecarlo] key
+        sampled = manifest.montecarlo is not None and full in manifest.montecarlo.names
+        return f"montecarlo.parameters.{full}" if sampled else f"sweep.{full}"
     if full in run.overrides:
         return "--set"
     if run.variant and pname in manifest.variants[run.variant]["components"].get(

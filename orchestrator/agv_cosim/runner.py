@@ -510,6 +510,15 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet=False, overwrite=F
             row.update(result["metrics"])
             rows.append(row)
         write_summary(folder.path / "summary.csv", rows)
+        if getattr(manifest, "montecarlo", None) is not None:
+            from . import montecarlo
+
+            figure_error = montecarlo.write_outputs(manifest.montecarlo, jobs, results,
+                                                    folder.path, manifest.name)
+            if figure_error:
+                (folder.path / "montecarlo_error.txt").write_text(figure_error + "\n")
+                print(f"agv-cosim: warning: {manifest.path}: montecarlo figure: "
+                      f"{figure_error}", file=sys.stderr)
         plot_error = _plots(manifest, jobs, results, folder.path)
         if plot_error:
             (folder.path / "plots_error.txt").write_text(plot_error + "\n")
