@@ -419,7 +419,7 @@ def figure(mc, jobs, results, folder, title=None, dpi=110):
                  math.isfinite(v)] for members in groups.values()]
         shown = [(label, d) for label, d in zip(labels, data) if d]
         if shown:
-            ax.boxplot([d for _, d in shown], whis=(5, 95), vert=False)
+            ax.boxplot([d for _, d in shown], whis=(5, 95), orientation="horizontal")
             ax.set_yticks(range(1, len(shown) + 1), [label for label, _ in shown])
         ax.set_xlabel(metric)
         ax.grid(True, axis="x", alpha=0.3)
