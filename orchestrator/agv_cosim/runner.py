@@ -461,7 +461,8 @@ def default_out_dir(manifest):
     return Path("results") / manifest.name
 
 
-def execute(manifest, jobs, out_dir=None, workers=None, quiet=False, overwrite=False):
+def execute(manifest, jobs, out_dir=None, workers=None, quiet=False, overwrite=False,
+            dask=None):
     """Run ``jobs`` and write the output folder (see the module docstring).
 
     Parameters
@@ -477,6 +478,10 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet=False, overwrite=F
     overwrite : bool
         Replace ``out_dir`` even when it is not a result folder of ours (see
         :class:`~agv_cosim.results.AtomicDir`; without it such a folder is refused).
+    dask : str, optional
+        Address of a Dask scheduler (``tcp://HOST:PORT``): run the jobs on that cluster
+        (see :mod:`agv_cosim.distributed`) instead of local processes; ``workers`` is
+        then unused. Raises :class:`~agv_cosim.distributed.ClusterError`.
 
     Returns
     -------
@@ -500,7 +505,12 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet=False, overwrite=F
             finished += 1
             bar.set_postfix(runs=f"{finished}/{len(jobs)}")
 
-        results = _run_isolated(jobs, folder.path, workers, bar.update, run_done)
+        if dask:
+            from .distributed import run_on_dask
+
+            results = run_on_dask(dask, jobs, folder.path, bar.update, run_done)
+        else:
+            results = _run_isolated(jobs, folder.path, workers, bar.update, run_done)
         bar.close()
         rows = []
         for result in results:
