@@ -2,6 +2,8 @@
 processes with the venv's ``dask`` command, the results compared file by file with a
 local run, one run with an FMU that aborts its process."""
 
+import ctypes
+import ctypes.util
 import json
 import os
 import signal
@@ -16,6 +18,13 @@ from agv_cosim.cli import main
 from agv_cosim.distributed import ClusterError, cached_fmu, connect
 
 DASK = Path(sys.executable).with_name("dask")
+_LIBC = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+
+
+def _die_with_parent():
+    """preexec_fn: the kernel kills the process (SIGKILL) when this test process ends
+    (prctl PR_SET_PDEATHSIG; libc is loaded beforehand, nothing here may fork)."""
+    _LIBC.prctl(1, int(signal.SIGKILL), 0, 0, 0)
 
 
 def _stop(process):
@@ -49,9 +58,13 @@ def cluster(tmp_path_factory):
     log = open(folder / "cluster.log", "w")
 
     def start(*args):
+        # a session of its own (torn down as a group); killed by the kernel if this
+        # test process dies (_die_with_parent), and the workers end 60 s after losing
+        # the scheduler (--death-timeout)
         processes.append(subprocess.Popen([str(DASK), *args], env=env, stdout=log,
                                           stderr=subprocess.STDOUT, cwd=folder,
-                                          start_new_session=True))
+                                          start_new_session=True,
+                                          preexec_fn=_die_with_parent))
 
     try:
         start("scheduler", "--scheduler-file", str(scheduler_file), "--host", "127.0.0.1",
@@ -63,7 +76,8 @@ def cluster(tmp_path_factory):
             time.sleep(0.2)
         for _ in range(2):
             start("worker", "--scheduler-file", str(scheduler_file), "--nthreads", "1",
-                  "--no-dashboard", "--local-directory", str(folder))
+                  "--no-dashboard", "--local-directory", str(folder),
+                  "--death-timeout", "60")
         with Client(scheduler_file=str(scheduler_file), timeout=30) as client:
             client.wait_for_workers(2, timeout=90)
             address = client.scheduler.address
