@@ -61,8 +61,14 @@ def _cmd_run(args):
         return _error("--jobs: must be >= 1")
     manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set)
     _warn(warnings)
-    target, results = execute(manifest, jobs, args.out, args.jobs, args.quiet,
-                              overwrite=args.overwrite)
+    from .distributed import ClusterError  # issue 16: --dask
+
+    try:
+        target, results = execute(manifest, jobs, args.out, args.jobs, args.quiet,
+                                  overwrite=args.overwrite, dask=args.dask)
+    except ClusterError as error:
+        print(f"agv-cosim: error: {error}", file=sys.stderr)
+        return 1
     bad = [r for r in results if r["status"] != "complete"]
     for result in bad:
         print(f"agv-cosim: run {result['label']} {result['status']}: {result['error']}",
@@ -144,6 +150,9 @@ def make_parser():
                           "(without it such a folder is refused)")
     run.add_argument("--jobs", type=int, metavar="N",
                      help="runs at once, each in a process of its own (default: one per core)")
+    run.add_argument("--dask", metavar="ADDRESS",  # issue 16: agv_cosim.distributed
+                     help="run on the Dask cluster whose scheduler is at ADDRESS "
+                          "(tcp://HOST:PORT; see docs/dask.md); default: local processes")
     run.set_defaults(func=_cmd_run)
 
     check = sub.add_parser("validate", help="check a manifest against its FMUs, run nothing",

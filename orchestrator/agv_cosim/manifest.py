@@ -23,7 +23,8 @@ from .results import check_name
 ALGORITHMS = ("gauss-seidel", "jacobi")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _TOP_KEYS = {"name", "description", "simulation", "components", "connections", "variants",
-             "sweep", "record", "metrics", "plots", "events"}
+             "sweep", "record", "metrics", "plots", "events",
+             "montecarlo"}  # [montecarlo]: parsed by agv_cosim.montecarlo
 
 
 #: Most macro steps of one run: 2**53, where k step stops being exact in a double.
@@ -99,6 +100,7 @@ class Manifest:
     #: the folder an .ssp archive was unpacked into (run.json names its FMUs
     #: ``<package>!/<entry>``); None for a manifest file
     unpacked: Path | None = None
+    montecarlo: object = None  # a montecarlo.MonteCarlo ([montecarlo] table), or None
 
     def error(self, key, problem):
         return ManifestError(self.path, key, problem)
@@ -359,16 +361,13 @@ def manifest_from_data(data, path, sha256, base_dir=None):
     except ValueError as error:
         raise ManifestError(path, "name", f"{error} (it names the default output folder "
                             "results/<name>)") from None
+    from . import montecarlo  # [montecarlo] is parsed and checked there
+    sampling = montecarlo.parse(path, data.get("montecarlo"), components, sweep)
     return Manifest(path=path, sha256=sha256, name=name,
                     description=str(data.get("description", "")), start=start, stop=stop,
                     step=step, algorithm=algorithm, components=components,
                     connections=connections, variants=variants, sweep=sweep,
                     record=variables, record_interval=interval,
                     metrics=_table(path, data, "metrics"), plots=_table(path, data, "plots"),
-                    events=events)
+                    events=events, montecarlo=sampling)
 
-
-# Compatibility for code written against the single-module manifest.py (other branches
-# of this round import these names from here); new code imports from plan / system.
-from .plan import MAX_LABEL, RunSpec, parse_set, plan_runs, run_label  # noqa: E402,F401
-from .system import Checked, feedthrough_order, validate  # noqa: E402,F401

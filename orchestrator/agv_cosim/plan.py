@@ -137,6 +137,9 @@ def plan_runs(manifest, variants=None, sets=()):
             runs.append(RunSpec(label=run_label(parts), variant=variant,
                                 point=point, components=comps, overrides=overrides,
                                 events=events))
+    if manifest.montecarlo is not None:  # each run x the Monte Carlo samples
+        from . import montecarlo
+        runs = montecarlo.expand_runs(manifest, runs)
     labels = [r.label for r in runs]
     if len(set(labels)) != len(labels):
         raise ManifestError(manifest.path, "sweep", "two sweep points give the same run "

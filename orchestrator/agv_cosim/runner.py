@@ -41,6 +41,16 @@ from .master import Plan, SimulationError, describe_track, record_types, simulat
 from .results import AtomicDir, CsvSink, count_rows, write_json, write_summary
 
 
+#: Modules the fork server imports once (issue 16: cheap extra runs), so that each run's
+#: child starts with them instead of importing them again: this module (and with it
+#: fmpy's wrapper, numpy, matplotlib) and the third-party modules the component cores
+#: import at instantiation (scipy.signal alone took ~1 s a run on a 2-core machine).
+#: Third-party only: the cores (agv_core) must still come from each FMU's own resources,
+#: as the FMU was built. A module missing here is skipped by the fork server.
+FORKSERVER_PRELOAD = (__name__, "fmpy.fmi2", "numpy", "scipy.signal", "scipy.linalg",
+                      "scipy.optimize", "scipy.special", "scipy.integrate")
+
+
 @dataclass
 class Job:
     """One run, self-contained and picklable (sent to a worker process)."""
@@ -282,7 +292,7 @@ def _run_isolated(jobs, root, workers, on_progress, on_done):
     cannot block the others (a shared queue's lock can stay held by a dead process).
     """
     context = get_context("forkserver")
-    context.set_forkserver_preload([__name__])
+    context.set_forkserver_preload(list(FORKSERVER_PRELOAD))
     results = [None] * len(jobs)
     last_message = [None] * len(jobs)
     waiting = list(range(len(jobs)))
@@ -406,7 +416,7 @@ def check_initialisation(manifest, jobs):
     if not checks:
         return
     context = get_context("forkserver")
-    context.set_forkserver_preload([__name__])
+    context.set_forkserver_preload(list(FORKSERVER_PRELOAD))
     reader, writer = context.Pipe(duplex=False)
     scratch = scratch_dir("check")
     process = context.Process(target=_check_child, name="agv-cosim check",
@@ -451,7 +461,8 @@ def default_out_dir(manifest):
     return Path("results") / manifest.name
 
 
-def execute(manifest, jobs, out_dir=None, workers=None, quiet=False, overwrite=False):
+def execute(manifest, jobs, out_dir=None, workers=None, quiet=False, overwrite=False,
+            dask=None):
     """Run ``jobs`` and write the output folder (see the module docstring).
 
     Parameters
@@ -467,6 +478,10 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet=False, overwrite=F
     overwrite : bool
         Replace ``out_dir`` even when it is not a result folder of ours (see
         :class:`~agv_cosim.results.AtomicDir`; without it such a folder is refused).
+    dask : str, optional
+        Address of a Dask scheduler (``tcp://HOST:PORT``): run the jobs on that cluster
+        (see :mod:`agv_cosim.distributed`) instead of local processes; ``workers`` is
+        then unused. Raises :class:`~agv_cosim.distributed.ClusterError`.
 
     Returns
     -------
@@ -490,7 +505,12 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet=False, overwrite=F
             finished += 1
             bar.set_postfix(runs=f"{finished}/{len(jobs)}")
 
-        results = _run_isolated(jobs, folder.path, workers, bar.update, run_done)
+        if dask:
+            from .distributed import run_on_dask
+
+            results = run_on_dask(dask, jobs, folder.path, bar.update, run_done)
+        else:
+            results = _run_isolated(jobs, folder.path, workers, bar.update, run_done)
         bar.close()
         rows = []
         for result in results:
@@ -500,6 +520,15 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet=False, overwrite=F
             row.update(result["metrics"])
             rows.append(row)
         write_summary(folder.path / "summary.csv", rows)
+        if getattr(manifest, "montecarlo", None) is not None:
+            from . import montecarlo
+
+            figure_error = montecarlo.write_outputs(manifest.montecarlo, jobs, results,
+                                                    folder.path, manifest.name)
+            if figure_error:
+                (folder.path / "montecarlo_error.txt").write_text(figure_error + "\n")
+                print(f"agv-cosim: warning: {manifest.path}: montecarlo figure: "
+                      f"{figure_error}", file=sys.stderr)
         plot_error = _plots(manifest, jobs, results, folder.path)
         if plot_error:
             (folder.path / "plots_error.txt").write_text(plot_error + "\n")

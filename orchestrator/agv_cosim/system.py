@@ -20,8 +20,9 @@ from .table import TableError, read_table
 
 def _parameter_key(manifest, run, cname, pname):
     full = f"{cname}.{pname}"
-    if full in run.point:
-        return f"sweep.{full}"
+    if full in run.point:  # a sampled value is named by its [montecarlo] key
+        sampled = manifest.montecarlo is not None and full in manifest.montecarlo.names
+        return f"montecarlo.parameters.{full}" if sampled else f"sweep.{full}"
     if full in run.overrides:
         return "--set"
     if run.variant and pname in manifest.variants[run.variant]["components"].get(

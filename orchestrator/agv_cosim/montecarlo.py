@@ -1,0 +1,457 @@
+"""Monte Carlo runs of a manifest: the ``[montecarlo]`` table, sampling and statistics.
+
+A manifest with a ``[montecarlo]`` table runs ``samples`` runs per variant (and per sweep
+point), each with parameter values drawn from the distributions given, and writes, beside
+the usual per-run folders and ``summary.csv`` (which gets one column per sampled
+parameter and the sample index), ``montecarlo.json`` (per group, per metric: mean, std,
+p5 / p50 / p95, failures, n) and ``montecarlo.png`` (box plots of the key metrics per
+group, and the p5-p95 band and median of one signal over time per group).
+
+The table
+---------
+::
+
+    [montecarlo]
+    samples = 32                 # runs per variant (x sweep point), >= 1
+    seed = 2026                  # master seed, an integer >= 0
+    design = "random"            # "random" (default), "sobol" or "lhs" (scipy.stats.qmc)
+    seeds = ["ts.seed", "gyro.seed"]   # integer parameters given a seed of their own per run
+    metrics = ["lateral_error_settled_max"]  # box plots (default: the first 4 metrics)
+    band = "truth.lateral_error"  # signal drawn as p5-p95 band + median (optional)
+
+    [montecarlo.parameters]
+    "ts.jitter"  = { distribution = "uniform", low = 0.0, high = 0.3 }
+    "ts.noise"   = { distribution = "normal", mean = 0.003, std = 0.001 }
+    "ts.latency" = { distribution = "truncnormal", mean = 0.1, std = 0.05, low = 0.0, high = 0.3 }
+    "ts.mean_interval" = { distribution = "choice", values = [0.3, 0.65], weights = [1, 3] }
+
+How the numbers are drawn
+-------------------------
+Every design first draws ``samples`` points of the unit cube [0, 1)^d (d = the number of
+sampled parameters, in manifest order): ``random`` with ``numpy.random.default_rng``,
+``sobol`` with a scrambled ``scipy.stats.qmc.Sobol`` (balanced when ``samples`` is a power
+of 2), ``lhs`` with ``scipy.stats.qmc.LatinHypercube``; then each coordinate goes through
+its distribution's inverse CDF (ppf): ``normal`` (``scipy.stats.norm``), ``uniform``
+(low + u (high - low)), ``truncnormal`` (``scipy.stats.truncnorm``, mean / std of the
+untruncated normal, bounds low <= x <= high), ``choice`` (the value whose cumulative
+weight first exceeds u; equal weights by default).
+
+Seeds. From ``SeedSequence(seed)`` two children are spawned: the first draws the design,
+the second spawns one child per sample index i; sample i's run seeds are
+``child_i.generate_state(len(seeds)) >> 1`` (31-bit integers, so they fit an FMI Integer).
+Both depend only on the master seed and the sample index (and for ``lhs`` on
+``samples``), so a manifest gives the same numbers locally, on Dask, in any order.
+
+Common random numbers. Sample i has the same parameter values and the same seeds in every
+variant (and sweep point): the variants are compared on identical disturbances, so the
+differences between them are not sampling noise.
+
+Statistics (``montecarlo.json``): over the runs of a group that are ``complete`` and have
+a finite value of the metric; every other run of the group counts as a failure of that
+metric (``n + failures`` = runs of the group). ``std`` is the sample standard deviation
+(ddof = 1; null for n < 2); the percentiles are ``numpy.percentile``'s linear ones.
+"""
+
+import csv
+import math
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from .manifest import ManifestError
+from .plan import run_label
+
+DESIGNS = ("random", "sobol", "lhs")
+DISTRIBUTIONS = {
+    "normal": ("mean", "std"),
+    "uniform": ("low", "high"),
+    "truncnormal": ("mean", "std", "low", "high"),
+    "choice": ("values",),
+}
+_KEYS = {"samples", "seed", "design", "seeds", "parameters", "metrics", "band"}
+#: Column of summary.csv (and key of a run's sweep point) holding the sample index.
+SAMPLE = "montecarlo.sample"
+
+
+class MonteCarlo:
+    """A checked ``[montecarlo]`` table (see the module docstring)."""
+
+    def __init__(self, samples, seed, design, parameters, seeds, metrics, band):
+        self.samples, self.seed, self.design = samples, seed, design
+        self.parameters = parameters  # "comp.param" -> {"distribution": ..., ...}
+        self.seeds, self.metrics, self.band = seeds, metrics, band
+
+    @property
+    def names(self):
+        return list(self.parameters) + list(self.seeds)
+
+    def describe(self):
+        return {"samples": self.samples, "seed": self.seed, "design": self.design,
+                "parameters": self.parameters, "seeds": self.seeds}
+
+
+def _error(path, key, problem):
+    return ManifestError(path, f"montecarlo.{key}" if key else "montecarlo", problem)
+
+
+def _finite(path, key, value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+            not math.isfinite(value):
+        raise _error(path, key, f"{value!r} is not a finite number")
+    return float(value)
+
+
+def _dotted(path, key, name):
+    parts = name.split(".") if isinstance(name, str) else []
+    if len(parts) != 2 or not all(parts):
+        raise _error(path, key, f"{name!r} is not of the form 'component.parameter'")
+    return parts
+
+
+def _distribution(path, key, table):
+    if not isinstance(table, dict):
+        raise _error(path, key, "must be a table with 'distribution' and its parameters")
+    kind = table.get("distribution")
+    if kind not in DISTRIBUTIONS:
+        raise _error(path, f"{key}.distribution", f"{kind!r} is not one of "
+                     + ", ".join(DISTRIBUTIONS))
+    allowed = set(DISTRIBUTIONS[kind]) | {"distribution"} | (
+        {"weights"} if kind == "choice" else set())
+    extra = set(table) - allowed
+    if extra:
+        raise _error(path, f"{key}.{sorted(extra)[0]}", f"unknown key for a {kind} "
+                     f"distribution (allowed: {', '.join(sorted(allowed))})")
+    spec = {"distribution": kind}
+    if kind == "choice":
+        values = table.get("values")
+        if not isinstance(values, list) or not values:
+            raise _error(path, f"{key}.values", "must be a non-empty array of values")
+        spec["values"] = list(values)
+        weights = table.get("weights")
+        if weights is not None:
+            if not isinstance(weights, list) or len(weights) != len(values):
+                raise _error(path, f"{key}.weights", "must be an array of one number per "
+                             "value")
+            weights = [_finite(path, f"{key}.weights", w) for w in weights]
+            if min(weights) < 0 or sum(weights) <= 0:
+                raise _error(path, f"{key}.weights", "must be >= 0 with a positive sum")
+            spec["weights"] = weights
+        return spec
+    for name in DISTRIBUTIONS[kind]:
+        if name not in table:
+            raise _error(path, f"{key}.{name}", f"missing (a {kind} distribution needs "
+                         f"{', '.join(DISTRIBUTIONS[kind])})")
+        spec[name] = _finite(path, f"{key}.{name}", table[name])
+    if "std" in spec and spec["std"] <= 0:
+        raise _error(path, f"{key}.std", f"{spec['std']!r} must be > 0")
+    if "low" in spec and not spec["low"] < spec["high"]:
+        raise _error(path, f"{key}.high", f"{spec['high']!r} must be > low "
+                     f"({spec['low']!r})")
+    return spec
+
+
+def parse(path, table, components=(), swept=()):
+    """Check a raw ``[montecarlo]`` TOML table; return a :class:`MonteCarlo` or None.
+
+    ``components``: the manifest's component names; ``swept``: its swept names (a
+    parameter is sampled or swept, not both).
+
+    Raises
+    ------
+    ManifestError
+        Naming the key (``montecarlo.<key>``) and the problem.
+    """
+    if table is None:
+        return None
+    if not isinstance(table, dict):
+        raise _error(path, "", f"must be a table, not {type(table).__name__}")
+    extra = set(table) - _KEYS
+    if extra:
+        raise _error(path, sorted(extra)[0], "unknown key (allowed: "
+                     + ", ".join(sorted(_KEYS)) + ")")
+    samples = table.get("samples")
+    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
+        raise _error(path, "samples", f"{samples!r} must be an integer >= 1")
+    seed = table.get("seed")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise _error(path, "seed", f"{seed!r} must be an integer >= 0")
+    design = table.get("design", "random")
+    if design not in DESIGNS:
+        raise _error(path, "design", f"{design!r} is not one of {', '.join(DESIGNS)}")
+    raw = table.get("parameters", {})
+    if not isinstance(raw, dict):
+        raise _error(path, "parameters", "must be a table of \"component.parameter\" = "
+                     "{ distribution = ... }")
+    parameters = {}
+    for name, spec in raw.items():
+        key = f"parameters.{name}"
+        cname, _ = _dotted(path, key, name)
+        if components and cname not in components:
+            raise _error(path, key, f"unknown component '{cname}'")
+        if name in swept:
+            raise _error(path, key, f"'{name}' is also swept in [sweep]")
+        parameters[name] = _distribution(path, key, spec)
+    seeds = table.get("seeds", [])
+    if not isinstance(seeds, list):
+        raise _error(path, "seeds", "must be an array of \"component.parameter\" names")
+    for name in seeds:
+        cname, _ = _dotted(path, "seeds", name)
+        if components and cname not in components:
+            raise _error(path, "seeds", f"unknown component '{cname}' in '{name}'")
+        if name in parameters or name in swept or seeds.count(name) > 1:
+            raise _error(path, "seeds", f"'{name}' is listed twice (seeds, parameters or "
+                         "sweep)")
+    if not parameters and not seeds:
+        raise _error(path, "parameters", "nothing to sample: give parameters or seeds")
+    metrics = table.get("metrics")
+    if metrics is not None and (not isinstance(metrics, list) or not metrics or
+                                not all(isinstance(m, str) for m in metrics)):
+        raise _error(path, "metrics", "must be a non-empty array of metric names")
+    band = table.get("band")
+    if band is not None:
+        _dotted(path, "band", band)
+    return MonteCarlo(samples, seed, design, parameters, list(seeds), metrics, band)
+
+
+def unit_samples(mc):
+    """The design's points of [0, 1)^d, shape (samples, d) (d = sampled parameters)."""
+    design_seq, _ = np.random.SeedSequence(mc.seed).spawn(2)
+    d = len(mc.parameters)
+    if d == 0:
+        return np.zeros((mc.samples, 0))
+    rng = np.random.default_rng(design_seq)
+    if mc.design == "random":
+        return rng.random((mc.samples, d))
+    from scipy.stats import qmc
+
+    engine = (qmc.Sobol(d, scramble=True, seed=rng) if mc.design == "sobol"
+              else qmc.LatinHypercube(d, seed=rng))
+    with warnings.catch_warnings():  # Sobol: n not a power of 2 loses balance (documented)
+        warnings.simplefilter("ignore", UserWarning)
+        return engine.random(mc.samples)
+
+
+def ppf(spec, u):
+    """Map uniforms ``u`` (array in [0, 1)) through a distribution's inverse CDF.
+
+    Returns a list of plain Python values (floats, or the choice's values).
+    """
+    from scipy import stats
+
+    u = np.asarray(u, dtype=float)
+    kind = spec["distribution"]
+    if kind == "choice":
+        weights = np.asarray(spec.get("weights") or [1.0] * len(spec["values"]))
+        edges = np.cumsum(weights) / weights.sum()
+        index = np.minimum(np.searchsorted(edges, u, side="right"), len(edges) - 1)
+        return [spec["values"][i] for i in index]
+    # u = 0 exactly (possible, 2**-53 per draw) would give -inf for a normal
+    u = np.clip(u, np.finfo(float).tiny, 1.0 - np.finfo(float).eps / 2)
+    if kind == "uniform":
+        x = spec["low"] + u * (spec["high"] - spec["low"])
+    elif kind == "normal":
+        x = stats.norm.ppf(u, loc=spec["mean"], scale=spec["std"])
+    else:
+        a = (spec["low"] - spec["mean"]) / spec["std"]
+        b = (spec["high"] - spec["mean"]) / spec["std"]
+        x = stats.truncnorm.ppf(u, a, b, loc=spec["mean"], scale=spec["std"])
+        x = np.clip(x, spec["low"], spec["high"])
+    return [float(v) for v in x]
+
+
+def run_seeds(mc):
+    """Per sample index, the derived seed of each ``seeds`` parameter (list of dicts)."""
+    _, runs_seq = np.random.SeedSequence(mc.seed).spawn(2)
+    return [{name: int(value >> 1) for name, value in
+             zip(mc.seeds, child.generate_state(len(mc.seeds), dtype=np.uint32))}
+            for child in runs_seq.spawn(mc.samples)] if mc.seeds else \
+        [{} for _ in range(mc.samples)]
+
+
+def draw(mc):
+    """The sampled values: a list (one per sample index) of {"comp.param": value}."""
+    u = unit_samples(mc)
+    columns = {name: ppf(spec, u[:, j]) for j, (name, spec) in
+               enumerate(mc.parameters.items())}
+    seeds = run_seeds(mc)
+    return [{**{name: columns[name][i] for name in mc.parameters}, **seeds[i]}
+            for i in range(mc.samples)]
+
+
+def expand_runs(manifest, runs):
+    """Each run (variant x sweep point) repeated for every sample, values applied.
+
+    The sample's values go into the run's parameters (after ``--set``; a ``--set`` on a
+    sampled parameter is an error) and into its ``point`` (so summary.csv lists them),
+    with the sample index under :data:`SAMPLE`.
+    """
+    mc = manifest.montecarlo
+    values = draw(mc)
+    width = max(4, len(str(mc.samples - 1)))
+    expanded = []
+    for run in runs:
+        for name in run.overrides:
+            if name in mc.names:
+                raise ManifestError(manifest.path, "--set", f"'{name}' is also sampled in "
+                                    "[montecarlo]")
+        base = [run.variant or "base"] + [f"{k}={v!r}" for k, v in run.point.items()]
+        for index, sample in enumerate(values):
+            comps = {cname: _copy_component(comp) for cname, comp in run.components.items()}
+            for name, value in sample.items():
+                cname, pname = name.split(".")
+                comps[cname].parameters[pname] = value
+            point = dict(run.point)
+            point[SAMPLE] = index
+            point.update(sample)
+            expanded.append(type(run)(label=run_label(base + [f"mc{index:0{width}d}"]),
+                                      variant=run.variant, point=point, components=comps,
+                                      overrides=run.overrides, events=run.events))
+    return expanded
+
+
+def _copy_component(comp):
+    import copy
+
+    copy_ = copy.copy(comp)
+    copy_.parameters = dict(comp.parameters)
+    return copy_
+
+
+def group_name(variant, point):
+    """The name of a run's group: its variant and sweep point, without the sample (the
+    sweep values come before :data:`SAMPLE` in the point, the sampled ones after it)."""
+    keys = list(point)
+    sweep = keys[:keys.index(SAMPLE)] if SAMPLE in keys else keys
+    return run_label([variant or "base"] + [f"{k}={point[k]!r}" for k in sweep])
+
+
+def statistics(values, runs):
+    """mean, std (ddof 1), p5, p50, p95, n, failures of finite ``values`` of ``runs``."""
+    data = np.asarray([v for v in values if v is not None and math.isfinite(v)], float)
+    n = int(data.size)
+    out = {"n": n, "failures": runs - n, "mean": None, "std": None, "p5": None,
+           "p50": None, "p95": None, "min": None, "max": None}
+    if n:
+        p5, p50, p95 = np.percentile(data, [5, 50, 95])
+        out.update(mean=float(data.mean()), p5=float(p5), p50=float(p50),
+                   p95=float(p95), min=float(data.min()), max=float(data.max()))
+        if n > 1:
+            out["std"] = float(data.std(ddof=1))
+    return out
+
+
+def _groups(jobs, results):
+    groups = {}
+    for job, result in zip(jobs, results):
+        groups.setdefault(group_name(job.variant, job.point), []).append((job, result))
+    return groups
+
+
+def aggregate(mc, jobs, results):
+    """The content of ``montecarlo.json`` (see the module docstring)."""
+    out = {**mc.describe(), "groups": {}}
+    for name, members in _groups(jobs, results).items():
+        names = []
+        for _, result in members:
+            for metric in result["metrics"]:
+                if metric not in names:
+                    names.append(metric)
+        complete = [r for _, r in members if r["status"] == "complete"]
+        out["groups"][name] = {
+            "variant": members[0][0].variant, "runs": len(members),
+            "failed_runs": len(members) - len(complete),
+            "metrics": {m: statistics([_number(r["metrics"].get(m)) for r in complete],
+                                      len(members)) for m in names}}
+    return out
+
+
+def _number(value):
+    return float(value) if isinstance(value, (int, float)) and \
+        not isinstance(value, bool) else None
+
+
+def _band(folder, members, signal):
+    """Time and (p5, p50, p95) of ``signal`` over the group's complete runs."""
+    series, time = [], None
+    for job, result in members:
+        if result["status"] != "complete":
+            continue
+        path = Path(folder) / job.label / "timeseries.csv"
+        with open(path, encoding="utf-8", newline="") as stream:
+            reader = csv.reader(stream)
+            header = next(reader)
+            column = header.index(signal)
+            rows = [(float(row[0]), float(row[column])) for row in reader]
+        t = [r[0] for r in rows]
+        if time is None or len(t) < len(time):
+            time = t
+        series.append([r[1] for r in rows])
+    if not series:
+        return None
+    k = len(time)
+    data = np.asarray([s[:k] for s in series])
+    return np.asarray(time), np.percentile(data, [5, 50, 95], axis=0)
+
+
+def figure(mc, jobs, results, folder, title=None, dpi=110):
+    """``montecarlo.png``: box plots of the key metrics per group; the band of a signal."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    groups = _groups(jobs, results)
+    names = mc.metrics
+    if names is None:
+        names = []
+        for result in results:
+            for metric in result["metrics"]:
+                if metric not in names and len(names) < 4:
+                    names.append(metric)
+    panels = len(names) + (1 if mc.band else 0)
+    if not panels:
+        return None
+    fig = Figure(figsize=(8.0, 2.6 * panels), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(panels, 1, squeeze=False)[:, 0]
+    labels = list(groups)
+    for ax, metric in zip(axes, names):
+        data = [[v for v in (_number(r["metrics"].get(metric)) for _, r in members
+                             if r["status"] == "complete") if v is not None and
+                 math.isfinite(v)] for members in groups.values()]
+        shown = [(label, d) for label, d in zip(labels, data) if d]
+        if shown:
+            ax.boxplot([d for _, d in shown], whis=(5, 95), orientation="horizontal")
+            ax.set_yticks(range(1, len(shown) + 1), [label for label, _ in shown])
+        ax.set_xlabel(metric)
+        ax.grid(True, axis="x", alpha=0.3)
+    if mc.band:
+        ax = axes[-1]
+        colours = [f"C{i % 10}" for i in range(len(groups))]
+        for colour, (label, members) in zip(colours, groups.items()):
+            band = _band(folder, members, mc.band)
+            if band is None:
+                continue
+            t, (p5, p50, p95) = band
+            ax.fill_between(t, p5, p95, color=colour, alpha=0.25, linewidth=0)
+            ax.plot(t, p50, color=colour, label=f"{label}: median, p5-p95")
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel(mc.band)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize="small", frameon=False)
+    fig.suptitle((title + ": " if title else "") + f"{mc.samples} samples per group "
+                 "(box: p25-p75, whiskers p5-p95)", fontsize="medium")
+    path = Path(folder) / "montecarlo.png"
+    fig.savefig(path, dpi=dpi, format="png", metadata={"Software": None})
+    return path
+
+
+def write_outputs(mc, jobs, results, folder, title=None):
+    """Write ``montecarlo.json`` and ``montecarlo.png``; return a figure error or None."""
+    from .results import write_json
+
+    write_json(Path(folder) / "montecarlo.json", aggregate(mc, jobs, results))
+    try:
+        figure(mc, jobs, results, folder, title)
+    except Exception as failure:  # noqa: BLE001 - a figure must not lose the results
+        return f"{type(failure).__name__}: {failure}"
+    return None

@@ -1,0 +1,176 @@
+"""Runs on a real Dask cluster (issue 16): a scheduler and two workers started as
+processes with the venv's ``dask`` command, the results compared file by file with a
+local run, one run with an FMU that aborts its process."""
+
+import ctypes
+import ctypes.util
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from agv_cosim.cli import main
+from agv_cosim.distributed import ClusterError, cached_fmu, connect
+
+DASK = Path(sys.executable).with_name("dask")
+_LIBC = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+
+
+def _die_with_parent():
+    """preexec_fn: the kernel kills the process (SIGKILL) when this test process ends
+    (prctl PR_SET_PDEATHSIG; libc is loaded beforehand, nothing here may fork)."""
+    _LIBC.prctl(1, int(signal.SIGKILL), 0, 0, 0)
+
+
+def _stop(process):
+    """End a process and its session (a worker's nanny and its worker) for sure."""
+    if process.poll() is None:
+        try:
+            os.killpg(process.pid, signal.SIGTERM)
+        except ProcessLookupError:
+            pass
+        try:
+            process.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            pass
+    try:  # whatever is left of the session (SIGTERM ignored, or children)
+        os.killpg(process.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    process.wait()
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    """The address of a scheduler with two one-thread workers (each under a nanny)."""
+    from distributed import Client
+
+    folder = tmp_path_factory.mktemp("dask")
+    scheduler_file = folder / "scheduler.json"
+    # TMPDIR: the workers' FMU cache and run folders stay in this test's folder
+    env = dict(os.environ, DASK_DISTRIBUTED__WORKER__DAEMON="False", TMPDIR=str(folder))
+    processes = []
+    log = open(folder / "cluster.log", "w")
+
+    def start(*args):
+        # a session of its own (torn down as a group); killed by the kernel if this
+        # test process dies (_die_with_parent), and the workers end 60 s after losing
+        # the scheduler (--death-timeout)
+        processes.append(subprocess.Popen([str(DASK), *args], env=env, stdout=log,
+                                          stderr=subprocess.STDOUT, cwd=folder,
+                                          start_new_session=True,
+                                          preexec_fn=_die_with_parent))
+
+    try:
+        start("scheduler", "--scheduler-file", str(scheduler_file), "--host", "127.0.0.1",
+              "--port", "0", "--no-dashboard")
+        deadline = time.monotonic() + 60
+        while not scheduler_file.is_file():
+            assert time.monotonic() < deadline, "the scheduler did not start"
+            assert processes[0].poll() is None, "the scheduler ended"
+            time.sleep(0.2)
+        for _ in range(2):
+            start("worker", "--scheduler-file", str(scheduler_file), "--nthreads", "1",
+                  "--no-dashboard", "--local-directory", str(folder),
+                  "--death-timeout", "60")
+        with Client(scheduler_file=str(scheduler_file), timeout=30) as client:
+            client.wait_for_workers(2, timeout=90)
+            address = client.scheduler.address
+        yield address
+    finally:
+        for process in reversed(processes):
+            _stop(process)
+        log.close()
+
+
+MANIFEST = """
+name = "daskcmp"
+[simulation]
+stop = 0.5
+step = 0.01
+[components.src]
+fmu = "{src}"
+parameters = {{ offset = 1.0, slope = 2.0 }}
+[components.gain]
+fmu = "{gain}"
+[components.int]
+fmu = "{integ}"
+[components.crashdut]
+fmu = "{crash}"
+parameters = {{ crash_time = 10.0 }}
+[[connections]]
+from = "src.y"
+to = "gain.u"
+[[connections]]
+from = "gain.y"
+to = "int.u"
+[variants.one]
+[variants.one.components.gain]
+parameters = {{ k = 1.0 }}
+[variants.crashing]
+[variants.crashing.components.crashdut]
+parameters = {{ crash_time = 0.25 }}
+[sweep]
+"src.slope" = [1.0, -2.0]
+[metrics]
+lateral_error = "int.y"
+"""
+
+
+def _files(root):
+    out = {}
+    for path in sorted(Path(root).rglob("*")):
+        if path.is_file() and path.suffix in (".csv", ".json"):
+            data = path.read_bytes()
+            if path.name == "run.json":  # the machine's own: wall time
+                info = json.loads(data)
+                info.pop("wall_time_s")
+                data = json.dumps(info, sort_keys=True).encode()
+            out[path.relative_to(root).as_posix()] = data
+    return out
+
+
+def test_a_dask_run_gives_the_local_results_and_isolates_a_crash(cluster, fmus, tmp_path):
+    path = tmp_path / "daskcmp.toml"
+    path.write_text(MANIFEST.format(src=fmus["agv_test_source"],
+                                    gain=fmus["agv_test_gain"],
+                                    integ=fmus["agv_test_integrator"],
+                                    crash=fmus["agv_test_crash"]))
+    local, remote = tmp_path / "local", tmp_path / "remote"
+    assert main(["run", str(path), "--out", str(local), "--quiet"]) == 1
+    assert main(["run", str(path), "--out", str(remote), "--quiet", "--dask", cluster]) == 1
+    mine, theirs = _files(local), _files(remote)
+    assert len(mine) == 1 + 4 * 3  # summary.csv + (timeseries, metrics, run) x 4 runs
+    assert mine == theirs
+    crashed = json.loads((remote / "crashing__src.slope=1.0" / "run.json").read_text())
+    assert crashed["status"] == "failed"  # rows are flushed every 1000: none yet
+    assert "process died (signal 6)" in crashed["error"]
+    ok = json.loads((remote / "one__src.slope=1.0" / "metrics.json").read_text())
+    assert ok["lateral_error_max"] > 0.0  # metrics computed (on the client)
+
+
+def test_an_unreachable_scheduler_is_one_line_and_nonzero(chain, capsys):
+    with pytest.raises(ClusterError, match="cannot reach the scheduler at tcp://127.0.0.1:9"):
+        connect("tcp://127.0.0.1:9", timeout=1.0)
+    assert main(["run", str(chain()), "--quiet", "--dask", "127.0.0.1:8786"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["agv-cosim: error: --dask: '127.0.0.1:8786' is not a scheduler address "
+                   "(e.g. tcp://HOST:8786)"]
+
+
+def test_the_fmu_cache_checks_the_hash(tmp_path):
+    import hashlib
+
+    blob = b"not really an FMU"
+    sha = hashlib.sha256(blob).hexdigest()
+    with pytest.raises(ValueError, match="does not have the SHA-256"):
+        cached_fmu(sha, b"tampered", tmp_path)
+    path = cached_fmu(sha, blob, tmp_path)
+    assert path.read_bytes() == blob and path.name == f"{sha}.fmu"
+    assert cached_fmu(sha, blob, tmp_path) == path  # written once
+    assert [p.name for p in tmp_path.iterdir()] == [path.name]  # no partial file left
