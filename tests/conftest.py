@@ -5,10 +5,10 @@ once for all workers (a file lock in the session's base temp folder, which the w
 own temp folders sit in).
 
 Tiers: every test not marked ``slow`` is the fast tier (``make test-fast``, ``-m "not
-slow"``). A test is slow when it is decorated so, when its file is listed in ``TIERS``
-below (whole files: the seed reproductions, the interop cross-checks), when its id is in
-``SLOW``, or when it uses the ``component_fmus`` fixture (building every component FMU
-takes tens of seconds); ``seed`` and ``interop`` imply ``slow``.
+slow"``). A test is slow when it is marked so where it is written (``@pytest.mark.slow``, or
+a file's ``pytestmark``: the seed reproductions are ``seed``, the interop cross-checks
+``interop``), or when it uses the ``component_fmus`` fixture (building every component
+FMU takes tens of seconds); ``seed`` and ``interop`` imply ``slow``.
 """
 
 import json
@@ -21,44 +21,8 @@ from filelock import FileLock
 
 from agv_cosim.build import build_fmus, default_components_dir, slave_scripts
 
-#: test file -> markers of every test in it
-TIERS = {
-    "test_seed000.py": ("seed",),
-    "test_seed001.py": ("seed",),
-    "test_seed002.py": ("seed",),
-    "test_seed003.py": ("seed",),
-    "test_seed004.py": ("seed",),
-    "test_fmu_conformance.py": ("interop",),   # libcosim, fmpy validation
-    "test_fmu_hosts.py": ("interop",),         # a C host compiled here
-    "test_reference_fmus.py": ("interop",),    # Reference FMUs built with cmake
-}
-
-#: single slow tests in otherwise fast files (file relative to tests/ :: test name, without
-#: parameters). Each took 4-11 s in a serial run on a loaded 2-core machine.
-SLOW = {
-    "orchestrator/test_runner.py::test_sweep_serial_equals_parallel",
-    "orchestrator/test_signals.py::test_sigkilled_parent_children_stop_and_next_run_cleans",
-    "orchestrator/test_signals.py::test_signal_to_the_parent_ends_everything",
-    "orchestrator/test_signals.py::test_no_process_left_after_a_normal_exit",
-    "orchestrator/test_bounded_memory.py::test_parent_reads_runs_in_chunks_into_bounded_lines",
-    "test_actuator.py::test_fmus_declare_truthful_dependencies",
-    "test_actuator.py::test_fmu_a_delay_and_c_step_through_fmpy",
-    "test_build.py::test_failing_runs_do_not_corrupt_the_orchestrator",
-    "test_preview_lq.py::test_fmu_matches_the_core",
-    "test_preview_lq.py::test_literal_eq12_needs_a_lagging_actuator",
-    "test_metrics_streaming.py::test_streamed_equals_reference_at_every_chunk_boundary",
-}
-
-
 def pytest_collection_modifyitems(config, items):
-    tests_dir = Path(__file__).resolve().parent
     for item in items:
-        path = Path(str(item.path)).resolve()
-        for name in TIERS.get(path.name, ()):
-            item.add_marker(name)
-        rel = path.relative_to(tests_dir).as_posix() if path.is_relative_to(tests_dir) else ""
-        if f"{rel}::{item.originalname}" in SLOW:
-            item.add_marker("slow")
         if (item.get_closest_marker("seed") or item.get_closest_marker("interop")
                 or "component_fmus" in getattr(item, "fixturenames", ())):
             item.add_marker("slow")

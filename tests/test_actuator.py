@@ -240,6 +240,7 @@ def simulate(fmu, params, inputs, h, n, tmp_path):
     return {k: np.array(v) for k, v in outs.items()}
 
 
+@pytest.mark.slow  # seconds: builds or runs FMUs in processes
 def test_fmus_declare_truthful_dependencies(tmp_path):
     from fmpy import read_model_description
 
@@ -255,6 +256,7 @@ def test_fmus_declare_truthful_dependencies(tmp_path):
         assert ("tau" in names) == (stem == "agv_steering_a")
 
 
+@pytest.mark.slow  # seconds: builds or runs FMUs in processes
 def test_fmu_a_delay_and_c_step_through_fmpy(tmp_path):
     # the FMUs reproduce the core's closed forms (same tolerances as above)
     h = 0.03

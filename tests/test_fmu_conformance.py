@@ -21,6 +21,8 @@ from fmpy.validation import validate_fmu
 
 from agv_cosim.build import default_components_dir, slave_scripts
 
+pytestmark = pytest.mark.interop
+
 SCRIPTS = [p.stem for p in slave_scripts(default_components_dir())]
 
 

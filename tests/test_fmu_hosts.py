@@ -20,6 +20,8 @@ from fmpy import read_model_description, simulate_fmu
 
 from agv_cosim.build import default_components_dir, host_python, slave_scripts
 
+pytestmark = pytest.mark.interop
+
 SCRIPTS = [p.stem for p in slave_scripts(default_components_dir())]
 HOST_SOURCE = Path(__file__).parent / "c_host" / "fmi2_host.c"
 

@@ -62,6 +62,7 @@ def _events(t, e, band):
 
 
 @pytest.mark.parametrize("settle_after", [None, 3.0])
+@pytest.mark.slow  # seconds: builds or runs FMUs in processes
 def test_streamed_equals_reference_at_every_chunk_boundary(tmp_path, settle_after):
     t, signals = _signals()
     path = _write(tmp_path / "timeseries.csv", t, signals)

@@ -17,6 +17,8 @@ import pytest
 
 from agv_cosim.runner import run_manifest
 
+pytestmark = pytest.mark.seed
+
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
 
 

@@ -193,6 +193,7 @@ def test_tracks_the_seed_circles(radius, bound):
     assert after[-1, 2] == pytest.approx(math.atan(L / (radius - after[-1, 1])), abs=1e-4)
 
 
+@pytest.mark.slow  # seconds: builds or runs FMUs in processes
 def test_literal_eq12_needs_a_lagging_actuator():
     # eq 12 with the measured angle has dF/dalpha ~ -5.8: with a 0.1 s servo lag it tracks,
     # with a per-step ideal actuator it rings to the steering limit
@@ -238,6 +239,7 @@ def test_bad_parameters_are_named(name, kwargs):
 
 
 # ---------------------------------------------------------------------- FMU
+@pytest.mark.slow  # seconds: builds or runs FMUs in processes
 def test_fmu_matches_the_core(tmp_path):
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave

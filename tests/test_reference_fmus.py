@@ -28,6 +28,8 @@ import pytest
 from agv_cosim import cli
 from agv_cosim.build import build_one
 
+pytestmark = pytest.mark.interop
+
 ROOT = Path(__file__).resolve().parent.parent
 SOURCES = Path(os.environ.get("AGV_REFERENCE_FMUS",
                               ROOT.parent / "shared" / "third-party" / "Reference-FMUs"))

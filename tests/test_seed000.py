@@ -18,6 +18,8 @@ from agv_core.state_feedback.state_feedback import PAPER_GAINS, closed_loop, mod
 from agv_cosim.runner import run_manifest
 from manifests import localise
 
+pytestmark = pytest.mark.seed
+
 EXPERIMENTS = __import__("pathlib").Path(__file__).resolve().parents[1] / "experiments"
 WHEELBASE = 1.4944   # [m], find_wheelbase(), as in the manifests
 K_ACT = 0.6          # [rad/(V.s)]

@@ -30,6 +30,8 @@ from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
 from manifests import localise
 
+pytestmark = pytest.mark.seed
+
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
 T = 0.2
 LAMBDAS = ("0.05", "0.1", "1.0", "5.0", "10.0")

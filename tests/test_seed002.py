@@ -27,6 +27,8 @@ from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
 from manifests import localise
 
+pytestmark = pytest.mark.seed
+
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENTS = ROOT / "experiments"
 KMH = (2, 4, 6, 8, 10, 12, 14)

@@ -21,6 +21,8 @@ from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
 from manifests import localise
 
+pytestmark = pytest.mark.seed
+
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
 GEOM = TrainGeometry(5.0, 3.0, 2.1, 9.0)
 QUARTER = math.pi / 2

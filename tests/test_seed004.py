@@ -20,6 +20,8 @@ from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
 from manifests import localise
 
+pytestmark = pytest.mark.seed
+
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
 STOP = 25.0          # [s] shortened run
 T_FROM = 10.0        # [s] start of the statistics window (as settle_after in the manifests)

@@ -1,6 +1,7 @@
 """Memory independent of run length, by structure: the parent reads a run's file only in
 chunks into decimated lines, and the run's metrics are streamed from its file."""
 
+import pytest
 import numpy as np
 
 from agv_cosim import metrics, plots, results, runner
@@ -18,6 +19,7 @@ dpi = 10
 CHUNK = 64
 
 
+@pytest.mark.slow  # seconds: builds or runs FMUs in processes
 def test_parent_reads_runs_in_chunks_into_bounded_lines(chain, tmp_path, monkeypatch):
     manifest, jobs, _ = runner.prepare(chain(stop=20.0, step=0.01, extra=PLOTS))
     read, drawn = [], []

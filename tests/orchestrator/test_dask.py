@@ -17,6 +17,8 @@ import pytest
 from agv_cosim.cli import main
 from agv_cosim.distributed import ClusterError, cached_fmu, connect
 
+pytestmark = pytest.mark.slow
+
 DASK = Path(sys.executable).with_name("dask")
 _LIBC = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
 

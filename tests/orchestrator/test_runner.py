@@ -1,5 +1,6 @@
 """Sweeps and variants: cartesian product, serial == parallel byte for byte."""
 
+import pytest
 import csv
 import json
 
@@ -16,6 +17,7 @@ parameters = { k = 2.0 }
 """
 
 
+@pytest.mark.slow  # seconds: builds or runs FMUs in processes
 def test_sweep_serial_equals_parallel(chain, tmp_path):
     path = chain(extra=SWEEP)
     assert cli.main(["run", str(path), "--out", str(tmp_path / "s"), "--jobs", "1",

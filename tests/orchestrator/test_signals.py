@@ -81,6 +81,7 @@ def long_run(chain, tmp_path):
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+@pytest.mark.slow  # seconds: builds or runs FMUs in processes
 def test_signal_to_the_parent_ends_everything(long_run, sig):
     start, tmp, root = long_run
     process = start()
@@ -95,6 +96,7 @@ def test_signal_to_the_parent_ends_everything(long_run, sig):
     assert sorted(p.name for p in root.iterdir()) == ["long.toml"]
 
 
+@pytest.mark.slow  # seconds: builds or runs FMUs in processes
 def test_sigkilled_parent_children_stop_and_next_run_cleans(long_run):
     start, tmp, root = long_run
     process = start()
@@ -114,6 +116,7 @@ def test_sigkilled_parent_children_stop_and_next_run_cleans(long_run):
     assert list(tmp.iterdir()) == []
 
 
+@pytest.mark.slow  # seconds: builds or runs FMUs in processes
 def test_no_process_left_after_a_normal_exit(chain, tmp_path):
     path = chain(extra=SWEEP, name="short.toml")
     tmp = Path(tempfile.mkdtemp(prefix="agvsig", dir="/tmp"))
