@@ -7,7 +7,7 @@ own temp folders sit in).
 Tiers: every test not marked ``slow`` is the fast tier (``make test-fast``, ``-m "not
 slow"``). A test is slow when it is marked so where it is written (``@pytest.mark.slow``, or
 a file's ``pytestmark``: the seed reproductions are ``seed``, the interop cross-checks
-``interop``), or when it uses the ``component_fmus`` fixture (building every component
+``interop``), or when it uses a fixture in ``BUILDING_FIXTURES`` (building every component
 FMU takes tens of seconds); ``seed`` and ``interop`` imply ``slow``.
 """
 
@@ -21,10 +21,14 @@ from filelock import FileLock
 
 from agv_cosim.build import build_fmus, default_components_dir, slave_scripts
 
+#: fixtures that build every component FMU (FMI 2.0 or the FMI 3.0 twins): tens of seconds
+BUILDING_FIXTURES = {"component_fmus", "twins"}
+
+
 def pytest_collection_modifyitems(config, items):
     for item in items:
         if (item.get_closest_marker("seed") or item.get_closest_marker("interop")
-                or "component_fmus" in getattr(item, "fixturenames", ())):
+                or BUILDING_FIXTURES & set(getattr(item, "fixturenames", ()))):
             item.add_marker("slow")
 
 
