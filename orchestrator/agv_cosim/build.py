@@ -200,8 +200,7 @@ def _install_loader(fmu_path, loader):
     """Put the loader in the FMU as its Linux binary, pythonfmu's library beside it."""
     with zipfile.ZipFile(fmu_path) as archive:
         entries = [(info, archive.read(info)) for info in archive.infolist()]
-        identifier = ElementTree.fromstring(archive.read("modelDescription.xml")).find(
-            "CoSimulation").get("modelIdentifier")
+    identifier = _model_description(fmu_path).coSimulation.modelIdentifier
     binary = f"binaries/linux64/{identifier}.so"
     if binary not in {info.filename for info, _ in entries}:
         raise BuildError(f"{fmu_path.name}: pythonfmu wrote no {binary}")
@@ -233,6 +232,7 @@ def reference_experiment(model_description_xml):
     Returns ``{"start", "stop", "step", "inputs"}`` from ``DefaultExperiment`` and the
     ``org.agv-cosim`` vendor annotation the slave adapter writes from its
     ``reference_inputs`` (input name -> [(time, value held from that time), ...]).
+    ElementTree, not fmpy: fmpy 0.3.32 does not read vendor annotations.
     """
     root = ElementTree.fromstring(model_description_xml)
     experiment = root.find("DefaultExperiment")
@@ -321,7 +321,7 @@ def _ship_reference(fmu_path):
     experiment = reference_experiment(md_xml)
     if experiment is None:
         return
-    model = ElementTree.fromstring(md_xml).get("modelName")
+    model = _model_description(fmu_path).modelName
     files = {}
     with tempfile.TemporaryDirectory(prefix="agv_ref_") as tmp:
         in_csv = None
@@ -368,14 +368,21 @@ def fmu_guid(script, boot, tag, fmi_version=2):
     return str(uuid.UUID(digest.hexdigest()[:32]))
 
 
+def _model_description(fmu_path):
+    """fmpy's reading of an FMU's model description (no schema check: the build checks
+    a new FMU with fmpy's ``validate_fmu``)."""
+    from fmpy import read_model_description
+
+    return read_model_description(str(fmu_path), validate=False)
+
+
 def fmu_guid_of(fmu_path):
-    """The GUID in an existing FMU's ``modelDescription.xml``, or None if unreadable."""
+    """The GUID (FMI 2.0) or instantiationToken (FMI 3.0, fmpy's ``guid`` too) in an
+    existing FMU's ``modelDescription.xml``, or None if unreadable."""
     try:
-        with zipfile.ZipFile(fmu_path) as archive:
-            root = ElementTree.fromstring(archive.read("modelDescription.xml"))
-    except (OSError, KeyError, zipfile.BadZipFile, ElementTree.ParseError):
+        return _model_description(fmu_path).guid or None
+    except Exception:  # noqa: BLE001 - fmpy raises plain Exception too; then rebuild
         return None
-    return root.get("guid") or root.get("instantiationToken")  # FMI 2.0 or 3.0
 
 
 def fmi3_core_tag(tag):
@@ -460,7 +467,11 @@ def _validate(fmu_path, fmi_version=2):
 
 
 def _fmi_version_of(fmu_path):
-    """The fmiVersion an existing FMU declares, or None if unreadable."""
+    """The fmiVersion an existing FMU declares, or None if unreadable.
+
+    ElementTree, not fmpy: fmpy 0.3.32 refuses a version it does not know (and this FMU
+    must then still not be overwritten).
+    """
     try:
         with zipfile.ZipFile(fmu_path) as archive:
             return ElementTree.fromstring(archive.read("modelDescription.xml")).get(

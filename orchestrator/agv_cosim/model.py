@@ -1,7 +1,12 @@
 """FMU loading and model-description access (FMI 2.0 and 3.0 co-simulation).
 
-:func:`read_model` reads ``modelDescription.xml`` straight from the FMU archive (no
-extraction) into a :class:`ModelInfo`: variables with value reference, type (see
+:func:`read_model` checks the FMU archive (every entry's CRC) and maps fmpy's
+``read_model_description`` (XML schema on; no extraction) onto a :class:`ModelInfo`; fmpy's
+errors become one line naming the FMU. Own reading left (fmpy 0.3.32): only the root's
+``fmiVersion`` before fmpy, so an FMI 1.0 FMU is named as such; fmpy's checks made after
+parsing (undefined unit, input without start ..) are not errors, as before; FMI 3.0
+``<Alias>`` variables fmpy adds are left out. :class:`ModelInfo` holds variables with
+value reference, type (see
 :mod:`agv_cosim.fmitypes`), causality, unit and description, and each output's direct
 dependencies. An output whose ``<Unknown>`` (FMI 2.0) or ``<Output>`` (FMI 3.0) carries no
 ``dependencies`` attribute depends, per the standard, on every input. A model-exchange-only
@@ -28,7 +33,6 @@ import zipfile
 import zlib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from xml.etree import ElementTree
 
 from . import fmitypes
 
@@ -167,7 +171,7 @@ def read_model(path):
         return _CACHE[key]
     try:
         with zipfile.ZipFile(path) as archive:
-            xml = archive.read("modelDescription.xml")
+            archive.getinfo("modelDescription.xml")
             # every entry's CRC now, so a corrupt binary is named here, not mid-run
             bad = archive.testzip()
     except KeyError:
@@ -180,49 +184,73 @@ def read_model(path):
         raise ModelError(f"cannot read FMU '{path}': {error.strerror or error}") from None
     if bad is not None:
         raise ModelError(f"broken FMU (entry '{bad}' is corrupt): '{path}'")
+    info = _CACHE[key] = _parse_model(path)
+    return info
+
+
+#: How fmpy 0.3.32 words an XML-schema problem (lxml's error log); its later checks differ.
+_SCHEMA_PROBLEM = re.compile(r"[A-Z]+ \(line \d+, column \d+\): ")
+
+
+def _parse_model(path):
+    """Map fmpy's ModelDescription (``fmpy.read_model_description``, schema and fmpy's
+    own checks on) onto a :class:`ModelInfo`; fmpy's errors become one line."""
+    from fmpy.model_description import ValidationError, read_model_description
+    from lxml.etree import XMLSyntaxError
+
+    def broken(reason):
+        reason = " ".join(str(reason).split())
+        return ModelError(f"broken FMU (modelDescription.xml: {reason}): '{path}'")
+
+    version = _fmi_version(path)
+    if version is not None and version != "2.0" and not version.startswith("3."):
+        raise ModelError(f"not an FMI 2.0 or 3.0 FMU (fmiVersion={version!r}): '{path}'")
     try:
-        return _parse_model(path, xml)
-    except (TypeError, ValueError, IndexError) as error:
-        raise ModelError(f"broken FMU (modelDescription.xml: {error}): '{path}'") from None
-
-
-def _integer(node, attr, what):
-    text = node.get(attr)
-    if text is None:
-        raise ValueError(f"{what} has no {attr}")
-    try:
-        return int(text)
-    except ValueError:
-        raise ValueError(f"{what}: {attr}={text!r} is not an integer") from None
-
-
-def _parse_model(path, xml):
-    stat = path.stat()
-    key = (str(path), stat.st_size, stat.st_mtime_ns)
-    try:
-        root = ElementTree.fromstring(xml)
-    except ElementTree.ParseError as error:
-        raise ModelError(f"broken FMU (modelDescription.xml: {error}): '{path}'") from None
-    version = root.get("fmiVersion") or ""
+        try:
+            md = read_model_description(str(path), validate=True)
+        except ValidationError as error:
+            if any(_SCHEMA_PROBLEM.match(p) for p in error.problems):
+                raise
+            # only fmpy's checks after parsing (a unit missing from UnitDefinitions, an
+            # input without start ..): accepted, as before fmpy read the description
+            md = read_model_description(str(path), validate=False)
+    except ValidationError as error:
+        first = error.problems[0] if error.problems else "failed to validate"
+        # lxml's schema problems read "ERROR (line 15, column 0): Element ..: ..."
+        first = re.sub(r"^ERROR \(line (\d+), column \d+\): ", r"line \1: ", first)
+        first = first.rstrip(".")
+        more = f" (and {len(error.problems) - 1} more)" if len(error.problems) > 1 else ""
+        raise broken(first + more) from None
+    except XMLSyntaxError as error:
+        raise broken(error) from None
+    except (IndexError, KeyError) as error:  # fmpy resolving an index / reference
+        raise broken(f"an index or value reference in ModelStructure or Dimension names "
+                     f"no variable ({type(error).__name__}: {error})") from None
+    except Exception as error:  # noqa: BLE001 - fmpy raises plain Exception too
+        text = str(error)
+        if text.startswith("Unsupported FMI version"):
+            raise ModelError(f"not an FMI 2.0 or 3.0 FMU ({text}): '{path}'") from None
+        raise broken(text or type(error).__name__) from None
+    version = md.fmiVersion or ""
     version = "3.0" if version.startswith("3.") else version
     if version not in ("2.0", "3.0"):
-        raise ModelError(f"not an FMI 2.0 or 3.0 FMU (fmiVersion={root.get('fmiVersion')!r}): "
+        raise ModelError(f"not an FMI 2.0 or 3.0 FMU (fmiVersion={md.fmiVersion!r}): "
                          f"'{path}'")
-    cosim = root.find("CoSimulation")
-    if cosim is None or not cosim.get("modelIdentifier"):
-        if root.find("ModelExchange") is not None:
+    cosim = md.coSimulation
+    if cosim is None or not cosim.modelIdentifier:
+        if md.modelExchange is not None:
             raise ModelError(f"a model-exchange-only FMU: agv-cosim runs co-simulation FMUs "
                              f"only: '{path}'")
         raise ModelError(f"not a co-simulation FMU: '{path}'")
-    token = root.get("guid" if version == "2.0" else "instantiationToken", "")
-    state_flag = "canGetAndSetFMUstate" if version == "2.0" else "canGetAndSetFMUState"
-    info = ModelInfo(path=path, sha256=file_sha256(path), model_name=root.get("modelName", ""),
-                     identifier=cosim.get("modelIdentifier"), guid=token,
-                     description=root.get("description", ""), fmi_version=version,
-                     can_handle_variable_step=cosim.get(
-                         "canHandleVariableCommunicationStepSize", "false") == "true",
-                     can_get_set_state=cosim.get(state_flag, "false") == "true")
-    ordered = _variables_2(path, root) if version == "2.0" else _variables_3(path, root)
+    info = ModelInfo(path=path, sha256=file_sha256(path), model_name=md.modelName or "",
+                     identifier=cosim.modelIdentifier, guid=md.guid or "",
+                     description=md.description or "", fmi_version=version,
+                     can_handle_variable_step=bool(
+                         cosim.canHandleVariableCommunicationStepSize),
+                     can_get_set_state=bool(cosim.canGetAndSetFMUstate))
+    # fmpy appends FMI 3.0 <Alias> entries as extra variables: agv-cosim does not list them
+    own = [sv for sv in md.modelVariables if getattr(sv, "alias", None) is None]
+    ordered = [_variable(sv, version) for sv in own]
     for variable in ordered:
         info.variables[variable.name] = variable
         if variable.causality == "output" and variable.shape:
@@ -233,112 +261,42 @@ def _parse_model(path, xml):
                     variable, name=ename, dims=(), shape=None, element=(variable.name, i),
                     start=starts[i] if len(starts) == variable.size else None))
     input_names = [v.name for v in ordered if v.causality == "input"]
-
-    def indexed(text, what):
-        try:
-            index = int(text)
-        except (TypeError, ValueError):
-            raise ValueError(f"{what} {text!r} is not an integer") from None
-        if not 1 <= index <= len(ordered):
-            raise ValueError(f"{what} {index} is not a variable index (1..{len(ordered)})")
-        return ordered[index - 1]
-
-    by_vr = {}
-    for variable in ordered:
-        by_vr.setdefault(variable.vr, variable)
-
-    def referenced(text, what):
-        try:
-            vr = int(text)
-        except (TypeError, ValueError):
-            raise ValueError(f"{what} {text!r} is not an integer") from None
-        if vr not in by_vr:
-            raise ValueError(f"{what} {vr} is not a value reference")
-        return by_vr[vr]
-
-    if version == "2.0":
-        outputs = root.find("ModelStructure/Outputs")
-        entries = [(indexed(u.get("index"), "Outputs/Unknown index"), u.get("dependencies"))
-                   for u in (outputs if outputs is not None else [])]
-        resolve = indexed
-    else:
-        entries = [(referenced(u.get("valueReference"), "Output valueReference"),
-                    u.get("dependencies")) for u in root.findall("ModelStructure/Output")]
-        resolve = referenced
-    for variable, deps in entries:
-        if deps is None:
-            info.dependencies[variable.name] = list(input_names)
+    for unknown in md.outputs:
+        name = unknown.variable.name
+        if unknown.dependencies is None:  # no attribute: depends on every input
+            info.dependencies[name] = list(input_names)
         else:
-            names = [resolve(i, "Output dependency").name for i in deps.split()]
-            info.dependencies[variable.name] = [n for n in names if n in input_names]
+            info.dependencies[name] = [d.name for d in unknown.dependencies
+                                       if d.name in input_names]
     for variable in ordered:
         if variable.causality == "output" and variable.name not in info.dependencies:
             info.dependencies[variable.name] = list(input_names)
-    _CACHE[key] = info
     return info
 
 
-def _variables_2(path, root):
-    ordered = []
-    types = fmitypes.NAMES["2.0"]
-    for scalar in root.find("ModelVariables") if root.find("ModelVariables") is not None else []:
-        kind = next((child for child in scalar if child.tag in types), None)
-        if kind is None:
-            raise ModelError(f"broken FMU (variable '{scalar.get('name')}' has no type): "
-                             f"'{path}'")
-        if not scalar.get("name"):
-            raise ValueError(f"ScalarVariable {len(ordered) + 1} has no name")
-        ordered.append(Variable(name=scalar.get("name"),
-                                vr=_integer(scalar, "valueReference",
-                                            f"variable '{scalar.get('name')}'"),
-                                type=kind.tag, causality=scalar.get("causality", "local"),
-                                variability=scalar.get("variability", "continuous"),
-                                unit=kind.get("unit"),
-                                description=scalar.get("description", ""),
-                                start=kind.get("start"), fmi="2.0"))
-    return ordered
+def _fmi_version(path):
+    """The root's ``fmiVersion`` (None if unreadable), read before fmpy so that an FMI 1.0
+    FMU is named as such instead of failing fmpy's FMI 1.0 schema check."""
+    from lxml import etree
+
+    try:
+        with zipfile.ZipFile(path) as archive, archive.open("modelDescription.xml") as xml:
+            for _, root in etree.iterparse(xml, events=("start",)):
+                return root.get("fmiVersion") or ""
+    except etree.XMLSyntaxError:
+        return None  # fmpy names the syntax error
+    return None
 
 
-def _variables_3(path, root):
-    ordered = []
-    types = fmitypes.NAMES["3.0"]
-    variables = root.find("ModelVariables")
-    for node in variables if variables is not None else []:
-        if node.tag not in types:
-            raise ModelError(f"broken FMU (variable '{node.get('name')}' has an unknown "
-                             f"type {node.tag!r}): '{path}'")
-        if not node.get("name"):
-            raise ValueError(f"variable {len(ordered) + 1} has no name")
-        dims = tuple(d.get("start") or f"vr:{d.get('valueReference')}"
-                     for d in node.findall("Dimension"))
-        start = node.get("start")
-        if start is None and node.tag in ("String", "Binary"):
-            child = node.find("Start")
-            start = child.get("value") if child is not None else None
-        default = "continuous" if node.tag.startswith("Float") else "discrete"
-        ordered.append(Variable(name=node.get("name"),
-                                vr=_integer(node, "valueReference",
-                                            f"variable '{node.get('name')}'"),
-                                type=node.tag, causality=node.get("causality", "local"),
-                                variability=node.get("variability", default),
-                                unit=node.get("unit"), description=node.get("description", ""),
-                                start=start, fmi="3.0", dims=dims))
-    # dimensions given by a structural parameter take its start value (agv-cosim never
-    # changes a structural parameter)
-    by_vr = {v.vr: v for v in ordered if v.causality == "structuralParameter"}
-    for i, v in enumerate(ordered):
-        if v.dims:
-            shape = []
-            for d in v.dims:
-                text = by_vr[int(d[3:])].start if d.startswith("vr:") and \
-                    int(d[3:]) in by_vr else (None if d.startswith("vr:") else d)
-                try:
-                    shape.append(int(text))
-                except (TypeError, ValueError):
-                    shape = None
-                    break
-            ordered[i] = replace(v, shape=tuple(shape) if shape is not None else None)
-    return ordered
+def _variable(sv, version):
+    """One fmpy ModelVariable as our :class:`Variable`."""
+    dims = tuple(str(d.start) if d.start is not None else f"vr:{d.valueReference}"
+                 for d in sv.dimensions)
+    return Variable(name=sv.name, vr=sv.valueReference, type=sv.type,
+                    causality=sv.causality, variability=sv.variability,
+                    unit=sv.unit, description=sv.description or "", start=sv.start,
+                    fmi=version, dims=dims,
+                    shape=tuple(int(n) for n in sv.shape) if dims else None)
 
 
 def find_fmus(path):
