@@ -76,12 +76,18 @@ def env_for(tree):
 
 
 def build_fmus(tree, out):
-    """Build the five FMUs from ``tree``'s sources with ``tree``'s build code."""
+    """Build the five FMUs from ``tree``'s sources with ``tree``'s build code.
+
+    ``slave_scripts`` of each tree knows where its slave scripts are (``components/slaves/``
+    in the old layout, ``components/agv_core/<component>/agv_*.py`` in the new one).
+    """
+    stems = ["agv_vehicle", "agv_steering_a", "agv_vision_sensor", "agv_steer_sensor",
+             "agv_state_feedback"]
     code = ("import sys\nfrom pathlib import Path\n"
-            "from agv_cosim.build import build_one, default_components_dir\n"
-            "slaves = default_components_dir() / 'slaves'\n"
-            f"for script in {['agv_vehicle.py', 'agv_steering_a.py', 'agv_vision_sensor.py', 'agv_steer_sensor.py', 'agv_state_feedback.py']!r}:\n"  # noqa: E501
-            "    build_one(slaves / script, Path(sys.argv[1]))\n")
+            "from agv_cosim.build import build_one, default_components_dir, slave_scripts\n"
+            "scripts = {p.stem: p for p in slave_scripts(default_components_dir())}\n"
+            f"for stem in {stems!r}:\n"
+            "    build_one(scripts[stem], Path(sys.argv[1]))\n")
     subprocess.run([sys.executable, "-c", code, str(out)], check=True, env=env_for(tree),
                    cwd=str(out.parent))
 
