@@ -571,15 +571,27 @@ def _step_all(step_units, h, track, stops):
     """``step_all(t)``: every FMU of ``step_units`` steps from ``t`` to ``t + h`` [s] in
     turn (generated, one call a line; see :class:`_Code`); FMUs that ask to end the run
     are appended to ``stops`` as (name, last successful time)."""
-    code = _Code(track=track, h=h, stops=stops)
+    from ctypes import c_double
+
+    # FMI 2.0: the time and step size pass as two C doubles shared by every doStep of the
+    # macro step (the time's value stored once a step), the component and the flag
+    # converted once (_bare_call): no per-call argument conversion
+    t_c, h_c = c_double(0.0), c_double(h)
+    code = _Code(track=track, h=h, stops=stops, t_c=t_c, h_c=h_c)
     code.line("track[2] = t")
     code.line(f"track[1] = {_DO_STEP}")
+    code.line("t_c.value = t")
     for unit in step_units:
         d, c, u = code.bind(unit.do_step, "f"), code.bind(unit.component, "a"), \
             code.bind(unit, "u")
         code.line(f"track[0] = {int(unit.index)}")
         if unit.step_extra is None:
-            code.line(f"s = {d}({c}, t, h, 1)")
+            bare, args = _bare_call(unit.do_step, (unit.component, t_c, h_c, 1))
+            if bare is not unit.do_step:
+                names = [code.bind(a, "a") for a in args]
+                code.line(f"s = {code.bind(bare, 'f')}({', '.join(names)})")
+            else:
+                code.line(f"s = {d}({c}, t, h, 1)")
             code.line(f"if s > 1: {code.bind(_fmi2_stepped, 'g')}({u}, s, stops)")
         else:
             extra = ", ".join(code.bind(e, "a") for e in unit.step_extra)
