@@ -331,3 +331,34 @@ def test_lazy_publication_after_a_step_without_sets_shows_the_new_time(component
         expected.append(core.measure(t, *held)[:3])
         core.step(t, h, *held)
     assert shown == expected
+
+
+# ---------------------------------------------------------------------- master
+def test_set_passes_the_source_buffer_only_where_it_holds_the_same_values():
+    from ctypes import c_double, c_int
+
+    from agv_cosim.master import _shared_values
+
+    src = (c_double * 5)(1.5, -0.0, 2.5, float("nan"), 7.0)
+    other = (c_double * 5)(*src)
+    three = (c_double * 3)()
+    # the rule replaced: copy each linked value into the input buffer, pass that buffer
+    for links in ([(0, src, 1), (1, src, 2), (2, src, 3)],
+                  [(2, src, 4), (0, src, 2), (1, src, 3)]):
+        shared = _shared_values(three, links)
+        for j, buf, pos in links:
+            three[j] = buf[pos]
+        assert shared is not None
+        assert [struct_bits(shared[i]) for i in range(3)] == \
+            [struct_bits(v) for v in three]               # bit for bit, -0.0 and NaN too
+    assert _shared_values(three, [(0, src, 0), (1, src, 2), (2, src, 3)]) is None  # gap
+    assert _shared_values(three, [(0, src, 0), (1, other, 1), (2, src, 2)]) is None
+    assert _shared_values(three, [(0, src, 0), (1, src, 1)]) is None     # not all linked
+    assert _shared_values(three, [(0, src, 3), (1, src, 4), (2, src, 5)]) is None
+    assert _shared_values((c_int * 1)(), [(0, src, 0)]) is None           # other C type
+
+
+def struct_bits(value):
+    import struct
+
+    return struct.pack("<d", value)

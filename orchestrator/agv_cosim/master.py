@@ -499,6 +499,27 @@ class _Code:
         return namespace["_make"](**self.bound)
 
 
+def _shared_values(in_val, links):
+    """A pointer into the source buffer whose consecutive values are exactly those of
+    input buffer ``in_val`` (every value linked, in order, from one source buffer), or
+    None. A set then passes that pointer instead of copying the values first: the same
+    doubles reach the FMU."""
+    from ctypes import POINTER, byref, cast, sizeof
+
+    if not links or len(links) != len(in_val):
+        return None
+    links = sorted(links, key=lambda link: link[0])
+    src, first = links[0][1], links[0][2]
+    if any(s is not src or j != k or pos != first + k for k, (j, s, pos) in enumerate(links)):
+        return None
+    ctype = in_val._type_
+    if src._type_ is not ctype or first + len(in_val) > len(src):
+        return None
+    pointer = cast(byref(src, first * sizeof(ctype)), POINTER(ctype))
+    pointer.keep = src  # the source buffer lives as long as the pointer
+    return pointer
+
+
 def _gauss_seidel_pass(plan, units, all_units, track):
     """The Gauss-Seidel pass at one communication point, generated for this run.
 
@@ -536,6 +557,10 @@ def _gauss_seidel_pass(plan, units, all_units, track):
                 continue
             code.line(f"track[0] = {int(unit.index)}")
             for fn, args, in_val, links, fname in in_groups:
+                shared = _shared_values(in_val, links)
+                if shared is not None:  # the source's buffer is the values argument
+                    code.call(fn, args[:3] + (shared,) + args[4:], fname)
+                    continue
                 target = code.bind(in_val, "b")
                 for j, src, pos in links:
                     code.line(f"{target}[{int(j)}] = {code.bind(src, 'b')}[{int(pos)}]")
