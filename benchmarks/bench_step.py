@@ -22,7 +22,9 @@ orchestrator
 floor
     The same slave classes, loaded in plain Python from the built FMUs' resources (no FMI,
     no ctypes), driven through their attributes and the ``advance`` / ``publish`` hooks in
-    the master's Gauss-Seidel order: the cores-only floor.
+    the master's Gauss-Seidel order, publishing when that version's adapter does (after
+    every step, and after every set of inputs; a ``lazy_publish`` slave of the new
+    adapter not after the step): the cores-only floor.
 
 The per-step time is the wall (and CPU) time from the first recorded row to the last,
 divided by the number of macro steps, so loading and instantiation are not counted. The
@@ -76,12 +78,18 @@ def env_for(tree):
 
 
 def build_fmus(tree, out):
-    """Build the five FMUs from ``tree``'s sources with ``tree``'s build code."""
+    """Build the five FMUs from ``tree``'s sources with ``tree``'s build code.
+
+    ``slave_scripts`` of each tree knows where its slave scripts are (``components/slaves/``
+    in the old layout, ``components/agv_core/<component>/agv_*.py`` in the new one).
+    """
+    stems = ["agv_vehicle", "agv_steering_a", "agv_vision_sensor", "agv_steer_sensor",
+             "agv_state_feedback"]
     code = ("import sys\nfrom pathlib import Path\n"
-            "from agv_cosim.build import build_one, default_components_dir\n"
-            "slaves = default_components_dir() / 'slaves'\n"
-            f"for script in {['agv_vehicle.py', 'agv_steering_a.py', 'agv_vision_sensor.py', 'agv_steer_sensor.py', 'agv_state_feedback.py']!r}:\n"  # noqa: E501
-            "    build_one(slaves / script, Path(sys.argv[1]))\n")
+            "from agv_cosim.build import build_one, default_components_dir, slave_scripts\n"
+            "scripts = {p.stem: p for p in slave_scripts(default_components_dir())}\n"
+            f"for stem in {stems!r}:\n"
+            "    build_one(scripts[stem], Path(sys.argv[1]))\n")
     subprocess.run([sys.executable, "-c", code, str(out)], check=True, env=env_for(tree),
                    cwd=str(out.parent))
 
@@ -181,11 +189,17 @@ def child_floor(manifest):
         h, every = plan.step, plan.record_every
         rows, stamps = [], []
 
+        # a slave with lazy_publish (new adapter) publishes after a step only at the next
+        # read: here, after its sets in the pass
+        lazy = {id(s) for s in slaves.values() if getattr(s, "_lazy_step", False)}
+
         def gs_pass():
             for slave, inputs in order:
                 if inputs:
                     for name, src, out in inputs:
                         setattr(slave, name, getattr(src, out))
+                    slave.publish()
+                elif id(slave) in lazy:
                     slave.publish()
 
         def record_row(t):
@@ -199,7 +213,8 @@ def child_floor(manifest):
             for slave in stepped:
                 slave.advance(t, h)
                 slave.time = t + h
-                slave.publish()
+                if id(slave) not in lazy:
+                    slave.publish()
             t_next = plan.start + (k + 1) * h
             gs_pass()
             if (k + 1) % every == 0 or k + 1 == n_steps:

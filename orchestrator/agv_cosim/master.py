@@ -443,12 +443,89 @@ def _check_finite(unit, t):
                                       f"t={t!r} s")
 
 
+class _Code:
+    """Source text of a generated function and the objects it uses (its closure).
+
+    The per-step functions (:func:`_gauss_seidel_pass`, :func:`_step_all`) are written
+    out for the run's FMUs, one line per call, instead of loops over tuples of groups:
+    every function, argument and buffer is a closure variable of the generated function
+    (a fast local load), so a step pays little more than the FMI calls themselves. Only
+    made-up identifiers (``f0``, ``a1``, ``b2``) and integers go into the source text;
+    component, variable and function names stay data in the closure.
+    """
+
+    INDENT = "        "
+
+    def __init__(self, **fixed):
+        self.lines = []
+        self.bound = dict(fixed)
+
+    def bind(self, value, prefix="v"):
+        """A fresh identifier for ``value``."""
+        name = f"{prefix}{len(self.bound)}"
+        self.bound[name] = value
+        return name
+
+    def line(self, text):
+        self.lines.append(self.INDENT + text)
+
+    def call(self, fn, args, what):
+        """``s = fn(arg, ...)`` with each argument bound once, then the status check
+        (above Warning: the exception fmpy's wrapper raises, naming ``what``)."""
+        names = [self.bind(a, "a") for a in args]
+        self.line(f"s = {self.bind(fn, 'f')}({', '.join(names)})")
+        self.line(f"if s > 1: raise failed({self.bind(what, 'n')}, s)")
+
+    def get(self, unit, group, check_finite):
+        """One batched get of output ``group`` of ``unit`` and, with ``check_finite``,
+        the finite check of a float buffer (a sum of its values first: a sum is finite
+        only if every term is; an overflowed sum lands in the full check, which then
+        finds nothing)."""
+        fn, args, buf, is_float, fname, _ = group
+        self.call(fn, args, fname)
+        if check_finite and is_float and len(buf):
+            b = self.bind(buf, "b")
+            total = " + ".join(f"{b}[{i}]" for i in range(len(buf)))
+            self.line(f"if not isfinite({total}): check({self.bind(unit, 'u')}, t)")
+
+    def function(self, name, params):
+        """The function ``name(params)`` whose body is the lines added so far."""
+        closure = ", ".join(self.bound)
+        body = "\n".join(self.lines) or self.INDENT + "pass"
+        source = (f"def _make({closure}):\n    def {name}({params}):\n{body}\n"
+                  f"    return {name}\n")
+        namespace = {}
+        exec(compile(source, f"<agv_cosim.master {name}>", "exec"), namespace)  # noqa: S102
+        return namespace["_make"](**self.bound)
+
+
+def _shared_values(in_val, links):
+    """A pointer into the source buffer whose consecutive values are exactly those of
+    input buffer ``in_val`` (every value linked, in order, from one source buffer), or
+    None. A set then passes that pointer instead of copying the values first: the same
+    doubles reach the FMU."""
+    from ctypes import POINTER, byref, cast, sizeof
+
+    if not links or len(links) != len(in_val):
+        return None
+    links = sorted(links, key=lambda link: link[0])
+    src, first = links[0][1], links[0][2]
+    if any(s is not src or j != k or pos != first + k for k, (j, s, pos) in enumerate(links)):
+        return None
+    ctype = in_val._type_
+    if src._type_ is not ctype or first + len(in_val) > len(src):
+        return None
+    pointer = cast(byref(src, first * sizeof(ctype)), POINTER(ctype))
+    pointer.keep = src  # the source buffer lives as long as the pointer
+    return pointer
+
+
 def _gauss_seidel_pass(plan, units, all_units, track):
-    """The Gauss-Seidel pass at one communication point, unrolled into flat tuples.
+    """The Gauss-Seidel pass at one communication point, generated for this run.
 
     Returns ``(gs_pass, pass_plan)``: ``gs_pass(t)`` runs the pass at ``t`` [s];
-    ``pass_plan(stopped)`` is the pass without sets to the units named in ``stopped``
-    (for ``gs_pass(t, pass_plan(stopped))``).
+    ``pass_plan(stopped)`` is a pass function without sets to the units named in
+    ``stopped``.
     """
     # Units whose outputs feed a unit visited before them (or themselves): their
     # outputs are read first, so that unit sees the value of this instant and not the
@@ -463,39 +540,90 @@ def _gauss_seidel_pass(plan, units, all_units, track):
     # the start, and its values are checked there.
     read_once = {u.name for u in pre_read
                  if not any(plan.models[u.name].dependencies.get(o) for o in u.out_names)}
-    pre_read = [(u, u.name in read_once) for u in pre_read]
 
     def pass_plan(stopped=()):
-        # The Gauss-Seidel pass, unrolled: per unit (index, input groups, output
-        # groups, unit); a unit that asked to stop gets no more sets.
-        return [(u.index, () if u.name in stopped else u.in_groups,
-                 () if u.name in read_once else u.out_groups, u)
-                for u in (units[c] for c in plan.order)]
-
-    gs_plan = pass_plan()
-
-    def gs_pass(t, gs_plan=gs_plan):
-        for unit, once in pre_read:
-            track[0] = unit.index
-            unit.get()
-            if once and not unit.finite():
-                _check_finite(unit, t)
-        for i, in_groups, out_groups, unit in gs_plan:
-            track[0] = i
+        # The pass, unrolled: per unit the track store, each input group's copies from
+        # its sources' buffers and its set, each output group's get and finite check;
+        # a unit that asked to stop gets no more sets.
+        code = _Code(track=track, failed=_failed, isfinite=isfinite, check=_check_finite)
+        for unit in pre_read:
+            code.line(f"track[0] = {int(unit.index)}")
+            for group in unit.out_groups:
+                code.get(unit, group, unit.name in read_once)
+        for unit in (units[c] for c in plan.order):
+            in_groups = () if unit.name in stopped else unit.in_groups
+            out_groups = () if unit.name in read_once else unit.out_groups
+            if not (in_groups or out_groups):
+                continue
+            code.line(f"track[0] = {int(unit.index)}")
             for fn, args, in_val, links, fname in in_groups:
+                shared = _shared_values(in_val, links)
+                if shared is not None:  # the source's buffer is the values argument
+                    code.call(fn, args[:3] + (shared,) + args[4:], fname)
+                    continue
+                target = code.bind(in_val, "b")
                 for j, src, pos in links:
-                    in_val[j] = src[pos]
-                status = fn(*args)
-                if status > 1:
-                    raise _failed(fname, status)
-            for fn, args, out_val, is_float, fname, _ in out_groups:
-                status = fn(*args)
-                if status > 1:
-                    raise _failed(fname, status)
-                if is_float and not isfinite(sum(out_val)):
-                    _check_finite(unit, t)
+                    code.line(f"{target}[{int(j)}] = {code.bind(src, 'b')}[{int(pos)}]")
+                code.call(fn, args, fname)
+            for group in out_groups:
+                code.get(unit, group, True)
+        return code.function("gs_pass", "t")
 
-    return gs_pass, pass_plan
+    return pass_plan(), pass_plan
+
+
+def _fmi2_stepped(unit, status, stops):
+    """After an ``fmi2DoStep`` status above Warning: a stop request (Discard with
+    ``fmi2Terminated``) goes to ``stops``, anything else raises."""
+    asked, when = unit.stop_requested() if status == 2 else (False, 0)
+    if not asked:
+        raise _failed("fmi2DoStep", status)
+    stops.append((unit.name, when))
+
+
+def _fmi3_stepped(unit, status, stops):
+    """After an ``fmi3DoStep`` with a status above Warning or ``terminateSimulation``: a
+    stop request goes to ``stops``; an Error (or a Discard without it) raises."""
+    if status > 2:
+        raise _failed("fmi3DoStep", status)
+    if unit.flags[1].value:
+        stops.append((unit.name, unit.stop_requested()[1]))
+    elif status == 2:
+        raise _failed("fmi3DoStep", status)
+
+
+def _step_all(step_units, h, track, stops):
+    """``step_all(t)``: every FMU of ``step_units`` steps from ``t`` to ``t + h`` [s] in
+    turn (generated, one call a line; see :class:`_Code`); FMUs that ask to end the run
+    are appended to ``stops`` as (name, last successful time)."""
+    from ctypes import c_double
+
+    # FMI 2.0: the time and step size pass as two C doubles shared by every doStep of the
+    # macro step (the time's value stored once a step), the component and the flag
+    # converted once (_bare_call): no per-call argument conversion
+    t_c, h_c = c_double(0.0), c_double(h)
+    code = _Code(track=track, h=h, stops=stops, t_c=t_c, h_c=h_c)
+    code.line("track[2] = t")
+    code.line(f"track[1] = {_DO_STEP}")
+    code.line("t_c.value = t")
+    for unit in step_units:
+        d, c, u = code.bind(unit.do_step, "f"), code.bind(unit.component, "a"), \
+            code.bind(unit, "u")
+        code.line(f"track[0] = {int(unit.index)}")
+        if unit.step_extra is None:
+            bare, args = _bare_call(unit.do_step, (unit.component, t_c, h_c, 1))
+            if bare is not unit.do_step:
+                names = [code.bind(a, "a") for a in args]
+                code.line(f"s = {code.bind(bare, 'f')}({', '.join(names)})")
+            else:
+                code.line(f"s = {d}({c}, t, h, 1)")
+            code.line(f"if s > 1: {code.bind(_fmi2_stepped, 'g')}({u}, s, stops)")
+        else:
+            extra = ", ".join(code.bind(e, "a") for e in unit.step_extra)
+            code.line(f"s = {d}({c}, t, h, True, {extra})")
+            code.line(f"if s > 1 or {code.bind(unit.flags[1], 'a')}.value: "
+                      f"{code.bind(_fmi3_stepped, 'g')}({u}, s, stops)")
+    return code.function("step_all", "t")
 
 
 def simulate(plan, write_row, progress=None, track=None, on_message=None, outcome=None):
@@ -553,8 +681,6 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None, outcom
         _initialise(plan, instances, units, all_units, index, track)
 
         # phase 3: the stepping loop (the Gauss-Seidel pass and the recorder below)
-        step_plan = [(u.index, u.component, u.do_step, u.step_extra, u) for u in all_units
-                     if u.name not in tables]
         n_steps = int(round((plan.stop - plan.start) / plan.step))
         h = plan.step
         row = [0.0] * (1 + len(record_from))
@@ -611,27 +737,10 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None, outcom
         every = plan.record_every
         done = 0
         stops = []  # (component, last successful time) of FMUs that asked to end the run
+        step_all = _step_all([u for u in all_units if u.name not in tables], h, track, stops)
         for k in range(n_steps):
             t = plan.start + k * h
-            track[2] = t
-            track[1] = _DO_STEP
-            for i, comp, do_step, extra, unit in step_plan:
-                track[0] = i
-                if extra is None:
-                    status = do_step(comp, t, h, 1)
-                    if status > 1:
-                        asked, when = unit.stop_requested() if status == 2 else (False, 0)
-                        if not asked:
-                            raise _failed("fmi2DoStep", status)
-                        stops.append((unit.name, when))
-                else:
-                    status = do_step(comp, t, h, True, *extra)
-                    if status > 2:
-                        raise _failed("fmi3DoStep", status)
-                    if unit.flags[1].value:
-                        stops.append((unit.name, unit.stop_requested()[1]))
-                    elif status == 2:
-                        raise _failed("fmi3DoStep", status)
+            step_all(t)
             t_next = plan.start + (k + 1) * h
             track[2] = t_next
             if k + 1 == next_event and not stops:
@@ -647,7 +756,7 @@ def simulate(plan, write_row, progress=None, track=None, on_message=None, outcom
                     if jacobi:
                         jacobi_get(t_next)
                     else:
-                        gs_pass(t_next, pass_plan({n for n, _ in stops}))
+                        pass_plan({n for n, _ in stops})(t_next)
                     record(t_next)
                 break
             if jacobi:

@@ -16,7 +16,10 @@ implements three hooks:
     Copy the core's outputs onto the output attributes, using the current inputs for
     direct-feedthrough outputs. Called after initialisation, after every step, and
     lazily on ``fmi2GetReal`` after an input changed, so a Gauss-Seidel master sees a
-    feedthrough output that is consistent with the inputs it has just set.
+    feedthrough output that is consistent with the inputs it has just set. A slave
+    whose ``publish`` is a function of the core's state, the inputs and ``self.time``
+    alone may say so (``lazy_publish = True``): if it has a direct-feedthrough output,
+    the call after a step then waits for the next read (or state save) too.
 
 The behaviour shared with the FMI 3.0 twins is in :mod:`agv_core.slave_base`. This
 adapter also writes what pythonfmu leaves out of ``modelDescription.xml``: units and

@@ -41,6 +41,12 @@ class SlaveLogic:
     the experiment and ships its result in the FMU (fmi-ls-ref, see agv_cosim.build).
     """
 
+    #: True in a slave whose ``publish`` is a function of the core's state, the inputs
+    #: and ``self.time`` alone (calling it again, or once fewer, changes nothing): if
+    #: some output depends directly on an input, the publication after a step then
+    #: waits for the next read (after the master's sets), which saves one per step
+    lazy_publish = False
+
     author = "agv-cosim"
     license = "MIT"
     version = __version__
@@ -69,6 +75,8 @@ class SlaveLogic:
         self._parameter_names = []
         self._stale = False
         self._initializing = False
+        #: publish after a step at the next read (set at exit from initialisation)
+        self._lazy_step = False
         self._real_names = None  # value reference -> attribute (the adapter's fast get/set)
         self.core = None
         self.time = 0.0
@@ -164,6 +172,7 @@ class SlaveLogic:
 
     def exit_initialization_mode(self):
         self._initializing = False
+        self._lazy_step = self.lazy_publish and any(self._dependencies.values())
         try:
             self.core = self.make_core()
             self.publish()
@@ -177,6 +186,12 @@ class SlaveLogic:
         try:
             self.advance(float(current_time), float(step_size))
             self.time = float(current_time) + float(step_size)
+            if self._lazy_step:
+                # outputs that depend on inputs are re-published after the master sets
+                # them anyway: publish once, at the next read (a read without a set
+                # publishes from the held inputs, what publishing here would give)
+                self._stale = True
+                return True
             self.publish()
         except Exception as error:  # noqa: BLE001 - reported to the host, then re-raised
             self._fail(f"step at t={current_time:.9g} s failed: {type(error).__name__}: {error}")
@@ -203,9 +218,9 @@ class SlaveLogic:
         elif self._stale:
             try:
                 self.publish()
-            except Exception:
-                self._keep_for_pythonfmu()
-                raise
+            except Exception as error:  # noqa: BLE001 - reported to the host, then re-raised
+                self._fail(f"outputs at t={self.time:.9g} s failed: "
+                           f"{type(error).__name__}: {error}")
             self._stale = False
 
     def _initial_outputs(self):
@@ -238,6 +253,8 @@ class SlaveLogic:
 
     # ------------------------------------------------------------------ state
     def _get_fmu_state(self):
+        if self.core is not None and self._stale:
+            self._fresh_outputs()  # the outputs the state holds are those a read shows
         variables = {v.name: v.getter() for v in self.vars.values()}
         core_state = self.core.get_state() if self.core is not None else None
         return {"variables": variables, "time": self.time, "core": core_state}

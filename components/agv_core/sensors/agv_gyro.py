@@ -10,6 +10,9 @@ core = load_core("fmi.fmi_slave", "sensors.sensors")
 class AgvGyro(core.fmi.fmi_slave.AgvSlave):
     """Fibre-optic gyro heading of seed 004: drift, resolution, optional noise."""
 
+    #: publish reads the core (reads do not change what it shows) and sets outputs only
+    lazy_publish = True
+
     description = ("Fibre-optic gyro heading: drift 0.5 deg/h, resolution 0.01 deg, "
                    "optional white noise, sampled at every communication point")
 

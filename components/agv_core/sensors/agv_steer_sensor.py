@@ -10,6 +10,9 @@ core = load_core("fmi.fmi_slave", "sensors.sensors")
 class AgvSteerSensor(core.fmi.fmi_slave.AgvSlave):
     """Steered-wheel angle displacement sensor (seeds 000 and 004): noise, resolution."""
 
+    #: publish reads the core (reads do not change what it shows) and sets outputs only
+    lazy_publish = True
+
     description = ("Steering-angle sensor: white noise and quantisation, sampled at every "
                    "communication point")
 

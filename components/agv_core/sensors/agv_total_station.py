@@ -12,6 +12,10 @@ DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
 class AgvTotalStation(core.fmi.fmi_slave.AgvSlave):
     """Robotic total station of seed 004: jittered position fixes sent by radio modem."""
 
+    #: publish reads the core (reads do not change what it shows) and sets outputs; the
+    #: availability it passes on is passed again by advance
+    lazy_publish = True
+
     description = ("Robotic total station: position fixes every 0.65 s on average with "
                    "jitter, radio latency and mm-level noise")
 

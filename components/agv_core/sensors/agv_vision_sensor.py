@@ -14,6 +14,9 @@ _POSE = ("x", "y", "heading")
 class AgvVisionSensor(core.fmi.fmi_slave.AgvSlave):
     """Vision sensor of seed 000: lateral deviation and heading error from a path."""
 
+    #: publish reads the core (reads do not change what it shows) and sets outputs only
+    lazy_publish = True
+
     description = ("Camera measuring lateral deviation and heading error of the tracked "
                    "point from a reference path, with frame period, latency and noise")
 

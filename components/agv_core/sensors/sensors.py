@@ -30,7 +30,10 @@ Randomness: one ``numpy.random.default_rng(seed)`` per sensor; its
 its noise once per instant and keeps it (with the generator state from before the draw);
 the step that commits the sample uses those numbers, and anything else (another instant,
 a restored state) first puts the generator back: the stream is the one of drawing every
-sample once, in order, however often the outputs are read.
+sample once, in order, however often the outputs are read. A sensor whose generator
+feeds nothing but the samples' noise (vision) keeps the numbers instead of the state:
+they are the next numbers of its stream whichever sample is committed next, so nothing
+is put back, and its state holds them (``ahead``) with the generator's state after them.
 """
 
 import math
@@ -100,20 +103,30 @@ class _Sampled:
         raise NotImplementedError
 
     # noise -----------------------------------------------------------------
+    #: True when the generator feeds only :meth:`_noise`, which draws the same numbers
+    #: whatever the sample: kept numbers are then the next ones of the stream for
+    #: whichever sample is committed next, and are kept instead of the generator state
+    #: (reading that state costs more than the draws)
+    NOISE_ONLY_STREAM = False
+
     def _tentative_noise(self, t_k):
         """The noise of the sample of instant ``t_k``, drawn once and kept."""
         drawn = self._drawn
         if drawn is not None:
             if at_instant(drawn[0], t_k):
                 return drawn[2]
+            if self.NOISE_ONLY_STREAM:              # the next numbers, for any instant
+                self._drawn = (t_k, None, drawn[2])
+                return drawn[2]
             self.rng.bit_generator.state = drawn[1]   # drawn for another instant: undo
-        state = self.rng.bit_generator.state
+        state = None if self.NOISE_ONLY_STREAM else self.rng.bit_generator.state
         self._drawn = drawn = (t_k, state, self._noise())
         return drawn[2]
 
     def _undo_tentative(self):
-        """Put back the numbers of a tentative sample that will not be committed next."""
-        if self._drawn is not None:
+        """Put back the numbers of a tentative sample that will not be committed next
+        (a noise-only stream keeps them: they are its next numbers)."""
+        if self._drawn is not None and not self.NOISE_ONLY_STREAM:
             self.rng.bit_generator.state = self._drawn[1]
             self._drawn = None
 
@@ -163,8 +176,13 @@ class _Sampled:
     # state -----------------------------------------------------------------
     def get_state(self):
         """JSON-safe snapshot of the internal state."""
-        rng = self.rng.bit_generator.state if self._drawn is None else self._drawn[1]
-        return {"rng": rng,
+        drawn, ahead = self._drawn, None
+        if drawn is None or self.NOISE_ONLY_STREAM:
+            rng = self.rng.bit_generator.state
+            ahead = None if drawn is None else list(drawn[2])
+        else:
+            rng = drawn[1]
+        return {"rng": rng, "ahead": ahead,
                 "pending": [[a, c, list(v)] for a, c, v in self.pending],
                 "current": None if self.current is None else [self.current[0],
                                                               list(self.current[1])],
@@ -174,7 +192,8 @@ class _Sampled:
     def set_state(self, state):
         """Restore a snapshot from :meth:`get_state`."""
         self.rng.bit_generator.state = state["rng"]
-        self._drawn = None
+        ahead = state.get("ahead")
+        self._drawn = None if ahead is None else (math.nan, None, tuple(ahead))
         self.pending = deque((a, c, tuple(v)) for a, c, v in state["pending"])
         self.current = None if state["current"] is None else (state["current"][0],
                                                               tuple(state["current"][1]))
@@ -213,6 +232,8 @@ class VisionSensor(_Sampled):
     captured pose (noise-free); projections after the first use the previous frame's s
     as hint.
     """
+
+    NOISE_ONLY_STREAM = True
 
     def __init__(self, path, frame_period=0.04, latency=0.04, noise_lateral=0.002,
                  noise_heading=0.004, seed=0, t0=0.0):

@@ -12,6 +12,9 @@ DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
 class AgvStateFeedback(core.fmi.fmi_slave.AgvSlave):
     """u = -(Ka alpha + Kb heading_error + Ke lateral_error), seed 000 eqs (9)-(10)."""
 
+    #: publish reads the core (reads do not change what it shows) and sets outputs only
+    lazy_publish = True
+
     description = ("Seed-000 state-feedback steering controller: wheel angle, heading error "
                    "and lateral error in, actuator voltage out")
 
