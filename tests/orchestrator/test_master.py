@@ -1,6 +1,7 @@
 """Execution semantics: Gauss-Seidel vs Jacobi (closed form), failures, NaN, cleanup."""
 
 import json
+import os
 from pathlib import Path
 import tempfile
 
@@ -78,10 +79,16 @@ def test_failing_fmu_leaves_partial_results(fmus, tmp_path, capsys):
     and every extraction folder is gone afterwards (the run happens in a child process:
     its folders, agv_cosim_<instance>_* inside agv-cosim-<pid>-run-*, are looked for in
     the temp folder)."""
-    def leftovers():  # this test's instance only: other processes may run meanwhile
+    def leftovers():
+        # this test's runs only: other tests (other pytest-xdist workers) may run an
+        # instance of the same name meanwhile. The run folders are made by this process
+        # (agv-cosim-<our pid>-run-*); a folder straight in the temp folder counts only if
+        # it was not there before the run.
         root = Path(tempfile.gettempdir())
-        return list(root.glob("agv_cosim_bad_*")) + list(
-            root.glob("agv-cosim-*-run-*/agv_cosim_bad_*"))
+        return sorted(set(root.glob("agv_cosim_bad_*")) - before) + list(
+            root.glob(f"agv-cosim-{os.getpid()}-run-*/agv_cosim_bad_*"))
+
+    before = set(Path(tempfile.gettempdir()).glob("agv_cosim_bad_*"))
 
     path = _fail_manifest(fmus, tmp_path, "agv_test_fail", "fail_time", 0.5)
     assert _run(path, tmp_path / "out") == 1
@@ -134,10 +141,16 @@ def test_a_crashing_fmu_fails_its_run_only(fmus, tmp_path, capsys):
     """An FMU that kills its host at t = 2.5 s (step 1 ms): the run, in its own process,
     is reported partial with the rows flushed before (every 1000: 2000 of 2500), the
     other run completes, exit code 1, and no extraction folder is left behind."""
-    def leftovers():  # this test's instance only: other processes may run meanwhile
+    def leftovers():
+        # this test's runs only: other tests (other pytest-xdist workers) may run an
+        # instance of the same name meanwhile. The run folders are made by this process
+        # (agv-cosim-<our pid>-run-*); a folder straight in the temp folder counts only if
+        # it was not there before the run.
         root = Path(tempfile.gettempdir())
-        return list(root.glob("agv_cosim_crashdut_*")) + list(
-            root.glob("agv-cosim-*-run-*/agv_cosim_crashdut_*"))
+        return sorted(set(root.glob("agv_cosim_crashdut_*")) - before) + list(
+            root.glob(f"agv-cosim-{os.getpid()}-run-*/agv_cosim_crashdut_*"))
+
+    before = set(Path(tempfile.gettempdir()).glob("agv_cosim_crashdut_*"))
 
     path = tmp_path / "crash.toml"
     path.write_text(f"""
