@@ -130,7 +130,8 @@ def _event(manifest, key, table, partial=False):
     for sub in ("at", "set"):
         value = getattr(table, sub)
         if value is None and not partial:
-            raise ManifestError(manifest, f"{key}.{sub}", "missing")
+            raise ManifestError(manifest, f"{key}.{sub}", "missing (a number is required)" if sub == "at" else
+                                'must be a non-empty table of "component.variable" = value')
         if value is not None:
             event[sub] = dict(value) if sub == "set" else value
     return event
