@@ -194,6 +194,69 @@ class PlotsTable(_Table):
         return out
 
 
+class Normal(_Table):
+    distribution: Literal["normal"]
+    mean: Number
+    std: Annotated[Number, Field(gt=0)]
+
+
+class _Bounded(_Table):
+    low: Number
+    high: Number
+
+    @field_validator("high")
+    @classmethod
+    def _above_low(cls, high, info):
+        low = info.data.get("low")
+        if low is not None and not low < high:
+            raise ValueError(f"{high!r} must be > low ({low!r})")
+        return high
+
+
+class Uniform(_Bounded):
+    distribution: Literal["uniform"]
+
+
+class TruncNormal(_Bounded):
+    distribution: Literal["truncnormal"]
+    mean: Number
+    std: Annotated[Number, Field(gt=0)]
+
+
+class Choice(_Table):
+    distribution: Literal["choice"]
+    values: Annotated[list[Any], Field(min_length=1)]
+    weights: list[Number] | None = None
+
+    @field_validator("weights")
+    @classmethod
+    def _one_weight_a_value(cls, weights, info):
+        if weights is not None:
+            if len(weights) != len(info.data.get("values") or ()):
+                raise ValueError("must be an array of one number per value")
+            if min(weights) < 0 or sum(weights) <= 0:
+                raise ValueError("must be >= 0 with a positive sum")
+        return weights
+
+
+#: A sampled parameter's distribution, told by its ``distribution`` key.
+Distribution = Annotated[Normal | Uniform | TruncNormal | Choice,
+                         Field(discriminator="distribution")]
+
+
+class MonteCarloTable(_Table):
+    """``[montecarlo]`` (documented in :mod:`agv_cosim.montecarlo`); names are checked
+    against the components and the sweep by :func:`agv_cosim.montecarlo.parse`."""
+
+    samples: Annotated[StrictInt, Field(ge=1)]
+    seed: Annotated[StrictInt, Field(ge=0)]
+    design: Literal["random", "sobol", "lhs"] = "random"
+    parameters: dict[str, Distribution] = {}
+    seeds: list[Annotated[StrictStr, _dotted("component.parameter")]] = []
+    metrics: Annotated[list[StrictStr], Field(min_length=1)] | None = None
+    band: Dotted | None = None
+
+
 class ManifestTable(_Table):
     """The top level of a manifest."""
 
@@ -208,8 +271,7 @@ class ManifestTable(_Table):
     events: dict[str, EventTable] = {}
     metrics: MetricsTable = MetricsTable()
     plots: PlotsTable = PlotsTable()
-    #: parsed and checked by :func:`agv_cosim.montecarlo.parse`
-    montecarlo: dict[str, Any] | None = None
+    montecarlo: MonteCarloTable | None = None
 
 
 # --------------------------------------------------------------------------- errors
@@ -226,11 +288,13 @@ def check(model, data, prefix=""):
 def schema_error(model, error, prefix=""):
     """The first error of a pydantic ``ValidationError`` as a :class:`SchemaError`."""
     first = error.errors()[0]
-    loc = tuple(part for part in first["loc"] if part != "[key]")
+    parts, parent = _walk(model, first["loc"])
+    if first["type"] in ("union_tag_invalid", "union_tag_not_found"):
+        parts.append(first["ctx"]["discriminator"].strip("'"))
     key = prefix
-    for part in loc:
+    for part in parts:
         key += f"[{part}]" if isinstance(part, int) else (f".{part}" if key else str(part))
-    return SchemaError(key or "(top level)", _problem(first, _model_at(model, loc[:-1])))
+    return SchemaError(key or "(top level)", _problem(first, parent))
 
 
 def _problem(error, parent):
@@ -253,6 +317,8 @@ def _problem(error, parent):
         "list_type": f"must be an array, not {type(value).__name__}",
         "too_short": "must not be empty",
         "literal_error": f"{value!r} is not one of {ctx.get('expected')}",
+        "union_tag_invalid": f"{ctx.get('tag')!r} is not one of {ctx.get('expected_tags')}",
+        "union_tag_not_found": "missing",
     }
     for bound, relation in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")):
         if bound in ctx:
@@ -261,31 +327,45 @@ def _problem(error, parent):
 
 
 def _unwrap(annotation):
+    """``annotation`` without Annotated and Optional; a union of models stays a tuple."""
     while True:
         origin = typing.get_origin(annotation)
         if origin is Annotated:
             annotation = typing.get_args(annotation)[0]
         elif origin in (typing.Union, types.UnionType):
-            annotation = next(a for a in typing.get_args(annotation) if a is not type(None))
+            members = [a for a in typing.get_args(annotation) if a is not type(None)]
+            if len(members) > 1:
+                return tuple(members)
+            annotation = members[0]
         else:
             return annotation
 
 
-def _model_at(model, loc):
-    """The model class at ``loc`` under ``model`` (for its list of keys), or None."""
-    annotation = model
+def _is_model(annotation):
+    return isinstance(annotation, type) and issubclass(annotation, BaseModel)
+
+
+def _walk(model, loc):
+    """Follow pydantic's ``loc`` down from ``model``: the parts that name keys (without
+    "[key]" and the tags of tagged unions) and the model holding the last key (or None)."""
+    annotation, parts, parent = model, [], None
     for part in loc:
         annotation = _unwrap(annotation)
-        if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        if part == "[key]":
+            continue
+        if isinstance(annotation, tuple):  # a tagged union: ``part`` is the tag
+            annotation = next((m for m in annotation if _is_model(m) and any(
+                typing.get_origin(f.annotation) is Literal and part in
+                typing.get_args(f.annotation) for f in m.model_fields.values())), None)
+            continue
+        parts.append(part)
+        if _is_model(annotation):
+            parent = annotation
             field = next((f for n, f in annotation.model_fields.items()
                           if (f.alias or n) == part), None)
-            if field is None:
-                return None
-            annotation = field.annotation
-        elif typing.get_origin(annotation) in (dict, list):
-            annotation = typing.get_args(annotation)[-1]
+            annotation = field.annotation if field else None
         else:
-            return None
-    annotation = _unwrap(annotation)
-    return annotation if isinstance(annotation, type) and issubclass(annotation,
-                                                                     BaseModel) else None
+            parent = None
+            origin = typing.get_origin(annotation)
+            annotation = typing.get_args(annotation)[-1] if origin in (dict, list) else None
+    return parts, parent
