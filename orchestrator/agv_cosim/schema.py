@@ -316,14 +316,23 @@ def _problem(error, parent):
         "model_attributes_type": f"must be a table, not {type(value).__name__}",
         "list_type": f"must be an array, not {type(value).__name__}",
         "too_short": "must not be empty",
-        "literal_error": f"{value!r} is not one of {ctx.get('expected')}",
-        "union_tag_invalid": f"{ctx.get('tag')!r} is not one of {ctx.get('expected_tags')}",
+        "literal_error": f"{value!r} is not one of {_names(ctx.get('expected'))}",
+        "union_tag_invalid": f"{ctx.get('tag')!r} is not one of "
+                             f"{_names(ctx.get('expected_tags'))}",
         "union_tag_not_found": "missing",
     }
     for bound, relation in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")):
         if bound in ctx:
-            return f"{value!r} must be {relation} {ctx[bound]}"
+            limit = ctx[bound]
+            if isinstance(limit, float) and limit.is_integer():
+                limit = int(limit)
+            return f"{value!r} must be {relation} {limit}"
     return texts.get(kind, f"{value!r}: {error['msg']}")
+
+
+def _names(expected):
+    """pydantic's ``'a', 'b' or 'c'`` as ``a, b, c``."""
+    return str(expected).replace("'", "").replace(" or ", ", ")
 
 
 def _unwrap(annotation):
