@@ -6,8 +6,8 @@ The pipeline, one module a stage::
       -> run (agv_cosim.runner, agv_cosim.master)  ->  results (results, metrics, plots)
 
 The format is documented, key by key, in ``experiments/example.toml`` and
-``experiments/FORMAT.md``. :func:`load_manifest` checks the syntax and the numbers (no FMU
-is opened). Every problem is a :class:`ManifestError` whose text is
+``experiments/FORMAT.md``. :func:`load_manifest` checks the syntax, the shape (the schema
+of :mod:`agv_cosim.schema`: unknown keys, types) and the numbers (no FMU is opened). Every problem is a :class:`ManifestError` whose text is
 ``<manifest>: <key>: <problem>``.
 """
 
