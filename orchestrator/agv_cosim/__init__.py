@@ -2,7 +2,9 @@
 
 A manifest goes through five stages, one module (or two) each:
 
-1. manifest (:mod:`agv_cosim.manifest`): the TOML file read and checked key by key into a
+1. manifest (:mod:`agv_cosim.manifest`): the TOML file read, its shape checked against
+   one declarative schema (:mod:`agv_cosim.schema`, pydantic models of every table,
+   ``[metrics]``, ``[plots]`` and ``[montecarlo]`` included), and built into a
    :class:`~agv_cosim.manifest.Manifest`; no FMU is opened. An SSP package is read into
    the same object (:mod:`agv_cosim.ssp_import`), and written from it
    (:mod:`agv_cosim.ssp_export`).

@@ -6,25 +6,21 @@ The pipeline, one module a stage::
       -> run (agv_cosim.runner, agv_cosim.master)  ->  results (results, metrics, plots)
 
 The format is documented, key by key, in ``experiments/example.toml`` and
-``experiments/FORMAT.md``. :func:`load_manifest` checks the syntax and the numbers (no FMU
-is opened). Every problem is a :class:`ManifestError` whose text is
+``experiments/FORMAT.md``. :func:`load_manifest` checks the syntax, the shape (the schema
+of :mod:`agv_cosim.schema`: unknown keys, types) and the numbers (no FMU is opened). Every problem is a :class:`ManifestError` whose text is
 ``<manifest>: <key>: <problem>``.
 """
 
 import hashlib
-import math
 import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from . import schema
 from .results import check_name
 
-ALGORITHMS = ("gauss-seidel", "jacobi")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-_TOP_KEYS = {"name", "description", "simulation", "components", "connections", "variants",
-             "sweep", "record", "metrics", "plots", "events",
-             "montecarlo"}  # [montecarlo]: parsed by agv_cosim.montecarlo
 
 
 #: Most macro steps of one run: 2**53, where k step stops being exact in a double.
@@ -106,87 +102,38 @@ class Manifest:
         return ManifestError(self.path, key, problem)
 
 
-def _number(manifest, table, key, prefix, default=None):
-    value = table.get(key, default)
-    full = f"{prefix}.{key}" if prefix else key
-    if value is None:
-        raise ManifestError(manifest, full, "missing (a number is required)")
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ManifestError(manifest, full, f"{value!r} is not a number")
-    if not math.isfinite(value):
-        raise ManifestError(manifest, full, f"{value!r} is not finite")
-    return float(value)
-
-
-def _table(manifest, data, key, required=False):
-    value = data.get(key)
-    if value is None:
-        if required:
-            raise ManifestError(manifest, key, "missing table")
-        return {}
-    if not isinstance(value, dict):
-        raise ManifestError(manifest, key, f"must be a table, not {type(value).__name__}")
-    return value
-
-
 def _dotted(manifest, key, text, what="component.variable"):
-    if not isinstance(text, str) or text.count(".") != 1:
+    if not isinstance(text, str) or text.count(".") != 1 or not all(text.split(".")):
         raise ManifestError(manifest, key, f"{text!r} is not of the form '{what}'")
-    left, right = text.split(".")
-    if not left or not right:
-        raise ManifestError(manifest, key, f"{text!r} is not of the form '{what}'")
-    return left, right
+    return tuple(text.split("."))
 
 
 def _component(manifest, base_dir, name, table, key):
-    if not isinstance(table, dict):
-        raise ManifestError(manifest, key, "must be a table with 'fmu' and 'parameters'")
-    unknown = set(table) - {"fmu", "parameters", "table", "interpolation", "units"}
-    if unknown:
-        raise ManifestError(manifest, f"{key}.{sorted(unknown)[0]}", "unknown key "
-                            "(allowed: fmu, parameters; table, interpolation, units)")
-    if "table" in table:
-        if "fmu" in table or "parameters" in table:
+    """A checked :class:`schema.ComponentTable` as a :class:`Component`: an FMU or a table."""
+    if table.table is not None:
+        if table.fmu is not None or "parameters" in table.model_fields_set:
             raise ManifestError(manifest, f"{key}.table", "a component is an FMU or a "
                                 "table, not both")
-        if not isinstance(table["table"], str):
-            raise ManifestError(manifest, f"{key}.table", f"{table['table']!r} is not a path")
-        for sub in ("interpolation", "units"):
-            if not isinstance(table.get(sub, {}), dict):
-                raise ManifestError(manifest, f"{key}.{sub}", "must be a table")
-        return Component(name, None, {}, table=(base_dir / table["table"]).resolve(),
-                         interpolation=dict(table.get("interpolation", {})),
-                         units=dict(table.get("units", {})))
-    elif "interpolation" in table or "units" in table:
-        raise ManifestError(manifest, f"{key}.interpolation", "only for a table component")
-    params = table.get("parameters", {})
-    if not isinstance(params, dict):
-        raise ManifestError(manifest, f"{key}.parameters", "must be a table")
-    fmu = table.get("fmu")
-    if fmu is not None and not isinstance(fmu, str):
-        raise ManifestError(manifest, f"{key}.fmu", f"{fmu!r} is not a path")
-    return Component(name, (base_dir / fmu).resolve() if fmu else None, dict(params))
+        return Component(name, None, {}, table=(base_dir / table.table).resolve(),
+                         interpolation=dict(table.interpolation), units=dict(table.units))
+    for sub in ("interpolation", "units"):
+        if sub in table.model_fields_set:
+            raise ManifestError(manifest, f"{key}.interpolation", "only for a table component")
+    fmu = table.fmu
+    return Component(name, (base_dir / fmu).resolve() if fmu else None, dict(table.parameters))
 
 
 def _event(manifest, key, table, partial=False):
-    """One ``[events.<name>]`` table: ``at`` [s] and ``set`` ("comp.var" -> value)."""
-    if not isinstance(table, dict):
-        raise ManifestError(manifest, key, "must be a table with 'at' and 'set'")
-    unknown = set(table) - {"at", "set"}
-    if unknown:
-        raise ManifestError(manifest, f"{key}.{sorted(unknown)[0]}",
-                            "unknown key (allowed: at, set)")
+    """One checked ``[events.<name>]`` table: ``at`` [s] and ``set`` ("comp.var" -> value);
+    a variant's change of a base event (``partial``) may give only one of them."""
     event = {}
-    if "at" in table or not partial:
-        event["at"] = _number(manifest, table, "at", key)
-    values = table.get("set")
-    if values is not None or not partial:
-        if not isinstance(values, dict) or not values:
-            raise ManifestError(manifest, f"{key}.set", "must be a non-empty table of "
-                                '"component.variable" = value')
-        for name in values:
-            _dotted(manifest, f"{key}.set", name)
-        event["set"] = dict(values)
+    for sub in ("at", "set"):
+        value = getattr(table, sub)
+        if value is None and not partial:
+            raise ManifestError(manifest, f"{key}.{sub}", "missing (a number is required)" if sub == "at" else
+                                'must be a non-empty table of "component.variable" = value')
+        if value is not None:
+            event[sub] = dict(value) if sub == "set" else value
     return event
 
 
@@ -244,17 +191,13 @@ def manifest_from_data(data, path, sha256, base_dir=None):
         Folder relative FMU and table paths are relative to (default: ``path``'s).
     """
     path = Path(path)
-    unknown = set(data) - _TOP_KEYS
-    if unknown:
-        raise ManifestError(path, sorted(unknown)[0], "unknown top-level key (allowed: "
-                            + ", ".join(sorted(_TOP_KEYS)) + ")")
+    try:
+        table = schema.check(schema.ManifestTable, data)
+    except schema.SchemaError as error:
+        raise ManifestError(path, error.key, error.problem) from None
     base_dir = path.resolve().parent if base_dir is None else Path(base_dir)
-    sim = _table(path, data, "simulation", required=True)
-    start = _number(path, sim, "start", "simulation", 0.0)
-    stop = _number(path, sim, "stop", "simulation")
-    step = _number(path, sim, "step", "simulation")
-    if step <= 0:
-        raise ManifestError(path, "simulation.step", f"{step!r} must be > 0")
+    sim = table.simulation
+    start, stop, step = sim.start, sim.stop, sim.step
     if stop <= start:
         raise ManifestError(path, "simulation.stop", f"{stop!r} must be > start ({start!r})")
     steps = (stop - start) / step
@@ -265,97 +208,60 @@ def manifest_from_data(data, path, sha256, base_dir=None):
     if not whole_multiple(stop - start, step):
         raise ManifestError(path, "simulation.step", f"stop - start = {stop - start!r} is not "
                             f"a whole number of steps of {step!r}")
-    algorithm = sim.get("algorithm", "gauss-seidel")
-    if algorithm not in ALGORITHMS:
-        raise ManifestError(path, "simulation.algorithm",
-                            f"{algorithm!r} is not one of {', '.join(ALGORITHMS)}")
-    extra = set(sim) - {"start", "stop", "step", "algorithm"}
-    if extra:
-        raise ManifestError(path, f"simulation.{sorted(extra)[0]}", "unknown key")
 
     components = {}
-    for name, table in _table(path, data, "components", required=True).items():
+    for name, ctable in table.components.items():
         key = f"components.{name}"
         if not _NAME.match(name):
             raise ManifestError(path, key, "instance names are identifiers ([A-Za-z_][A-Za-z0-9_]*)")
-        comp = _component(path, base_dir, name, table, key)
+        comp = _component(path, base_dir, name, ctable, key)
         if comp.fmu is None and comp.table is None:
             raise ManifestError(path, f"{key}.fmu", "missing (path of the FMU, relative to "
                                 "the manifest)")
         components[name] = comp
-    if not components:
-        raise ManifestError(path, "components", "no components")
 
-    connections = []
-    raw_conns = data.get("connections", [])
-    if not isinstance(raw_conns, list):
-        raise ManifestError(path, "connections", "must be an array of tables")
-    for i, conn in enumerate(raw_conns):
-        key = f"connections[{i}]"
-        if not isinstance(conn, dict) or set(conn) != {"from", "to"}:
-            raise ManifestError(path, key, "must be a table with exactly 'from' and 'to'")
-        connections.append(Connection(_dotted(path, f"{key}.from", conn["from"]),
-                                      _dotted(path, f"{key}.to", conn["to"]), key))
-
-    events = {}
-    for name, table in _table(path, data, "events").items():
-        events[name] = _event(path, f"events.{name}", table)
+    connections = [Connection(tuple(c.source.split(".")), tuple(c.target.split(".")),
+                              f"connections[{i}]") for i, c in enumerate(table.connections)]
+    events = {name: _event(path, f"events.{name}", etable)
+              for name, etable in table.events.items()}
 
     variants = {}
-    for name, table in _table(path, data, "variants").items():
+    for name, vtable in table.variants.items():
         key = f"variants.{name}"
         try:
             check_name(name, "variant name")
         except ValueError as error:
             raise ManifestError(path, key, f"{error} (it names the run's folder)") from None
-        if not isinstance(table, dict):
-            raise ManifestError(path, key, "must be a table")
-        extra = set(table) - {"description", "components", "events"}
-        if extra:
-            raise ManifestError(path, f"{key}.{sorted(extra)[0]}",
-                                "unknown key (allowed: description, components, events)")
         comps = {}
-        for cname, ctable in _table(path, table, "components").items():
+        for cname, ctable in vtable.components.items():
             ckey = f"{key}.components.{cname}"
             if cname not in components:
                 raise ManifestError(path, ckey, f"unknown component '{cname}'")
             comps[cname] = _component(path, base_dir, cname, ctable, ckey)
-        variant_events = {}
-        for ename, etable in _table(path, table, "events").items():
-            ekey = f"{key}.events.{ename}"
-            # an event of the base is changed field by field; a new one needs both
-            variant_events[ename] = _event(path, ekey, etable, partial=ename in events)
-        variants[name] = {"description": str(table.get("description", "")),
-                          "components": comps, "events": variant_events}
+        # an event of the base is changed field by field; a new one needs both
+        variant_events = {ename: _event(path, f"{key}.events.{ename}", etable,
+                                        partial=ename in events)
+                          for ename, etable in vtable.events.items()}
+        variants[name] = {"description": vtable.description, "components": comps,
+                          "events": variant_events}
 
     sweep = {}
-    for name, values in _table(path, data, "sweep").items():
+    for name, values in table.sweep.items():
         key = f"sweep.{name}"
         if name.startswith("events."):
             _event_key(path, key, name, events)
         else:
             _dotted(path, key, name, "component.parameter")
-        if not isinstance(values, list) or not values:
-            raise ManifestError(path, key, "must be a non-empty array of values")
         sweep[name] = list(values)
 
-    record = _table(path, data, "record")
-    extra = set(record) - {"variables", "interval"}
-    if extra:
-        raise ManifestError(path, f"record.{sorted(extra)[0]}", "unknown key")
-    variables = record.get("variables")
-    if variables is not None:
-        if not isinstance(variables, list) or not variables:
-            raise ManifestError(path, "record.variables", "must be a non-empty array")
-        for i, v in enumerate(variables):
-            _dotted(path, f"record.variables[{i}]", v)
-        if len(set(variables)) != len(variables):
-            raise ManifestError(path, "record.variables", "a variable is listed twice")
-    interval = _number(path, record, "interval", "record", step)
+    variables = table.record.variables
+    if variables is not None and len(set(variables)) != len(variables):
+        raise ManifestError(path, "record.variables", "a variable is listed twice")
+    interval = step if table.record.interval is None else table.record.interval
     if interval <= 0 or interval / step > MAX_STEPS or not whole_multiple(interval, step):
         raise ManifestError(path, "record.interval", f"{interval!r} must be a positive whole "
                             f"multiple of the step ({step!r})")
-    name = data.get("name", path.stem)
+    name = path.stem if table.name is None else table.name
     try:
         check_name(name)
     except ValueError as error:
@@ -364,10 +270,10 @@ def manifest_from_data(data, path, sha256, base_dir=None):
     from . import montecarlo  # [montecarlo] is parsed and checked there
     sampling = montecarlo.parse(path, data.get("montecarlo"), components, sweep)
     return Manifest(path=path, sha256=sha256, name=name,
-                    description=str(data.get("description", "")), start=start, stop=stop,
-                    step=step, algorithm=algorithm, components=components,
+                    description=table.description, start=start, stop=stop,
+                    step=step, algorithm=sim.algorithm, components=components,
                     connections=connections, variants=variants, sweep=sweep,
                     record=variables, record_interval=interval,
-                    metrics=_table(path, data, "metrics"), plots=_table(path, data, "plots"),
+                    metrics=dict(data.get("metrics", {})), plots=dict(data.get("plots", {})),
                     events=events, montecarlo=sampling)
 

@@ -144,94 +144,21 @@ The result never holds NaN or inf: a metric that is undefined is reported as ``N
 
 import math
 import tempfile
-from collections.abc import Mapping
 
 import numpy as np
 
-#: Default settling band of the lateral error [m].
-DEFAULT_SETTLE_BAND = 0.02
+from . import schema
+from .schema import DEFAULT_SETTLE_BAND  # noqa: F401 - part of this module's interface
 
 _SIGNAL_KEYS = ("lateral_error", "heading_error", "steering_angle", "steering_rate", "control")
-_KEYS = _SIGNAL_KEYS + ("settle_band", "settle_after", "saturation", "reference")
-_SATURATION_KEYS = ("signal", "limit", "tolerance")
-_REFERENCE_KEYS = ("path", "x", "y")
 
 
 # --------------------------------------------------------------------------- validation
 
-def check_signal_name(key, value, table="metrics"):
-    """Return ``value`` if it is a signal name 'component.variable'; else raise
-    ValueError naming ``table.key`` (also used for the ``[plots]`` table)."""
-    if not isinstance(value, str):
-        raise ValueError(f"{table}.{key}: expected a signal name 'component.variable', "
-                         f"got {value!r}")
-    component, dot, variable = value.partition(".")
-    if not dot or not component or not variable:
-        raise ValueError(f"{table}.{key}: signal name {value!r} is not 'component.variable'")
-    return value
-
-
-def _check_number(key, value, minimum=None, strict=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) \
-            or not math.isfinite(value):
-        raise ValueError(f"metrics.{key}: expected a finite number, got {value!r}")
-    if minimum is not None and (value <= minimum if strict else value < minimum):
-        relation = ">" if strict else ">="
-        raise ValueError(f"metrics.{key}: must be {relation} {minimum}, got {value!r}")
-    return float(value)
-
-
-def _check_table(key, value, allowed, required):
-    if not isinstance(value, Mapping):
-        raise ValueError(f"metrics.{key}: expected a table, got {value!r}")
-    for sub in value:
-        if sub not in allowed:
-            raise ValueError(f"metrics.{key}.{sub}: unknown key (allowed: "
-                             f"{', '.join(allowed)})")
-    for sub in required:
-        if sub not in value:
-            raise ValueError(f"metrics.{key}.{sub}: missing")
-
-
 def _validate(spec):
-    """Check ``spec`` and return it normalised (defaults filled in)."""
-    if spec is None:
-        spec = {}
-    if not isinstance(spec, Mapping):
-        raise ValueError(f"metrics: expected a table, got {type(spec).__name__}")
-    for key in spec:
-        if key not in _KEYS:
-            raise ValueError(f"metrics.{key}: unknown key (allowed: {', '.join(_KEYS)})")
-    out = {}
-    for key in _SIGNAL_KEYS:
-        if key in spec:
-            out[key] = check_signal_name(key, spec[key])
-    out["settle_band"] = _check_number("settle_band",
-                                       spec.get("settle_band", DEFAULT_SETTLE_BAND),
-                                       0.0, strict=True)
-    if "settle_after" in spec:
-        out["settle_after"] = _check_number("settle_after", spec["settle_after"], 0.0)
-    if "saturation" in spec:
-        sat = spec["saturation"]
-        _check_table("saturation", sat, _SATURATION_KEYS, ("signal", "limit"))
-        limit = _check_number("saturation.limit", sat["limit"], 0.0, strict=True)
-        tolerance = _check_number("saturation.tolerance", sat.get("tolerance", 1e-9 * limit),
-                                  0.0)
-        if tolerance >= limit:
-            raise ValueError(f"metrics.saturation.tolerance: must be < limit ({limit!r}), "
-                             f"got {tolerance!r}")
-        out["saturation"] = {"signal": check_signal_name("saturation.signal", sat["signal"]),
-                             "limit": limit, "tolerance": tolerance}
-    if "reference" in spec:
-        ref = spec["reference"]
-        _check_table("reference", ref, _REFERENCE_KEYS, _REFERENCE_KEYS)
-        if not isinstance(ref["path"], str) or not ref["path"].strip():
-            raise ValueError(f"metrics.reference.path: expected a path string, "
-                             f"got {ref['path']!r}")
-        out["reference"] = {"path": ref["path"],
-                            "x": check_signal_name("reference.x", ref["x"]),
-                            "y": check_signal_name("reference.y", ref["y"])}
-    return out
+    """``spec`` checked against :class:`agv_cosim.schema.MetricsTable` and returned
+    normalised (defaults filled in); a problem is a ValueError naming ``metrics.<key>``."""
+    return schema.check(schema.MetricsTable, {} if spec is None else spec, "metrics").spec()
 
 
 def referenced_signals(spec):

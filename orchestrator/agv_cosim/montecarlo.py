@@ -59,6 +59,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import schema
 from .manifest import ManifestError
 from .plan import run_label
 
@@ -69,7 +70,6 @@ DISTRIBUTIONS = {
     "truncnormal": ("mean", "std", "low", "high"),
     "choice": ("values",),
 }
-_KEYS = {"samples", "seed", "design", "seeds", "parameters", "metrics", "band"}
 #: Column of summary.csv (and key of a run's sweep point) holding the sample index.
 SAMPLE = "montecarlo.sample"
 
@@ -95,66 +95,11 @@ def _error(path, key, problem):
     return ManifestError(path, f"montecarlo.{key}" if key else "montecarlo", problem)
 
 
-def _finite(path, key, value):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
-            not math.isfinite(value):
-        raise _error(path, key, f"{value!r} is not a finite number")
-    return float(value)
-
-
-def _dotted(path, key, name):
-    parts = name.split(".") if isinstance(name, str) else []
-    if len(parts) != 2 or not all(parts):
-        raise _error(path, key, f"{name!r} is not of the form 'component.parameter'")
-    return parts
-
-
-def _distribution(path, key, table):
-    if not isinstance(table, dict):
-        raise _error(path, key, "must be a table with 'distribution' and its parameters")
-    kind = table.get("distribution")
-    if kind not in DISTRIBUTIONS:
-        raise _error(path, f"{key}.distribution", f"{kind!r} is not one of "
-                     + ", ".join(DISTRIBUTIONS))
-    allowed = set(DISTRIBUTIONS[kind]) | {"distribution"} | (
-        {"weights"} if kind == "choice" else set())
-    extra = set(table) - allowed
-    if extra:
-        raise _error(path, f"{key}.{sorted(extra)[0]}", f"unknown key for a {kind} "
-                     f"distribution (allowed: {', '.join(sorted(allowed))})")
-    spec = {"distribution": kind}
-    if kind == "choice":
-        values = table.get("values")
-        if not isinstance(values, list) or not values:
-            raise _error(path, f"{key}.values", "must be a non-empty array of values")
-        spec["values"] = list(values)
-        weights = table.get("weights")
-        if weights is not None:
-            if not isinstance(weights, list) or len(weights) != len(values):
-                raise _error(path, f"{key}.weights", "must be an array of one number per "
-                             "value")
-            weights = [_finite(path, f"{key}.weights", w) for w in weights]
-            if min(weights) < 0 or sum(weights) <= 0:
-                raise _error(path, f"{key}.weights", "must be >= 0 with a positive sum")
-            spec["weights"] = weights
-        return spec
-    for name in DISTRIBUTIONS[kind]:
-        if name not in table:
-            raise _error(path, f"{key}.{name}", f"missing (a {kind} distribution needs "
-                         f"{', '.join(DISTRIBUTIONS[kind])})")
-        spec[name] = _finite(path, f"{key}.{name}", table[name])
-    if "std" in spec and spec["std"] <= 0:
-        raise _error(path, f"{key}.std", f"{spec['std']!r} must be > 0")
-    if "low" in spec and not spec["low"] < spec["high"]:
-        raise _error(path, f"{key}.high", f"{spec['high']!r} must be > low "
-                     f"({spec['low']!r})")
-    return spec
-
-
 def parse(path, table, components=(), swept=()):
     """Check a raw ``[montecarlo]`` TOML table; return a :class:`MonteCarlo` or None.
 
-    ``components``: the manifest's component names; ``swept``: its swept names (a
+    Its shape is :class:`agv_cosim.schema.MonteCarloTable`; here the names:
+    ``components``, the manifest's component names; ``swept``, its swept names (a
     parameter is sampled or swept, not both).
 
     Raises
@@ -164,39 +109,27 @@ def parse(path, table, components=(), swept=()):
     """
     if table is None:
         return None
-    if not isinstance(table, dict):
-        raise _error(path, "", f"must be a table, not {type(table).__name__}")
-    extra = set(table) - _KEYS
-    if extra:
-        raise _error(path, sorted(extra)[0], "unknown key (allowed: "
-                     + ", ".join(sorted(_KEYS)) + ")")
-    samples = table.get("samples")
-    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
-        raise _error(path, "samples", f"{samples!r} must be an integer >= 1")
-    seed = table.get("seed")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise _error(path, "seed", f"{seed!r} must be an integer >= 0")
-    design = table.get("design", "random")
-    if design not in DESIGNS:
-        raise _error(path, "design", f"{design!r} is not one of {', '.join(DESIGNS)}")
-    raw = table.get("parameters", {})
-    if not isinstance(raw, dict):
-        raise _error(path, "parameters", "must be a table of \"component.parameter\" = "
-                     "{ distribution = ... }")
+    try:
+        checked = schema.check(schema.MonteCarloTable, table, "montecarlo")
+    except schema.SchemaError as error:
+        raise ManifestError(path, error.key, error.problem) from None
     parameters = {}
-    for name, spec in raw.items():
+    for name, spec in checked.parameters.items():
         key = f"parameters.{name}"
-        cname, _ = _dotted(path, key, name)
+        cname, dot, rest = name.partition(".")
+        if not cname or not rest or "." in rest:
+            raise _error(path, key, f"{name!r} is not of the form 'component.parameter'")
         if components and cname not in components:
             raise _error(path, key, f"unknown component '{cname}'")
         if name in swept:
             raise _error(path, key, f"'{name}' is also swept in [sweep]")
-        parameters[name] = _distribution(path, key, spec)
-    seeds = table.get("seeds", [])
-    if not isinstance(seeds, list):
-        raise _error(path, "seeds", "must be an array of \"component.parameter\" names")
+        kind = spec.distribution  # keys in the documented order (montecarlo.json)
+        parameters[name] = {"distribution": kind, **{
+            sub: getattr(spec, sub) for sub in DISTRIBUTIONS[kind] + ("weights",)
+            if getattr(spec, sub, None) is not None}}
+    seeds = checked.seeds
     for name in seeds:
-        cname, _ = _dotted(path, "seeds", name)
+        cname = name.partition(".")[0]
         if components and cname not in components:
             raise _error(path, "seeds", f"unknown component '{cname}' in '{name}'")
         if name in parameters or name in swept or seeds.count(name) > 1:
@@ -204,14 +137,8 @@ def parse(path, table, components=(), swept=()):
                          "sweep)")
     if not parameters and not seeds:
         raise _error(path, "parameters", "nothing to sample: give parameters or seeds")
-    metrics = table.get("metrics")
-    if metrics is not None and (not isinstance(metrics, list) or not metrics or
-                                not all(isinstance(m, str) for m in metrics)):
-        raise _error(path, "metrics", "must be a non-empty array of metric names")
-    band = table.get("band")
-    if band is not None:
-        _dotted(path, "band", band)
-    return MonteCarlo(samples, seed, design, parameters, list(seeds), metrics, band)
+    return MonteCarlo(checked.samples, checked.seed, checked.design, parameters, list(seeds),
+                      checked.metrics, checked.band)
 
 
 def unit_samples(mc):

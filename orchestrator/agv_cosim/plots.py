@@ -64,7 +64,6 @@ Complete example::
 """
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -73,16 +72,14 @@ from matplotlib import rc_context
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from .metrics import check_signal_name
+from . import schema
 from .results import CHUNK_ROWS, count_rows, iter_timeseries, timeseries_columns
 
 #: File names of the figures (stable, so that a rerun overwrites them).
 SIGNALS_FILE = "signals.png"
 TRAJECTORY_FILE = "trajectory.png"
-DEFAULT_DPI = 120
+DEFAULT_DPI = schema.DEFAULT_DPI
 
-_KEYS = ("signals", "x", "units", "title", "trajectory", "dpi")
-_TRAJECTORY_KEYS = ("x", "y", "path")
 #: Points of the drawn reference path.
 _PATH_POINTS = 2000
 #: Points per run projected onto an unbounded path to find the stretch to draw.
@@ -130,65 +127,10 @@ class RunData:
 
 # --------------------------------------------------------------------------- validation
 
-def _check_signal_name(key, value):
-    return check_signal_name(key, value, table="plots")
-
-
 def _validate(spec):
-    """Check ``spec`` and return it normalised (defaults filled in)."""
-    if spec is None:
-        spec = {}
-    if not isinstance(spec, Mapping):
-        raise ValueError(f"plots: expected a table, got {type(spec).__name__}")
-    for key in spec:
-        if key not in _KEYS:
-            raise ValueError(f"plots.{key}: unknown key (allowed: {', '.join(_KEYS)})")
-    out = {"x": "time", "units": {}, "title": None, "dpi": DEFAULT_DPI}
-    if "signals" in spec:
-        signals = spec["signals"]
-        if isinstance(signals, str) or not isinstance(signals, (list, tuple)) or not signals:
-            raise ValueError(f"plots.signals: expected a non-empty list of signal names, "
-                             f"got {signals!r}")
-        out["signals"] = [_check_signal_name(f"signals[{i}]", name)
-                          for i, name in enumerate(signals)]
-    if "x" in spec:
-        out["x"] = spec["x"] if spec["x"] == "time" else _check_signal_name("x", spec["x"])
-    if "units" in spec:
-        units = spec["units"]
-        if not isinstance(units, Mapping):
-            raise ValueError(f"plots.units: expected a table of signal name to unit, "
-                             f"got {units!r}")
-        for name, unit in units.items():
-            if not isinstance(unit, str):
-                raise ValueError(f"plots.units.{name}: expected a unit string, got {unit!r}")
-        out["units"] = dict(units)
-    if "title" in spec:
-        if not isinstance(spec["title"], str):
-            raise ValueError(f"plots.title: expected a string, got {spec['title']!r}")
-        out["title"] = spec["title"]
-    if "dpi" in spec:
-        dpi = spec["dpi"]
-        if isinstance(dpi, bool) or not isinstance(dpi, int) or not 10 <= dpi <= 1200:
-            raise ValueError(f"plots.dpi: expected an integer in [10, 1200], got {dpi!r}")
-        out["dpi"] = dpi
-    if "trajectory" in spec:
-        traj = spec["trajectory"]
-        if not isinstance(traj, Mapping):
-            raise ValueError(f"plots.trajectory: expected a table, got {traj!r}")
-        for sub in traj:
-            if sub not in _TRAJECTORY_KEYS:
-                raise ValueError(f"plots.trajectory.{sub}: unknown key (allowed: "
-                                 f"{', '.join(_TRAJECTORY_KEYS)})")
-        for sub in ("x", "y"):
-            if sub not in traj:
-                raise ValueError(f"plots.trajectory.{sub}: missing")
-        path = traj.get("path")
-        if path is not None and (not isinstance(path, str) or not path.strip()):
-            raise ValueError(f"plots.trajectory.path: expected a path string, got {path!r}")
-        out["trajectory"] = {"x": _check_signal_name("trajectory.x", traj["x"]),
-                             "y": _check_signal_name("trajectory.y", traj["y"]),
-                             "path": path}
-    return out
+    """``spec`` checked against :class:`agv_cosim.schema.PlotsTable` and returned
+    normalised (defaults filled in); a problem is a ValueError naming ``plots.<key>``."""
+    return schema.check(schema.PlotsTable, {} if spec is None else spec, "plots").spec()
 
 
 def referenced_signals(spec):

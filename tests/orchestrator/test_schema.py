@@ -1,0 +1,67 @@
+"""agv_cosim.schema: pydantic errors mapped onto one line ``<key>: <problem>`` (the key is
+dotted, with [i] for array items and without pydantic's union tags), strict scalars."""
+import pytest
+
+from agv_cosim import schema
+from agv_cosim.manifest import ManifestError, manifest_from_data
+
+BASE = {"simulation": {"stop": 1.0, "step": 0.1}, "components": {"a": {"fmu": "a.fmu"}}}
+
+
+def _error(**tables):
+    with pytest.raises(ManifestError) as info:
+        manifest_from_data({**BASE, **tables}, "m.toml", "0")
+    text = str(info.value)
+    assert "\n" not in text and text.startswith("m.toml: ")
+    return text.removeprefix("m.toml: ")
+
+
+@pytest.mark.parametrize("tables, message", [
+    ({"zzz": 1}, "zzz: unknown key (allowed: name, description, simulation, components, "
+                 "connections, variants, sweep, record, events, metrics, plots, montecarlo)"),
+    ({"simulation": {"stop": "1", "step": 0.1}}, "simulation.stop: '1' is not a number"),
+    ({"simulation": {"stop": True, "step": 0.1}}, "simulation.stop: True is not a number"),
+    ({"simulation": {"stop": float("inf"), "step": 0.1}}, "simulation.stop: inf is not finite"),
+    ({"simulation": {"stop": 1.0, "step": 0.0}}, "simulation.step: 0.0 must be > 0"),
+    ({"simulation": {"stop": 1.0, "step": 0.1, "algorithm": "rk4"}},
+     "simulation.algorithm: 'rk4' is not one of gauss-seidel, jacobi"),
+    ({"components": {"a": {"fmu": "a.fmu", "p": 1}}},
+     "components.a.p: unknown key (allowed: fmu, parameters, table, interpolation, units)"),
+    ({"connections": [{"from": "a.x", "to": "a.y"}, {"from": "ax", "to": "a.y"}]},
+     "connections[1].from: 'ax' is not of the form 'component.variable'"),
+    ({"events": {"e": {"at": 0.1, "set": {"ax": 1}}}},
+     "events.e.set.ax: 'ax' is not of the form 'component.variable'"),
+    ({"metrics": {"reference": {"path": "", "x": "a.x", "y": "a.y"}}},
+     "metrics.reference.path: expected a path string, got ''"),
+    ({"plots": {"dpi": 120.5}}, "plots.dpi: 120.5 is not an integer"),
+    ({"montecarlo": {"samples": 1, "seed": 1,
+                     "parameters": {"a.p": {"distribution": "normal", "mean": 0, "std": 1,
+                                            "s": 1}}}},
+     "montecarlo.parameters.a.p.s: unknown key (allowed: distribution, mean, std)"),
+    ({"montecarlo": {"samples": 1, "seed": 1,
+                     "parameters": {"a.p": {"distribution": "cauchy"}}}},
+     "montecarlo.parameters.a.p.distribution: 'cauchy' is not one of normal, uniform, "
+     "truncnormal, choice"),
+    ({"montecarlo": {"samples": 1, "seed": 1,
+                     "parameters": {"a.p": {"distribution": "uniform", "low": 1, "high": 1}}}},
+     "montecarlo.parameters.a.p.high: 1.0 must be > low (1.0)"),
+])
+def test_errors_name_the_dotted_key(tables, message):
+    assert _error(**tables) == message
+
+
+def test_ints_are_numbers_and_defaults_fill_in():
+    manifest = manifest_from_data({**BASE, "simulation": {"stop": 1, "step": 0.5}},
+                                  "m.toml", "0")
+    assert (manifest.start, manifest.stop, manifest.step) == (0.0, 1.0, 0.5)
+    assert type(manifest.stop) is float and manifest.algorithm == "gauss-seidel"
+    spec = schema.check(schema.MetricsTable, {"saturation": {"signal": "a.u", "limit": 2}},
+                        "metrics").spec()
+    assert spec == {"settle_band": 0.02,
+                    "saturation": {"signal": "a.u", "limit": 2.0, "tolerance": 2e-9}}
+
+
+def test_a_table_checked_alone_is_prefixed():
+    with pytest.raises(schema.SchemaError) as info:
+        schema.check(schema.PlotsTable, {"trajectory": {"x": "v.x"}}, "plots")
+    assert (info.value.key, info.value.problem) == ("plots.trajectory.y", "missing")
