@@ -6,8 +6,9 @@ process start, imports, FMU extraction, instantiation, one step, the result file
 commands do the same work on the same FMUs (this checkout's ``fmus/``):
 
 before
-    ``agv-cosim`` of a baseline environment (default: ``/work/main/.venv``, the code
-    before this branch; ``--before PATH`` names another ``agv-cosim``);
+    the ``agv-cosim`` of a baseline environment, named by ``--before PATH`` (required),
+    e.g. the code before issue 16: ``git worktree add ../agv-old 14af212 && make -C
+    ../agv-old venv``, then ``--before ../agv-old/.venv/bin/agv-cosim``;
 after
     this environment's ``agv-cosim``.
 
@@ -16,7 +17,7 @@ extra runs do not hide behind a second core) for 1 run (variant a) and 3 runs (v
 a, b, c), rounds alternating before / after; the medians are printed, the cost of one
 extra run ((3 runs - 1 run) / 2) and the ratios before / after.
 
-Run: ``.venv/bin/python benchmarks/bench_runs.py [--rounds 5] [--before PATH]``
+Run: ``.venv/bin/python benchmarks/bench_runs.py --before PATH [--rounds 5]``
 """
 
 import argparse
@@ -57,7 +58,8 @@ def _time(command, manifest, variants, out):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--rounds", type=int, default=5)
-    parser.add_argument("--before", default="/work/main/.venv/bin/agv-cosim")
+    parser.add_argument("--before", required=True, metavar="PATH",
+                        help="agv-cosim command of the baseline environment")
     args = parser.parse_args(argv)
     after = str(Path(sys.executable).with_name("agv-cosim"))
     if not Path(args.before).is_file():
