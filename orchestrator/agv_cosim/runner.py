@@ -1,8 +1,8 @@
 """Runs, variants, sweeps and parallel workers.
 
 :func:`prepare` loads and validates a manifest into a list of :class:`Job` (one per
-variant x sweep point); :func:`execute` runs each of them in a child process of its own
-(``forkserver`` context; up to ``workers`` at once) and writes the output folder::
+variant x sweep point); :func:`execute` runs them in worker processes (``forkserver``
+context; up to ``workers`` at once) and writes the output folder::
 
     DIR/<run label>/timeseries.csv   time, then component.variable (repr floats)
     DIR/<run label>/metrics.json     metrics.compute_metrics(...) of the run
@@ -13,10 +13,13 @@ variant x sweep point); :func:`execute` runs each of them in a child process of 
 Each run is independent and deterministic, so the parallel and the serial results are
 byte-identical. ``DIR`` is assembled under a temporary name and renamed into place.
 
-Why a process per run: an FMU runs inside the process that loads it, and a failing
-pythonfmu 0.7 FMU can damage its host's heap (see agv_core/fmi_slave.py). In a child of
-its own, the damage ends with the run; a child that dies is reported as that run's
-failure (partial if it had recorded rows), and the other runs go on.
+Why worker processes: an FMU runs inside the process that loads it, and a failing
+pythonfmu 0.7 FMU can damage its host's heap (see agv_core/fmi/pythonfmu_workarounds.py).
+A worker runs the next job only after a run that ended ``complete``; after any other
+ending it exits and a fresh worker takes the next job, so the damage ends with the run.
+A worker that dies is reported as its run's failure (partial if it had recorded rows),
+and the other runs go on. Reusing a worker after clean runs spares each later run the
+process start and the import of the FMUs' bundled cores.
 """
 
 import importlib
@@ -230,11 +233,19 @@ def _finish(job, run_dir, rows, status, error, wall, values, metrics_error, ende
             "variant": job.variant}
 
 
-def _child(job, run_dir, channel, scratch, track):
-    """Body of a run's child process: run it, report progress and the result.
+def _worker(jobs, channel, scratch, track):
+    """Body of a worker process: run the jobs the parent sends, one at a time.
 
-    FMUs are extracted under ``scratch``, which the parent deletes however the child
-    ends (a child that dies cannot clean up after itself). The child dies with its
+    ``jobs`` is the reading end of a pipe that brings ``(job, run_dir)`` or None (stop);
+    ``channel`` carries progress, FMU messages and each result back. A worker runs the
+    next job only after a run that ended ``complete``: any other ending (a failed or
+    partial run, an FMU error) may have left the process damaged (pythonfmu, see
+    agv_core/fmi/pythonfmu_workarounds.py), so the worker then exits and the parent
+    starts a fresh one. Reusing a worker spares each later run the process start and the
+    import of the FMUs' bundled cores (benchmarks/bench_runs.py).
+
+    FMUs are extracted under ``scratch``, which the parent deletes however the worker
+    ends (a process that dies cannot clean up after itself). The worker dies with its
     parent (:func:`~agv_cosim.lifetime.die_with_parent`), ignores SIGINT (the parent,
     which a Ctrl-C reaches too, stops it) and ends quietly when the parent is gone.
     """
@@ -251,21 +262,32 @@ def _child(job, run_dir, channel, scratch, track):
     def progress(steps):
         send(("progress", steps))
 
-    warnings = [0]
+    while True:
+        try:
+            task = jobs.recv()
+        except (EOFError, OSError):  # the parent is gone
+            os._exit(1)
+        if task is None:
+            break
+        job, run_dir = task
+        track[:] = [0.0] * len(track)
+        warnings = [0]
 
-    def message(component, status, text):
-        # errors (and the first 100 warnings) reach the parent before a crash loses them
-        if status >= 3 or (status >= 1 and warnings[0] < 100):
-            warnings[0] += status < 3
-            send(("message", f"{component}: {' '.join(text.split())}"))
+        def message(component, status, text):
+            # errors (and the first 100 warnings) reach the parent before a crash loses them
+            if status >= 3 or (status >= 1 and warnings[0] < 100):
+                warnings[0] += status < 3
+                send(("message", f"{component}: {' '.join(text.split())}"))
 
-    try:
-        result = run_job(job, run_dir, progress, track, message)
-    except Exception as failure:  # noqa: BLE001 - e.g. a full disk: report, no traceback
-        result = {"label": job.label, "status": "failed", "rows": 0, "metrics": {},
-                  "error": f"{type(failure).__name__}: {failure}", "metrics_error": None,
-                  "point": job.point, "variant": job.variant}
-    send(("done", result))
+        try:
+            result = run_job(job, run_dir, progress, track, message)
+        except Exception as failure:  # noqa: BLE001 - e.g. a full disk: report, no traceback
+            result = {"label": job.label, "status": "failed", "rows": 0, "metrics": {},
+                      "error": f"{type(failure).__name__}: {failure}",
+                      "metrics_error": None, "point": job.point, "variant": job.variant}
+        send(("done", result))
+        if result["status"] != "complete":
+            break
     channel.close()
 
 
@@ -286,47 +308,68 @@ def _died(job, run_dir, exitcode, track, last_message):
 
 
 def _run_isolated(jobs, root, workers, on_progress, on_done):
-    """Run every job in a child process of its own, ``workers`` at a time.
+    """Run every job in a worker process, ``workers`` processes at a time.
 
-    Each child reports through a pipe of its own, so a child that dies mid-message
-    cannot block the others (a shared queue's lock can stay held by a dead process).
+    A worker runs one job at a time and gets the next one only if its last run ended
+    ``complete`` (see :func:`_worker`); otherwise it exits and a fresh worker takes the
+    next job, so a failing or crashing FMU affects its own run only. Each worker reports
+    through a pipe of its own, so one that dies mid-message cannot block the others (a
+    shared queue's lock can stay held by a dead process).
     """
     context = get_context("forkserver")
     context.set_forkserver_preload(list(FORKSERVER_PRELOAD))
     results = [None] * len(jobs)
     last_message = [None] * len(jobs)
     waiting = list(range(len(jobs)))
-    running = {}  # job index -> (process, reading end of its pipe, scratch folder, track)
+    pool = []  # each: dict(process, send, reader, scratch, track, index)
+
+    def start_worker():
+        job_reader, job_writer = context.Pipe(duplex=False)
+        reader, writer = context.Pipe(duplex=False)
+        scratch = scratch_dir("run")
+        track = context.RawArray("d", 3)  # where the worker is (master.simulate)
+        process = context.Process(target=_worker, name="agv-cosim worker",
+                                  args=(job_reader, writer, scratch, track))
+        process.start()
+        job_reader.close()
+        writer.close()
+        worker = {"process": process, "send": job_writer, "reader": reader,
+                  "scratch": scratch, "track": track, "index": None}
+        pool.append(worker)
+        return worker
+
+    def give(worker):
+        index = waiting.pop(0)
+        worker["index"] = index
+        try:
+            worker["send"].send((jobs[index], root / jobs[index].label))
+        except OSError:  # the worker is already gone: its end is read below as EOF
+            pass
+
+    def retire(worker):
+        worker["send"].close()
+        worker["reader"].close()
+        worker["process"].join()
+        shutil.rmtree(worker["scratch"], ignore_errors=True)
+        pool.remove(worker)
+
     try:
-        while waiting or running:
-            while waiting and len(running) < workers:
-                index = waiting.pop(0)
-                job = jobs[index]
-                reader, writer = context.Pipe(duplex=False)
-                scratch = scratch_dir("run")
-                track = context.RawArray("d", 3)  # where the child is (master.simulate)
-                process = context.Process(target=_child, name=f"agv-cosim {job.label}",
-                                          args=(job, root / job.label, writer, scratch,
-                                                track))
-                process.start()
-                writer.close()
-                running[index] = (process, reader, scratch, track)
-            ready = wait([entry[1] for entry in running.values()], timeout=1.0)
-            for index, (process, reader, scratch, track) in list(running.items()):
-                if reader not in ready:
-                    continue
+        while waiting or pool:
+            while waiting and len(pool) < workers:
+                give(start_worker())
+            ready = wait([w["reader"] for w in pool], timeout=1.0)
+            for worker in [w for w in pool if w["reader"] in ready]:
+                index = worker["index"]
                 try:
-                    kind, payload = reader.recv()
-                except EOFError:  # the child has ended, with or without its result
-                    process.join()
-                    reader.close()
-                    shutil.rmtree(scratch, ignore_errors=True)
-                    del running[index]
-                    if results[index] is None:
+                    kind, payload = worker["reader"].recv()
+                except EOFError:  # the worker has ended, with or without its result
+                    if index is not None and results[index] is None:
+                        worker["process"].join()
                         results[index] = _died(jobs[index], root / jobs[index].label,
-                                               process.exitcode, track,
+                                               worker["process"].exitcode, worker["track"],
                                                last_message[index])
                         on_done()
+                    retire(worker)
                     continue
                 if kind == "progress":
                     on_progress(payload)
@@ -334,13 +377,24 @@ def _run_isolated(jobs, root, workers, on_progress, on_done):
                     last_message[index] = payload
                 else:
                     results[index] = payload
+                    worker["index"] = None
                     on_done()
+                    if payload["status"] != "complete":
+                        continue  # the worker exits by itself: its EOF retires it
+                    if waiting:
+                        give(worker)
+                    else:  # nothing left for it: let it exit
+                        try:
+                            worker["send"].send(None)
+                        except OSError:
+                            pass
     finally:
-        for process, reader, scratch, _ in running.values():
-            process.kill()
-            process.join()
-            reader.close()
-            shutil.rmtree(scratch, ignore_errors=True)
+        for worker in pool:
+            worker["process"].kill()
+            worker["process"].join()
+            worker["send"].close()
+            worker["reader"].close()
+            shutil.rmtree(worker["scratch"], ignore_errors=True)
     return results
 
 

@@ -58,3 +58,46 @@ def test_list(fmus, capsys):
     out = capsys.readouterr().out
     assert "output    Real    y [1]  k * u  (feedthrough from u)" in out
     assert "parameter Real    k = 1.0 [1]  Gain" in out or "parameter Real    k = 1 [1]" in out
+
+
+def test_a_worker_is_reused_only_after_complete_runs(fmus, tmp_path, monkeypatch):
+    """--jobs 1, three runs: complete, partial (the FMU fails at t = 0.5), complete. The
+    first worker takes runs 1 and 2 and exits after the failure; a fresh worker takes run
+    3. Counted by the run scratch folders the parent makes, one per worker process."""
+    from agv_cosim import runner
+
+    made = []
+    real = runner.scratch_dir
+
+    def counting(kind):
+        made.append(kind)
+        return real(kind)
+
+    monkeypatch.setattr(runner, "scratch_dir", counting)
+    text = f"""
+name = "reuse"
+[simulation]
+stop = 1.0
+step = 0.1
+[components.src]
+fmu = "{fmus['agv_test_source']}"
+[components.bad]
+fmu = "{fmus['agv_test_fail']}"
+[[connections]]
+from = "src.y"
+to = "bad.u"
+[sweep]
+"bad.fail_time" = [5.0, 0.5, 9.0]
+"""
+    path = tmp_path / "reuse.toml"
+    path.write_text(text)
+    assert cli.main(["run", str(path), "--out", str(tmp_path / "all"), "--jobs", "1",
+                     "--quiet"]) == 1
+    assert made.count("run") == 2
+    statuses = [r["status"] for r in csv.DictReader(open(tmp_path / "all" / "summary.csv"))]
+    assert statuses == ["complete", "partial", "complete"]
+    # run 1 (fresh worker) and run 3 (the fresh worker after the failure) record the
+    # same signals (neither fails before the stop): the same bytes
+    first, third = (tmp_path / "all" / f"base__bad.fail_time={v}" / "timeseries.csv"
+                    for v in ("5.0", "9.0"))
+    assert first.read_bytes() == third.read_bytes()
