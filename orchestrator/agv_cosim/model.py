@@ -26,6 +26,7 @@ removes the folder, also after a failure.
 import hashlib
 import itertools
 import math
+import os
 import re
 import shutil
 import tempfile
@@ -377,6 +378,44 @@ def _logger3():
     return _ROUTER[1]
 
 
+#: Extracted FMUs kept for reuse in this process, ``(path, sha256) -> folder``; only in a
+#: process that called :func:`keep_extractions` (a worker whose scratch folder its parent
+#: deletes), so nothing is left behind elsewhere.
+_EXTRACTED = {}
+_EXTRACT_ROOT = []
+
+
+def keep_extractions(folder):
+    """Extract each FMU once in this process, under ``folder``, and give every instance
+    a folder of its own made of hard links to that extraction (far cheaper than
+    unpacking the archive again). ``folder`` must be deleted by whoever owns it."""
+    _EXTRACT_ROOT[:] = [folder]
+    _EXTRACTED.clear()
+
+
+def _link_or_copy(source, dest):
+    try:
+        os.link(source, dest)
+    except OSError:  # no hard links here (another file system, ...): a copy
+        shutil.copy2(source, dest)
+
+
+def _unpack(info, dest):
+    """Put the contents of FMU ``info.path`` into the existing folder ``dest``."""
+    if not _EXTRACT_ROOT:
+        with zipfile.ZipFile(info.path) as archive:
+            archive.extractall(dest)
+        return
+    key = (str(info.path), info.sha256)
+    source = _EXTRACTED.get(key)
+    if source is None:
+        source = tempfile.mkdtemp(prefix="agv_cosim_fmu_", dir=_EXTRACT_ROOT[0])
+        with zipfile.ZipFile(info.path) as archive:
+            archive.extractall(source)
+        _EXTRACTED[key] = source
+    shutil.copytree(source, dest, copy_function=_link_or_copy, dirs_exist_ok=True)
+
+
 class FmuInstance:
     """One instantiated FMU in a private extraction folder.
 
@@ -409,8 +448,7 @@ class FmuInstance:
                                             instance_name) else "fmu"
         self.unzip_dir = tempfile.mkdtemp(prefix=f"agv_cosim_{tag}_")
         try:
-            with zipfile.ZipFile(info.path) as archive:
-                archive.extractall(self.unzip_dir)
+            _unpack(info, self.unzip_dir)
 
             if info.fmi_version == "3.0":
                 self._instantiate_3(info, instance_name)

@@ -37,6 +37,7 @@ from pathlib import Path
 
 from . import __version__, fmitypes, metrics, plots
 from .lifetime import die_with_parent, scratch_dir
+from .model import keep_extractions
 from .manifest import Manifest, ManifestError, load_manifest
 from .plan import plan_runs
 from .system import validate
@@ -252,6 +253,7 @@ def _worker(jobs, channel, scratch, track):
     die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     tempfile.tempdir = scratch
+    keep_extractions(scratch)  # each FMU unpacked once per worker (the parent deletes it)
 
     def send(message):
         try:
@@ -406,6 +408,7 @@ def _check_child(checks, channel, scratch):
     die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     tempfile.tempdir = scratch
+    keep_extractions(scratch)  # an FMU checked with several parameter sets: unpacked once
     for index, (cname, info, values, start, stop) in enumerate(checks):
         try:
             channel.send(("checking", index))
