@@ -3,6 +3,7 @@
 import pytest
 import csv
 import json
+from pathlib import Path
 
 from agv_cosim import cli
 
@@ -101,3 +102,41 @@ to = "bad.u"
     first, third = (tmp_path / "all" / f"base__bad.fail_time={v}" / "timeseries.csv"
                     for v in ("5.0", "9.0"))
     assert first.read_bytes() == third.read_bytes()
+
+
+def test_kept_extraction_gives_each_instance_its_own_folder_of_links(fmus, tmp_path,
+                                                                     monkeypatch):
+    """With keep_extractions (what a worker does), an FMU is unpacked once and every
+    instance gets a folder of its own whose files are hard links to that copy; both
+    instances instantiate from there, and closing one leaves the other's files and the kept copy in place.
+    Without it, each instance unpacks the archive (no shared files)."""
+    from agv_cosim import model
+
+    monkeypatch.setattr(model, "_EXTRACT_ROOT", [])
+    monkeypatch.setattr(model, "_EXTRACTED", {})
+    info = model.read_model(fmus["agv_test_gain"])
+    monkeypatch.setattr(model.tempfile, "tempdir", str(tmp_path))
+
+    def files(folder):
+        return sorted(p for p in Path(folder).rglob("*") if p.is_file())
+
+    plain = model.FmuInstance(info, "plain")
+    try:
+        assert all(p.stat().st_nlink == 1 for p in files(plain.unzip_dir))
+    finally:
+        plain.close()
+
+    model.keep_extractions(str(tmp_path))
+    one, two = model.FmuInstance(info, "one"), model.FmuInstance(info, "two")
+    try:
+        [kept] = model._EXTRACTED.values()
+        for instance in (one, two):
+            assert instance.unzip_dir != kept
+            names = [p.relative_to(instance.unzip_dir) for p in files(instance.unzip_dir)]
+            assert names == [p.relative_to(kept) for p in files(kept)] and names
+            assert all((Path(instance.unzip_dir) / n).samefile(Path(kept) / n)
+                       for n in names)
+        one.close()
+        assert files(two.unzip_dir) and files(kept)
+    finally:
+        two.close()
