@@ -108,8 +108,8 @@ def test_kept_extraction_gives_each_instance_its_own_folder_of_links(fmus, tmp_p
                                                                      monkeypatch):
     """With keep_extractions (what a worker does), an FMU is unpacked once and every
     instance gets a folder of its own whose files are hard links to that copy; both
-    instances instantiate from there, and closing one leaves the other's files and the kept copy in place.
-    Without it, each instance unpacks the archive (no shared files)."""
+    instances instantiate from there, and closing one leaves the other's files and the
+    kept copy in place. Without it, each instance unpacks the archive (no shared files)."""
     from agv_cosim import model
 
     monkeypatch.setattr(model, "_EXTRACT_ROOT", [])
