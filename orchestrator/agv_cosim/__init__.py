@@ -16,9 +16,10 @@ A manifest goes through five stages, one module (or two) each:
    connections (causality, type, unit), events and recorded signals checked, and the
    Gauss-Seidel schedule found (:mod:`graphlib`). Checked per run because a variant may
    swap an FMU.
-4. run (:mod:`agv_cosim.runner` prepares the jobs and runs each in a process of its own,
-   locally or on a Dask cluster (:mod:`agv_cosim.distributed`); :mod:`agv_cosim.master`
-   steps one :class:`~agv_cosim.master.Plan`).
+4. run (:mod:`agv_cosim.runner` prepares the jobs and runs them in worker processes, a
+   worker reused only after a run that ended complete, locally or on a Dask cluster
+   (:mod:`agv_cosim.distributed`); :mod:`agv_cosim.master` steps one
+   :class:`~agv_cosim.master.Plan`).
 5. results (:mod:`agv_cosim.results` files, :mod:`agv_cosim.metrics`,
    :mod:`agv_cosim.plots`; ``montecarlo.json`` and its figure from
    :mod:`agv_cosim.montecarlo`).

@@ -149,7 +149,8 @@ def make_parser():
                      help="replace DIR even if it is not a result folder of agv-cosim "
                           "(without it such a folder is refused)")
     run.add_argument("--jobs", type=int, metavar="N",
-                     help="runs at once, each in a process of its own (default: one per core)")
+                     help="runs at once, in worker processes (a worker is replaced after a "
+                          "run that did not complete; default: one per core)")
     run.add_argument("--dask", metavar="ADDRESS",  # issue 16: agv_cosim.distributed
                      help="run on the Dask cluster whose scheduler is at ADDRESS "
                           "(tcp://HOST:PORT; see docs/dask.md); default: local processes")
