@@ -308,3 +308,24 @@ def test_bad_vehicle_parameters(kwargs, name):
     with pytest.raises(ParameterError) as info:
         DynamicVehicle(SingleTrackParameters(), **kwargs)
     assert info.value.name == name
+
+
+def test_seed000_loop_poles_with_the_single_track_plant():
+    """state_feedback.loop_poles: with the kinematic plant its poles are closed_loop()'s
+    (1e-9); with the single-track plant and ever stiffer tyres the loop's dominant pair
+    tends to the kinematic one (the extra lateral poles move out as 1/C): the damping
+    difference at 3 m/s shrinks by ~10x per 10x stiffness."""
+    from agv_core.state_feedback.state_feedback import PAPER_GAINS, closed_loop, loop_poles
+
+    L = 1.4944
+    for v in (1.0, 3.0):
+        got = loop_poles(PAPER_GAINS, v, L, 0.6)["poles"]
+        want = closed_loop(PAPER_GAINS, v, L, 0.6)["poles"]
+        assert sorted(got, key=lambda z: (z.real, z.imag)) == pytest.approx(
+            sorted(want, key=lambda z: (z.real, z.imag)), rel=1e-9)
+    kin = loop_poles(PAPER_GAINS, 3.0, L, 0.6)["dominant_damping"]
+    gaps = []
+    for c in (1e4, 1e5, 1e6):
+        p = SingleTrackParameters(L, 400.0, 167.0, L / 2, c, c, 0.8, "linear")
+        gaps.append(kin - loop_poles(PAPER_GAINS, 3.0, L, 0.6, p)["dominant_damping"])
+    assert gaps[0] > 0 and 7 < gaps[0] / gaps[1] < 13 and 7 < gaps[1] / gaps[2] < 13

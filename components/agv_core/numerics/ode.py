@@ -61,9 +61,10 @@ def rk4_doubling(f, y, h, tolerance, start=1):
         or the right-hand side keeps failing).
     """
     n = max(1, int(start))
-    coarse = _trial(f, y, h, n)
+    failure = []
+    coarse = _trial(f, y, h, n, failure)
     while True:
-        fine = _trial(f, y, h, 2 * n)
+        fine = _trial(f, y, h, 2 * n, failure)
         worst = math.inf
         if coarse is not None and fine is not None:
             worst = 0.0
@@ -74,17 +75,22 @@ def rk4_doubling(f, y, h, tolerance, start=1):
         if worst <= tolerance:
             return fine, 2 * n
         if n >= MAX_SUBSTEPS:
+            if fine is None and failure:
+                raise FloatingPointError(f"{failure[-1]} (at every sub-step count up to "
+                                         f"{MAX_SUBSTEPS} in a {h} s step)")
             raise FloatingPointError(f"RK4 step doubling did not reach tolerance {tolerance} "
                                      f"within {MAX_SUBSTEPS} sub-steps of a {h} s step "
                                      f"(estimate {worst:.3g})")
         n, coarse = 2 * n, fine
 
 
-def _trial(f, y, h, n):
+def _trial(f, y, h, n, failure):
     """``rk4(f, y, h, n)``, or None when the right-hand side fails on the way (an
-    ArithmeticError: a trial with too few sub-steps can leave the model's domain, e.g. a
-    blown-up explicit step at a stiff low speed); more sub-steps are then tried."""
+    ArithmeticError, appended to ``failure``: a trial with too few sub-steps can leave the
+    model's domain, e.g. a blown-up explicit step at a stiff low speed); more sub-steps are
+    then tried."""
     try:
         return rk4(f, y, h, n)
-    except ArithmeticError:
+    except ArithmeticError as error:
+        failure.append(error)
         return None
