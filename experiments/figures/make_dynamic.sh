@@ -4,8 +4,8 @@
 # seed004.md, and the numbers they quote (results/seed00X_dynamic_numbers.json; the
 # tables are printed). Usage (from the repository root):
 #   sh experiments/figures/make_dynamic.sh [seed000] [seed003] [seed004]
-# (default: all three). Measured on the 2-core machine, shared: seed 000 36 runs ~1.5 min,
-# seed 003 36 + 16 runs at 2 ms ~12 min, seed 004 24 runs ~1.5 min.
+# (default: all three). Measured on the 2-core machine, shared: seed 000 36 runs 1.5 min,
+# seed 003 28 + 20 + 16 runs at 2 ms ~12 min, seed 004 24 runs 2 min.
 set -eu
 cd "$(dirname "$0")/../.."
 BIN=${BIN:-.venv/bin}

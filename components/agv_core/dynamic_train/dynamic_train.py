@@ -63,6 +63,7 @@ rates), as in the dynamic single-track vehicle.
 import math
 
 from ..ackermann.ackermann import wheel_angles
+from ..dynamic_vehicle.dynamic_vehicle import positive as _positive
 from ..dynamic_vehicle.tyres import TYRES, fiala_force, linear_force
 from ..errors import ParameterError
 from ..numerics.ode import rk4_doubling
@@ -70,12 +71,6 @@ from ..train.train import Train, TrainGeometry
 
 G = 9.81  # [m/s^2]
 AXLES = 4
-
-
-def _positive(name, value):
-    if not (math.isfinite(value) and value > 0.0):
-        raise ParameterError(name, f"must be positive and finite, got {value}")
-    return float(value)
 
 
 class TrainDynamics:

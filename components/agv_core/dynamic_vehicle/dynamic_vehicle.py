@@ -57,7 +57,8 @@ REFERENCE_POINTS = ("front", "rear")
 G = 9.81  # [m/s^2] gravity
 
 
-def _positive(name, value):
+def positive(name, value):
+    """``value`` as a float if positive and finite; else ParameterError naming ``name``."""
     if not (math.isfinite(value) and value > 0.0):
         raise ParameterError(name, f"must be positive and finite, got {value}")
     return float(value)
@@ -87,17 +88,17 @@ class SingleTrackParameters:
     def __init__(self, wheelbase=1.0, mass=400.0, yaw_inertia=120.0, cg_to_rear=0.5,
                  cornering_stiffness_front=13500.0, cornering_stiffness_rear=13500.0,
                  mu=0.8, tyre="fiala"):
-        self.L = _positive("wheelbase", wheelbase)
-        self.m = _positive("mass", mass)
-        self.Iz = _positive("yaw_inertia", yaw_inertia)
-        self.b = _positive("cg_to_rear", cg_to_rear)
+        self.L = positive("wheelbase", wheelbase)
+        self.m = positive("mass", mass)
+        self.Iz = positive("yaw_inertia", yaw_inertia)
+        self.b = positive("cg_to_rear", cg_to_rear)
         if not self.b < self.L:
             raise ParameterError("cg_to_rear", f"must be less than the wheelbase {self.L} m, "
                                  f"got {cg_to_rear}")
         self.a = self.L - self.b
-        self.Cf = _positive("cornering_stiffness_front", cornering_stiffness_front)
-        self.Cr = _positive("cornering_stiffness_rear", cornering_stiffness_rear)
-        self.mu = _positive("mu", mu)
+        self.Cf = positive("cornering_stiffness_front", cornering_stiffness_front)
+        self.Cr = positive("cornering_stiffness_rear", cornering_stiffness_rear)
+        self.mu = positive("mu", mu)
         if tyre not in TYRES:
             raise ParameterError("tyre", f"must be one of {TYRES}, got '{tyre}'")
         self.tyre = tyre
@@ -161,7 +162,7 @@ class DynamicVehicle:
         self.reference_point = reference_point
         self.linear = bool(linear)
         self.kinematic_below = float(kinematic_below)
-        self.tolerance = _positive("tolerance", tolerance)
+        self.tolerance = positive("tolerance", tolerance)
         L = params.L
         self.psi = float(heading0)
         if reference_point == "rear":
