@@ -221,3 +221,60 @@ def closed_loop(gains, V0, L, K):
     damping = np.where(wn > 0.0, -poles.real / np.where(wn > 0.0, wn, 1.0), -1.0)
     return {"poles": poles, "damping": damping, "natural_frequency": wn,
             "min_damping": float(np.min(damping)), "stable": bool(np.all(poles.real < 0.0))}
+
+
+def loop_poles(gains, V0, L, K, single_track=None, delay=0.0, pade_order=7):
+    """Closed-loop poles of seed 000's loop u = -gains @ (alpha, heading, e) around a
+    linear plant: the actuator alpha' = K u (with a dead time ``delay`` [s] on u as a
+    Pade approximant of ``pade_order``, model a) and either the linear kinematic vehicle
+    (``single_track=None``: model b's plant) or the linear single-track model with tyre
+    slip (``single_track``: an
+    :class:`agv_core.dynamic_vehicle.dynamic_vehicle.SingleTrackParameters`, whose
+    ``lateral_matrices`` give the lateral dynamics). e is the front-wheel centre's
+    lateral offset from the straight path, heading the vehicle's heading.
+
+    The single-track plant has the states (Y_R, psi, vy, r) with Y_R' = V0 psi + vy - b r,
+    psi' = r, (vy, r)' = A_lat (vy, r) + B_lat alpha and e = Y_R + L psi; the kinematic
+    one (psi, e) with psi' = V0 alpha / L, e' = V0 (alpha + psi).
+
+    Returns
+    -------
+    dict
+        ``poles`` (complex ndarray [1/s], sorted by real part), ``damping`` (per pole),
+        ``dominant_damping`` (of the oscillatory pair with the largest real part: the
+        loop's least damped mode; a Pade approximant adds fast poles of its own, so
+        the minimum over all poles is not the loop's), ``stable`` (bool).
+    """
+    import control
+
+    if single_track is None:
+        A, B = model_b(V0, L, K)
+        C = np.eye(3)
+    else:
+        p = single_track
+        (a11, a12), (a21, a22) = p.lateral_matrices(V0)[0]
+        b1, b2 = p.lateral_matrices(V0)[1]
+        # states (alpha, Y_R, psi, vy, r)
+        A = np.array([[0.0, 0.0, 0.0, 0.0, 0.0],
+                      [0.0, 0.0, V0, 1.0, -p.b],
+                      [0.0, 0.0, 0.0, 0.0, 1.0],
+                      [b1, 0.0, 0.0, a11, a12],
+                      [b2, 0.0, 0.0, a21, a22]])
+        B = np.array([[K], [0.0], [0.0], [0.0], [0.0]])
+        C = np.array([[1.0, 0.0, 0.0, 0.0, 0.0],
+                      [0.0, 0.0, 1.0, 0.0, 0.0],
+                      [0.0, 1.0, p.L, 0.0, 0.0]])
+    plant = control.ss(A, B, C, np.zeros((3, 1)))
+    if delay > 0.0:
+        num, den = control.pade(delay, pade_order)
+        plant = control.series(control.ss(control.tf(num, den)), plant)
+    gain = control.ss(np.zeros((0, 0)), np.zeros((0, 3)), np.zeros((1, 0)),
+                      np.atleast_2d(np.asarray(gains, dtype=float)))
+    poles = np.linalg.eigvals(control.feedback(plant, gain).A)
+    poles = poles[np.argsort(poles.real)]
+    wn = np.abs(poles)
+    damping = np.where(wn > 0.0, -poles.real / np.where(wn > 0.0, wn, 1.0), -1.0)
+    pairs = np.flatnonzero(poles.imag > 1e-9)
+    dominant = float(damping[pairs[np.argmax(poles.real[pairs])]]) if len(pairs) else 1.0
+    return {"poles": poles, "damping": damping, "dominant_damping": dominant,
+            "stable": bool(np.all(poles.real < 0.0))}

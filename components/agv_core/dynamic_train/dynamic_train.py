@@ -1,0 +1,515 @@
+"""Planar multibody dynamics of seed 003's three-car train with tyre forces on every axle:
+a drop-in for the kinematic :class:`~agv_core.train.train.Train`.
+
+Topology and geometry as the kinematic train (agv_core/train/README.md): head car with
+axles 1, 2 at body x a1 = L1 + L2, a2 = L2 ahead of its hinge J1; floating car = a rigid
+bar J1 -> J2 of length Lm with no running gear; tail car, the mirror image, axles 3, 4 at
+a3 = -L2, a4 = -(L1 + L2) from its hinge J2. Frames and signs as in components/README.md.
+
+Bodies (rigid, planar): end cars of mass m_e and yaw inertia I_e about their centre of
+gravity, which lies on the car's centre line at g1 = ``cg_end`` ahead of J1 (head) and
+g3 = -``cg_end`` behind J2 (tail); the floating car of mass m_f and inertia I_f with its
+centre of gravity mid-bar. The hinges are ideal revolute joints.
+
+Generalised coordinates q = (X, Y, psi1, psi2, psi3): J1 and the three headings (psi2 is
+the bar's, J2 -> J1), so the hinge constraints hold by construction,
+J2 = J1 - Lm e2 (e_k = (cos psi_k, sin psi_k), n_k = (-sin psi_k, cos psi_k)).
+Generalised speeds: the head car's longitudinal speed u1 is prescribed (the input, as in
+the kinematic train: the head car's drive holds it, a constraint force along its centre
+line that does no work on the other speeds); the free speeds are
+w = (v1, r1, r2, r3): J1's lateral velocity in the head-car frame and the yaw rates.
+
+    J1' = u1 e1 + v1 n1,    J2' = J1' - Lm r2 n2,    psi_k' = r_k
+    head CG:  P1' = J1' + g1 r1 n1        bar CG: P2' = J1' - (Lm/2) r2 n2
+    tail CG:  P3' = J2' + g3 r3 n3
+
+Equations of motion by Kane's method (virtual power of the free speeds), M(q) w' = Q - h:
+
+    M11 = m1 + m2 + m3          M12 = m1 g1       M13 = -(m2/2 + m3) Lm cos(psi1 - psi2)
+    M14 = m3 g3 cos(psi1 - psi3)                  M22 = m1 g1^2 + I1    M23 = M24 = 0
+    M33 = m2 Lm^2/4 + m3 Lm^2 + I2                M34 = -m3 Lm g3 cos(psi2 - psi3)
+    M44 = m3 g3^2 + I3
+
+    h_v1 = (m1 + m2 + m3) u1 r1 + (m2/2 + m3) Lm r2^2 sin(psi2 - psi1)
+           - m3 g3 r3^2 sin(psi3 - psi1)
+    h_r1 = m1 g1 u1 r1
+    h_r2 = -(m2/2 + m3) Lm (u1 r1 cos(psi1 - psi2) - v1 r1 sin(psi1 - psi2))
+           + m3 Lm g3 r3^2 sin(psi3 - psi2)
+    h_r3 = m3 g3 (u1 r1 cos(psi1 - psi3) - v1 r1 sin(psi1 - psi3) + Lm r2^2 sin(psi2 - psi3))
+
+(m1 = m3 = m_e, m2 = m_f). Tyres: one lumped tyre per axle at the axle centre, turned by
+the axle-equivalent angle delta_i, slip alpha_i = atan2(vy_i, u_c) - delta_i with the
+axle centre's velocity (u_c, vy_i) in its car's frame (head: (u1, v1 + a_i r1); tail:
+(u3, v3 + a_i r3), u3 = e3 . J2', v3 = n3 . J2'), lateral force F_i = tyre(alpha_i)
+perpendicular to the axle's wheels (Fiala or linear, agv_core.dynamic_vehicle.tyres).
+Axle i's force F_i n(psi_c + delta_i) gives the generalised forces
+
+    head axles:  Q_v1 += F_i cos(delta_i),   Q_r1 += a_i F_i cos(delta_i)
+    tail axles:  Q_v1 += F_i cos(psi3 + delta_i - psi1),
+                 Q_r2 -= Lm F_i cos(psi3 + delta_i - psi2),   Q_r3 += a_i F_i cos(delta_i)
+
+Static axle loads: each end car carries its own weight at its centre of gravity and half
+the floating car's at its hinge; cornering stiffness C_i = c Fz_i (c =
+``cornering_coefficient`` per rad), friction limit mu Fz_i. The tail car has no drive
+(its wheels roll freely; the hinges pull it), no longitudinal tyre slip is modelled.
+
+Integration for held inputs: RK4 with step doubling on (q, w) (agv_core.numerics.ode).
+When the speed input changes between steps, w is kept (the head car's longitudinal speed
+jumps, the other generalised speeds do not). Below ``kinematic_below`` the kinematic
+train runs (its exact head-car arc and bounded-error articulation, w set to its no-slip
+rates), as in the dynamic single-track vehicle.
+"""
+
+import math
+
+from ..ackermann.ackermann import wheel_angles
+from ..dynamic_vehicle.dynamic_vehicle import positive as _positive
+from ..dynamic_vehicle.tyres import TYRES, fiala_force, linear_force
+from ..errors import ParameterError
+from ..numerics.ode import rk4_doubling
+from ..train.train import Train, TrainGeometry
+
+G = 9.81  # [m/s^2]
+AXLES = 4
+
+
+class TrainDynamics:
+    """Masses, inertias and tyres of the three-car train (SI units).
+
+    Parameters
+    ----------
+    geometry : TrainGeometry
+    mass_end, mass_float : float
+        Mass of each end car and of the floating car [kg], > 0.
+    inertia_end, inertia_float : float
+        Their yaw inertias about their centres of gravity [kg m^2], > 0.
+    cg_end : float
+        Distance from an end car's hinge to its centre of gravity along its axis
+        (towards its axles) [m], > 0.
+    cornering_coefficient : float
+        Cornering stiffness per unit vertical load of an axle [1/rad], > 0.
+    mu : float
+        Friction coefficient [-], > 0 (Fiala tyre).
+    tyre : {"fiala", "linear"}
+    """
+
+    def __init__(self, geometry, mass_end=12000.0, mass_float=6000.0, inertia_end=120000.0,
+                 inertia_float=44000.0, cg_end=6.5, cornering_coefficient=6.875, mu=0.8,
+                 tyre="fiala"):
+        self.g = geometry
+        self.m_e = _positive("mass_end", mass_end)
+        self.m_f = _positive("mass_float", mass_float)
+        self.I_e = _positive("inertia_end", inertia_end)
+        self.I_f = _positive("inertia_float", inertia_float)
+        self.cg = _positive("cg_end", cg_end)
+        self.c_alpha = _positive("cornering_coefficient", cornering_coefficient)
+        self.mu = _positive("mu", mu)
+        if tyre not in TYRES:
+            raise ParameterError("tyre", f"must be one of {TYRES}, got '{tyre}'")
+        self.tyre = tyre
+        a_front, a_rear = geometry.axle_offsets[0], geometry.axle_offsets[1]
+        weight = (self.m_e + 0.5 * self.m_f) * G
+        moment = self.m_e * G * self.cg
+        f_front = (moment - weight * a_rear) / (a_front - a_rear)
+        f_rear = (weight * a_front - moment) / (a_front - a_rear)
+        if not (f_front > 0.0 and f_rear > 0.0):
+            raise ParameterError("cg_end", f"{cg_end} m puts no load on an axle (loads "
+                                 f"{f_front:.0f} N, {f_rear:.0f} N): the centre of gravity "
+                                 "with the floating car's share must lie between the axles")
+        #: static axle loads [N], axles 1-4 (the tail car mirrors the head car)
+        self.loads = (f_front, f_rear, f_rear, f_front)
+        self.stiffness = tuple(self.c_alpha * f for f in self.loads)
+        self.limits = tuple(self.mu * f for f in self.loads)
+
+    def force(self, i, slip):
+        """Lateral force [N] of axle ``i`` (0-3) at ``slip`` [rad]."""
+        if self.tyre == "fiala":
+            return fiala_force(slip, self.stiffness[i], self.limits[i])
+        return linear_force(slip, self.stiffness[i])
+
+
+class DynamicTrain:
+    """Three-car train state and error-bounded integration for held inputs.
+
+    Parameters
+    ----------
+    dynamics : TrainDynamics
+    x1, y1, psi1, psi2, psi3 : float
+        Pose: hinge J1 [m] and headings [rad] (as :class:`~agv_core.train.train.Train`).
+    v1, r1, r2, r3 : float
+        Generalised speeds [m/s, rad/s] (module docstring).
+    kinematic_below : float
+        Below this head-car speed [m/s] (> 0) the kinematic train runs.
+    tolerance : float
+        Local error bound per step of every state, relative to 1 + |state|.
+    """
+
+    def __init__(self, dynamics, x1=0.0, y1=0.0, psi1=0.0, psi2=0.0, psi3=0.0, v1=0.0,
+                 r1=0.0, r2=0.0, r3=0.0, kinematic_below=0.1, tolerance=1e-9):
+        for name, value in (("x1", x1), ("y1", y1), ("psi1", psi1), ("psi2", psi2),
+                            ("psi3", psi3), ("v1", v1), ("r1", r1), ("r2", r2), ("r3", r3)):
+            if not math.isfinite(value):
+                raise ParameterError(name, f"must be finite, got {value}")
+        if not (math.isfinite(kinematic_below) and kinematic_below > 0.0):
+            raise ParameterError("kinematic_below", f"must be a positive speed in m/s (the "
+                                 f"dynamic model is singular at 0), got {kinematic_below}")
+        self.d = dynamics
+        self.g = dynamics.g
+        self.kinematic_below = float(kinematic_below)
+        self.tolerance = _positive("tolerance", tolerance)
+        self.x1, self.y1 = float(x1), float(y1)
+        self.psi1, self.psi2, self.psi3 = float(psi1), float(psi2), float(psi3)
+        self.v1, self.r1, self.r2, self.r3 = float(v1), float(r1), float(r2), float(r3)
+        self.distance = 0.0
+        self.u1 = 0.0
+        self.deltas = (0.0, 0.0, 0.0, 0.0)
+        self.wheels = None
+        self.substeps = 1
+
+    @classmethod
+    def straight(cls, dynamics, x_front=0.0, y_front=0.0, heading=0.0, kinematic_below=0.1,
+                 tolerance=1e-9):
+        """A straight train along ``heading`` with axle 1's centre at (x_front, y_front)."""
+        a1 = dynamics.g.axle_offsets[0]
+        return cls(dynamics, x_front - a1 * math.cos(heading), y_front - a1 * math.sin(heading),
+                   heading, heading, heading, kinematic_below=kinematic_below,
+                   tolerance=tolerance)
+
+    def start(self, u1, deltas, wheels=None):
+        """Set the inputs held before the first step and the speeds to the kinematic
+        train's no-slip rates for them (a train started on an arc is already turning)."""
+        self.u1, self.deltas = float(u1), tuple(float(d) for d in deltas)
+        self.wheels = wheels
+        self.v1, self.r1, self.r2, self.r3 = self.kinematic_speeds()
+
+    # ------------------------------------------------------------------ kinematic train
+    def _kinematic(self):
+        return Train(self.g, self.x1, self.y1, self.psi1, self.psi2, self.psi3)
+
+    def kinematic_speeds(self, u1=None, deltas=None):
+        """(v1, r1, r2, r3) of the kinematic train at the current pose."""
+        u1 = self.u1 if u1 is None else u1
+        deltas = self.deltas if deltas is None else deltas
+        kin = self._kinematic()
+        _, vyj = kin.head_rates(u1, deltas)
+        _, omega1, rate2, omega3 = kin.car_rates(u1, deltas)
+        return vyj, omega1, rate2, omega3
+
+    def is_kinematic(self, u1=None):
+        return abs(self.u1 if u1 is None else u1) < self.kinematic_below
+
+    # ------------------------------------------------------------------ dynamics
+    def tail_velocity(self, psi1, psi2, psi3, v1, r2, u1=None):
+        """(u3, v3): J2's velocity in the tail-car frame [m/s]."""
+        u1 = self.u1 if u1 is None else u1
+        lm = self.g.Lm
+        d13 = psi1 - psi3
+        c13, s13 = math.cos(d13), math.sin(d13)
+        d23 = psi2 - psi3
+        return (u1 * c13 - v1 * s13 + lm * r2 * math.sin(d23),
+                u1 * s13 + v1 * c13 - lm * r2 * math.cos(d23))
+
+    def axle_slips(self, state=None):
+        """Slip angles [rad] of axles 1-4 and (u3, v3) for the state (default: current)."""
+        if state is None:
+            state = self.state_vector()
+        _, _, psi1, psi2, psi3, v1, r1, r2, r3 = state
+        u1, a, dl = self.u1, self.g.axle_offsets, self.deltas
+        u3, v3 = self.tail_velocity(psi1, psi2, psi3, v1, r2, u1)
+        if not u3 > 0.0:
+            raise FloatingPointError(f"the tail car moves backwards (u3 = {u3:.6g} m/s): "
+                                     "jack-knife")
+        return ((math.atan2(v1 + a[0] * r1, u1) - dl[0], math.atan2(v1 + a[1] * r1, u1) - dl[1],
+                 math.atan2(v3 + a[2] * r3, u3) - dl[2], math.atan2(v3 + a[3] * r3, u3) - dl[3]),
+                u3, v3)
+
+    def accelerations(self, state):
+        """w' = (v1', r1', r2', r3') and the axle forces [N] for the state vector
+        (X, Y, psi1, psi2, psi3, v1, r1, r2, r3), with the held inputs."""
+        _, _, p1, p2, p3, v1, r1, r2, r3 = state
+        d, g, u1 = self.d, self.g, self.u1
+        a, dl, lm = g.axle_offsets, self.deltas, g.Lm
+        slips, _, _ = self.axle_slips(state)
+        forces = [d.force(i, s) for i, s in enumerate(slips)]
+        m1 = m3 = d.m_e
+        m2 = d.m_f
+        g1, g3 = d.cg, -d.cg
+        c12, s12 = math.cos(p1 - p2), math.sin(p1 - p2)
+        c13, s13 = math.cos(p1 - p3), math.sin(p1 - p3)
+        c23, s23 = math.cos(p2 - p3), math.sin(p2 - p3)
+        # generalised forces of the four axle forces
+        f0, f1, f2, f3 = forces
+        k0, k1, k2, k3 = (math.cos(x) for x in dl)
+        q1 = f0 * k0 + f1 * k1 + f2 * math.cos(p3 + dl[2] - p1) + f3 * math.cos(p3 + dl[3] - p1)
+        q2 = a[0] * f0 * k0 + a[1] * f1 * k1
+        q3 = -lm * (f2 * math.cos(p3 + dl[2] - p2) + f3 * math.cos(p3 + dl[3] - p2))
+        q4 = a[2] * f2 * k2 + a[3] * f3 * k3
+        # velocity-product (centripetal and Coriolis) terms
+        half = 0.5 * m2 + m3
+        h1 = (m1 + m2 + m3) * u1 * r1 - half * lm * r2 * r2 * s12 + m3 * g3 * r3 * r3 * s13
+        h2 = m1 * g1 * u1 * r1
+        h3 = -half * lm * (u1 * r1 * c12 - v1 * r1 * s12) - m3 * lm * g3 * r3 * r3 * s23
+        h4 = m3 * g3 * (u1 * r1 * c13 - v1 * r1 * s13 + lm * r2 * r2 * s23)
+        # mass matrix (M23 = M24 = 0) and its solution by elimination of r1'
+        M11 = m1 + m2 + m3
+        M12 = m1 * g1
+        M13 = -half * lm * c12
+        M14 = m3 * g3 * c13
+        M22 = m1 * g1 * g1 + d.I_e
+        M33 = 0.25 * m2 * lm * lm + m3 * lm * lm + d.I_f
+        M34 = -m3 * lm * g3 * c23
+        M44 = m3 * g3 * g3 + d.I_e
+        b1, b2, b3, b4 = q1 - h1, q2 - h2, q3 - h3, q4 - h4
+        # row 2: M12 x1 + M22 x2 = b2  ->  x2 = (b2 - M12 x1) / M22
+        A11 = M11 - M12 * M12 / M22
+        B1 = b1 - M12 * b2 / M22
+        # 3x3 symmetric system [[A11, M13, M14], [M13, M33, M34], [M14, M34, M44]] x = B
+        # by Gaussian elimination (the matrix is positive definite: no pivoting needed)
+        l31 = M13 / A11
+        l41 = M14 / A11
+        S33 = M33 - l31 * M13
+        S34 = M34 - l31 * M14
+        S44 = M44 - l41 * M14
+        B3 = b3 - l31 * B1
+        B4 = b4 - l41 * B1
+        l43 = S34 / S33
+        T44 = S44 - l43 * S34
+        x4 = (B4 - l43 * B3) / T44
+        x3 = (B3 - S34 * x4) / S33
+        x1 = (B1 - M13 * x3 - M14 * x4) / A11
+        x2 = (b2 - M12 * x1) / M22
+        return (x1, x2, x3, x4), forces
+
+    def rates(self, state):
+        """Right-hand side of the ODE for the state vector, inputs held."""
+        _, _, p1, _, _, v1, r1, r2, r3 = state
+        (dv1, dr1, dr2, dr3), _ = self.accelerations(state)
+        c, s = math.cos(p1), math.sin(p1)
+        u1 = self.u1
+        return [u1 * c - v1 * s, u1 * s + v1 * c, r1, r2, r3, dv1, dr1, dr2, dr3]
+
+    def state_vector(self):
+        return [self.x1, self.y1, self.psi1, self.psi2, self.psi3, self.v1, self.r1, self.r2,
+                self.r3]
+
+    def step(self, u1, deltas, h, wheels=None):
+        """Advance by ``h`` [s] with head-car speed ``u1`` [m/s] and axle angles ``deltas``
+        [rad] held; ``wheels`` (optional 4 (left, right) pairs [rad]) is recorded for the
+        wheel slip diagnostics only (the tyres act at the axle centres)."""
+        deltas = tuple(float(x) for x in deltas)
+        u1 = float(u1)
+        for x in deltas:
+            if not abs(x) < 0.5 * math.pi:
+                raise FloatingPointError(f"axle angle {x} rad is not within +/-pi/2")
+        if u1 <= -self.kinematic_below:
+            raise ValueError(f"speed {u1} m/s: reverse driving faster than kinematic_below "
+                             f"= {self.kinematic_below} m/s is not modelled")
+        self.u1, self.deltas = u1, deltas
+        self.wheels = None if wheels is None else tuple(tuple(map(float, w)) for w in wheels)
+        if h <= 0.0:
+            return
+        if self.is_kinematic():
+            kin = self._kinematic()
+            kin.step(u1, deltas, h)
+            self.x1, self.y1 = kin.x1, kin.y1
+            self.psi1, self.psi2, self.psi3 = kin.psi1, kin.psi2, kin.psi3
+            self.v1, self.r1, self.r2, self.r3 = self.kinematic_speeds()
+        else:
+            y, self.substeps = rk4_doubling(self.rates, self.state_vector(), h, self.tolerance,
+                                            start=max(1, self.substeps // 2))
+            (self.x1, self.y1, self.psi1, self.psi2, self.psi3,
+             self.v1, self.r1, self.r2, self.r3) = y
+        self.distance += abs(u1) * h
+
+    # ------------------------------------------------------------------ outputs
+    def hinge2(self):
+        """Hinge J2 [m]."""
+        return (self.x1 - self.g.Lm * math.cos(self.psi2),
+                self.y1 - self.g.Lm * math.sin(self.psi2))
+
+    def axle_points(self):
+        """Centres of axles 1-4 [m]: ((x1, y1), ..., (x4, y4))."""
+        return self._kinematic().axle_points()
+
+    def car_speeds(self):
+        """(u1, v_J1, r1, u3, v_J2, r3): each end car's hinge velocity in its frame [m/s]
+        and its yaw rate [rad/s]."""
+        u3, v3 = self.tail_velocity(self.psi1, self.psi2, self.psi3, self.v1, self.r2)
+        return self.u1, self.v1, self.r1, u3, v3, self.r3
+
+    def axle_forces(self):
+        """(slips [rad], forces [N]) of axles 1-4 for the last inputs and current state;
+        zero in the kinematic regime."""
+        if self.is_kinematic():
+            return (0.0,) * AXLES, (0.0,) * AXLES
+        slips, _, _ = self.axle_slips()
+        return slips, tuple(self.d.force(i, s) for i, s in enumerate(slips))
+
+    def lateral_accelerations(self):
+        """Lateral accelerations [m/s^2] of the head and tail cars' centres of gravity,
+        each in its car's frame, positive left (kinematic regime: w' taken as 0)."""
+        u1, v1, r1, r2, r3 = self.u1, self.v1, self.r1, self.r2, self.r3
+        if self.is_kinematic():
+            dv1 = dr1 = dr2 = dr3 = 0.0
+        else:
+            (dv1, dr1, dr2, dr3), _ = self.accelerations(self.state_vector())
+        p1, p2, p3 = self.psi1, self.psi2, self.psi3
+        g1, g3, lm = self.d.cg, -self.d.cg, self.g.Lm
+        head = u1 * r1 + dv1 + g1 * dr1
+        c13, s13 = math.cos(p1 - p3), math.sin(p1 - p3)
+        tail = ((u1 * r1 + dv1) * c13 - v1 * r1 * s13 - lm * dr2 * math.cos(p2 - p3)
+                + lm * r2 * r2 * math.sin(p2 - p3) + g3 * dr3)
+        return head, tail
+
+    def wheel_states(self):
+        """Per wheel (axle 1 left, 1 right, ..., 4 right): (speed [m/s], slip [rad]) as the
+        kinematic train defines them, from the dynamic state: wheel at body (a_i, +-d/2),
+        velocity (u_c - r_c (+-d/2), v_c + r_c a_i) in its car's frame; wheel angle = the
+        recorded wheel input, else the Ackermann angle about the car's hinge baseline."""
+        u1, vj1, r1, u3, vj2, r3 = self.car_speeds()
+        half = 0.5 * self.g.d
+        out = []
+        for i in range(AXLES):
+            u, v, r = (u1, vj1, r1) if i < 2 else (u3, vj2, r3)
+            a = self.g.axle_offsets[i]
+            if self.wheels is not None:
+                pair = self.wheels[i]
+            else:
+                pair = wheel_angles(self.deltas[i], a, self.g.d)
+            vy = v + r * a
+            for y, angle in ((half, pair[0]), (-half, pair[1])):
+                vx = u - r * y
+                speed = math.hypot(vx, vy)
+                if speed == 0.0:
+                    out.append((0.0, 0.0))
+                    continue
+                sign = 1.0 if vx >= 0.0 else -1.0
+                out.append((speed, math.atan2(sign * vy, sign * vx) - angle))
+        return out
+
+    # ------------------------------------------------------------------ state
+    def get_state(self):
+        return {"q": [self.x1, self.y1, self.psi1, self.psi2, self.psi3],
+                "w": [self.v1, self.r1, self.r2, self.r3], "distance": self.distance,
+                "u1": self.u1, "deltas": list(self.deltas),
+                "wheels": None if self.wheels is None else [list(w) for w in self.wheels],
+                "substeps": self.substeps}
+
+    def set_state(self, state):
+        self.x1, self.y1, self.psi1, self.psi2, self.psi3 = (float(v) for v in state["q"])
+        self.v1, self.r1, self.r2, self.r3 = (float(v) for v in state["w"])
+        self.distance = float(state["distance"])
+        self.u1 = float(state["u1"])
+        self.deltas = tuple(float(v) for v in state["deltas"])
+        w = state["wheels"]
+        self.wheels = None if w is None else tuple(tuple(p) for p in w)
+        self.substeps = int(state["substeps"])
+
+
+def _cross(r, f):
+    return r[0] * f[1] - r[1] * f[0]
+
+
+def steady_circle(dynamics, radius, u1, phi=0.0, iterations=60):
+    """Steady turn on a circle: every axle centre at ``radius`` [m] (positive: left turn,
+    centre at the origin), the head car at longitudinal speed ``u1`` [m/s] > 0.
+
+    The pose is the kinematic train's steady pose (agv_core.train.train.steady_pose);
+    every body rotates about the centre at Omega = u1 / sqrt(R^2 - L1^2/4), so each
+    centre of gravity accelerates by -Omega^2 P towards it and no body has an angular
+    acceleration. Newton-Euler for the three bodies (9 equations) gives the four axle
+    forces, the two hinge forces and the head car's drive force (9 unknowns, linear for
+    given axle angles); each axle angle is then its centre's velocity direction in the
+    car frame minus the slip at which the tyre law gives that force, and the angles and
+    forces are iterated to a fixed point (the force directions depend on the angles).
+
+    Returns
+    -------
+    dict
+        ``deltas`` (4 axle angles [rad]), ``kinematic_deltas`` (the velocity directions,
+        +-asin(L1 / 2R)), ``slips`` [rad], ``forces`` [N] (axles 1-4), ``hinge_forces``
+        (on the floating car at J1, on the tail car at J2 [N]), ``drive`` [N], ``omega``
+        [rad/s] and ``state`` (x1, y1, psi1, psi2, psi3, v1, r1, r2, r3) to start a
+        :class:`DynamicTrain` on.
+    """
+    import numpy as np
+    from scipy.optimize import brentq
+
+    from ..train.train import steady_pose
+    from ..dynamic_vehicle.tyres import sliding_slip
+
+    g, d = dynamics.g, dynamics
+    R, sgn = abs(radius), (1.0 if radius > 0 else -1.0)
+    x1, y1, p1, p2, p3 = steady_pose(g, radius, phi)
+    omega = sgn * u1 / math.sqrt(R * R - 0.25 * g.L1 * g.L1)
+    e = [(math.cos(p), math.sin(p)) for p in (p1, p2, p3)]
+    n = [(-s, c) for c, s in e]
+    lm, a = g.Lm, g.axle_offsets
+    j1 = (x1, y1)
+    j2 = (x1 - lm * e[1][0], y1 - lm * e[1][1])
+    cgs = [(j1[0] + d.cg * e[0][0], j1[1] + d.cg * e[0][1]),
+           (j1[0] - 0.5 * lm * e[1][0], j1[1] - 0.5 * lm * e[1][1]),
+           (j2[0] - d.cg * e[2][0], j2[1] - d.cg * e[2][1])]
+    masses = (d.m_e, d.m_f, d.m_e)
+    cars = (0, 0, 2, 2)        # body index of each axle
+    refs = (j1, j1, j2, j2)
+    axles = [(refs[i][0] + a[i] * e[cars[i]][0], refs[i][1] + a[i] * e[cars[i]][1])
+             for i in range(AXLES)]
+    # velocity direction of each axle centre in its car's frame (rigid rotation about 0)
+    theta = []
+    for i in range(AXLES):
+        vx, vy = -omega * axles[i][1], omega * axles[i][0]
+        c = cars[i]
+        theta.append(math.atan2(vx * n[c][0] + vy * n[c][1], vx * e[c][0] + vy * e[c][1]))
+    v1 = -omega * j1[1] * n[0][0] + omega * j1[0] * n[0][1]
+    deltas = list(theta)
+    for _ in range(iterations):
+        A = np.zeros((9, 9))
+        rhs = np.zeros(9)
+        for i in range(AXLES):
+            c = cars[i]
+            row = 0 if c == 0 else 6
+            ang = (p1 if c == 0 else p3) + deltas[i]
+            f = (-math.sin(ang), math.cos(ang))
+            arm = (axles[i][0] - cgs[c][0], axles[i][1] - cgs[c][1])
+            A[row, i], A[row + 1, i], A[row + 2, i] = f[0], f[1], _cross(arm, f)
+        # hinge forces lam1 (on the bar at J1; -lam1 on the head car), lam2 (on the tail
+        # car at J2; -lam2 on the bar); drive D along e1 on the head car's centre line
+        arm1h = (j1[0] - cgs[0][0], j1[1] - cgs[0][1])
+        arm1b = (j1[0] - cgs[1][0], j1[1] - cgs[1][1])
+        arm2b = (j2[0] - cgs[1][0], j2[1] - cgs[1][1])
+        arm2t = (j2[0] - cgs[2][0], j2[1] - cgs[2][1])
+        A[0, 4], A[1, 5], A[2, 4], A[2, 5] = -1.0, -1.0, arm1h[1], -arm1h[0]
+        A[0, 8], A[1, 8] = e[0]
+        A[3, 4], A[4, 5], A[5, 4], A[5, 5] = 1.0, 1.0, -arm1b[1], arm1b[0]
+        A[3, 6], A[4, 7], A[5, 6], A[5, 7] = -1.0, -1.0, arm2b[1], -arm2b[0]
+        A[6, 6], A[7, 7], A[8, 6], A[8, 7] = 1.0, 1.0, -arm2t[1], arm2t[0]
+        for b in range(3):
+            rhs[3 * b] = -masses[b] * omega * omega * cgs[b][0]
+            rhs[3 * b + 1] = -masses[b] * omega * omega * cgs[b][1]
+        x = np.linalg.solve(A, rhs)
+        forces = [float(v) for v in x[:4]]
+        slips = []
+        for i, force in enumerate(forces):
+            if d.tyre == "linear":
+                slips.append(-force / d.stiffness[i])
+                continue
+            edge = sliding_slip(d.stiffness[i], d.limits[i])
+            if not abs(force) < d.limits[i]:
+                raise ValueError(f"axle {i + 1} would need {force:.0f} N, beyond its "
+                                 f"friction limit {d.limits[i]:.0f} N: no steady turn")
+            slips.append(brentq(lambda s, i=i, force=force: d.force(i, s) - force,
+                                -edge, edge, xtol=1e-16, rtol=1e-15))
+        new = [t - s for t, s in zip(theta, slips)]
+        change = max(abs(p - q) for p, q in zip(new, deltas))
+        deltas = new
+        if change < 1e-15:
+            break
+    return {"deltas": tuple(deltas), "kinematic_deltas": tuple(theta),
+            "slips": tuple(slips), "forces": tuple(forces),
+            "hinge_forces": ((float(x[4]), float(x[5])), (float(x[6]), float(x[7]))),
+            "drive": float(x[8]), "omega": omega,
+            "state": (x1, y1, p1, p2, p3, v1, omega, omega, omega)}
+
+
+__all__ = ["DynamicTrain", "TrainDynamics", "TrainGeometry", "steady_circle"]

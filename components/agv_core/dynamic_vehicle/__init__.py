@@ -1,0 +1,2 @@
+"""Dynamic single-track vehicle with tyre forces: core dynamic_vehicle.py, tyre laws
+tyres.py, FMU AgvDynamicVehicle."""
