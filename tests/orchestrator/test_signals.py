@@ -5,6 +5,8 @@ exactly its processes) with a private temp folder; a long run is interrupted onc
 children are computing. Each case costs a few seconds.
 """
 
+import csv
+import json
 import os
 import shutil
 import signal
@@ -56,12 +58,12 @@ def long_run(chain, tmp_path):
              str(tmp_path / out), "--jobs", "2"], env=env, start_new_session=True,
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         started.append(process)
-        # wait until both runs' children are writing rows
-        end = time.monotonic() + 20
+        # wait until both runs' children have recorded rows (header + at least one row)
+        end = time.monotonic() + 60
         while time.monotonic() < end:
             csvs = [p for p in tmp_path.glob(f".{out}.incomplete-*/*/timeseries.csv")
                     if p.parent.parent not in stale]
-            if len(csvs) == 2 and all(p.stat().st_size > 0 for p in csvs):
+            if len(csvs) == 2 and all(p.read_bytes().count(b"\n") >= 2 for p in csvs):
                 break
             time.sleep(0.05)
         else:
@@ -80,20 +82,36 @@ def long_run(chain, tmp_path):
     shutil.rmtree(tmp, ignore_errors=True)
 
 
+def _kept_partial(folder, statuses):
+    """``folder`` is a committed result folder marked partial, with these run statuses."""
+    marker = json.loads((folder / ".agv-cosim").read_text())
+    assert marker["complete"] is False and marker["runs"] == len(statuses)
+    assert (folder / "partial.txt").read_text().startswith("partial result: interrupted by")
+    with open(folder / "summary.csv", newline="") as stream:
+        assert [row["status"] for row in csv.DictReader(stream)] == statuses
+    for run in (p for p in folder.iterdir() if p.is_dir()):
+        info = json.loads((run / "run.json").read_text())
+        assert info["status"] == "interrupted" and info["rows"] >= 1
+
+
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
 @pytest.mark.slow  # seconds: builds or runs FMUs in processes
 def test_signal_to_the_parent_ends_everything(long_run, sig):
+    """The parent alone gets the signal: it stops its children, keeps the rows they
+    recorded in a folder marked partial (both runs 'interrupted'), and leaves no process
+    and no temporary folder."""
     start, tmp, root = long_run
     process = start()
     os.kill(process.pid, sig)  # the parent only: it must stop its children itself
     _, err = process.communicate(timeout=30)
     assert process.returncode == 128 + sig
-    assert err.strip().splitlines() == [
-        f"agv-cosim: interrupted by {signal.Signals(sig).name} (no result folder was "
-        "completed)"]
+    assert err.strip().splitlines()[-1] == (
+        f"agv-cosim: interrupted by {signal.Signals(sig).name}; 0 of 2 run(s) complete "
+        f"kept in {root / 'out'} (marked partial: partial.txt, summary.csv)")
     assert _wait_gone(process.pid, 3.0), "processes of the run are left"
     assert list(tmp.iterdir()) == []  # scratch, extraction and multiprocessing folders
-    assert sorted(p.name for p in root.iterdir()) == ["long.toml"]
+    assert sorted(p.name for p in root.iterdir()) == ["long.toml", "out"]
+    _kept_partial(root / "out", ["interrupted", "interrupted"])
 
 
 @pytest.mark.slow  # seconds: builds or runs FMUs in processes
@@ -112,7 +130,8 @@ def test_sigkilled_parent_children_stop_and_next_run_cleans(long_run):
     second.communicate(timeout=30)
     assert second.returncode == 128 + signal.SIGTERM
     assert _wait_gone(second.pid, 3.0)
-    assert sorted(p.name for p in root.iterdir()) == ["long.toml"]
+    assert sorted(p.name for p in root.iterdir()) == ["long.toml", "out"]
+    _kept_partial(root / "out", ["interrupted", "interrupted"])
     assert list(tmp.iterdir()) == []
 
 
