@@ -424,18 +424,23 @@ def _extract(path, dest):
         os.umask(old)
 
 
-def _unpack(info, dest):
-    """Put the contents of FMU ``info.path`` into the existing folder ``dest``."""
-    if not _EXTRACT_ROOT:
-        _extract(info.path, dest)
-        return
+def _kept(info):
+    """The kept extraction of FMU ``info`` (made on first use; see keep_extractions)."""
     key = (str(info.path), info.sha256)
     source = _EXTRACTED.get(key)
     if source is None:
         source = tempfile.mkdtemp(prefix="agv_cosim_fmu_", dir=_EXTRACT_ROOT[0])
         _extract(info.path, source)
         _EXTRACTED[key] = source
-    shutil.copytree(source, dest, copy_function=_link_or_copy, dirs_exist_ok=True)
+    return source
+
+
+def _unpack(info, dest):
+    """Put the contents of FMU ``info.path`` into the existing folder ``dest``."""
+    if not _EXTRACT_ROOT:
+        _extract(info.path, dest)
+        return
+    shutil.copytree(_kept(info), dest, copy_function=_link_or_copy, dirs_exist_ok=True)
 
 
 class FmuInstance:
@@ -450,9 +455,14 @@ class FmuInstance:
     on_message : callable, optional
         Also called as ``on_message(instance_name, status, text)`` for each message the
         FMU logs (e.g. to pass it on before a crash can lose it).
+    shared : bool
+        In a process that keeps extractions (:func:`keep_extractions`), use the kept
+        extraction itself instead of a folder of the instance's own (for instances that
+        never live at the same time, e.g. validate's initialisation check); it is not
+        deleted on close.
     """
 
-    def __init__(self, info, instance_name, on_message=None):
+    def __init__(self, info, instance_name, on_message=None, shared=False):
         from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE,
                                fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions)
         from fmpy.fmi1 import calloc, free
@@ -468,9 +478,13 @@ class FmuInstance:
         _ROUTES[instance_name] = self._receive
         tag = instance_name if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,63}",
                                             instance_name) else "fmu"
-        self.unzip_dir = tempfile.mkdtemp(prefix=f"agv_cosim_{tag}_")
+        self.unzip_dir, self._own_dir = None, True
         try:
-            _unpack(info, self.unzip_dir)
+            if shared and _EXTRACT_ROOT:
+                self.unzip_dir, self._own_dir = _kept(info), False
+            else:
+                self.unzip_dir = tempfile.mkdtemp(prefix=f"agv_cosim_{tag}_")
+                _unpack(info, self.unzip_dir)
 
             if info.fmi_version == "3.0":
                 self._instantiate_3(info, instance_name)
@@ -567,7 +581,8 @@ class FmuInstance:
             except Exception:  # noqa: BLE001 - cleanup must go on
                 pass
         if self.unzip_dir is not None:
-            shutil.rmtree(self.unzip_dir, ignore_errors=True)
+            if self._own_dir:
+                shutil.rmtree(self.unzip_dir, ignore_errors=True)
             self.unzip_dir = None
         for key in (self._key, self.name):
             if _ROUTES.get(key) == self._receive:

@@ -424,8 +424,11 @@ def figure(mc, jobs, results, folder, title=None, dpi=110):
         ax.legend(fontsize="small", frameon=False)
     fig.suptitle((title + ": " if title else "") + f"{mc.samples} samples per group "
                  "(box: p25-p75, whiskers p5-p95)", fontsize="medium")
+    from .results import open_output
+
     path = Path(folder) / "montecarlo.png"
-    fig.savefig(path, dpi=dpi, format="png", metadata={"Software": None})
+    with open_output(path) as stream:  # never written through a symbolic link
+        fig.savefig(stream, dpi=dpi, format="png", metadata={"Software": None})
     return path
 
 

@@ -35,6 +35,13 @@ def create_file(path, binary=False):
     return os.fdopen(fd, "w", encoding="utf-8", newline="")
 
 
+def open_output(path):
+    """``path`` opened for writing bytes, created or truncated, never through a
+    symbolic link (``O_NOFOLLOW``): for files a library call may write again (figures)."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW | os.O_CLOEXEC
+    return os.fdopen(os.open(path, flags, 0o666), "wb")
+
+
 def csv_line(fields):
     """One CSV record of ``fields`` as the csv module writes it (quoted where a field
     holds a comma, a quote or a line break), ending in ``\\n``."""

@@ -731,7 +731,8 @@ def _check_child(checks, channel, life, scratch):
         send(("checking", index))
         instance, failure = None, None
         try:
-            instance = FmuInstance(info, cname)
+            # instances one after the other: the FMU's one extraction serves them all
+            instance = FmuInstance(info, cname, shared=True)
             slave = instance.slave
             call = "fmi2SetupExperiment"
             slave.setupExperiment(startTime=start, stopTime=stop)
@@ -769,7 +770,8 @@ def check_initialisation(manifest, jobs, timeout=None):
 
     Catches what only the FMU knows (a parameter value it refuses), without running.
     The FMUs run in a child process of their own (see the module docstring); each
-    distinct (FMU, parameters) pair is checked once, and the first refusal stops. An
+    distinct (FMU, parameter values) pair is checked once (for the first component
+    that has it), and the first refusal stops. An
     FMU that takes longer than ``timeout`` [s] (default: the manifest's ``[simulation]
     timeout``, else :data:`INIT_TIMEOUT`) to instantiate and initialise is stopped.
 
@@ -784,7 +786,7 @@ def check_initialisation(manifest, jobs, timeout=None):
     for job in jobs:
         for cname, info in job.plan.models.items():
             values = job.plan.parameters.get(cname, {})
-            key = (info.sha256, cname, repr(sorted(values.items())))
+            key = (info.sha256, repr(sorted(values.items())))
             if key in seen:
                 continue
             seen.add(key)
