@@ -90,7 +90,7 @@ def connect(address, timeout=CONNECT_TIMEOUT):
 
     thread = threading.Thread(target=make, name="agv-cosim connect", daemon=True)
     thread.start()
-    thread.join(timeout + 5.0)
+    thread.join(timeout + 2.0)
     if thread.is_alive():  # left to end with the process (a daemon thread)
         raise ClusterError(f"--dask: cannot reach the scheduler at {address}: nothing that "
                            f"speaks Dask's protocol answered within {timeout:g} s")

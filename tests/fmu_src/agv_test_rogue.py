@@ -4,7 +4,8 @@ parameter, all off by default):
 - ``stdout_bytes``: writes that many bytes a step to file descriptors 1 and 2 (C level,
   ``os.write``) and prints a line with ``print``;
 - ``message``: logs this text as a warning through the FMI logger each step (e.g. with
-  terminal escape sequences);
+  terminal escape sequences); from ``fail_time`` on [s] (< 0: never) doStep fails with
+  it as the error;
 - ``garbage_time``: from this time on [s] (< 0: never), writes garbage into every open
   file descriptor above 2 that is a pipe (those it inherited from its host);
 - ``fork_seconds``: at initialisation forks a helper process that sleeps this long [s]
@@ -44,6 +45,7 @@ class AgvTestRogue(core.fmi.fmi_slave.AgvSlave):
         self.parameter("stdout_bytes", 0, None, "Bytes written to fds 1 and 2 a step",
                        kind=fs.Integer)
         self.parameter("message", "", None, "Warning logged every step", kind=fs.String)
+        self.parameter("fail_time", -1.0, "s", "From then on, doStep fails with message")
         self.parameter("garbage_time", -1.0, "s", "From then on, garbage into pipes")
         self.parameter("fork_seconds", 0.0, "s", "Life of a forked helper (0: none)")
         self.output("t_out", "s", "Current time")
@@ -51,16 +53,16 @@ class AgvTestRogue(core.fmi.fmi_slave.AgvSlave):
                     start=0)
 
     def make_core(self):
-        state = {"helper": 0}
-        if self.fork_seconds > 0.0:
+        # once per instance (a provisional core is also made in initialisation mode)
+        if self.fork_seconds > 0.0 and not getattr(self, "_helper", 0):
             pid = os.fork()
             if pid == 0:  # the helper: sleeps holding what it inherited
                 import time
 
                 time.sleep(float(self.fork_seconds))
                 os._exit(0)
-            state["helper"] = pid
-        return state
+            self._helper = pid
+        return {"helper": getattr(self, "_helper", 0)}
 
     def advance(self, t, h):
         n = int(self.stdout_bytes)
@@ -73,6 +75,8 @@ class AgvTestRogue(core.fmi.fmi_slave.AgvSlave):
             from pythonfmu.enums import Fmi2Status
 
             self.log(str(self.message), Fmi2Status.warning)
+        if 0.0 <= self.fail_time <= t + 1e-12:
+            raise RuntimeError(str(self.message))
         if 0.0 <= self.garbage_time <= t + 1e-12:
             for fd in _pipes():
                 try:

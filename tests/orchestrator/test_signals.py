@@ -1,8 +1,9 @@
-"""Class 2 of issue 10: a termination signal ends the whole run cleanly.
+"""A termination signal ends the whole run cleanly and keeps what was computed.
 
-The CLI runs as a real process in a session of its own (so its process group holds
-exactly its processes) with a private temp folder; a long run is interrupted once its
-children are computing. Each case costs a few seconds.
+The CLI runs as a real process in a session of its own (so its session holds exactly
+its processes: the workers lead process groups of their own inside it) with a private
+temp folder; a long run is interrupted once its children are computing. Each case costs
+a few seconds.
 """
 
 import csv
@@ -21,8 +22,10 @@ import pytest
 SWEEP = '[sweep]\n"gain.k" = [1.0, 2.0]\n'  # two runs, each in a child process
 
 
-def _group(pgid):
-    """Pids of the live (not zombie) processes in process group ``pgid``."""
+def _group(sid):
+    """Pids of the live (not zombie) processes in session ``sid`` (the command's: it
+    was started in a session of its own; its workers lead process groups of their own
+    in that session)."""
     found = []
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
@@ -31,18 +34,18 @@ def _group(pgid):
             fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
         except OSError:
             continue
-        if int(fields[2]) == pgid and fields[0] != "Z":
+        if int(fields[3]) == sid and fields[0] != "Z":
             found.append(int(entry.name))
     return found
 
 
-def _wait_gone(pgid, seconds):
+def _wait_gone(sid, seconds):
     end = time.monotonic() + seconds
     while time.monotonic() < end:
-        if not _group(pgid):
+        if not _group(sid):
             return True
         time.sleep(0.05)
-    return not _group(pgid)
+    return not _group(sid)
 
 
 @pytest.fixture
@@ -108,7 +111,7 @@ def test_signal_to_the_parent_ends_everything(long_run, sig):
     assert err.strip().splitlines()[-1] == (
         f"agv-cosim: interrupted by {signal.Signals(sig).name}; 0 of 2 run(s) complete "
         f"kept in {root / 'out'} (marked partial: partial.txt, summary.csv)")
-    assert _wait_gone(process.pid, 3.0), "processes of the run are left"
+    assert _wait_gone(process.pid, 5.0), "processes of the run are left"
     assert list(tmp.iterdir()) == []  # scratch, extraction and multiprocessing folders
     assert sorted(p.name for p in root.iterdir()) == ["long.toml", "out"]
     _kept_partial(root / "out", ["interrupted", "interrupted"])
@@ -129,7 +132,7 @@ def test_sigkilled_parent_children_stop_and_next_run_cleans(long_run):
     os.kill(second.pid, signal.SIGTERM)
     second.communicate(timeout=30)
     assert second.returncode == 128 + signal.SIGTERM
-    assert _wait_gone(second.pid, 3.0)
+    assert _wait_gone(second.pid, 5.0)
     assert sorted(p.name for p in root.iterdir()) == ["long.toml", "out"]
     _kept_partial(root / "out", ["interrupted", "interrupted"])
     assert list(tmp.iterdir()) == []
@@ -148,4 +151,115 @@ def test_no_process_left_after_a_normal_exit(chain, tmp_path):
         assert _group(process.pid) == []  # at once: nothing of ours outlives the command
         assert list(tmp.iterdir()) == []
     finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _cli(args, tmp):
+    return subprocess.Popen([sys.executable, "-m", "agv_cosim.cli", *args],
+                            env=dict(os.environ, TMPDIR=str(tmp)), start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.mark.slow  # seconds: runs FMUs in processes
+def test_sigterm_during_a_hung_run_keeps_the_finished_one(fmus, tmp_path):
+    """--jobs 1: the first run completes, the second hangs in doStep (no time limit);
+    SIGTERM keeps the first complete, the second 'interrupted' with its rows, the third
+    'not run', and ends every process."""
+    path = tmp_path / "hang.toml"
+    path.write_text(f"""
+name = "hang"
+[simulation]
+stop = 1.0
+step = 0.01
+[components.h]
+fmu = "{fmus['agv_test_hang']}"
+[sweep]
+"h.hang_time" = [10.0, 0.3, 20.0]
+""")
+    tmp = Path(tempfile.mkdtemp(prefix="agvsig", dir="/tmp"))
+    out = tmp_path / "out"
+    process = _cli(["run", str(path), "--out", str(out), "--jobs", "1", "--quiet"], tmp)
+    try:
+        end = time.monotonic() + 60
+        hung = None
+        while time.monotonic() < end:
+            hung = next(iter(tmp_path.glob(".out.incomplete-*/base__h.hang_time=0.3/"
+                                           "timeseries.csv")), None)
+            if hung is not None and hung.read_bytes().count(b"\n") >= 31:  # t = 0.3 s
+                break
+            time.sleep(0.05)
+        else:
+            raise AssertionError(f"the hang was not reached: {process.communicate()}")
+        time.sleep(0.5)
+        os.kill(process.pid, signal.SIGTERM)
+        _, err = process.communicate(timeout=30)
+        assert process.returncode == 128 + signal.SIGTERM
+        assert err.strip().splitlines()[-1] == (
+            f"agv-cosim: interrupted by SIGTERM; 1 of 3 run(s) complete kept in {out} "
+            "(marked partial: partial.txt, summary.csv)")
+        assert _wait_gone(process.pid, 5.0), "processes of the run are left"
+        with open(out / "summary.csv", newline="") as stream:
+            assert [r["status"] for r in csv.DictReader(stream)] == \
+                ["complete", "interrupted", "not run"]
+        info = json.loads((out / "base__h.hang_time=0.3" / "run.json").read_text())
+        assert info["rows"] == 31 and "during doStep at t=0.3 s" in info["error"]
+        assert list(tmp.iterdir()) == []
+    finally:
+        for pid in _group(process.pid):
+            os.kill(pid, signal.SIGKILL)
+        process.wait()
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+@pytest.mark.slow  # seconds: runs FMUs in processes
+def test_a_forked_helper_dies_with_a_sigkilled_command(fmus, tmp_path):
+    """The FMU forks a helper that would sleep 5 minutes, then the command is killed
+    with SIGKILL while its run hangs: the worker, the helper and the fork server end
+    (the helper was in the worker's group, which its guard kills); the next command
+    removes the scratch folders left."""
+    path = tmp_path / "fork.toml"
+    path.write_text(f"""
+name = "fork"
+[simulation]
+stop = 1.0
+step = 0.01
+[components.r]
+fmu = "{fmus['agv_test_rogue']}"
+parameters = {{ fork_seconds = 300.0 }}
+[components.h]
+fmu = "{fmus['agv_test_hang']}"
+parameters = {{ hang_time = 0.1 }}
+""")
+    tmp = Path(tempfile.mkdtemp(prefix="agvsig", dir="/tmp"))
+    process = _cli(["run", str(path), "--out", str(tmp_path / "out"), "--quiet"], tmp)
+    try:
+        end = time.monotonic() + 60
+        helper = 0
+        while time.monotonic() < end and not helper:
+            for csv_file in tmp_path.glob(".out.incomplete-*/base/timeseries.csv"):
+                rows = csv_file.read_text().splitlines()
+                if len(rows) > 1:
+                    helper = int(rows[1].split(",")[rows[0].split(",").index("r.helper")])
+            time.sleep(0.05)
+        assert helper, process.communicate()
+        assert Path(f"/proc/{helper}").exists()
+        os.kill(process.pid, signal.SIGKILL)
+        process.wait()
+        assert _wait_gone(process.pid, 10.0), "processes outlived a SIGKILLed command"
+        end = time.monotonic() + 10
+        while Path(f"/proc/{helper}").exists() and time.monotonic() < end:
+            state = Path(f"/proc/{helper}/stat").read_text().rsplit(")", 1)[1].split()[0]
+            if state == "Z":
+                break
+            time.sleep(0.05)
+        else:
+            assert not Path(f"/proc/{helper}").exists(), "the FMU's helper outlived it"
+        assert [p.name for p in tmp.iterdir() if f"-{process.pid}-" in p.name]
+        cleaner = _cli(["validate", str(path), "--no-init"], tmp)
+        cleaner.communicate(timeout=60)
+        assert cleaner.returncode == 0
+        assert [p.name for p in tmp.iterdir() if f"-{process.pid}-" in p.name] == []
+    finally:
+        for pid in _group(process.pid):
+            os.kill(pid, signal.SIGKILL)
         shutil.rmtree(tmp, ignore_errors=True)
