@@ -4,14 +4,22 @@
 variant x sweep point); :func:`execute` runs them in worker processes (``forkserver``
 context; up to ``workers`` at once) and writes the output folder::
 
-    DIR/<run label>/timeseries.csv   time, then component.variable (repr floats)
+    DIR/<run label>/timeseries.csv   time, then component.variable (csv module; repr floats)
     DIR/<run label>/metrics.json     metrics.compute_metrics(...) of the run
-    DIR/<run label>/run.json         hashes, parameters, versions, wall time, status
+    DIR/<run label>/run.json         hashes, parameters, versions, wall time, status, and
+                                     the run's inputs with their SHA-256
+    DIR/<run label>/output.txt       what the run's process printed (only if it did)
     DIR/summary.csv                  one row per run: label, status, sweep values, metrics
     DIR/*.png                        plots.plot_runs(...) overlaying the runs
+    DIR/partial.txt                  only in a folder kept after an interruption
+
+A run's status is ``complete``, ``partial`` (rows recorded, then a failure), ``failed``,
+``timed out`` (stopped at its wall-clock limit), ``interrupted`` (under way when a
+signal came) or ``not run``.
 
 Each run is independent and deterministic, so the parallel and the serial results are
-byte-identical. ``DIR`` is assembled under a temporary name and renamed into place.
+byte-identical. ``DIR`` is assembled under a temporary name and renamed into place; on
+SIGINT, SIGTERM or SIGHUP it is renamed into place marked partial when any run has rows.
 
 Why worker processes: an FMU runs inside the process that loads it, and a failing
 pythonfmu 0.7 FMU can damage its host's heap (see agv_core/fmi/pythonfmu_workarounds.py).
@@ -19,10 +27,12 @@ A worker runs the next job only after a run that ended ``complete``; after any o
 ending it exits and a fresh worker takes the next job, so the damage ends with the run.
 A worker that dies is reported as its run's failure (partial if it had recorded rows),
 and the other runs go on. Reusing a worker after clean runs spares each later run the
-process start and the import of the FMUs' bundled cores.
+process start and the import of the FMUs' bundled cores. Each worker leads a process
+group of its own, so a run that exceeds its limit is ended with every process its FMUs
+started.
 """
-
 import importlib
+import math
 import os
 import pickle
 import platform
@@ -256,22 +266,36 @@ def inputs_sha256(inputs):
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
+def _exact(value):
+    """``value`` with its non-finite floats as text ("nan", "inf", "-inf"): a value an
+    FMU declares legal is recorded as given, not as JSON's null."""
+    if isinstance(value, dict):
+        return {k: _exact(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_exact(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return repr(value)
+    return value
+
+
 def _finish(job, run_dir, rows, status, error, wall, values, metrics_error, ended_by=None):
     """Write metrics.json and run.json of a run (replacing ours); return its summary."""
     write_json(run_dir / "metrics.json", values, replace=True)
     inputs = run_inputs(job)
+    digest = inputs_sha256(inputs)
+    inputs = _exact(inputs)
     write_json(run_dir / "run.json", {
-        "label": job.label, "variant": job.variant, "sweep_point": job.point,
+        "label": job.label, "variant": job.variant, "sweep_point": _exact(job.point),
         "manifest": job.manifest_path, "manifest_sha256": job.manifest_sha256,
         "fmu_sha256": job.fmu_sha256,
         "fmus": job.fmu_paths or {c: str(info.path) for c, info in job.plan.models.items()},
-        "parameters": job.parameters, "algorithm": job.plan.algorithm,
+        "parameters": _exact(job.parameters), "algorithm": job.plan.algorithm,
         "start": job.plan.start, "stop": job.plan.stop, "step": job.plan.step,
         "record_every": job.plan.record_every, "rows": rows,
         "versions": inputs["versions"], "wall_time_s": wall, "status": status,
         "error": error, "metrics_error": metrics_error, "partial": status != "complete",
         "ended_by": ended_by or ("stop time" if status == "complete" else None),
-        "timeout_s": job.timeout, "inputs": inputs, "inputs_sha256": inputs_sha256(inputs),
+        "timeout_s": job.timeout, "inputs": inputs, "inputs_sha256": digest,
         "events": inputs["events"]}, replace=True)
     return {"label": job.label, "status": status, "error": error, "rows": rows,
             "metrics": values, "metrics_error": metrics_error, "point": job.point,

@@ -2,6 +2,7 @@
 enter unless the FMU declares them legal, and Monte Carlo sampling is sound at the
 extremes or refuses the table (one line, exit 2)."""
 
+import json
 import math
 import zipfile
 
@@ -75,6 +76,9 @@ def test_values_the_fmu_declares_legal_are_accepted(fmus, tmp_path, capsys):
     path = _names(fmus, tmp_path, "inf_ok = inf, nan_ok = nan")
     assert cli.main(["validate", str(path)]) == 0
     assert cli.main(["run", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 0
+    info = json.loads((tmp_path / "o" / "base" / "run.json").read_text())
+    assert info["parameters"]["n"]["inf_ok"] == "inf"  # as given, not null
+    assert info["parameters"]["n"]["nan_ok"] == "nan"
     capsys.readouterr()
     for bad, key in (("inf_ok = -inf", "inf_ok"), ("nan_ok = inf", "nan_ok"),
                      ('"gain.k" = nan', "gain.k")):
