@@ -55,8 +55,8 @@ from .manifest import Manifest, ManifestError, load_manifest
 from .plan import plan_runs
 from .system import validate
 from .master import Plan, SimulationError, describe_track, record_types, simulate
-from .results import (AtomicDir, CsvSink, count_rows, create_file, printable, write_json,
-                      write_summary, write_text)
+from .results import (AtomicDir, CsvSink, FolderLost, count_rows, create_file, printable,
+                      write_json, write_summary, write_text)
 
 
 #: Modules the fork server imports once (issue 16: cheap extra runs), so that each run's
@@ -667,7 +667,8 @@ def _run_isolated(jobs, root, workers, on_progress, on_done):
         worker["send"].close()
         worker["frames"].close()
         shutil.rmtree(worker["scratch"], ignore_errors=True)
-        pool.remove(worker)
+        if worker in pool:  # (an interruption may have come in the middle of an end)
+            pool.remove(worker)
 
     def handle(worker, kind, payload):
         index = worker["index"]
@@ -1016,9 +1017,12 @@ def _keep_partial(manifest, jobs, folder, stop):
         complete = sum(r["status"] == "complete" for r in results)
         reason = getattr(stop, "reason", None) or (
             f"interrupted by {getattr(stop, 'name', 'SIGINT')}")
-        _write_summary(folder, results)
-        folder.mark_partial(reason, complete, len(results))
-        stop.kept = folder.commit()
+        try:
+            _write_summary(folder, results)
+            folder.mark_partial(reason, complete, len(results))
+            stop.kept = folder.commit()
+        except (OSError, FolderLost):  # nothing to keep: the first error is the story
+            return
         stop.results = results
     finally:
         if restore is not None:

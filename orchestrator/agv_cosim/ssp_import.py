@@ -480,6 +480,8 @@ def load_ssp(path, workdir):
     path, workdir = Path(path), Path(workdir)
     if not path.exists():
         raise SspError(path, "file", "not found")
+    if not (path.is_dir() or path.is_file()):  # a FIFO or a device: never opened
+        raise SspError(path, "file", "not a regular file or a folder")
     unpacked = None
     if path.is_dir():
         ssd = path / SSD_NAME

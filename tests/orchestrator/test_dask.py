@@ -7,9 +7,11 @@ import ctypes
 import ctypes.util
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -226,8 +228,8 @@ def test_finished_runs_are_kept_when_the_cluster_goes_away(fmus, tmp_path, victi
     killed (SIGKILL): the command ends with one line of ours last on stderr (no
     traceback of distributed's), exit 1, the two runs kept complete in a folder marked
     partial, the others 'not run'."""
-    folder = tmp_path / "cluster"
-    folder.mkdir()
+    # short: the worker's fork server puts a socket in its TMPDIR (at most 107 bytes)
+    folder = Path(tempfile.mkdtemp(prefix="agvdask", dir="/tmp"))
     address, scheduler, worker = _mini_cluster(folder)
     try:
         path = tmp_path / "hangdask.toml"
@@ -257,3 +259,4 @@ def test_finished_runs_are_kept_when_the_cluster_goes_away(fmus, tmp_path, victi
     finally:
         _stop(worker)
         _stop(scheduler)
+        shutil.rmtree(folder, ignore_errors=True)

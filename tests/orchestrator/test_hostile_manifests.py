@@ -84,3 +84,20 @@ def test_the_order_of_many_independent_components_is_the_manifest_order():
     names = list(models)[::-1]  # a manifest order that is not sorted by name
     models = {name: models[name] for name in names}
     assert feedthrough_order(models, []) == names
+
+
+def test_a_fifo_as_ssp_package_or_time_table_is_refused(chain, tmp_path, capsys):
+    """An .ssp package and a time table named by a manifest are read as regular files
+    only: a FIFO (nothing writes into it) is one line, not a hang."""
+    package = tmp_path / "p.ssp"
+    os.mkfifo(package)
+    assert _fail(capsys, ["validate", str(package)]) == \
+        f"agv-cosim: error: {package}: file: not a regular file or a folder"
+    table = tmp_path / "in.csv"
+    os.mkfifo(table)
+    path = chain()
+    path.write_text(path.read_text().replace(
+        "[components.src]\n", f'[components.tab]\ntable = "{table}"\n[components.src]\n'))
+    line = _fail(capsys, ["validate", str(path), "--no-init"])
+    assert line == (f"agv-cosim: error: {path}: components.tab.table: '{table}' is not a "
+                    "regular file")
