@@ -154,6 +154,20 @@ def test_no_process_left_after_a_normal_exit(chain, tmp_path):
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+def _ended(pid, seconds=10.0):
+    """True once process ``pid`` has ended (gone, or a zombie awaiting its reaper)."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            return True
+        if state == "Z":
+            return True
+        time.sleep(0.05)
+    return False
+
+
 def _cli(args, tmp):
     return subprocess.Popen([sys.executable, "-m", "agv_cosim.cli", *args],
                             env=dict(os.environ, TMPDIR=str(tmp)), start_new_session=True,
@@ -162,9 +176,10 @@ def _cli(args, tmp):
 
 @pytest.mark.slow  # seconds: runs FMUs in processes
 def test_sigterm_during_a_hung_run_keeps_the_finished_one(fmus, tmp_path):
-    """--jobs 1: the first run completes, the second hangs in doStep (no time limit);
-    SIGTERM keeps the first complete, the second 'interrupted' with its rows, the third
-    'not run', and ends every process."""
+    """--jobs 1: the first run completes, the second hangs in doStep (no time limit)
+    while an FMU of it has forked a helper; SIGTERM keeps the first complete, the second
+    'interrupted' with its rows, the third 'not run', ends every process (the helper
+    too), and our line is the last on stderr (the progress bar is not drawn again)."""
     path = tmp_path / "hang.toml"
     path.write_text(f"""
 name = "hang"
@@ -173,12 +188,15 @@ stop = 1.0
 step = 0.01
 [components.h]
 fmu = "{fmus['agv_test_hang']}"
+[components.r]
+fmu = "{fmus['agv_test_rogue']}"
+parameters = {{ fork_seconds = 300.0 }}
 [sweep]
 "h.hang_time" = [10.0, 0.3, 20.0]
 """)
     tmp = Path(tempfile.mkdtemp(prefix="agvsig", dir="/tmp"))
     out = tmp_path / "out"
-    process = _cli(["run", str(path), "--out", str(out), "--jobs", "1", "--quiet"], tmp)
+    process = _cli(["run", str(path), "--out", str(out), "--jobs", "1"], tmp)
     try:
         end = time.monotonic() + 60
         hung = None
@@ -190,14 +208,19 @@ fmu = "{fmus['agv_test_hang']}"
             time.sleep(0.05)
         else:
             raise AssertionError(f"the hang was not reached: {process.communicate()}")
-        time.sleep(0.5)
+        rows = hung.read_text().splitlines()
+        helper = int(rows[1].split(",")[rows[0].split(",").index("r.helper")])
+        assert Path(f"/proc/{helper}").exists()
+        time.sleep(2.5)  # the progress bar shows after 2 s
         os.kill(process.pid, signal.SIGTERM)
         _, err = process.communicate(timeout=30)
         assert process.returncode == 128 + signal.SIGTERM
-        assert err.strip().splitlines()[-1] == (
+        assert "hang:" in err  # the bar was drawn
+        assert err.replace("\r", "\n").strip().splitlines()[-1] == (
             f"agv-cosim: interrupted by SIGTERM; 1 of 3 run(s) complete kept in {out} "
             "(marked partial: partial.txt, summary.csv)")
         assert _wait_gone(process.pid, 5.0), "processes of the run are left"
+        assert _ended(helper), "the FMU's helper outlived the run"
         with open(out / "summary.csv", newline="") as stream:
             assert [r["status"] for r in csv.DictReader(stream)] == \
                 ["complete", "interrupted", "not run"]
@@ -246,14 +269,7 @@ parameters = {{ hang_time = 0.1 }}
         os.kill(process.pid, signal.SIGKILL)
         process.wait()
         assert _wait_gone(process.pid, 10.0), "processes outlived a SIGKILLed command"
-        end = time.monotonic() + 10
-        while Path(f"/proc/{helper}").exists() and time.monotonic() < end:
-            state = Path(f"/proc/{helper}/stat").read_text().rsplit(")", 1)[1].split()[0]
-            if state == "Z":
-                break
-            time.sleep(0.05)
-        else:
-            assert not Path(f"/proc/{helper}").exists(), "the FMU's helper outlived it"
+        assert _ended(helper), "the FMU's helper outlived it"
         assert [p.name for p in tmp.iterdir() if f"-{process.pid}-" in p.name]
         cleaner = _cli(["validate", str(path), "--no-init"], tmp)
         cleaner.communicate(timeout=60)
