@@ -331,33 +331,49 @@ def _send_frame(fd, message):
         view = view[os.write(fd, view):]
 
 
-class _Frames:
-    """The parent's end of a worker's frame pipe, read without blocking."""
+class _PipeReader:
+    """The parent's end of a pipe from a worker, read without ever blocking."""
 
     def __init__(self, connection):
         self.connection = connection  # keeps the descriptor open
         self.fd = connection.fileno()
         os.set_blocking(self.fd, False)
-        self.buffer = bytearray()
         self.closed = False
-        self.broken = None  # why the pipe's content cannot be ours
 
-    def read(self, limit=1 << 22):
-        """The complete messages now in the pipe (at most ``limit`` bytes read)."""
+    def chunks(self, limit=1 << 22):
+        """What the pipe holds now, in pieces (at most ``limit`` bytes in all); sets
+        ``closed`` at its end."""
         got = 0
         while not self.closed and got < limit:
             try:
                 chunk = os.read(self.fd, 1 << 16)
             except BlockingIOError:
-                break
+                return
             except OSError:
-                self.closed = True
-                break
+                chunk = b""
             if not chunk:
                 self.closed = True
-                break
-            self.buffer += chunk
+                return
             got += len(chunk)
+            yield chunk
+
+    def close(self):
+        self.connection.close()
+
+
+class _Frames(_PipeReader):
+    """A worker's frame pipe: complete messages, or ``broken`` set when it holds bytes
+    that are not ours."""
+
+    def __init__(self, connection):
+        super().__init__(connection)
+        self.buffer = bytearray()
+        self.broken = None  # why the pipe's content cannot be ours
+
+    def read(self):
+        """The complete messages now in the pipe."""
+        for chunk in self.chunks():
+            self.buffer += chunk
         messages = []
         while self.broken is None and len(self.buffer) >= _FRAME.size:
             (size,) = _FRAME.unpack_from(self.buffer)
@@ -379,20 +395,14 @@ class _Frames:
             messages.append(message)
         return messages
 
-    def close(self):
-        self.connection.close()
 
-
-class _OutputLog:
+class _OutputLog(_PipeReader):
     """A run process's stdout and stderr, read from a pipe into ``output.txt`` of the
     run's folder: at most :data:`MAX_OUTPUT` bytes kept, the rest counted. The file is
     created (``O_EXCL | O_NOFOLLOW``) only when there is output."""
 
     def __init__(self, connection):
-        self.connection = connection
-        self.fd = connection.fileno()
-        os.set_blocking(self.fd, False)
-        self.closed = False
+        super().__init__(connection)
         self.path = None
         self.stream = None
         self.kept = 0
@@ -403,20 +413,8 @@ class _OutputLog:
         self.detach()
         self.path = Path(run_dir) / OUTPUT_FILE
 
-    def read(self, limit=1 << 22):
-        got = 0
-        while not self.closed and got < limit:
-            try:
-                chunk = os.read(self.fd, 1 << 16)
-            except BlockingIOError:
-                break
-            except OSError:
-                self.closed = True
-                break
-            if not chunk:
-                self.closed = True
-                break
-            got += len(chunk)
+    def read(self):
+        for chunk in self.chunks():
             self._keep(chunk)
 
     def _keep(self, chunk):
@@ -455,7 +453,7 @@ class _OutputLog:
 
     def close(self):
         self.detach()
-        self.connection.close()
+        super().close()
 
 
 def _flush_c_stdio():

@@ -12,6 +12,7 @@ import zipfile
 from pathlib import Path
 
 import pytest
+from processes import ended
 
 from agv_cosim import cli, runner
 from agv_cosim.results import MARKER
@@ -55,20 +56,6 @@ def _rogue(fmus, tmp_path, parameters, extra="", name="rogue.toml"):
 def _statuses(folder):
     with open(Path(folder) / "summary.csv", newline="") as stream:
         return {row["run"]: row["status"] for row in csv.DictReader(stream)}
-
-
-def _gone(pid, seconds=10.0):
-    """True once process ``pid`` has ended (gone, or a zombie awaiting its reaper)."""
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        try:
-            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-        except OSError:
-            return True
-        if state == "Z":
-            return True
-        time.sleep(0.05)
-    return False
 
 
 # ---------------------------------------------------------------- hangs and time limits
@@ -250,7 +237,7 @@ def test_a_forked_helper_ends_with_its_run(fmus, tmp_path):
     assert time.monotonic() - before < 120
     with open(tmp_path / "out" / "base" / "timeseries.csv", newline="") as stream:
         helper = int(next(iter(csv.DictReader(stream)))["r.helper"])
-    assert helper > 0 and _gone(helper)
+    assert helper > 0 and ended(helper)
     import tempfile
 
     mine = list(Path(tempfile.gettempdir()).glob(f"agv-cosim-{os.getpid()}-run-*"))
@@ -300,3 +287,13 @@ def test_an_fmu_without_its_binary_is_named(chain, fmus, tmp_path, capsys):
     info = json.loads((tmp_path / "o" / "base" / "run.json").read_text())
     assert info["status"] == "failed"
     assert "no binary for this platform" in info["error"]
+
+
+def test_the_helper_channels_dropped_in_a_worker_still_exist():
+    """lifetime.drop_helper_channels closes multiprocessing's private descriptors of
+    the fork server and the resource tracker in each worker; this pins their names (a
+    Python that renames them makes the garbage test above fail, and this one say why)."""
+    from multiprocessing import forkserver, resource_tracker
+
+    assert hasattr(forkserver._forkserver, "_forkserver_alive_fd")
+    assert hasattr(resource_tracker._resource_tracker, "_fd")

@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 import pytest
+from processes import ended
 
 SWEEP = '[sweep]\n"gain.k" = [1.0, 2.0]\n'  # two runs, each in a child process
 
@@ -154,20 +155,6 @@ def test_no_process_left_after_a_normal_exit(chain, tmp_path):
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _ended(pid, seconds=10.0):
-    """True once process ``pid`` has ended (gone, or a zombie awaiting its reaper)."""
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        try:
-            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-        except OSError:
-            return True
-        if state == "Z":
-            return True
-        time.sleep(0.05)
-    return False
-
-
 def _cli(args, tmp):
     return subprocess.Popen([sys.executable, "-m", "agv_cosim.cli", *args],
                             env=dict(os.environ, TMPDIR=str(tmp)), start_new_session=True,
@@ -220,7 +207,7 @@ parameters = {{ fork_seconds = 300.0 }}
             f"agv-cosim: interrupted by SIGTERM; 1 of 3 run(s) complete kept in {out} "
             "(marked partial: partial.txt, summary.csv)")
         assert _wait_gone(process.pid, 5.0), "processes of the run are left"
-        assert _ended(helper), "the FMU's helper outlived the run"
+        assert ended(helper), "the FMU's helper outlived the run"
         with open(out / "summary.csv", newline="") as stream:
             assert [r["status"] for r in csv.DictReader(stream)] == \
                 ["complete", "interrupted", "not run"]
@@ -269,7 +256,7 @@ parameters = {{ hang_time = 0.1 }}
         os.kill(process.pid, signal.SIGKILL)
         process.wait()
         assert _wait_gone(process.pid, 10.0), "processes outlived a SIGKILLed command"
-        assert _ended(helper), "the FMU's helper outlived it"
+        assert ended(helper), "the FMU's helper outlived it"
         assert [p.name for p in tmp.iterdir() if f"-{process.pid}-" in p.name]
         cleaner = _cli(["validate", str(path), "--no-init"], tmp)
         cleaner.communicate(timeout=60)
