@@ -1,10 +1,13 @@
 """The ``agv-cosim`` command line.
 
-Exit codes: 0 success; 1 a run that failed or is partial, a metrics error, a failed build
-or an error of the system (disk full, ...); 2 bad input (one line
+Exit codes: 0 success; 1 a run that failed, is partial or timed out, a metrics error, a
+failed build, a cluster that went away or an error of the system (disk full, a result
+folder removed during the run, ...); 2 bad input (one line
 ``agv-cosim: error: <manifest>: <key>: <problem>`` on stderr; also an output folder that
 is not ours, or one another run is writing); 128 + N when ended by signal N (SIGINT,
-SIGTERM, SIGHUP), with no result folder completed. Every error is one line on stderr;
+SIGTERM, SIGHUP): the runs already complete are kept in the result folder, marked
+partial (``partial.txt``, and each run's status in summary.csv). Every error is one line
+on stderr, its control characters escaped (an FMU's message cannot drive the terminal);
 ``--debug`` adds the traceback and changes nothing else (not the exit code).
 """
 
@@ -13,12 +16,18 @@ import sys
 import traceback
 
 from . import __version__
+from .results import printable
 from .ssp_export import add_cli as add_ssp_cli
 from .ssp_import import opened
 
 
+def _say(text):
+    """One line on stderr, control characters escaped."""
+    print(printable(text), file=sys.stderr)
+
+
 def _error(text):
-    print(f"agv-cosim: error: {text}", file=sys.stderr)
+    _say(f"agv-cosim: error: {text}")
     return 2
 
 
@@ -38,7 +47,21 @@ def _cmd_build(args):
 
 def _warn(warnings, quiet=False):
     for warning in warnings:
-        print(f"agv-cosim: warning: {warning}", file=sys.stderr)
+        _say(f"agv-cosim: warning: {warning}")
+
+
+def _timeout(text):
+    """``--timeout``: a positive, finite number of seconds."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive, finite number of "
+                                         "seconds")
+    return value
 
 
 def _cmd_validate(args):
@@ -47,11 +70,21 @@ def _cmd_validate(args):
     manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set)
     _warn(warnings)
     if not args.no_init:
-        check_initialisation(manifest, jobs)
-    print(f"{manifest.path}: ok: {len(jobs)} run(s), {len(manifest.components)} "
-          f"component(s), {len(manifest.connections)} connection(s), "
-          f"{manifest.algorithm}")
+        check_initialisation(manifest, jobs, args.timeout)
+    print(printable(f"{manifest.path}: ok: {len(jobs)} run(s), {len(manifest.components)} "
+                    f"component(s), {len(manifest.connections)} connection(s), "
+                    f"{manifest.algorithm}"))
     return 0
+
+
+def _kept(error):
+    """What a stopped command kept: '; k of n run(s) complete kept in DIR (...)'."""
+    kept, results = getattr(error, "kept", None), getattr(error, "results", None)
+    if kept is None or results is None:
+        return None
+    complete = sum(r["status"] == "complete" for r in results)
+    return (f"{complete} of {len(results)} run(s) complete kept in {kept} (marked partial: "
+            "partial.txt, summary.csv)")
 
 
 def _cmd_run(args):
@@ -59,26 +92,27 @@ def _cmd_run(args):
 
     if args.jobs is not None and args.jobs < 1:
         return _error("--jobs: must be >= 1")
-    manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set)
+    manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set,
+                                       timeout=args.timeout)
     _warn(warnings)
-    from .distributed import ClusterError  # issue 16: --dask
+    from .distributed import ClusterError
 
     try:
         target, results = execute(manifest, jobs, args.out, args.jobs, args.quiet,
                                   overwrite=args.overwrite, dask=args.dask)
     except ClusterError as error:
-        print(f"agv-cosim: error: {error}", file=sys.stderr)
+        kept = _kept(error)
+        _say(f"agv-cosim: error: {error}" + (f"; {kept}" if kept else ""))
         return 1
     bad = [r for r in results if r["status"] != "complete"]
     for result in bad:
-        print(f"agv-cosim: run {result['label']} {result['status']}: {result['error']}",
-              file=sys.stderr)
+        _say(f"agv-cosim: run {result['label']} {result['status']}: {result['error']}")
     unmeasured = [r for r in results if r.get("metrics_error")]
     for result in unmeasured:
-        print(f"agv-cosim: run {result['label']}: metrics: {result['metrics_error']}",
-              file=sys.stderr)
+        _say(f"agv-cosim: run {result['label']}: metrics: {result['metrics_error']}")
     if not args.quiet:
-        print(f"{target}: {len(results) - len(bad)}/{len(results)} run(s) complete")
+        print(printable(f"{target}: {len(results) - len(bad)}/{len(results)} run(s) "
+                        "complete"))
     return 1 if bad or unmeasured else 0
 
 
@@ -98,12 +132,12 @@ def _cmd_list(args):
         try:
             info = read_model(fmu)
         except ModelError as error:
-            print(f"agv-cosim: error: {fmu}: {error}", file=sys.stderr)
+            _say(f"agv-cosim: error: {fmu}: {error}")
             status = 2
             continue
         if i:
             print()
-        print(describe(info))
+        print("\n".join(printable(line) for line in describe(info).split("\n")))
     return status
 
 
@@ -151,9 +185,13 @@ def make_parser():
     run.add_argument("--jobs", type=int, metavar="N",
                      help="runs at once, in worker processes (a worker is replaced after a "
                           "run that did not complete; default: one per core)")
-    run.add_argument("--dask", metavar="ADDRESS",  # issue 16: agv_cosim.distributed
+    run.add_argument("--dask", metavar="ADDRESS",
                      help="run on the Dask cluster whose scheduler is at ADDRESS "
                           "(tcp://HOST:PORT; see docs/dask.md); default: local processes")
+    run.add_argument("--timeout", type=_timeout, metavar="SECONDS",
+                     help="wall-clock limit of each run: a run still going then is stopped "
+                          "and reported 'timed out', the others go on (default: the "
+                          "manifest's [simulation] timeout, else no limit)")
     run.set_defaults(func=_cmd_run)
 
     check = sub.add_parser("validate", help="check a manifest against its FMUs, run nothing",
@@ -165,6 +203,9 @@ def make_parser():
                                        "refuses. Runs no step.")
     check.add_argument("--no-init", action="store_true",
                        help="skip instantiating and initialising the FMUs")
+    check.add_argument("--timeout", type=_timeout, metavar="SECONDS",
+                       help="limit of each FMU's instantiation and initialisation (default: "
+                            "the manifest's [simulation] timeout, else 60 s)")
     check.set_defaults(func=_cmd_validate)
 
     listing = sub.add_parser("list", help="list FMUs and their variables", parents=[debug])
@@ -187,8 +228,15 @@ def _report(args, text, code):
     """One line on stderr (the traceback first with ``--debug``); return ``code``."""
     if args.debug:
         traceback.print_exc()
-    print(f"agv-cosim: {text}", file=sys.stderr)
+    _say(f"agv-cosim: {text}")
     return code
+
+
+def _interrupted(args, name, signum, error):
+    kept = _kept(error)
+    return _report(args, f"interrupted by {name}" + (f"; {kept}" if kept else
+                                                    " (no result folder was completed)"),
+                   128 + signum)
 
 
 def main(argv=None):
@@ -196,7 +244,7 @@ def main(argv=None):
     from .lifetime import (Interrupted, clean_stale_scratch, termination_signals,
                            use_own_scratch_for_multiprocessing)
     from .manifest import ManifestError
-    from .results import OutputError
+    from .results import FolderLost, OutputError
 
     args = make_parser().parse_args(argv)
     if not hasattr(args, "debug"):
@@ -209,18 +257,20 @@ def main(argv=None):
             return _dispatch(args)
     except (ManifestError, OutputError) as error:
         return _report(args, f"error: {error}", 2)
+    except FolderLost as error:
+        return _report(args, f"error: {error}", 1)
     except BrokenPipeError:
         # the reader went away (e.g. `agv-cosim list | head`): stop quietly
         sys.stdout = None
         return 0
-    except KeyboardInterrupt:
-        return _report(args, "interrupted by SIGINT (no result folder was completed)", 130)
-    except Interrupted as signal:
-        return _report(args, f"interrupted by {signal.name} (no result folder was "
-                       "completed)", 128 + signal.signum)
+    except KeyboardInterrupt as error:
+        return _interrupted(args, "SIGINT", 2, error)
+    except Interrupted as error:
+        return _interrupted(args, error.name, error.signum, error)
     except OSError as error:  # the system refused (disk full, permissions, ...)
         where = f"{error.filename}: " if error.filename else ""
-        return _report(args, f"error: {where}{error.strerror or error}", 1)
+        text = error.strerror or str(error) or type(error).__name__
+        return _report(args, f"error: {where}{text}", 1)
     except Exception as error:  # noqa: BLE001 - never a traceback without --debug
         return _report(args, f"error: internal error: {type(error).__name__}: {error} "
                        "(run with --debug for the traceback)", 1)

@@ -9,8 +9,10 @@ What a task does on a worker (:func:`run_remote`):
 1. **FMUs shipped with the job.** The client reads each distinct FMU once, scatters its
    bytes to the cluster (``Client.scatter``, keyed by SHA-256) and hands the futures to
    the tasks; a worker stores each FMU once in a cache folder of its own
-   (``<tmp>/agv-cosim-dask-fmus-<uid>/<sha256>.fmu``, written under a temporary name,
-   its SHA-256 checked, then renamed) and every later run on that worker reuses it.
+   (``<tmp>/agv-cosim-dask-fmus-<uid>/<sha256>.fmu``: a 0700 folder of the worker's user,
+   refused if anyone else can write it; each file written under a temporary name, its
+   SHA-256 checked, then renamed) and every later run on that worker reuses it after
+   checking its SHA-256 again (a changed file is replaced by the bytes sent).
    Chosen over a shared path because the cluster then needs no shared file system and a
    worker can never run an FMU other than the one the client validated: the hash in
    ``run.json`` is the hash of the bytes that ran.
@@ -35,20 +37,36 @@ children, so start workers with ``DASK_DISTRIBUTED__WORKER__DAEMON=False`` (or
 
 import dataclasses
 import hashlib
+import logging
 import os
+import re
+import stat
 import tempfile
+import threading
+import time
 from pathlib import Path
 
-#: How long the client waits for the scheduler [s] before giving up.
+#: How long the client waits for the scheduler to answer [s] before giving up.
 CONNECT_TIMEOUT = 10.0
+#: How long a cluster may go without a worker, or the client without its scheduler,
+#: while runs are left [s] before the command gives up (keeping the finished runs).
+LOST_TIMEOUT = 30.0
 
 
 class ClusterError(Exception):
     """The cluster cannot be used (unreachable scheduler, no workers, ...)."""
 
 
+class WorkerUnfit(RuntimeError):
+    """This worker cannot run any run (a setting or its FMU cache): nothing will run."""
+
+
 def connect(address, timeout=CONNECT_TIMEOUT):
     """A ``distributed.Client`` on the scheduler at ``address``.
+
+    The connection is made in a thread of its own and given up after ``timeout`` [s]
+    plus a margin, whatever answers at the address (a silent TCP server, an HTTP
+    server and the like make ``distributed`` wait without end).
 
     Raises
     ------
@@ -62,22 +80,72 @@ def connect(address, timeout=CONNECT_TIMEOUT):
     if not isinstance(address, str) or "://" not in address:
         raise ClusterError(f"--dask: {address!r} is not a scheduler address "
                            "(e.g. tcp://HOST:8786)")
-    try:
-        return Client(address, timeout=timeout)
-    except (OSError, TimeoutError, ValueError) as error:
+    box = {}
+
+    def make():
+        try:
+            box["client"] = Client(address, timeout=timeout)
+        except BaseException as error:  # noqa: BLE001 - handed to the caller's thread
+            box["error"] = error
+
+    thread = threading.Thread(target=make, name="agv-cosim connect", daemon=True)
+    thread.start()
+    thread.join(timeout + 2.0)
+    if thread.is_alive():  # left to end with the process (a daemon thread)
+        raise ClusterError(f"--dask: cannot reach the scheduler at {address}: nothing that "
+                           f"speaks Dask's protocol answered within {timeout:g} s")
+    error = box.get("error")
+    if isinstance(error, (OSError, TimeoutError, ValueError)):
         text = " ".join(str(error).split()) or type(error).__name__
         raise ClusterError(f"--dask: cannot reach the scheduler at {address}: "
                            f"{text}") from None
+    if isinstance(error, Exception):  # e.g. an HTTP server's answer read as frames
+        text = " ".join(str(error).split())[:200] or type(error).__name__
+        raise ClusterError(f"--dask: {address} did not answer as a Dask scheduler "
+                           f"({type(error).__name__}: {text})") from None
+    if error is not None:
+        raise error
+    return box["client"]
 
 
 def _fmu_cache():
+    """This user's FMU cache folder on a worker: created 0700; refused (WorkerUnfit)
+    unless it is a folder (not a link) of this user that no one else can write."""
     folder = Path(tempfile.gettempdir()) / f"agv-cosim-dask-fmus-{os.getuid()}"
-    folder.mkdir(mode=0o700, exist_ok=True)
+    try:
+        os.mkdir(folder, 0o700)
+    except FileExistsError:
+        pass
+    info = os.lstat(folder)
+    if (not stat.S_ISDIR(info.st_mode) or info.st_uid != os.getuid()
+            or info.st_mode & 0o022):
+        raise WorkerUnfit(f"the FMU cache {folder} is not a folder of this user that only "
+                          "it can write (a link, another user's, or group/world-writable); "
+                          "refusing to run FMUs from it (remove it, or set TMPDIR)")
     return folder
 
 
+def _file_sha256(path):
+    """SHA-256 of the regular file at ``path`` (not through a link), or None."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None
+    with os.fdopen(fd, "rb") as stream:
+        if not stat.S_ISREG(os.fstat(stream.fileno()).st_mode):
+            return None
+        digest = hashlib.sha256()
+        for chunk in iter(lambda: stream.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
 def cached_fmu(sha256, blob, cache=None):
-    """The path of the FMU with this SHA-256 in the worker's cache (written once).
+    """The path of the FMU with this SHA-256 in the worker's cache.
+
+    The cached file's SHA-256 is checked every time it is used; a file that does not
+    have it (changed, planted, truncated) is replaced by ``blob``, the bytes the client
+    sent, after their own hash is checked.
 
     Raises
     ------
@@ -86,7 +154,7 @@ def cached_fmu(sha256, blob, cache=None):
     """
     cache = Path(cache) if cache is not None else _fmu_cache()
     path = cache / f"{sha256}.fmu"
-    if path.is_file():
+    if _file_sha256(path) == sha256:
         return path
     if hashlib.sha256(blob).hexdigest() != sha256:
         raise ValueError(f"the FMU received does not have the SHA-256 {sha256}")
@@ -98,6 +166,8 @@ def cached_fmu(sha256, blob, cache=None):
     except BaseException:
         Path(partial).unlink(missing_ok=True)
         raise
+    if _file_sha256(path) != sha256:  # replaced again meanwhile: not ours to run
+        raise WorkerUnfit(f"the cached FMU {path} changed while it was written")
     return path
 
 
@@ -106,9 +176,9 @@ def _allow_children():
     import multiprocessing
 
     if multiprocessing.current_process().daemon:
-        raise RuntimeError("this Dask worker is a daemonic process and cannot start a run's "
-                           "child process: start the workers with "
-                           "DASK_DISTRIBUTED__WORKER__DAEMON=False (or --no-nanny)")
+        raise WorkerUnfit("this Dask worker is a daemonic process and cannot start a run's "
+                          "child process: start the workers with "
+                          "DASK_DISTRIBUTED__WORKER__DAEMON=False (or --no-nanny)")
 
 
 def run_remote(job, blobs):
@@ -118,6 +188,9 @@ def run_remote(job, blobs):
     ``files`` mapping each file of the run's folder (relative POSIX path) to its bytes.
     Metrics are left to the client (``metrics_spec`` is dropped here).
     """
+    import shutil
+
+    from .lifetime import scratch_dir
     from .runner import _run_isolated
 
     _allow_children()
@@ -130,28 +203,31 @@ def run_remote(job, blobs):
                 info, path=cached_fmu(info.sha256, blobs[info.sha256]))
     local = dataclasses.replace(job, plan=dataclasses.replace(job.plan, models=models),
                                 metrics_spec=None)
-    with tempfile.TemporaryDirectory(prefix="agv-cosim-dask-run-") as folder:
-        root = Path(folder)
+    root = Path(scratch_dir("dask"))
+    try:
         [result] = _run_isolated([local], root, 1, lambda steps: None, lambda: None)
         run_dir = root / job.label
         files = {p.relative_to(run_dir).as_posix(): p.read_bytes()
                  for p in sorted(run_dir.rglob("*")) if p.is_file()}
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
     return result, files
 
 
 def _write_back(job, result, files, root):
     """Write a run's files under ``root`` and compute its metrics here (the client)."""
     from . import metrics
-    from .results import write_json
+    from .results import create_file, write_json
 
     run_dir = Path(root) / job.label
-    run_dir.mkdir(parents=True, exist_ok=True)
+    run_dir.mkdir(exist_ok=True)  # never its parents: a removed result folder stays gone
     for name, data in files.items():
         target = run_dir / name
         if run_dir.resolve() not in target.resolve().parents:
             raise ClusterError(f"a worker returned a file outside its run folder: {name!r}")
         target.parent.mkdir(parents=True, exist_ok=True)
-        target.write_bytes(data)
+        with create_file(target, binary=True) as stream:
+            stream.write(data)
     result = dict(result)
     if job.metrics_spec and result["rows"]:
         import json
@@ -163,23 +239,63 @@ def _write_back(job, result, files, root):
                 base_dir=Path(job.manifest_path).parent))
         except Exception as failure:  # noqa: BLE001 - reported in run.json, as locally
             metrics_error = f"{type(failure).__name__}: {failure}"
-        write_json(run_dir / "metrics.json", values)
+        write_json(run_dir / "metrics.json", values, replace=True)
         info = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
         info["metrics_error"] = metrics_error
-        write_json(run_dir / "run.json", info)
+        write_json(run_dir / "run.json", info, replace=True)
         result.update(metrics=values, metrics_error=metrics_error)
     return result
+
+
+def _worker_count(client):
+    """Workers the scheduler knows now, or None when it does not answer within
+    :data:`CONNECT_TIMEOUT` (gone, or the client is no longer connected)."""
+    if client.status != "running":
+        return None
+    try:
+        info = client.sync(client.scheduler.identity, n_workers=-1,
+                           callback_timeout=CONNECT_TIMEOUT)
+    except Exception:  # noqa: BLE001 - any failure to answer: the scheduler is lost
+        return None
+    return len(info.get("workers") or {})
+
+
+def _one_line(error):
+    return " ".join(str(error).split()) or type(error).__name__
+
+
+def _quiet_logs():
+    """Silence the log output of distributed (and tornado, asyncio) on our stderr while
+    the cluster is used (a lost scheduler makes it print tracebacks before our one
+    line); return a function that turns logging back on."""
+    logging.disable(logging.CRITICAL)
+
+    def restore():
+        logging.disable(logging.NOTSET)
+
+    return restore
 
 
 def run_on_dask(address, jobs, root, on_progress, on_done):
     """Run ``jobs`` on the cluster at ``address``; write each run under ``root``.
 
     Same contract as :func:`agv_cosim.runner._run_isolated`: one result dict per job, in
-    job order. ``on_progress`` gets each finished run's steps at once.
+    job order. ``on_progress`` gets each finished run's steps at once. A run whose task
+    fails on the cluster (its worker died, ...) is ``failed`` with the reason and the
+    others go on. When the command cannot go on (the scheduler gone, no worker left
+    for :data:`LOST_TIMEOUT` s, a worker unfit to run anything, a SIGINT/SIGTERM/SIGHUP)
+    the exception carries ``results`` (the finished runs, the others ``not run``) so
+    that the caller keeps them.
     """
-    from distributed import as_completed
+    from distributed import wait as wait_futures
 
+    from .lifetime import Interrupted, ignore_termination
+    from .runner import _not_run
+
+    restore_logs = _quiet_logs()
     client = connect(address)
+    results = [None] * len(jobs)
+    futures = {}
     try:
         if not client.scheduler_info().get("workers"):
             try:
@@ -197,7 +313,6 @@ def run_on_dask(address, jobs, root, on_progress, on_done):
                     blobs[info.sha256] = data
         shipped = {sha: client.scatter(data, hash=False, broadcast=False)
                    for sha, data in blobs.items()}
-        futures = {}
         for index, job in enumerate(jobs):
             needed = {info.sha256: shipped[info.sha256] for info in job.plan.models.values()
                       if info.table is None}
@@ -205,19 +320,73 @@ def run_on_dask(address, jobs, root, on_progress, on_done):
             future = client.submit(run_remote, job, needed, pure=False,
                                    key=f"agv-cosim-{os.getpid()}-{index}-{job.label}")
             futures[future] = index
-        results = [None] * len(jobs)
-        for future in as_completed(futures):
-            index = futures[future]
-            job = jobs[index]
+        pending = set(futures)
+        lost_since = None
+        while pending:
             try:
-                result, files = future.result()
-            except Exception as error:  # noqa: BLE001 - a worker-side problem, one line
-                text = " ".join(str(error).split()) or type(error).__name__
-                raise ClusterError(f"--dask: run {job.label} could not run on the "
-                                   f"cluster: {text}") from None
-            results[index] = _write_back(job, result, files, root)
-            on_progress(int(round((job.plan.stop - job.plan.start) / job.plan.step)))
-            on_done()
+                wait_futures(list(pending), timeout=1.0, return_when="FIRST_COMPLETED")
+            except TimeoutError:  # nothing finished within the second
+                pass
+            except Exception as error:  # noqa: BLE001 - e.g. futures cancelled: the end
+                reasons = sorted(set(re.findall(r"for reason: ([^.\n]+)", str(error))))
+                why = ", ".join(reasons) or type(error).__name__
+                problem = (f"lost the scheduler at {address}" if _worker_count(client) is None
+                           else f"the cluster at {address} cancelled the runs left (a "
+                                "worker holding their FMUs died)")
+                raise ClusterError(f"--dask: {problem} ({why}); {len(pending)} run(s) did "
+                                   "not finish") from None
+            done = [f for f in futures if f in pending and f.done()]
+            pending.difference_update(done)
+            for future in done:
+                index = futures[future]
+                job = jobs[index]
+                try:
+                    result, files = future.result()
+                except WorkerUnfit as error:
+                    raise ClusterError(f"--dask: run {job.label} could not run on the "
+                                       f"cluster: {_one_line(error)}") from None
+                except Exception as error:  # noqa: BLE001 - this run's task failed
+                    results[index] = _not_run(job, "failed")
+                    results[index]["error"] = (f"its Dask task failed: "
+                                               f"{type(error).__name__}: {_one_line(error)}")
+                    on_done()
+                    continue
+                results[index] = _write_back(job, result, files, root)
+                on_progress(int(round((job.plan.stop - job.plan.start) / job.plan.step)))
+                on_done()
+            if not pending:
+                break
+            problem = None
+            workers = _worker_count(client)
+            if workers is None:
+                problem = f"lost the scheduler at {address}"
+            elif not workers:
+                problem = f"the cluster at {address} has no worker left"
+            if problem is None:
+                lost_since = None
+            elif lost_since is None:
+                lost_since = time.monotonic()
+            elif time.monotonic() - lost_since > LOST_TIMEOUT:
+                raise ClusterError(f"--dask: {problem} (for {LOST_TIMEOUT:g} s); "
+                                   f"{len(pending)} run(s) did not finish")
         return results
+    except BaseException as stop:
+        if isinstance(stop, (KeyboardInterrupt, Interrupted)):
+            stop.restore = ignore_termination()
+        if isinstance(stop, (KeyboardInterrupt, Interrupted, ClusterError)) and futures:
+            stop.results = [r if r is not None else _not_run(jobs[i])
+                            for i, r in enumerate(results)]
+            if isinstance(stop, ClusterError):
+                stop.reason = str(stop).removeprefix("--dask: ")
+        raise
     finally:
-        client.close()
+        try:
+            if futures:
+                client.cancel(list(futures), force=True)
+        except Exception:  # noqa: BLE001 - the scheduler may be gone
+            pass
+        try:
+            client.close(timeout=CONNECT_TIMEOUT)
+        except Exception:  # noqa: BLE001 - the scheduler may be gone
+            pass
+        restore_logs()

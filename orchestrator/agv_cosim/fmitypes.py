@@ -130,16 +130,49 @@ def compatible(a, b):
     return a is not None and b is not None and a.kind == b.kind
 
 
-def parse(ftype, value):
+def _number(text):
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return None
+
+
+def declares_legal(variable, value):
+    """True when ``variable`` declares the non-finite ``value`` legal.
+
+    What we take as a declaration (FMI has no explicit one): +inf when its ``max`` (or
+    its declared type's) is ``INF``; -inf when its ``min`` is ``-INF``; NaN when its
+    ``start`` value is ``NaN`` (the FMU itself then uses NaN as a value). Anything else
+    non-finite is refused.
+    """
+    if variable is None:
+        return False
+    if math.isnan(value):
+        start = _number((variable.start or "").split()[0] if variable.start else None)
+        return start is not None and math.isnan(start)
+    bound = _number(variable.max if value > 0 else variable.min)
+    return bound is not None and bound == value
+
+
+def parse(ftype, value, variable=None):
     """A manifest (TOML) value checked for ``ftype``; ValueError with a one-line reason.
 
-    Strict: a float type takes an int or float (not a bool), an integer or enumeration
-    type a whole int in its range (not a float, not a bool), Boolean a bool, String a str.
+    Strict: a float type takes an int or float (not a bool), finite unless ``variable``
+    (the model variable it is for) declares the value legal (:func:`declares_legal`:
+    ``nan``, ``inf`` and an overflowing literal such as ``1e999`` are refused
+    otherwise); an integer or enumeration type a whole int in its range (not a float,
+    not a bool), Boolean a bool, String a str.
     """
     if ftype.is_float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ValueError(f"is {ftype.name}, got {value!r}")
-        value = float(value)
+        try:
+            value = float(value)
+        except OverflowError:  # an int beyond every double
+            raise ValueError(f"= {value!r} is out of the range of a {ftype.name}") from None
+        if not math.isfinite(value) and not declares_legal(variable, value):
+            raise ValueError(f"= {value!r} is not a finite number (the FMU does not declare "
+                             "it legal: a NaN start value, or max = INF / min = -INF)")
         if ftype.kind == "float32" and math.isfinite(value) and abs(value) > 3.4028234663852886e38:
             raise ValueError(f"= {value!r} is out of the range of a {ftype.name}")
         return value
@@ -160,7 +193,7 @@ def parse(ftype, value):
     return value
 
 
-def parse_array(ftype, value, size):
+def parse_array(ftype, value, size, variable=None):
     """A manifest value for a whole FMI 3.0 array of ``size`` elements: a flat list in
     row-major order, each element checked by :func:`parse`; returned as a tuple."""
     if not isinstance(value, list):
@@ -171,7 +204,7 @@ def parse_array(ftype, value, size):
     items = []
     for i, item in enumerate(value):
         try:
-            items.append(parse(ftype, item))
+            items.append(parse(ftype, item, variable))
         except ValueError as error:
             problem = str(error)
             if problem.startswith("is "):  # a type mismatch stays one (see manifest)

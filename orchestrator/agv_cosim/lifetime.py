@@ -8,25 +8,38 @@
   child when its parent dies, also when the parent was killed with SIGKILL and could
   not clean up.
 - :func:`scratch_dir` makes every temporary folder of ours as
-  ``<tmp>/agv-cosim-<pid>-<kind>-XXXXXXXX``; :func:`clean_stale_scratch` removes those
-  whose process is gone (a run killed with SIGKILL leaves them), so the next run cleans
-  what an earlier one could not.
+  ``<tmp>/agv-cosim-<pid>-<kind>-XXXXXXXX`` (mode 0700) and puts our marker file
+  (:data:`SCRATCH_MARKER`, created with ``O_EXCL | O_NOFOLLOW``: the process id and its
+  start time) in it; :func:`clean_stale_scratch` removes the folders that carry that
+  marker and whose process is gone (a run killed with SIGKILL leaves them), so the next
+  run cleans what an earlier one could not. A folder without our marker is never
+  removed, whatever its name.
+- :func:`own_process_group` (called in every child process that runs FMUs) makes the
+  child the leader of a process group of its own, with a guard process in it that kills
+  the whole group when the child ends: processes an FMU forks end with its run.
 - :func:`use_own_scratch_for_multiprocessing` puts multiprocessing's sockets in such a
   scratch folder and stops its fork server and resource tracker at exit
   (:func:`stop_helpers`), so no process of ours outlives the command.
 """
 
 import contextlib
+import json
 import os
 import re
 import shutil
 import signal
+import stat
 import tempfile
 from pathlib import Path
 
 #: Signals that end a run cleanly (SIGINT is Python's KeyboardInterrupt already).
 TERMINATION_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
 _SCRATCH = re.compile(r"^agv-cosim-(\d+)-")
+#: The marker file in every scratch folder of ours (JSON: tool, pid, process start time).
+SCRATCH_MARKER = ".agv-cosim-scratch"
+#: Flags of every file we create: a new file (never an existing one), never through a
+#: symbolic link, not inherited by programs we start.
+CREATE_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
 
 
 class Interrupted(BaseException):
@@ -76,6 +89,123 @@ def signals_blocked():
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
+def ignore_termination():
+    """Ignore SIGINT, SIGTERM and SIGHUP from now on (the last writes after an
+    interruption are not cut by a second signal); return a function that puts the
+    previous handlers back."""
+    previous = {}
+    for sig in (signal.SIGINT, *TERMINATION_SIGNALS):
+        try:
+            previous[sig] = signal.signal(sig, signal.SIG_IGN)
+        except ValueError:  # not the main thread
+            break
+
+    def restore():
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+    return restore
+
+
+def _prctl_pdeathsig(signum):
+    """``prctl(PR_SET_PDEATHSIG, signum)``; False where it is not available."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        return libc.prctl(1, int(signum), 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
+
+
+class _Wake(Exception):
+    pass
+
+
+def _wake(signum, frame):
+    raise _Wake
+
+
+def own_process_group(life=None):
+    """Make this process the leader of a process group of its own, with a guard in it.
+
+    Every process an FMU forks (and that does not leave the group) is then in this
+    group, so a parent can end the run with ``os.killpg`` (:func:`kill_group`). The
+    guard, a forked child that holds no file of ours but ``life``, kills the whole
+    group as soon as this process ends (``PR_SET_PDEATHSIG``, and a check every half
+    second) or ``life`` reads as closed: ``life`` is the reading end of a pipe whose
+    writing end only the command's own process holds, so it closes when that process
+    ends, however (a SIGKILL included). The FMU's processes thus end with the run
+    however it ends, and none keeps one of our pipes open. Linux; elsewhere only the
+    group.
+    """
+    import select
+
+    os.setpgid(0, 0)
+    leader = os.getpid()
+    try:
+        guard = os.fork()
+    except OSError:
+        return
+    if guard:
+        return
+    try:  # the guard: nothing of the parent's but the group and ``life``
+        keep = [] if life is None else [life]
+        os.closerange(0, min(keep) if keep else 65536)
+        if keep:
+            os.closerange(life + 1, 65536)
+        signal.signal(signal.SIGTERM, _wake)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+        _prctl_pdeathsig(signal.SIGTERM)
+        try:
+            while os.getppid() == leader:
+                if select.select(keep, [], [], 0.5)[0]:
+                    break  # the command's process ended: its pipe reads as closed
+        except (_Wake, OSError):
+            pass
+        os.killpg(0, signal.SIGKILL)
+    finally:
+        os._exit(0)
+
+
+def drop_helper_channels():
+    """Close, in a child of the fork server, the descriptors multiprocessing gives it
+    to reach its helpers (the fork server's liveness pipe, the resource tracker's
+    pipe): an FMU that writes into every descriptor it finds cannot then break them for
+    the runs that follow, and the fork server ends when our process does. The child
+    starts no process through multiprocessing, so it needs neither."""
+    try:
+        from multiprocessing import forkserver, resource_tracker
+    except ImportError:  # pragma: no cover
+        return
+    for holder, name in ((forkserver._forkserver, "_forkserver_alive_fd"),
+                         (resource_tracker._resource_tracker, "_fd")):
+        fd = getattr(holder, name, None)
+        if isinstance(fd, int) and fd > 2:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+            setattr(holder, name, None)
+
+
+def kill_group(process):
+    """SIGKILL the process group led by ``process`` (a multiprocessing Process started
+    with :func:`own_process_group`), else the process alone."""
+    pid = process.pid
+    if pid is None:
+        return
+    try:
+        os.killpg(pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        try:
+            process.kill()
+        except (OSError, ValueError, AttributeError):
+            pass
+
+
 def die_with_parent():
     """Make the kernel kill this process (SIGKILL) when its parent process ends.
 
@@ -97,25 +227,76 @@ def die_with_parent():
         os._exit(1)
 
 
+def _start_time(pid):
+    """Start time of process ``pid`` in clock ticks since boot (Linux), or None."""
+    try:
+        with open(f"/proc/{int(pid)}/stat", "rb") as stream:
+            fields = stream.read().rsplit(b")", 1)[1].split()
+        return int(fields[19])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def scratch_dir(kind):
-    """A new private temporary folder ``agv-cosim-<pid>-<kind>-XXXXXXXX``."""
-    return tempfile.mkdtemp(prefix=f"agv-cosim-{os.getpid()}-{kind}-")
+    """A new private temporary folder ``agv-cosim-<pid>-<kind>-XXXXXXXX`` (0700) that
+    carries our marker (:data:`SCRATCH_MARKER`)."""
+    folder = tempfile.mkdtemp(prefix=f"agv-cosim-{os.getpid()}-{kind}-")
+    try:
+        fd = os.open(os.path.join(folder, SCRATCH_MARKER), CREATE_FLAGS, 0o600)
+        with os.fdopen(fd, "w", encoding="utf-8") as stream:
+            json.dump({"tool": "agv-cosim", "pid": os.getpid(),
+                       "start": _start_time(os.getpid())}, stream)
+    except BaseException:
+        shutil.rmtree(folder, ignore_errors=True)
+        raise
+    return folder
 
 
-def _alive(pid):
+def _alive(pid, start=None):
+    """True when process ``pid`` exists (and, if ``start`` is known, started then)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:
         return True
+    if start is not None:
+        now = _start_time(pid)
+        return now is None or now == start  # another process under a reused pid: gone
     return True
+
+
+def _marker_owner(folder, uid):
+    """(pid, start time) from our marker in ``folder``, or None when it has no valid one
+    (missing, a link, not a regular file of this user, not our JSON)."""
+    try:
+        fd = os.open(os.path.join(folder, SCRATCH_MARKER),
+                     os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode) or info.st_uid != uid or info.st_size > 4096:
+            return None
+        data = json.loads(os.read(fd, 4096).decode("utf-8"))
+    except (OSError, ValueError):
+        return None
+    finally:
+        os.close(fd)
+    if not isinstance(data, dict) or data.get("tool") != "agv-cosim":
+        return None
+    pid, start = data.get("pid"), data.get("start")
+    if isinstance(pid, bool) or not isinstance(pid, int) or pid <= 0:
+        return None
+    return pid, (start if isinstance(start, int) and not isinstance(start, bool) else None)
 
 
 def clean_stale_scratch(tmp=None):
     """Remove our scratch folders whose process no longer exists; return how many.
 
-    Only folders named by :func:`scratch_dir` and owned by this user are touched.
+    Only a folder of this user (not a link) named like :func:`scratch_dir`'s *and*
+    holding our marker file is removed, and only when the process the marker names is
+    gone: a folder of anyone else's, whatever its name, is never touched.
     """
     tmp = Path(tmp or tempfile.gettempdir())
     removed = 0
@@ -125,16 +306,18 @@ def clean_stale_scratch(tmp=None):
         return 0
     uid = os.getuid()
     for entry in entries:
-        match = _SCRATCH.match(entry.name)
-        if not match or int(match.group(1)) == os.getpid():
+        if not _SCRATCH.match(entry.name):
             continue
         try:
             info = entry.lstat()
         except OSError:
             continue
-        if info.st_uid != uid or not entry.is_dir() or entry.is_symlink():
+        if info.st_uid != uid or not stat.S_ISDIR(info.st_mode):
             continue
-        if not _alive(int(match.group(1))):
+        owner = _marker_owner(entry, uid)
+        if owner is None or owner[0] == os.getpid():
+            continue
+        if not _alive(*owner):
             shutil.rmtree(entry, ignore_errors=True)
             removed += 1
     return removed

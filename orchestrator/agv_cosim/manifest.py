@@ -12,7 +12,9 @@ of :mod:`agv_cosim.schema`: unknown keys, types) and the numbers (no FMU is open
 """
 
 import hashlib
+import os
 import re
+import stat
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -97,15 +99,25 @@ class Manifest:
     #: ``<package>!/<entry>``); None for a manifest file
     unpacked: Path | None = None
     montecarlo: object = None  # a montecarlo.MonteCarlo ([montecarlo] table), or None
+    #: wall-clock limit of each run [s] (``[simulation] timeout``), None: no limit
+    timeout: float | None = None
 
     def error(self, key, problem):
         return ManifestError(self.path, key, problem)
 
 
+def split_name(text):
+    """``"component.variable"`` as ``(component, variable)``, split at the first dot:
+    component names are identifiers (no dot), FMI variable names may hold any number
+    (``body.frame_a.r_0[1]``)."""
+    component, _, variable = text.partition(".")
+    return component, variable
+
+
 def _dotted(manifest, key, text, what="component.variable"):
-    if not isinstance(text, str) or text.count(".") != 1 or not all(text.split(".")):
+    if not isinstance(text, str) or not all(text.partition(".")[::2]) or "." not in text:
         raise ManifestError(manifest, key, f"{text!r} is not of the form '{what}'")
-    return tuple(text.split("."))
+    return split_name(text)
 
 
 def _component(manifest, base_dir, name, table, key):
@@ -137,11 +149,19 @@ def _event(manifest, key, table, partial=False):
     return event
 
 
+def event_parts(name):
+    """``events.<event>.at`` as 3 parts, ``events.<event>.set.<component>.<variable>``
+    as 5 (the variable's name may hold dots); anything else as its dot-separated
+    parts."""
+    parts = name.split(".", 4)
+    return parts if len(parts) == 5 and parts[2] == "set" else name.split(".")
+
+
 def _event_key(manifest, key, name, events):
     """An event field as a sweep / --set name: ``events.<event>.at`` (its time) or
     ``events.<event>.set.<component>.<variable>`` (a value it sets; a new target is
     added to the event). Returns the event's name, else raises ManifestError."""
-    parts = name.split(".")
+    parts = event_parts(name)
     if not ((len(parts) == 3 and parts[2] == "at") or
             (len(parts) == 5 and parts[2] == "set" and all(parts[3:]))):
         raise ManifestError(manifest, key, f"{name!r}: an event's time or one of its values "
@@ -152,23 +172,94 @@ def _event_key(manifest, key, name, events):
     return parts[1]
 
 
+#: Largest manifest file read [bytes] (a manifest of 3000 components is ~0.3 MB).
+MAX_MANIFEST_BYTES = 16 << 20
+#: Deepest nesting of tables and arrays in a manifest (the deepest key in use,
+#: ``montecarlo.parameters."c.p".values``, is 4 levels down).
+MAX_DEPTH = 32
+
+
+def read_regular_file(path, limit, what="file"):
+    """The bytes of the regular file at ``path``, at most ``limit`` of them.
+
+    A FIFO, a device, a socket or a folder is refused before any read (opened
+    non-blocking, so a FIFO cannot hang us), and so is a file larger than ``limit``.
+    Raises OSError (``strerror`` set) or ValueError (the problem in words).
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            kind = ("a folder" if stat.S_ISDIR(info.st_mode) else
+                    "a FIFO" if stat.S_ISFIFO(info.st_mode) else
+                    "a device" if stat.S_ISCHR(info.st_mode) or stat.S_ISBLK(info.st_mode)
+                    else "a socket" if stat.S_ISSOCK(info.st_mode) else "not a file")
+            raise ValueError(f"is {kind}, not a regular file")
+        if info.st_size > limit:
+            raise ValueError(f"is {info.st_size} bytes; at most {limit} are read")
+        os.set_blocking(fd, True)
+        with os.fdopen(fd, "rb", closefd=False) as stream:
+            data = stream.read(limit + 1)
+    finally:
+        os.close(fd)
+    if len(data) > limit:  # grew while we read it
+        raise ValueError(f"is more than {limit} bytes")
+    return data
+
+
+def nesting_problem(data, limit=MAX_DEPTH):
+    """The dotted key of the first value nested deeper than ``limit`` levels in TOML
+    data (tables and arrays), or None. Iterative: any depth is measured safely."""
+    stack = [(data, "", 0)]
+    while stack:
+        value, key, depth = stack.pop()
+        if depth > limit:
+            return key or "(top level)"
+        if isinstance(value, dict):
+            stack.extend((v, f"{key}.{k}" if key else str(k), depth + 1)
+                         for k, v in value.items())
+        elif isinstance(value, list):
+            stack.extend((v, f"{key}[{i}]", depth + 1) for i, v in enumerate(value))
+    return None
+
+
+def parse_toml(text):
+    """``tomllib.loads(text)`` whose nesting is checked (:data:`MAX_DEPTH`); a
+    tomllib.TOMLDecodeError or ValueError names the problem."""
+    try:
+        data = tomllib.loads(text)
+    except RecursionError:
+        raise ValueError(f"nested more than {MAX_DEPTH} levels deep (arrays or inline "
+                         "tables)") from None
+    deep = nesting_problem(data)
+    if deep is not None:
+        raise ValueError(f"{deep}: nested more than {MAX_DEPTH} levels deep")
+    return data
+
+
 def load_manifest(path):
     """Read and syntax-check a manifest (no FMU is opened).
+
+    The file must be a regular file of at most :data:`MAX_MANIFEST_BYTES`, nested at
+    most :data:`MAX_DEPTH` levels.
 
     Raises
     ------
     ManifestError
-        For an unreadable file, a TOML syntax error, a missing or mistyped key, bad
-        numbers (step <= 0, stop <= start, ...).
+        For an unreadable file (a FIFO, a device, too large), a TOML syntax error, too
+        deep a nesting, a missing or mistyped key, bad numbers (step <= 0, stop <=
+        start, ...).
     """
     path = Path(path)
     try:
-        raw = path.read_bytes()
+        raw = read_regular_file(path, MAX_MANIFEST_BYTES)
     except OSError as error:
         raise ManifestError(path, "file", f"cannot read: {error.strerror}") from None
+    except ValueError as error:
+        raise ManifestError(path, "file", str(error)) from None
     try:
-        data = tomllib.loads(raw.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+        data = parse_toml(raw.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, ValueError) as error:
         raise ManifestError(path, "toml", str(error)) from None
     return manifest_from_data(data, path, hashlib.sha256(raw).hexdigest())
 
@@ -220,7 +311,7 @@ def manifest_from_data(data, path, sha256, base_dir=None):
                                 "the manifest)")
         components[name] = comp
 
-    connections = [Connection(tuple(c.source.split(".")), tuple(c.target.split(".")),
+    connections = [Connection(split_name(c.source), split_name(c.target),
                               f"connections[{i}]") for i, c in enumerate(table.connections)]
     events = {name: _event(path, f"events.{name}", etable)
               for name, etable in table.events.items()}
@@ -275,5 +366,5 @@ def manifest_from_data(data, path, sha256, base_dir=None):
                     connections=connections, variants=variants, sweep=sweep,
                     record=variables, record_interval=interval,
                     metrics=dict(data.get("metrics", {})), plots=dict(data.get("plots", {})),
-                    events=events, montecarlo=sampling)
+                    events=events, montecarlo=sampling, timeout=sim.timeout)
 

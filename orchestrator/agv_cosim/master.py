@@ -332,7 +332,7 @@ def record_types(plan):
     """The :class:`~agv_cosim.fmitypes.FmiType` of each ``plan.record`` column."""
     found = []
     for name in plan.record:
-        cname, vname = name.split(".", 1)
+        cname, _, vname = name.partition(".")
         found.append(plan.models[cname].variables[vname].ftype)
     return found
 
@@ -376,7 +376,7 @@ def _instantiate(plan, instances, index, track, on_message):
     for conn in plan.connections:
         needed_out[conn.source[0]].add(conn.source[1])
     for name in plan.record:
-        cname, vname = name.split(".")
+        cname, _, vname = name.partition(".")
         needed_out[cname].add(vname)
     for cname, info in plan.models.items():
         outs = [v for v in info.outputs if v.name in needed_out[cname]]
@@ -388,8 +388,10 @@ def _instantiate(plan, instances, index, track, on_message):
         for conn in connected.get(cname, []):
             unit.link(conn.target[1], units[conn.source[0]], conn.source[1])
         unit.freeze()
-    record_from = [(i, *units[n.split(".")[0]].address[n.split(".")[1]])
-                   for i, n in enumerate(plan.record, start=1)]
+    record_from = []
+    for i, name in enumerate(plan.record, start=1):
+        cname, _, vname = name.partition(".")  # component names have no dot
+        record_from.append((i, *units[cname].address[vname]))
     return units, tables, record_from
 
 

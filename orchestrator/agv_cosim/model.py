@@ -29,6 +29,7 @@ import math
 import os
 import re
 import shutil
+import stat
 import tempfile
 import zipfile
 import zlib
@@ -58,6 +59,8 @@ class Variable:
     dims: tuple = ()     # FMI 3.0 array dimensions as written (empty: a scalar)
     shape: tuple = None  # the dimensions as integers (None: a dimension is unknown)
     element: tuple = None  # of an array element "y[2]": (array name, flat index)
+    min: str | None = None   # as written (the variable's, else its declared type's)
+    max: str | None = None
 
     @property
     def ftype(self):
@@ -189,6 +192,9 @@ def read_model(path):
     return info
 
 
+#: A modelIdentifier: a C identifier (FMI 2.0 and 3.0), never a path.
+_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
 #: How fmpy 0.3.32 words an XML-schema problem (lxml's error log); its later checks differ.
 _SCHEMA_PROBLEM = re.compile(r"[A-Z]+ \(line \d+, column \d+\): ")
 
@@ -243,6 +249,10 @@ def _parse_model(path):
             raise ModelError(f"a model-exchange-only FMU: agv-cosim runs co-simulation FMUs "
                              f"only: '{path}'")
         raise ModelError(f"not a co-simulation FMU: '{path}'")
+    if not _IDENTIFIER.fullmatch(cosim.modelIdentifier):
+        raise ModelError(f"broken FMU (modelIdentifier {cosim.modelIdentifier!r} is not a "
+                         "name: FMI wants a C identifier, which also names the FMU's binary "
+                         f"inside it): '{path}'")
     info = ModelInfo(path=path, sha256=file_sha256(path), model_name=md.modelName or "",
                      identifier=cosim.modelIdentifier, guid=md.guid or "",
                      description=md.description or "", fmi_version=version,
@@ -293,11 +303,14 @@ def _variable(sv, version):
     """One fmpy ModelVariable as our :class:`Variable`."""
     dims = tuple(str(d.start) if d.start is not None else f"vr:{d.valueReference}"
                  for d in sv.dimensions)
+    declared = sv.declaredType
     return Variable(name=sv.name, vr=sv.valueReference, type=sv.type,
                     causality=sv.causality, variability=sv.variability,
                     unit=sv.unit, description=sv.description or "", start=sv.start,
                     fmi=version, dims=dims,
-                    shape=tuple(int(n) for n in sv.shape) if dims else None)
+                    shape=tuple(int(n) for n in sv.shape) if dims else None,
+                    min=sv.min if sv.min is not None else getattr(declared, "min", None),
+                    max=sv.max if sv.max is not None else getattr(declared, "max", None))
 
 
 def find_fmus(path):
@@ -400,20 +413,34 @@ def _link_or_copy(source, dest):
         shutil.copy2(source, dest)
 
 
-def _unpack(info, dest):
-    """Put the contents of FMU ``info.path`` into the existing folder ``dest``."""
-    if not _EXTRACT_ROOT:
-        with zipfile.ZipFile(info.path) as archive:
+def _extract(path, dest):
+    """Extract the FMU at ``path`` into ``dest``, private to this user (umask 077: its
+    folders 0700, its files 0600; a binary needs no x bit to be loaded)."""
+    old = os.umask(0o077)
+    try:
+        with zipfile.ZipFile(path) as archive:
             archive.extractall(dest)
-        return
+    finally:
+        os.umask(old)
+
+
+def _kept(info):
+    """The kept extraction of FMU ``info`` (made on first use; see keep_extractions)."""
     key = (str(info.path), info.sha256)
     source = _EXTRACTED.get(key)
     if source is None:
         source = tempfile.mkdtemp(prefix="agv_cosim_fmu_", dir=_EXTRACT_ROOT[0])
-        with zipfile.ZipFile(info.path) as archive:
-            archive.extractall(source)
+        _extract(info.path, source)
         _EXTRACTED[key] = source
-    shutil.copytree(source, dest, copy_function=_link_or_copy, dirs_exist_ok=True)
+    return source
+
+
+def _unpack(info, dest):
+    """Put the contents of FMU ``info.path`` into the existing folder ``dest``."""
+    if not _EXTRACT_ROOT:
+        _extract(info.path, dest)
+        return
+    shutil.copytree(_kept(info), dest, copy_function=_link_or_copy, dirs_exist_ok=True)
 
 
 class FmuInstance:
@@ -428,9 +455,14 @@ class FmuInstance:
     on_message : callable, optional
         Also called as ``on_message(instance_name, status, text)`` for each message the
         FMU logs (e.g. to pass it on before a crash can lose it).
+    shared : bool
+        In a process that keeps extractions (:func:`keep_extractions`), use the kept
+        extraction itself instead of a folder of the instance's own (for instances that
+        never live at the same time, e.g. validate's initialisation check); it is not
+        deleted on close.
     """
 
-    def __init__(self, info, instance_name, on_message=None):
+    def __init__(self, info, instance_name, on_message=None, shared=False):
         from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE,
                                fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions)
         from fmpy.fmi1 import calloc, free
@@ -446,9 +478,13 @@ class FmuInstance:
         _ROUTES[instance_name] = self._receive
         tag = instance_name if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,63}",
                                             instance_name) else "fmu"
-        self.unzip_dir = tempfile.mkdtemp(prefix=f"agv_cosim_{tag}_")
+        self.unzip_dir, self._own_dir = None, True
         try:
-            _unpack(info, self.unzip_dir)
+            if shared and _EXTRACT_ROOT:
+                self.unzip_dir, self._own_dir = _kept(info), False
+            else:
+                self.unzip_dir = tempfile.mkdtemp(prefix=f"agv_cosim_{tag}_")
+                _unpack(info, self.unzip_dir)
 
             if info.fmi_version == "3.0":
                 self._instantiate_3(info, instance_name)
@@ -466,12 +502,32 @@ class FmuInstance:
                 pass
             self._callbacks = callbacks  # keep the ctypes callbacks alive
             slave = FMU2Slave(guid=info.guid, unzipDirectory=self.unzip_dir,
-                              modelIdentifier=info.identifier, instanceName=instance_name)
+                              modelIdentifier=info.identifier, instanceName=instance_name,
+                              libraryPath=self._library(info))
             self.slave = slave
             slave.instantiate(callbacks=callbacks, loggingOn=True)
         except BaseException:
             self.close()
             raise
+
+    def _library(self, info):
+        """The FMU's own binary for this platform, inside its extraction folder: a
+        regular file (not a link) named by the modelIdentifier, else RuntimeError."""
+        import fmpy
+
+        if not _IDENTIFIER.fullmatch(info.identifier):
+            raise RuntimeError(f"modelIdentifier {info.identifier!r} is not a name")
+        platform = fmpy.platform_tuple if info.fmi_version == "3.0" else fmpy.platform
+        relative = f"binaries/{platform}/{info.identifier}{fmpy.sharedLibraryExtension}"
+        library = os.path.join(self.unzip_dir, relative)
+        try:
+            mode = os.lstat(library).st_mode
+        except OSError:
+            raise RuntimeError(f"the FMU has no binary for this platform ({relative})") \
+                from None
+        if not stat.S_ISREG(mode):
+            raise RuntimeError(f"the FMU's binary {relative} is not a regular file")
+        return library
 
     def _instantiate_3(self, info, instance_name):
         """FMI 3.0: ``fmi3InstantiateCoSimulation`` with our environment key and logger."""
@@ -479,7 +535,8 @@ class FmuInstance:
                                fmi3IntermediateUpdateCallback, fmi3ValueReference)
 
         slave = FMU3Slave(guid=info.guid, unzipDirectory=self.unzip_dir,
-                          modelIdentifier=info.identifier, instanceName=instance_name)
+                          modelIdentifier=info.identifier, instanceName=instance_name,
+                          libraryPath=self._library(info))
         self.slave = slave
         resources = str(Path(self.unzip_dir, "resources")) + "/"
         slave.logMessage = _logger3()
@@ -524,7 +581,8 @@ class FmuInstance:
             except Exception:  # noqa: BLE001 - cleanup must go on
                 pass
         if self.unzip_dir is not None:
-            shutil.rmtree(self.unzip_dir, ignore_errors=True)
+            if self._own_dir:
+                shutil.rmtree(self.unzip_dir, ignore_errors=True)
             self.unzip_dir = None
         for key in (self._key, self.name):
             if _ROUTES.get(key) == self._receive:

@@ -117,7 +117,7 @@ def parse(path, table, components=(), swept=()):
     for name, spec in checked.parameters.items():
         key = f"parameters.{name}"
         cname, dot, rest = name.partition(".")
-        if not cname or not rest or "." in rest:
+        if not cname or not rest:
             raise _error(path, key, f"{name!r} is not of the form 'component.parameter'")
         if components and cname not in components:
             raise _error(path, key, f"unknown component '{cname}'")
@@ -159,31 +159,79 @@ def unit_samples(mc):
         return engine.random(mc.samples)
 
 
+class SamplingError(ValueError):
+    """A distribution whose numbers a double cannot hold (the text says which)."""
+
+
+def choice_edges(weights):
+    """Cumulative weights normalised to end at 1 (the ``choice`` inverse CDF).
+
+    Weights whose sum overflows a double (two of 1e308) are first scaled by the largest
+    one, which keeps their ratios; other weights are used as given.
+    """
+    weights = np.asarray(weights, dtype=float)
+    with np.errstate(over="ignore"):
+        total = weights.sum()
+    if not np.isfinite(total):
+        weights = weights / weights.max()
+        total = weights.sum()
+    edges = np.cumsum(weights) / total
+    edges[-1] = 1.0  # the last edge is 1 whatever the rounding of the sum
+    return edges
+
+
 def ppf(spec, u):
     """Map uniforms ``u`` (array in [0, 1)) through a distribution's inverse CDF.
 
     Returns a list of plain Python values (floats, or the choice's values).
+
+    Raises
+    ------
+    SamplingError
+        When the distribution's numbers overflow a double: a uniform whose width
+        ``high - low`` does, a normal whose samples do, a truncated normal whose bounds
+        are so many standard deviations from the mean (beyond ~1e154) that
+        ``scipy.stats.truncnorm`` cannot compute it. Such a table is refused, never
+        clipped into wrong values.
     """
     from scipy import stats
 
     u = np.asarray(u, dtype=float)
     kind = spec["distribution"]
     if kind == "choice":
-        weights = np.asarray(spec.get("weights") or [1.0] * len(spec["values"]))
-        edges = np.cumsum(weights) / weights.sum()
+        edges = choice_edges(spec.get("weights") or [1.0] * len(spec["values"]))
         index = np.minimum(np.searchsorted(edges, u, side="right"), len(edges) - 1)
         return [spec["values"][i] for i in index]
     # u = 0 exactly (possible, 2**-53 per draw) would give -inf for a normal
     u = np.clip(u, np.finfo(float).tiny, 1.0 - np.finfo(float).eps / 2)
-    if kind == "uniform":
-        x = spec["low"] + u * (spec["high"] - spec["low"])
-    elif kind == "normal":
-        x = stats.norm.ppf(u, loc=spec["mean"], scale=spec["std"])
-    else:
-        a = (spec["low"] - spec["mean"]) / spec["std"]
-        b = (spec["high"] - spec["mean"]) / spec["std"]
-        x = stats.truncnorm.ppf(u, a, b, loc=spec["mean"], scale=spec["std"])
-        x = np.clip(x, spec["low"], spec["high"])
+    with np.errstate(over="ignore", invalid="ignore"):
+        if kind == "uniform":
+            width = spec["high"] - spec["low"]
+            if not math.isfinite(width):
+                raise SamplingError(f"high - low = {spec['high']!r} - {spec['low']!r} "
+                                    "overflows a double; give a narrower range")
+            x = spec["low"] + u * width
+        elif kind == "normal":
+            x = stats.norm.ppf(u, loc=spec["mean"], scale=spec["std"])
+        else:
+            a = (spec["low"] - spec["mean"]) / spec["std"]
+            b = (spec["high"] - spec["mean"]) / spec["std"]
+            # scipy's own tail handling, checked: a bound too far out (a * a overflows)
+            # gives inf, which must not be clipped into the opposite bound
+            x = stats.truncnorm.ppf(u, a, b, loc=spec["mean"], scale=spec["std"])
+            if np.all(np.isfinite(x)):
+                x = np.clip(x, spec["low"], spec["high"])
+            elif np.isfinite(a) and np.isfinite(b) and max(abs(a), abs(b)) < 1e150:
+                raise SamplingError("the samples overflow a double")
+            else:
+                raise SamplingError(f"the bounds are {min(abs(a), abs(b)):.3g} standard "
+                                    "deviations from the mean, beyond what "
+                                    "scipy.stats.truncnorm computes; the distribution is "
+                                    "all at one bound (give that value instead)")
+    if not np.all(np.isfinite(x)):
+        bad = float(x[~np.isfinite(x)][0])
+        raise SamplingError(f"a sample is {bad!r}: the distribution's numbers overflow a "
+                            "double")
     return [float(v) for v in x]
 
 
@@ -199,8 +247,13 @@ def run_seeds(mc):
 def draw(mc):
     """The sampled values: a list (one per sample index) of {"comp.param": value}."""
     u = unit_samples(mc)
-    columns = {name: ppf(spec, u[:, j]) for j, (name, spec) in
-               enumerate(mc.parameters.items())}
+    columns = {}
+    for j, (name, spec) in enumerate(mc.parameters.items()):
+        try:
+            columns[name] = ppf(spec, u[:, j])
+        except SamplingError as error:
+            raise SamplingError(f"parameters.{name}: {spec['distribution']}: {error}") \
+                from None
     seeds = run_seeds(mc)
     return [{**{name: columns[name][i] for name in mc.parameters}, **seeds[i]}
             for i in range(mc.samples)]
@@ -214,7 +267,11 @@ def expand_runs(manifest, runs):
     with the sample index under :data:`SAMPLE`.
     """
     mc = manifest.montecarlo
-    values = draw(mc)
+    try:
+        values = draw(mc)
+    except SamplingError as error:
+        key, _, problem = str(error).partition(": ")
+        raise _error(manifest.path, key, problem) from None
     width = max(4, len(str(mc.samples - 1)))
     expanded = []
     for run in runs:
@@ -226,7 +283,7 @@ def expand_runs(manifest, runs):
         for index, sample in enumerate(values):
             comps = {cname: _copy_component(comp) for cname, comp in run.components.items()}
             for name, value in sample.items():
-                cname, pname = name.split(".")
+                cname, _, pname = name.partition(".")
                 comps[cname].parameters[pname] = value
             point = dict(run.point)
             point[SAMPLE] = index
@@ -367,8 +424,11 @@ def figure(mc, jobs, results, folder, title=None, dpi=110):
         ax.legend(fontsize="small", frameon=False)
     fig.suptitle((title + ": " if title else "") + f"{mc.samples} samples per group "
                  "(box: p25-p75, whiskers p5-p95)", fontsize="medium")
+    from .results import open_output
+
     path = Path(folder) / "montecarlo.png"
-    fig.savefig(path, dpi=dpi, format="png", metadata={"Software": None})
+    with open_output(path) as stream:  # never written through a symbolic link
+        fig.savefig(stream, dpi=dpi, format="png", metadata={"Software": None})
     return path
 
 

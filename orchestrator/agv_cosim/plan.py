@@ -11,11 +11,13 @@ checked against the FMUs by :func:`agv_cosim.system.validate`.
 import copy
 import hashlib
 import itertools
+import math
 import re
 import tomllib
 from dataclasses import dataclass, field
 
-from .manifest import ManifestError, _dotted, _event_key
+from .manifest import (ManifestError, _dotted, _event_key, event_parts, parse_toml,
+                       split_name)
 
 
 @dataclass
@@ -32,7 +34,7 @@ class RunSpec:
 
 def _apply_event_key(events, name, value):
     """Set the event field named by :func:`_event_key` in ``events`` (a run's copy)."""
-    parts = name.split(".")
+    parts = event_parts(name)
     if parts[2] == "at":
         events[parts[1]]["at"] = value
     else:
@@ -49,9 +51,11 @@ def parse_set(manifest, text):
     else:
         _dotted(manifest.path, "--set", name.strip(), "component.parameter")
     try:
-        parsed = tomllib.loads(f"v = {value}")["v"]
+        parsed = parse_toml(f"v = {value}")["v"]
     except tomllib.TOMLDecodeError:
         parsed = value
+    except ValueError as error:  # nested too deeply
+        raise ManifestError(manifest.path, "--set", f"{name.strip()}: {error}") from None
     return name.strip(), parsed
 
 
@@ -62,6 +66,9 @@ def _slug(text):
 #: Longest run label (a folder name); longer labels (many or long sweep values) are cut
 #: and end in a hash of the full label, so they stay distinct.
 MAX_LABEL = 100
+#: Most runs of one manifest (variants x sweep points x Monte Carlo samples): each run
+#: is a folder of its own and a row of summary.csv; more is refused before any is made.
+MAX_RUNS = 100_000
 
 
 def run_label(parts):
@@ -107,6 +114,12 @@ def plan_runs(manifest, variants=None, sets=()):
     else:
         chosen = list(manifest.variants) or [None]
     names = list(manifest.sweep)
+    count = len(chosen) * math.prod(len(manifest.sweep[n]) for n in names)
+    samples = manifest.montecarlo.samples if manifest.montecarlo is not None else 1
+    if count * samples > MAX_RUNS:
+        key = "montecarlo.samples" if samples > 1 and count <= MAX_RUNS else "sweep"
+        raise ManifestError(manifest.path, key, f"{count * samples} runs (variants x sweep "
+                            f"points x samples); at most {MAX_RUNS}")
     points = [dict(zip(names, combo)) for combo in
               itertools.product(*(manifest.sweep[n] for n in names))]
     runs = []
@@ -131,7 +144,7 @@ def plan_runs(manifest, variants=None, sets=()):
                 if name.startswith("events."):
                     _apply_event_key(events, name, value)
                     continue
-                cname, pname = name.split(".")
+                cname, pname = split_name(name)
                 comps[cname].parameters[pname] = value
             parts = [variant or "base"] + [f"{k}={v!r}" for k, v in point.items()]
             runs.append(RunSpec(label=run_label(parts), variant=variant,

@@ -73,7 +73,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from . import schema
-from .results import CHUNK_ROWS, count_rows, iter_timeseries, timeseries_columns
+from .results import (CHUNK_ROWS, count_rows, iter_timeseries, open_output,
+                      timeseries_columns)
 
 #: File names of the figures (stable, so that a rerun overwrites them).
 SIGNALS_FILE = "signals.png"
@@ -354,15 +355,17 @@ def _legend(figure, ax):
 
 
 def _save(figure, path, dpi):
-    if getattr(figure, "agv_decimated", False):
-        # A decimated line of a long run can go from a column's minimum to its maximum
-        # and back in every column; Agg's memory for one path grows with the pixels its
-        # outline crosses (4 h run: +18.5 MiB to draw, +6.7 MiB in chunks of 1000 points).
-        # Only such figures are drawn in chunks, so the others keep their exact bytes.
-        with rc_context({"agg.path.chunksize": _AGG_CHUNK}):
-            figure.savefig(path, dpi=dpi, format="png", metadata={"Software": None})
-    else:
-        figure.savefig(path, dpi=dpi, format="png", metadata={"Software": None})
+    with open_output(path) as stream:  # never written through a symbolic link
+        if getattr(figure, "agv_decimated", False):
+            # A decimated line of a long run can go from a column's minimum to its
+            # maximum and back in every column; Agg's memory for one path grows with the
+            # pixels its outline crosses (4 h run: +18.5 MiB to draw, +6.7 MiB in chunks
+            # of 1000 points). Only such figures are drawn in chunks, so the others keep
+            # their exact bytes.
+            with rc_context({"agg.path.chunksize": _AGG_CHUNK}):
+                figure.savefig(stream, dpi=dpi, format="png", metadata={"Software": None})
+        else:
+            figure.savefig(stream, dpi=dpi, format="png", metadata={"Software": None})
     return path
 
 

@@ -36,8 +36,10 @@ class SchemaError(ValueError):
 
 def _dotted(what):
     def check(text):
+        # split at the first dot: a component name has none, a variable name may have
+        # any number (Modelica's "body.frame_a.r_0[1]")
         left, dot, right = text.partition(".")
-        if not dot or not left or not right or "." in right:
+        if not dot or not left or not right:
             raise ValueError(f"{text!r} is not of the form '{what}'")
         return text
     return AfterValidator(check)
@@ -71,6 +73,8 @@ class Simulation(_Table):
     stop: Number
     step: Annotated[Number, Field(gt=0)]
     algorithm: Literal["gauss-seidel", "jacobi"] = "gauss-seidel"
+    #: wall-clock limit of each run [s]; a run still going then is stopped, ``timed out``
+    timeout: Annotated[Number, Field(gt=0)] | None = None
 
 
 class ComponentTable(_Table):
@@ -248,7 +252,7 @@ class MonteCarloTable(_Table):
     """``[montecarlo]`` (documented in :mod:`agv_cosim.montecarlo`); names are checked
     against the components and the sweep by :func:`agv_cosim.montecarlo.parse`."""
 
-    samples: Annotated[StrictInt, Field(ge=1)]
+    samples: Annotated[StrictInt, Field(ge=1, le=100_000)]  # plan.MAX_RUNS
     seed: Annotated[StrictInt, Field(ge=0)]
     design: Literal["random", "sobol", "lhs"] = "random"
     parameters: dict[str, Distribution] = {}

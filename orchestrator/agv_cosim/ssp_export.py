@@ -21,6 +21,8 @@ interval. Other tools ignore it.
 """
 
 import argparse
+import os
+import tempfile
 import zipfile
 from pathlib import Path
 from xml.etree import ElementTree
@@ -28,7 +30,7 @@ from xml.etree import ElementTree
 from . import fmitypes
 from .manifest import Manifest, ManifestError, load_manifest
 from .plan import plan_runs
-from .results import OutputError
+from .results import OutputError, user_mode
 from .ssp import (_TYPES, AGV_ANNOTATION, FMU_MIME, OSP_ANNOTATION, SSD_NAME, _number_text,
                   _q, _ssp_type)
 from .system import validate
@@ -261,9 +263,13 @@ def export_ssp(manifest, out_path, variant=None, sets=()):
     except OSError as error:
         raise OutputError(f"{out_path}: cannot create '{error.filename or out_path.parent}'"
                           f": {error.strerror}") from None
-    partial = out_path.with_name(out_path.name + ".partial")
+    # a new file of our own beside the target (O_EXCL | O_NOFOLLOW), renamed over it
+    handle, partial = tempfile.mkstemp(dir=out_path.parent, prefix=f".{out_path.name}.",
+                                       suffix=".partial")
+    partial = Path(partial)
     try:
-        with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as archive:
+        with os.fdopen(handle, "w+b") as stream, \
+                zipfile.ZipFile(stream, "w", zipfile.ZIP_DEFLATED) as archive:
             archive.writestr(SSD_NAME, ElementTree.tostring(root, encoding="utf-8",
                                                             xml_declaration=True))
             written = set()
@@ -271,6 +277,7 @@ def export_ssp(manifest, out_path, variant=None, sets=()):
                 if source not in written:
                     archive.write(models[cname].path, source)
                     written.add(source)
+        os.chmod(partial, user_mode(directory=False))  # mkstemp made it 0600
         partial.replace(out_path)
     finally:
         partial.unlink(missing_ok=True)

@@ -5,8 +5,9 @@ Import (:func:`load_ssp`, :func:`opened`): the archive is checked entry by entry
 written), extracted, and its SSD is mapped onto the manifest's data (components,
 connections, parameter values, experiment) and checked by the same schema as a manifest
 file (:func:`agv_cosim.manifest.manifest_from_data`); no manifest text is written, so
-names and values from the SSD stay data (component names must be identifiers and
-connector names free of '.', else refused). The runner then validates and runs it like
+names and values from the SSD stay data (component names must be identifiers, else
+refused; a connector name may hold dots, as FMI variable names do: ``component.variable``
+is split at the first dot). The runner then validates and runs it like
 any other manifest. Parameter bindings are applied at every
 level: on components and on the system (names ``component.parameter``), inline
 ``ssd:ParameterValues`` or ``.ssv`` files (``source``, with ``prefix``), in document
@@ -113,9 +114,9 @@ def _parse_value(package, key, node):
     ftype = fmitypes.lookup("2.0", vtype)  # SSP's type names are FMI 2.0's
     unit = kind.get("unit") if ftype.is_float else None
     try:
+        # a non-finite Real is checked against the FMU's variable later, like a
+        # manifest's value (refused unless the variable declares it legal)
         value = fmitypes.parse_text(ftype, text)
-        if ftype.is_float and not math.isfinite(value):
-            raise ValueError(text)
     except ValueError:
         raise SspError(package, key, f"{text!r} is not a valid {vtype}") from None
     return vtype, value, unit
@@ -391,9 +392,8 @@ def read_ssd(package, ssd_path):
         if not ends[0] or not ends[2]:
             raise SspError(package, key, "connections to the system's own connectors are "
                            "not supported")
-        if not ends[1] or not ends[3] or "." in ends[1] + ends[3]:
-            raise SspError(package, key, "connector names must be non-empty and without "
-                           "'.' (used as 'component.variable')")
+        if not ends[1] or not ends[3]:
+            raise SspError(package, key, "connector names must be non-empty")
         if len(node):
             raise SspError(package, key, f"{node[0].tag.split('}')[-1]} is not supported")
         connections.append({"from": f"{ends[0]}.{ends[1]}", "to": f"{ends[2]}.{ends[3]}"})
@@ -480,6 +480,8 @@ def load_ssp(path, workdir):
     path, workdir = Path(path), Path(workdir)
     if not path.exists():
         raise SspError(path, "file", "not found")
+    if not (path.is_dir() or path.is_file()):  # a FIFO or a device: never opened
+        raise SspError(path, "file", "not a regular file or a folder")
     unpacked = None
     if path.is_dir():
         ssd = path / SSD_NAME

@@ -9,11 +9,12 @@ result, :class:`Checked`, is what the runner turns into one :class:`agv_cosim.ma
 """
 
 import graphlib
+import heapq
 import math
 from dataclasses import dataclass, field
 
 from . import fmitypes
-from .manifest import Component, ManifestError, whole_multiple
+from .manifest import Component, ManifestError, split_name, whole_multiple
 from .model import ModelError, read_model
 from .table import TableError, read_table
 
@@ -93,12 +94,14 @@ def feedthrough_order(models, connections, manifest_path="manifest",
                             "outputs (no algebraic loop between variables, but a single "
                             "Gauss-Seidel pass cannot order them); use algorithm = 'jacobi'"
                             ) from None
-    # ties keep the manifest's order: always take the first ready component
+    # ties keep the manifest's order: always take the first ready component (a heap of
+    # manifest positions: linear-logarithmic in the number of components)
+    position = {name: i for i, name in enumerate(names)}
     order, ready = [], []
     while components.is_active():
-        ready.extend(components.get_ready())
-        ready.sort(key=names.index)
-        node = ready.pop(0)
+        for node in components.get_ready():
+            heapq.heappush(ready, position[node])
+        node = names[heapq.heappop(ready)]
         order.append(node)
         components.done(node)
     return order
@@ -150,7 +153,7 @@ def _check_events(manifest, run, models, targets):
                       f"{manifest.step!r} s)")
         sets = []
         for target, value in event["set"].items():
-            cname, vname = target.split(".")
+            cname, vname = split_name(target)
             vkey = f"{key}.set.{target}"
             if cname not in models:
                 raise err(vkey, f"unknown component '{cname}'")
@@ -173,11 +176,12 @@ def _check_events(manifest, run, models, targets):
             if why:
                 raise err(vkey, f"'{target}' is {why}")
             try:
-                sets.append((cname, vname, fmitypes.parse(var.ftype, value)))
+                sets.append((cname, vname, fmitypes.parse(var.ftype, value, var)))
             except ValueError as error:
                 raise err(vkey, f"'{target}' {error}") from None
         resolved.append((k, at, name, sets))
-    resolved.sort(key=lambda e: (e[0], list(run.events).index(e[2])))
+    position = {name: i for i, name in enumerate(run.events)}
+    resolved.sort(key=lambda e: (e[0], position[e[2]]))
     return resolved
 
 
@@ -230,8 +234,8 @@ def validate(manifest, runs, extra_signals=()):
                     raise err(key, f"'{cname}.{pname}' is {why}")
                 try:
                     comp.parameters[pname] = (
-                        fmitypes.parse_array(var.ftype, value, var.size) if var.dims
-                        else fmitypes.parse(var.ftype, value))
+                        fmitypes.parse_array(var.ftype, value, var.size, var) if var.dims
+                        else fmitypes.parse(var.ftype, value, var))
                 except ValueError as error:
                     problem = str(error)
                     if problem.startswith("is "):
@@ -242,7 +246,7 @@ def validate(manifest, runs, extra_signals=()):
         for name in manifest.sweep:
             if name.startswith("events."):
                 continue
-            cname, pname = name.split(".")
+            cname, pname = split_name(name)
             if cname not in models:
                 raise err(f"sweep.{name}", f"unknown component '{cname}'")
         targets = {}
@@ -318,7 +322,7 @@ def _record_list(manifest, models):
         return [f"{c}.{v.name}" for c, info in models.items() for v in info.outputs
                 if not v.unsupported("record") and v.ftype.numeric]
     for i, name in enumerate(manifest.record):
-        cname, vname = name.split(".")
+        cname, vname = split_name(name)
         key = f"record.variables[{i}]"
         if cname not in models:
             raise manifest.error(key, f"unknown component '{cname}'")

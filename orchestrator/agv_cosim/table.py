@@ -37,6 +37,8 @@ class Table:
     def __init__(self, path, interpolation=None):
         self.path = Path(path)
         interpolation = dict(interpolation or {})
+        if self.path.exists() and not self.path.is_file():  # a FIFO would block a read
+            raise TableError(f"'{self.path}' is not a regular file")
         try:
             with open(self.path, newline="", encoding="utf-8") as stream:
                 rows = list(csv.reader(stream))

@@ -150,7 +150,8 @@ def test_a_dask_run_gives_the_local_results_and_isolates_a_crash(cluster, fmus, 
     assert len(mine) == 1 + 4 * 3  # summary.csv + (timeseries, metrics, run) x 4 runs
     assert mine == theirs
     crashed = json.loads((remote / "crashing__src.slope=1.0" / "run.json").read_text())
-    assert crashed["status"] == "failed"  # rows are flushed every 1000: none yet
+    assert crashed["status"] == "partial"  # every row before the crash is kept
+    assert crashed["rows"] == 26  # t = 0 .. 0.25 s
     assert "process died (signal 6)" in crashed["error"]
     ok = json.loads((remote / "one__src.slope=1.0" / "metrics.json").read_text())
     assert ok["lateral_error_max"] > 0.0  # metrics computed (on the client)
@@ -176,3 +177,4 @@ def test_the_fmu_cache_checks_the_hash(tmp_path):
     assert path.read_bytes() == blob and path.name == f"{sha}.fmu"
     assert cached_fmu(sha, blob, tmp_path) == path  # written once
     assert [p.name for p in tmp_path.iterdir()] == [path.name]  # no partial file left
+

@@ -139,8 +139,9 @@ def test_interrupted_run_leaves_no_complete_folder(chain, tmp_path, monkeypatch)
 
 def test_a_crashing_fmu_fails_its_run_only(fmus, tmp_path, capsys):
     """An FMU that kills its host at t = 2.5 s (step 1 ms): the run, in its own process,
-    is reported partial with the rows flushed before (every 1000: 2000 of 2500), the
-    other run completes, exit code 1, and no extraction folder is left behind."""
+    is reported partial with every row it recorded (t = 0 .. 2.5 s: 2501 rows, each
+    written unbuffered), the other run completes, exit code 1, and no extraction folder
+    is left behind."""
     def leftovers():
         # this test's runs only: other tests (other pytest-xdist workers) may run an
         # instance of the same name meanwhile. The run folders are made by this process
@@ -172,5 +173,7 @@ fmu = "{fmus['agv_test_crash']}"
     assert "process died (signal 6)" in crashed[0]["error"]
     # the child's shared track names the component, the call and the time it died in
     assert "in component 'crashdut' during doStep at t=2.5" in crashed[0]["error"]
-    assert crashed[0]["rows"] == 2000
+    assert crashed[0]["rows"] == 2501 and "after 2501 recorded rows" in crashed[0]["error"]
+    csv_rows = (tmp_path / "out" / crashed[0]["label"] / "timeseries.csv").read_text()
+    assert csv_rows.splitlines()[-1].split(",")[0] == "2.5"  # the last row is t = 2.5 s
     assert leftovers() == []

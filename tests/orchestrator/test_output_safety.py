@@ -110,15 +110,18 @@ def test_long_labels_are_bounded_and_distinct(chain, tmp_path):
 def test_stale_incomplete_is_cleaned_and_umask_kept(chain, tmp_path):
     stale = tmp_path / ".res.incomplete-dead1234"
     stale.mkdir()
-    (stale / MARKER).write_text("{}")
+    (stale / MARKER).write_text('{"tool": "agv-cosim", "version": "0.1.0"}\n')
     foreign = tmp_path / ".res.incomplete-notours"  # no marker: not ours, kept
     foreign.mkdir()
+    faked = tmp_path / ".res.old-1234"  # a file of that name that is not our marker
+    faked.mkdir()
+    (faked / MARKER).write_text("{}")
     old = os.umask(0o027)
     try:
         assert _run(chain(), tmp_path / "res") == 0
     finally:
         os.umask(old)
-    assert not stale.exists() and foreign.exists()
+    assert not stale.exists() and foreign.exists() and faked.exists()
     assert stat.S_IMODE((tmp_path / "res").stat().st_mode) == 0o750
     assert not (tmp_path / ".res.lock").exists()
 

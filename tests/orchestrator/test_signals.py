@@ -1,10 +1,13 @@
-"""Class 2 of issue 10: a termination signal ends the whole run cleanly.
+"""A termination signal ends the whole run cleanly and keeps what was computed.
 
-The CLI runs as a real process in a session of its own (so its process group holds
-exactly its processes) with a private temp folder; a long run is interrupted once its
-children are computing. Each case costs a few seconds.
+The CLI runs as a real process in a session of its own (so its session holds exactly
+its processes: the workers lead process groups of their own inside it) with a private
+temp folder; a long run is interrupted once its children are computing. Each case costs
+a few seconds.
 """
 
+import csv
+import json
 import os
 import shutil
 import signal
@@ -15,12 +18,15 @@ import time
 from pathlib import Path
 
 import pytest
+from processes import ended
 
 SWEEP = '[sweep]\n"gain.k" = [1.0, 2.0]\n'  # two runs, each in a child process
 
 
-def _group(pgid):
-    """Pids of the live (not zombie) processes in process group ``pgid``."""
+def _group(sid):
+    """Pids of the live (not zombie) processes in session ``sid`` (the command's: it
+    was started in a session of its own; its workers lead process groups of their own
+    in that session)."""
     found = []
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
@@ -29,18 +35,18 @@ def _group(pgid):
             fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
         except OSError:
             continue
-        if int(fields[2]) == pgid and fields[0] != "Z":
+        if int(fields[3]) == sid and fields[0] != "Z":
             found.append(int(entry.name))
     return found
 
 
-def _wait_gone(pgid, seconds):
+def _wait_gone(sid, seconds):
     end = time.monotonic() + seconds
     while time.monotonic() < end:
-        if not _group(pgid):
+        if not _group(sid):
             return True
         time.sleep(0.05)
-    return not _group(pgid)
+    return not _group(sid)
 
 
 @pytest.fixture
@@ -56,12 +62,12 @@ def long_run(chain, tmp_path):
              str(tmp_path / out), "--jobs", "2"], env=env, start_new_session=True,
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         started.append(process)
-        # wait until both runs' children are writing rows
-        end = time.monotonic() + 20
+        # wait until both runs' children have recorded rows (header + at least one row)
+        end = time.monotonic() + 60
         while time.monotonic() < end:
             csvs = [p for p in tmp_path.glob(f".{out}.incomplete-*/*/timeseries.csv")
                     if p.parent.parent not in stale]
-            if len(csvs) == 2 and all(p.stat().st_size > 0 for p in csvs):
+            if len(csvs) == 2 and all(p.read_bytes().count(b"\n") >= 2 for p in csvs):
                 break
             time.sleep(0.05)
         else:
@@ -80,20 +86,36 @@ def long_run(chain, tmp_path):
     shutil.rmtree(tmp, ignore_errors=True)
 
 
+def _kept_partial(folder, statuses):
+    """``folder`` is a committed result folder marked partial, with these run statuses."""
+    marker = json.loads((folder / ".agv-cosim").read_text())
+    assert marker["complete"] is False and marker["runs"] == len(statuses)
+    assert (folder / "partial.txt").read_text().startswith("partial result: interrupted by")
+    with open(folder / "summary.csv", newline="") as stream:
+        assert [row["status"] for row in csv.DictReader(stream)] == statuses
+    for run in (p for p in folder.iterdir() if p.is_dir()):
+        info = json.loads((run / "run.json").read_text())
+        assert info["status"] == "interrupted" and info["rows"] >= 1
+
+
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
 @pytest.mark.slow  # seconds: builds or runs FMUs in processes
 def test_signal_to_the_parent_ends_everything(long_run, sig):
+    """The parent alone gets the signal: it stops its children, keeps the rows they
+    recorded in a folder marked partial (both runs 'interrupted'), and leaves no process
+    and no temporary folder."""
     start, tmp, root = long_run
     process = start()
     os.kill(process.pid, sig)  # the parent only: it must stop its children itself
     _, err = process.communicate(timeout=30)
     assert process.returncode == 128 + sig
-    assert err.strip().splitlines() == [
-        f"agv-cosim: interrupted by {signal.Signals(sig).name} (no result folder was "
-        "completed)"]
-    assert _wait_gone(process.pid, 3.0), "processes of the run are left"
+    assert err.strip().splitlines()[-1] == (
+        f"agv-cosim: interrupted by {signal.Signals(sig).name}; 0 of 2 run(s) complete "
+        f"kept in {root / 'out'} (marked partial: partial.txt, summary.csv)")
+    assert _wait_gone(process.pid, 5.0), "processes of the run are left"
     assert list(tmp.iterdir()) == []  # scratch, extraction and multiprocessing folders
-    assert sorted(p.name for p in root.iterdir()) == ["long.toml"]
+    assert sorted(p.name for p in root.iterdir()) == ["long.toml", "out"]
+    _kept_partial(root / "out", ["interrupted", "interrupted"])
 
 
 @pytest.mark.slow  # seconds: builds or runs FMUs in processes
@@ -111,8 +133,9 @@ def test_sigkilled_parent_children_stop_and_next_run_cleans(long_run):
     os.kill(second.pid, signal.SIGTERM)
     second.communicate(timeout=30)
     assert second.returncode == 128 + signal.SIGTERM
-    assert _wait_gone(second.pid, 3.0)
-    assert sorted(p.name for p in root.iterdir()) == ["long.toml"]
+    assert _wait_gone(second.pid, 5.0)
+    assert sorted(p.name for p in root.iterdir()) == ["long.toml", "out"]
+    _kept_partial(root / "out", ["interrupted", "interrupted"])
     assert list(tmp.iterdir()) == []
 
 
@@ -129,4 +152,117 @@ def test_no_process_left_after_a_normal_exit(chain, tmp_path):
         assert _group(process.pid) == []  # at once: nothing of ours outlives the command
         assert list(tmp.iterdir()) == []
     finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _cli(args, tmp):
+    return subprocess.Popen([sys.executable, "-m", "agv_cosim.cli", *args],
+                            env=dict(os.environ, TMPDIR=str(tmp)), start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.mark.slow  # seconds: runs FMUs in processes
+def test_sigterm_during_a_hung_run_keeps_the_finished_one(fmus, tmp_path):
+    """--jobs 1: the first run completes, the second hangs in doStep (no time limit)
+    while an FMU of it has forked a helper; SIGTERM keeps the first complete, the second
+    'interrupted' with its rows, the third 'not run', ends every process (the helper
+    too), and our line is the last on stderr (the progress bar is not drawn again)."""
+    path = tmp_path / "hang.toml"
+    path.write_text(f"""
+name = "hang"
+[simulation]
+stop = 1.0
+step = 0.01
+[components.h]
+fmu = "{fmus['agv_test_hang']}"
+[components.r]
+fmu = "{fmus['agv_test_rogue']}"
+parameters = {{ fork_seconds = 300.0 }}
+[sweep]
+"h.hang_time" = [10.0, 0.3, 20.0]
+""")
+    tmp = Path(tempfile.mkdtemp(prefix="agvsig", dir="/tmp"))
+    out = tmp_path / "out"
+    process = _cli(["run", str(path), "--out", str(out), "--jobs", "1"], tmp)
+    try:
+        end = time.monotonic() + 60
+        hung = None
+        while time.monotonic() < end:
+            hung = next(iter(tmp_path.glob(".out.incomplete-*/base__h.hang_time=0.3/"
+                                           "timeseries.csv")), None)
+            if hung is not None and hung.read_bytes().count(b"\n") >= 31:  # t = 0.3 s
+                break
+            time.sleep(0.05)
+        else:
+            raise AssertionError(f"the hang was not reached: {process.communicate()}")
+        rows = hung.read_text().splitlines()
+        helper = int(rows[1].split(",")[rows[0].split(",").index("r.helper")])
+        assert Path(f"/proc/{helper}").exists()
+        time.sleep(2.5)  # the progress bar shows after 2 s
+        os.kill(process.pid, signal.SIGTERM)
+        _, err = process.communicate(timeout=30)
+        assert process.returncode == 128 + signal.SIGTERM
+        assert "hang:" in err  # the bar was drawn
+        assert err.replace("\r", "\n").strip().splitlines()[-1] == (
+            f"agv-cosim: interrupted by SIGTERM; 1 of 3 run(s) complete kept in {out} "
+            "(marked partial: partial.txt, summary.csv)")
+        assert _wait_gone(process.pid, 5.0), "processes of the run are left"
+        assert ended(helper), "the FMU's helper outlived the run"
+        with open(out / "summary.csv", newline="") as stream:
+            assert [r["status"] for r in csv.DictReader(stream)] == \
+                ["complete", "interrupted", "not run"]
+        info = json.loads((out / "base__h.hang_time=0.3" / "run.json").read_text())
+        assert info["rows"] == 31 and "during doStep at t=0.3 s" in info["error"]
+        assert list(tmp.iterdir()) == []
+    finally:
+        for pid in _group(process.pid):
+            os.kill(pid, signal.SIGKILL)
+        process.wait()
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+@pytest.mark.slow  # seconds: runs FMUs in processes
+def test_a_forked_helper_dies_with_a_sigkilled_command(fmus, tmp_path):
+    """The FMU forks a helper that would sleep 5 minutes, then the command is killed
+    with SIGKILL while its run hangs: the worker, the helper and the fork server end
+    (the helper was in the worker's group, which its guard kills); the next command
+    removes the scratch folders left."""
+    path = tmp_path / "fork.toml"
+    path.write_text(f"""
+name = "fork"
+[simulation]
+stop = 1.0
+step = 0.01
+[components.r]
+fmu = "{fmus['agv_test_rogue']}"
+parameters = {{ fork_seconds = 300.0 }}
+[components.h]
+fmu = "{fmus['agv_test_hang']}"
+parameters = {{ hang_time = 0.1 }}
+""")
+    tmp = Path(tempfile.mkdtemp(prefix="agvsig", dir="/tmp"))
+    process = _cli(["run", str(path), "--out", str(tmp_path / "out"), "--quiet"], tmp)
+    try:
+        end = time.monotonic() + 60
+        helper = 0
+        while time.monotonic() < end and not helper:
+            for csv_file in tmp_path.glob(".out.incomplete-*/base/timeseries.csv"):
+                rows = csv_file.read_text().splitlines()
+                if len(rows) > 1:
+                    helper = int(rows[1].split(",")[rows[0].split(",").index("r.helper")])
+            time.sleep(0.05)
+        assert helper, process.communicate()
+        assert Path(f"/proc/{helper}").exists()
+        os.kill(process.pid, signal.SIGKILL)
+        process.wait()
+        assert _wait_gone(process.pid, 10.0), "processes outlived a SIGKILLed command"
+        assert ended(helper), "the FMU's helper outlived it"
+        assert [p.name for p in tmp.iterdir() if f"-{process.pid}-" in p.name]
+        cleaner = _cli(["validate", str(path), "--no-init"], tmp)
+        cleaner.communicate(timeout=60)
+        assert cleaner.returncode == 0
+        assert [p.name for p in tmp.iterdir() if f"-{process.pid}-" in p.name] == []
+    finally:
+        for pid in _group(process.pid):
+            os.kill(pid, signal.SIGKILL)
         shutil.rmtree(tmp, ignore_errors=True)
