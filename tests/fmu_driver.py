@@ -5,7 +5,8 @@ it with the interpreter of a venv (``venv/bin/python -I fmu_driver.py JOB``) and
 slave sees that venv's packages only (a Python host: the slave runs in this process's
 interpreter). fmpy cannot serve there, as it imports numpy itself.
 
-JOB is a JSON file: ``folder`` (the extracted FMU), ``identifier`` (modelIdentifier),
+JOB is a JSON file holding one job or a list of jobs (run one after the other in this
+process; then a list of results is printed). A job: ``folder`` (the extracted FMU), ``identifier`` (modelIdentifier),
 ``token`` (GUID / instantiationToken), ``fmi`` (2 or 3), ``start``, ``stop``, ``step``,
 ``inputs`` (value reference -> ``[[time, value], ...]``, each Real input held from its time
 on, set before every step from the last time <= the communication point) and
@@ -170,13 +171,16 @@ def _drive(job, messages):
 
 
 def main(path):
-    job = json.loads(Path(path).read_text())
-    messages, rows, failed = [], [], None
-    try:
-        rows = _drive(job, messages)
-    except RuntimeError as error:
-        failed = str(error)
-    print(json.dumps({"rows": rows, "messages": messages, "failed": failed}))
+    jobs = json.loads(Path(path).read_text())
+    results = []
+    for job in jobs if isinstance(jobs, list) else [jobs]:
+        messages, rows, failed = [], [], None
+        try:
+            rows = _drive(job, messages)
+        except RuntimeError as error:
+            failed = str(error)
+        results.append({"rows": rows, "messages": messages, "failed": failed})
+    print(json.dumps(results if isinstance(jobs, list) else results[0]))
     return 0
 
 

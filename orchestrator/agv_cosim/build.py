@@ -3,12 +3,14 @@
 A slave script is a module named ``agv_*.py`` in a component folder of ``agv_core`` (one
 folder per component: its core, its slave scripts, its README and reference result; see
 components/README.md). Each FMU bundles its slave script, the boot loader
-``agv_core/fmi/agv_boot.py`` (at the top of ``resources/``) and a copy of the ``agv_core``
-package without the slave scripts, tagged with a content hash (``agv_core/BUILD_ID``), a
-``requirements.txt`` for the host Python, and ``agv_build.json`` with a GUID derived from
-every source that goes into the FMU. A rebuild with unchanged sources is skipped (the FMU's
-GUID already matches), and a built FMU that ``fmpy.validation`` finds fault with fails the
-build.
+``agv_core/fmi/agv_boot.py`` (at the top of ``resources/``) and the part of the ``agv_core``
+package that the script reaches (its modules and package ``__init__`` files, tagged with a
+content hash in ``agv_core/BUILD_ID``), a ``requirements.txt`` that pins the Python
+distributions that code imports (both derived from the imports: agv_cosim/bundle.py), and
+``agv_build.json`` with a GUID derived from every source that goes into the FMU. A rebuild
+with unchanged sources is skipped (the FMU's GUID already matches, computed with the
+requirement list the FMU ships as long as exactly those versions are installed), and a
+built FMU that ``fmpy.validation`` finds fault with fails the build.
 
 pythonfmu's Linux binary needs a Python already in the host process and corrupts the heap
 at exit. The build therefore compiles ``components/fmu_loader/agv_fmu_loader.c`` (gcc, the
