@@ -55,7 +55,7 @@ from .bundle import BundleError, bundle_of, installed_requirements, requirements
 from .shipped import shipped_dir
 
 #: Bumped whenever the way an FMU is assembled changes, so every FMU is rebuilt.
-BUILD_FORMAT = 2
+BUILD_FORMAT = 3
 
 BOOT_SCRIPT = "agv_boot.py"
 #: Where the boot loader lives, relative to ``components/``.
