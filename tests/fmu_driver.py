@@ -6,11 +6,13 @@ slave sees that venv's packages only (a Python host: the slave runs in this proc
 interpreter). fmpy cannot serve there, as it imports numpy itself.
 
 JOB is a JSON file holding one job or a list of jobs (run one after the other in this
-process; then a list of results is printed). A job: ``folder`` (the extracted FMU), ``identifier`` (modelIdentifier),
-``token`` (GUID / instantiationToken), ``fmi`` (2 or 3), ``start``, ``stop``, ``step``,
+process; then a list of results is printed). A job: ``folder`` (the extracted FMU),
+``identifier`` (modelIdentifier), ``token`` (GUID / instantiationToken), ``fmi`` (2 or 3),
+``start``, ``stop``, ``step``,
 ``inputs`` (value reference -> ``[[time, value], ...]``, each Real input held from its time
 on, set before every step from the last time <= the communication point) and
-``outputs`` (Real value references). Communication points and step sizes are fmpy's
+``outputs`` (Real value references), and optionally ``logging`` (the instance's loggingOn,
+default true). Communication points and step sizes are fmpy's
 (``start + k * step``, the difference of two as the step) and so are the input settings
 (one call for all inputs before every step), so a reference experiment reproduces what
 ``fmpy.simulate_fmu`` recorded, bit for bit (setting the inputs one call each gave results
@@ -38,6 +40,7 @@ def _drive(job, messages):
     Values = ctypes.c_double * max(1, len(vr_out))
     out_vrs, out_values = Vrs(*vr_out), Values()
     start, stop, step = job["start"], job["stop"], job["step"]
+    logging = bool(job.get("logging", True))
 
     def log(status, category, message):
         messages.append([int(status), (category or b"").decode(errors="replace"),
@@ -67,7 +70,7 @@ def _drive(job, messages):
                                         ctypes.c_int, ctypes.c_int]
         instance = lib.fmi2Instantiate(b"driver", 1, job["token"].encode(),
                                        (folder / "resources").as_uri().encode(),
-                                       ctypes.byref(callbacks), 0, 1)
+                                       ctypes.byref(callbacks), 0, int(logging))
         if not instance:
             raise RuntimeError("fmi2Instantiate returned NULL")
         c = ctypes.c_void_p(instance)
@@ -106,7 +109,7 @@ def _drive(job, messages):
             Logger, ctypes.c_void_p]
         instance = lib.fmi3InstantiateCoSimulation(
             b"driver", job["token"].encode(), (str(folder / "resources") + "/").encode(),
-            False, True, False, False, None, 0, None, logger, None)
+            False, logging, False, False, None, 0, None, logger, None)
         if not instance:
             raise RuntimeError("fmi3InstantiateCoSimulation returned NULL")
         c = ctypes.c_void_p(instance)

@@ -63,8 +63,8 @@ def test_the_tag_follows_the_shipped_files_and_the_requirements(tmp_path):
     assert bundle_of(slave, core, local=BOOT, requirements=((("numpy", "1.0"),), ())).tag != first
     (core / "numerics" / "arc.py").write_text("import math\nfrom ..errors import E  # x\n")
     assert bundle_of(slave, core, local=BOOT, requirements=NONE).tag != first
-    overridden = bundle_of(slave, core, local=BOOT, overrides=[("thing/core.py", "from .. import errors\n")],
-                           requirements=NONE)
+    overridden = bundle_of(slave, core, local=BOOT, requirements=NONE,
+                           overrides=[("thing/core.py", "from .. import errors\n")])
     assert overridden.files == ("__init__.py", "errors.py", "thing/__init__.py", "thing/core.py")
 
 

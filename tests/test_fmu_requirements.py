@@ -200,3 +200,24 @@ def test_a_missing_package_is_an_fmi_error_naming_it(component_fmus, twins, venv
                 (version, result["messages"])
     finally:
         pip("install", "--no-deps", "--no-compile", *pinned)
+
+
+@pytest.mark.parametrize("version", [
+    "3",
+    pytest.param("2", marks=pytest.mark.xfail(strict=True, reason=(
+        "pythonfmu 0.7's wrapper passes no message at all to the host's logger unless the "
+        "host turned logging on (its PyLogger::log drops every status), and the loader "
+        "forwards fmi2Instantiate's loggingOn unchanged"))),
+])
+def test_a_host_that_turned_logging_off_still_hears_why(component_fmus, twins, tmp_path,
+                                                        version):
+    """The vision sensor (numpy at import) in an empty venv, instantiated with loggingOn
+    false: the error that ends it must still reach the host's logger."""
+    fmu = (component_fmus if version == "2" else twins)["agv_vision_sensor"]
+    python = make_venv(tmp_path / "empty", [])
+    job, _ = job_of(fmu, tmp_path / "fmu")
+    result = drive(python, {**job, "logging": False}, tmp_path)
+    assert result["failed"]
+    errors = [m for status, _, m in result["messages"] if status >= 3]
+    assert any("No module named 'numpy'" in m for m in errors), result["messages"]
+

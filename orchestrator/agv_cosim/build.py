@@ -388,9 +388,9 @@ def slave_class_name(script):
 def fmi3_wrapper_source(script):
     """Source of the FMI 3.0 wrapper script of ``script`` (see the module docstring).
 
-    If the body cannot be imported (a package of requirements.txt missing from the
+    If the body cannot be imported (e.g. a package of requirements.txt missing from the
     Python that runs the FMU), the wrapper still defines the slave class, whose
-    construction raises naming the missing module: pythonfmu3 0.3.4 reports that as an
+    construction raises saying why (naming a missing module): pythonfmu3 0.3.4 reports that as an
     error of fmi3InstantiateCoSimulation, where a slave module that fails to import
     makes it dereference a null class (the host dies with SIGSEGV).
     """
@@ -406,14 +406,14 @@ def fmi3_wrapper_source(script):
             "from pythonfmu3 import Fmi3Slave\n\n"
             "try:\n"
             f"    from {body} import {name} as _Body\n"
-            "except ImportError as _error:\n"
+            "except Exception as _error:  # noqa: BLE001 - raised again when instantiated\n"
             '    _REASON = f"{type(_error).__name__}: {_error}"\n\n'
             "    class _Body:\n"
             '        """Stands in for the slave class, whose code could not be loaded."""\n\n'
             "        def __init__(self, **kwargs):\n"
             f'            raise ImportError(f"{name}: cannot load its code: {{_REASON}} '
-            "(install the packages of this FMU's resources/requirements.txt in the Python "
-            'that runs it)")\n\n\n'
+            "(a module missing? install the packages of this FMU's resources/requirements.txt "
+            'in the Python that runs it)")\n\n\n'
             f"class {name}(_Body, Fmi3Slave):\n"
             "    __doc__ = _Body.__doc__\n")
 
@@ -442,8 +442,9 @@ def _shipped_requirements(fmu_path):
     return installed_requirements(text)
 
 
-def _stage(script, core_dir, boot, bundle, guid, stage_dir, fmi_version=2):
-    """Stage the FMU's files; return (the script to build from, the project files)."""
+def _stage(script, core_dir, boot, tag, guid, stage_dir, fmi_version=2, bundle=None):
+    """Stage the FMU's files (``bundle``: what :func:`_bundle` says the FMU ships); return
+    (the script to build from, the project files)."""
     if fmi_version == 3:
         staged_script = stage_dir / f"{script.stem}{FMI3_WRAPPER_SUFFIX}.py"
         staged_script.write_text(fmi3_wrapper_source(script))
@@ -458,11 +459,9 @@ def _stage(script, core_dir, boot, bundle, guid, stage_dir, fmi_version=2):
     for relative in bundle.files:
         target = core_copy / relative
         target.parent.mkdir(parents=True, exist_ok=True)
-        if fmi_version == 3 and relative == "fmi/fmi_slave.py":
-            target.write_text(FMI3_ALIAS)
-        else:
-            shutil.copy2(core_dir / relative, target)
-    tag = bundle.tag
+        shutil.copy2(core_dir / relative, target)
+    if fmi_version == 3:
+        (core_copy / "fmi" / "fmi_slave.py").write_text(FMI3_ALIAS)
     (core_copy / "BUILD_ID").write_text(tag + "\n")
     python = host_python()
     info = {"guid": guid, "core_tag": tag, "script": script.name,
@@ -527,13 +526,14 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_versi
         if fmu_guid_of(out_dir / known) == guid:
             return BuildResult(script, out_dir / known, guid, rebuilt=False)
     bundle = _bundle(script, core_dir, boot, fmi_version)
-    guid = fmu_guid(script, boot, bundle.tag, fmi_version)
+    tag = bundle.tag
+    guid = fmu_guid(script, boot, tag, fmi_version)
 
     with tempfile.TemporaryDirectory(prefix="agv_build_") as tmp:
         stage_dir = Path(tmp) / "stage"
         stage_dir.mkdir()
-        staged_script, project_files = _stage(script, core_dir, boot, bundle, guid,
-                                              stage_dir, fmi_version)
+        staged_script, project_files = _stage(script, core_dir, boot, tag, guid, stage_dir,
+                                              fmi_version, bundle)
         saved_path = list(sys.path)
         own_modules = {script.stem, script.stem + FMI3_WRAPPER_SUFFIX,
                        script.stem + FMI3_BODY_SUFFIX}
