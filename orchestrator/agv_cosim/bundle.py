@@ -31,6 +31,7 @@ import functools
 import hashlib
 import importlib.metadata
 import json
+import re
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -90,25 +91,51 @@ def _load_core_arguments(tree, where):
 def _absolute_imports(tree):
     """Dotted names of the absolute imports in ``tree``; for ``from X import Y`` both
     ``X`` and ``X.Y`` (Y may be a submodule; the child process tells)."""
-    names = []
+    return list(_imports_of(tree).absolute)
+
+
+@dataclass(frozen=True)
+class _Imports:
+    """The import statements of one source, from one pass over its tree."""
+
+    absolute: tuple   # dotted names, as _absolute_imports says
+    relative: tuple   # (line, level, module or None, (names...)) of `from .x import ...`
+    own: int          # line of an absolute import of agv_core (0: none)
+    dynamic: int      # line of an importlib.import_module / __import__ call (0: none)
+
+
+def _imports_of(tree):
+    absolute, relative, own, dynamic = [], [], 0, 0
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            names += [alias.name for alias in node.names]
-        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            names.append(node.module)
-            names += [f"{node.module}.{alias.name}" for alias in node.names
-                      if alias.name != "*"]
-    return names
-
-
-def _dynamic_import(tree):
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Call):
+            names = [alias.name for alias in node.names]
+            absolute += names
+        elif isinstance(node, ast.ImportFrom) and node.level == 0:
+            names = [node.module or ""]
+            absolute.append(node.module)
+            absolute += [f"{node.module}.{alias.name}" for alias in node.names
+                         if alias.name != "*"]
+        elif isinstance(node, ast.ImportFrom):
+            relative.append((node.lineno, node.level, node.module,
+                             tuple(alias.name for alias in node.names)))
+            continue
+        elif isinstance(node, ast.Call):
             func = node.func
-            if (isinstance(func, ast.Name) and func.id == "__import__") or (
-                    isinstance(func, ast.Attribute) and func.attr == "import_module"):
-                return node.lineno
-    return None
+            if not dynamic and ((isinstance(func, ast.Name) and func.id == "__import__") or (
+                    isinstance(func, ast.Attribute) and func.attr == "import_module")):
+                dynamic = node.lineno
+            continue
+        else:
+            continue
+        if not own and any(n == "agv_core" or n.startswith("agv_core.") for n in names):
+            own = node.lineno
+    return _Imports(tuple(absolute), tuple(relative), own, dynamic)
+
+
+@functools.lru_cache(maxsize=None)
+def _module_imports(text, where):
+    """:class:`_Imports` of a package module's source (parsed once per process)."""
+    return _imports_of(_parse(text, where))
 
 
 class _CoreView:
@@ -163,37 +190,30 @@ def _walk(view, roots, where):
             init = "/".join([*package[:k], "__init__.py"])
             if view.exists(init):
                 pending.append(init)
-        tree = _parse(view.text(relative), f"agv_core/{relative}")
-        line = _dynamic_import(tree)
-        if line is not None:
-            raise BundleError(f"agv_core/{relative}:{line}: a dynamic import; the build "
-                              "cannot tell which modules it needs")
-        external += _absolute_imports(tree)
-        for node in ast.walk(tree):
-            if isinstance(node, (ast.Import, ast.ImportFrom)) and (
-                    getattr(node, "level", 0) == 0):
-                names = ([a.name for a in node.names] if isinstance(node, ast.Import)
-                         else [node.module or ""])
-                if any(n == "agv_core" or n.startswith("agv_core.") for n in names):
-                    raise BundleError(f"agv_core/{relative}:{node.lineno}: an absolute "
-                                      "import of agv_core; inside the package every import "
-                                      "is relative (the FMU loads it under another name)")
-            if not (isinstance(node, ast.ImportFrom) and node.level > 0):
-                continue
+        found = _module_imports(view.text(relative), f"agv_core/{relative}")
+        if found.dynamic:
+            raise BundleError(f"agv_core/{relative}:{found.dynamic}: a dynamic import; the "
+                              "build cannot tell which modules it needs")
+        if found.own:
+            raise BundleError(f"agv_core/{relative}:{found.own}: an absolute import of "
+                              "agv_core; inside the package every import is relative (the "
+                              "FMU loads it under another name)")
+        external += found.absolute
+        for line, level, module, names in found.relative:
             base = _package_of(relative).split(".") if _package_of(relative) else []
-            if node.level - 1 > len(base):
-                raise BundleError(f"agv_core/{relative}:{node.lineno}: relative import "
-                                  "beyond the package")
-            base = base[:len(base) - (node.level - 1)]
-            target = ".".join([*base, *(node.module.split(".") if node.module else [])])
-            found = view.module_file(target)
-            if found is None:
-                raise BundleError(f"agv_core/{relative}:{node.lineno}: no module "
+            if level - 1 > len(base):
+                raise BundleError(f"agv_core/{relative}:{line}: relative import beyond the "
+                                  "package")
+            base = base[:len(base) - (level - 1)]
+            target = ".".join([*base, *(module.split(".") if module else [])])
+            module_file = view.module_file(target)
+            if module_file is None:
+                raise BundleError(f"agv_core/{relative}:{line}: no module "
                                   f"'{target or '__init__'}' in agv_core")
-            pending.append(found)
-            for alias in node.names:  # `from . import paths`: a submodule, if it is one
-                sub = view.module_file(f"{target}.{alias.name}" if target else alias.name)
-                if sub is not None and alias.name != "*":
+            pending.append(module_file)
+            for name in names:  # `from . import paths`: a submodule, if it is one
+                sub = view.module_file(f"{target}.{name}" if target else name)
+                if sub is not None and name != "*":
                     pending.append(sub)
     return sorted(files), external
 
@@ -335,15 +355,23 @@ def installed_requirements(text):
             current = "indirect"
         elif line and not line.startswith("#"):
             name, sep, version = line.partition("==")
-            if not sep or current is None:
-                return None
-            try:
-                if importlib.metadata.version(name) != version:
-                    return None
-            except importlib.metadata.PackageNotFoundError:
+            if not sep or current is None or _installed().get(_normal(name)) != version:
                 return None
             groups[current].append((name, version))
     return tuple(groups["direct"]), tuple(groups["indirect"])
+
+
+def _normal(name):
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+@functools.lru_cache(maxsize=1)
+def _installed():
+    """Normalised distribution name -> version, of this Python (read once per process)."""
+    versions = {}
+    for dist in importlib.metadata.distributions():
+        versions.setdefault(_normal(dist.metadata["Name"] or ""), dist.version)
+    return versions
 
 
 _HEADER = ("# Python distributions this FMU's code imports, derived by agv-cosim build",
