@@ -30,10 +30,34 @@ def test_changed_source_changes_the_guid(tmp_path):
     core = tmp_path / "core"
     shutil.copytree(default_components_dir() / "agv_core", core,
                     ignore=shutil.ignore_patterns("__pycache__"))
-    with open(core / "vehicle.py", "a") as handle:
+    with open(core / "vehicle" / "vehicle.py", "a") as handle:
         handle.write("\n# a changed line\n")
     changed = build_one(VEHICLE, tmp_path / "b", core_dir=core)
     assert changed.guid != original.guid
+
+
+def test_a_module_the_fmu_does_not_ship_leaves_its_guid(tmp_path):
+    """The vehicle ships only the modules its slave script reaches: a change in the MPC
+    (which it never imports) neither rebuilds it nor changes its GUID; one in the arc
+    numerics it uses does."""
+    core = tmp_path / "core"
+    shutil.copytree(default_components_dir() / "agv_core", core,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    original = build_one(VEHICLE, tmp_path / "out", core_dir=core)
+    with zipfile.ZipFile(original.fmu) as archive:
+        shipped = {n for n in archive.namelist() if n.startswith("resources/agv_core/")}
+    assert "resources/agv_core/vehicle/vehicle.py" in shipped
+    assert "resources/agv_core/numerics/arc.py" in shipped
+    assert "resources/agv_core/ltv_mpc/ltv_mpc.py" not in shipped
+    assert "resources/agv_core/numerics/paths.py" not in shipped
+    with open(core / "ltv_mpc" / "ltv_mpc.py", "a") as handle:
+        handle.write("\n# a changed line\n")
+    index = {VEHICLE.name: original.fmu.name}
+    again = build_one(VEHICLE, tmp_path / "out", core_dir=core, index=index)
+    assert not again.rebuilt and again.guid == original.guid
+    with open(core / "numerics" / "arc.py", "a") as handle:
+        handle.write("\n# a changed line\n")
+    assert build_one(VEHICLE, tmp_path / "out", core_dir=core).guid != original.guid
 
 
 def test_two_builds_of_one_fmu_in_a_process_are_refused_clearly(tmp_path):
@@ -43,7 +67,7 @@ def test_two_builds_of_one_fmu_in_a_process_are_refused_clearly(tmp_path):
     core = tmp_path / "core"
     shutil.copytree(default_components_dir() / "agv_core", core,
                     ignore=shutil.ignore_patterns("__pycache__"))
-    with open(core / "vehicle.py", "a") as handle:
+    with open(core / "vehicle" / "vehicle.py", "a") as handle:
         handle.write("\n# another build\n")
     new = build_one(VEHICLE, tmp_path / "new", core_dir=core).fmu
     code = (

@@ -31,7 +31,7 @@ import pytest
 from fmpy.validation import validate_fmu
 
 from agv_cosim import cli
-from agv_cosim.build import BuildError, build_fmus, build_one, default_components_dir, \
+from agv_cosim.build import BuildError, build_one, default_components_dir, \
     slave_script, slave_scripts
 
 SCRIPTS = [p.stem for p in slave_scripts(default_components_dir())]
@@ -125,14 +125,6 @@ def _child(code, *args):
                           text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
     return json.loads(done.stdout.strip().splitlines()[-1])
-
-
-@pytest.fixture(scope="module")
-def twins(tmp_path_factory):
-    """Every component built as an FMI 3.0 twin; map script stem -> FMU path."""
-    out = tmp_path_factory.mktemp("fmus3")
-    results = build_fmus(out, slave_scripts(default_components_dir()), fmi_version=3)
-    return {result.script.stem: result.fmu for result in results}
 
 
 @pytest.fixture(scope="module")

@@ -3,12 +3,14 @@
 A slave script is a module named ``agv_*.py`` in a component folder of ``agv_core`` (one
 folder per component: its core, its slave scripts, its README and reference result; see
 components/README.md). Each FMU bundles its slave script, the boot loader
-``agv_core/fmi/agv_boot.py`` (at the top of ``resources/``) and a copy of the ``agv_core``
-package without the slave scripts, tagged with a content hash (``agv_core/BUILD_ID``), a
-``requirements.txt`` for the host Python, and ``agv_build.json`` with a GUID derived from
-every source that goes into the FMU. A rebuild with unchanged sources is skipped (the FMU's
-GUID already matches), and a built FMU that ``fmpy.validation`` finds fault with fails the
-build.
+``agv_core/fmi/agv_boot.py`` (at the top of ``resources/``) and the part of the ``agv_core``
+package that the script reaches (its modules and package ``__init__`` files, tagged with a
+content hash in ``agv_core/BUILD_ID``), a ``requirements.txt`` that pins the Python
+distributions that code imports (both derived from the imports: agv_cosim/bundle.py), and
+``agv_build.json`` with a GUID derived from every source that goes into the FMU. A rebuild
+with unchanged sources is skipped (the FMU's GUID already matches, computed with the
+requirement list the FMU ships as long as exactly those versions are installed), and a
+built FMU that ``fmpy.validation`` finds fault with fails the build.
 
 pythonfmu's Linux binary needs a Python already in the host process and corrupts the heap
 at exit. The build therefore compiles ``components/fmu_loader/agv_fmu_loader.c`` (gcc, the
@@ -49,11 +51,11 @@ from xml.etree import ElementTree
 import pythonfmu
 from pythonfmu.builder import FmuBuilder
 
-#: Bumped whenever the way an FMU is assembled changes, so every FMU is rebuilt.
-BUILD_FORMAT = 2
+from .bundle import BundleError, bundle_of, installed_requirements, requirements_text
+from .shipped import shipped_dir
 
-#: What the host Python needs to run the bundled core (shipped in every FMU).
-HOST_REQUIREMENTS = "numpy>=1.24\nscipy>=1.10\nosqp>=1.0\nscikit-fuzzy>=0.5\n"
+#: Bumped whenever the way an FMU is assembled changes, so every FMU is rebuilt.
+BUILD_FORMAT = 3
 
 BOOT_SCRIPT = "agv_boot.py"
 #: Where the boot loader lives, relative to ``components/``.
@@ -126,21 +128,6 @@ def slave_script(stem, components_dir=None):
     raise BuildError(f"no slave script named '{stem}.py'")
 
 
-def _core_files(core_dir):
-    """The bundled sources: every ``*.py`` of the package but the slave scripts and boot."""
-    return sorted(p for p in core_dir.rglob("*.py")
-                  if "__pycache__" not in p.parts and not p.match(SLAVE_PATTERN))
-
-
-def core_tag(core_dir):
-    """Content hash (16 hex digits) of the ``agv_core`` sources in ``core_dir``."""
-    digest = hashlib.sha256()
-    for path in _core_files(core_dir):
-        digest.update(path.relative_to(core_dir).as_posix().encode() + b"\0")
-        digest.update(path.read_bytes() + b"\0")
-    return digest.hexdigest()[:16]
-
-
 def host_python():
     """The Python the FMUs start in a host that has none, as a dict.
 
@@ -158,7 +145,7 @@ def host_python():
 
 
 def _loader_source():
-    return default_components_dir() / LOADER_SOURCE
+    return shipped_dir("fmu_loader") / LOADER_SOURCE.name
 
 
 @functools.lru_cache(maxsize=4)
@@ -357,7 +344,7 @@ def fmu_guid(script, boot, tag, fmi_version=2):
     python = host_python()
     parts = [script.name.encode(), script.read_bytes(), boot.read_bytes(), tag.encode(),
              pythonfmu.__version__.encode(), str(BUILD_FORMAT).encode(),
-             HOST_REQUIREMENTS.encode(), _loader_source().read_bytes(),
+             _loader_source().read_bytes(),
              python["executable"].encode(), python["libpython"].encode()]
     if fmi_version == 3:  # FMI 2.0 GUIDs stay as they were
         import pythonfmu3
@@ -385,15 +372,6 @@ def fmu_guid_of(fmu_path):
         return None
 
 
-def fmi3_core_tag(tag):
-    """BUILD_ID tag of the FMI 3.0 bundle of the core with FMI 2.0 tag ``tag``.
-
-    The FMI 3.0 bundle differs (``fmi_slave`` is the FMI 3.0 adapter), so it must never be
-    taken for the FMI 2.0 bundle of the same sources in one process (agv_boot.py).
-    """
-    return hashlib.sha256(f"{tag}\0fmi3\0{FMI3_ALIAS}".encode()).hexdigest()[:16]
-
-
 def slave_class_name(script):
     """Name of the one top-level class a slave script defines (BuildError otherwise)."""
     try:
@@ -408,7 +386,14 @@ def slave_class_name(script):
 
 
 def fmi3_wrapper_source(script):
-    """Source of the FMI 3.0 wrapper script of ``script`` (see the module docstring)."""
+    """Source of the FMI 3.0 wrapper script of ``script`` (see the module docstring).
+
+    If the body cannot be imported (e.g. a package of requirements.txt missing from the
+    Python that runs the FMU), the wrapper still defines the slave class, whose
+    construction raises saying why (naming a missing module): pythonfmu3 0.3.4 reports that as an
+    error of fmi3InstantiateCoSimulation, where a slave module that fails to import
+    makes it dereference a null class (the host dies with SIGSEGV).
+    """
     name = slave_class_name(script)
     body = script.stem + FMI3_BODY_SUFFIX
     return (f'"""FMI 3.0 twin of the slave script {script.name}, written by '
@@ -416,15 +401,50 @@ def fmi3_wrapper_source(script):
             "pythonfmu3 takes the slave class from a class line naming Fmi3Slave; the class\n"
             f"body is {script.name}'s, bundled beside this file as {body}.py, whose\n"
             "core.fmi.fmi_slave is the FMI 3.0 adapter (agv_core/fmi/fmi3_slave.py) in this\n"
-            "FMU.\n"
+            "FMU. If the body cannot be imported, constructing the class raises why.\n"
             '"""\n\n'
-            f"from {body} import {name} as _Body, core\n\n\n"
-            f"class {name}(_Body, core.fmi.fmi_slave.Fmi3Slave):\n"
+            "from pythonfmu3 import Fmi3Slave\n\n"
+            "try:\n"
+            f"    from {body} import {name} as _Body\n"
+            "except Exception as _error:  # noqa: BLE001 - raised again when instantiated\n"
+            '    _REASON = f"{type(_error).__name__}: {_error}"\n\n'
+            "    class _Body:\n"
+            '        """Stands in for the slave class, whose code could not be loaded."""\n\n'
+            "        def __init__(self, **kwargs):\n"
+            f'            raise ImportError(f"{name}: cannot load its code: {{_REASON}} '
+            "(a module missing? install the packages of this FMU's resources/requirements.txt "
+            'in the Python that runs it)")\n\n\n'
+            f"class {name}(_Body, Fmi3Slave):\n"
             "    __doc__ = _Body.__doc__\n")
 
 
-def _stage(script, core_dir, boot, tag, guid, stage_dir, fmi_version=2):
-    """Stage the FMU's files; return (the script to build from, the project files)."""
+def _bundle(script, core_dir, boot, fmi_version, requirements=None):
+    """The part of ``agv_core`` the FMU of ``script`` ships, and its requirements
+    (agv_cosim.bundle); ``requirements`` as there."""
+    overrides = (("fmi/fmi_slave.py", FMI3_ALIAS),) if fmi_version == 3 else ()
+    try:
+        return bundle_of(script, core_dir, overrides, extra_sources=[boot],
+                         local=[script.stem + FMI3_WRAPPER_SUFFIX,
+                                script.stem + FMI3_BODY_SUFFIX],
+                         shipped=["pythonfmu3" if fmi_version == 3 else "pythonfmu"],
+                         requirements=requirements)
+    except BundleError as error:
+        raise BuildError(f"{script.name}: {error}") from None
+
+
+def _shipped_requirements(fmu_path):
+    """The requirements of a built FMU, if still what this Python has installed."""
+    try:
+        with zipfile.ZipFile(fmu_path) as archive:
+            text = archive.read("resources/requirements.txt").decode()
+    except (OSError, KeyError, zipfile.BadZipFile, UnicodeDecodeError):
+        return None
+    return installed_requirements(text)
+
+
+def _stage(script, core_dir, boot, tag, guid, stage_dir, fmi_version=2, bundle=None):
+    """Stage the FMU's files (``bundle``: what :func:`_bundle` says the FMU ships); return
+    (the script to build from, the project files)."""
     if fmi_version == 3:
         staged_script = stage_dir / f"{script.stem}{FMI3_WRAPPER_SUFFIX}.py"
         staged_script.write_text(fmi3_wrapper_source(script))
@@ -436,10 +456,10 @@ def _stage(script, core_dir, boot, tag, guid, stage_dir, fmi_version=2):
         extra = []
     shutil.copy2(boot, stage_dir / BOOT_SCRIPT)
     core_copy = stage_dir / "agv_core"
-    for path in _core_files(core_dir):
-        target = core_copy / path.relative_to(core_dir)
+    for relative in bundle.files:
+        target = core_copy / relative
         target.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(path, target)
+        shutil.copy2(core_dir / relative, target)
     if fmi_version == 3:
         (core_copy / "fmi" / "fmi_slave.py").write_text(FMI3_ALIAS)
     (core_copy / "BUILD_ID").write_text(tag + "\n")
@@ -452,7 +472,8 @@ def _stage(script, core_dir, boot, tag, guid, stage_dir, fmi_version=2):
 
         info.update(fmi_version=3, pythonfmu3=pythonfmu3.__version__)
     (stage_dir / "agv_build.json").write_text(json.dumps(info, indent=1) + "\n")
-    (stage_dir / "requirements.txt").write_text(HOST_REQUIREMENTS)
+    (stage_dir / "requirements.txt").write_text(requirements_text(bundle.direct,
+                                                                  bundle.indirect))
     return staged_script, [core_copy, stage_dir / BOOT_SCRIPT, stage_dir / "agv_build.json",
                            stage_dir / "requirements.txt", *extra]
 
@@ -494,20 +515,25 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_versi
     boot = default_components_dir() / BOOT_SOURCE
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    tag = core_tag(core_dir)
-    if fmi_version == 3:
-        tag = fmi3_core_tag(tag)
-    guid = fmu_guid(script, boot, tag, fmi_version)
     index = {} if index is None else index
     known = index.get(script.name)
-    if not force and known and fmu_guid_of(out_dir / known) == guid:
-        return BuildResult(script, out_dir / known, guid, rebuilt=False)
+    # Up to date: the FMU there has the GUID of these sources with its own requirement
+    # list, and that list is what this Python has installed (no child process needed).
+    shipped = _shipped_requirements(out_dir / known) if known and not force else None
+    if shipped is not None:
+        bundle = _bundle(script, core_dir, boot, fmi_version, requirements=shipped)
+        guid = fmu_guid(script, boot, bundle.tag, fmi_version)
+        if fmu_guid_of(out_dir / known) == guid:
+            return BuildResult(script, out_dir / known, guid, rebuilt=False)
+    bundle = _bundle(script, core_dir, boot, fmi_version)
+    tag = bundle.tag
+    guid = fmu_guid(script, boot, tag, fmi_version)
 
     with tempfile.TemporaryDirectory(prefix="agv_build_") as tmp:
         stage_dir = Path(tmp) / "stage"
         stage_dir.mkdir()
         staged_script, project_files = _stage(script, core_dir, boot, tag, guid, stage_dir,
-                                              fmi_version)
+                                              fmi_version, bundle)
         saved_path = list(sys.path)
         own_modules = {script.stem, script.stem + FMI3_WRAPPER_SUFFIX,
                        script.stem + FMI3_BODY_SUFFIX}

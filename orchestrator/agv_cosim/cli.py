@@ -45,6 +45,20 @@ def _cmd_build(args):
     return 0
 
 
+def _cmd_examples(args):
+    from .examples import ExamplesError, copy_examples
+
+    try:
+        written = copy_examples(args.folder, args.fmus)
+    except ExamplesError as error:
+        return _error(str(error))
+    for path in written:
+        print(path)
+    print(f"{len(written)} file(s) in {args.folder}; their FMUs: {args.fmus}/ (build them "
+          f"with: agv-cosim build --out {args.fmus})")
+    return 0
+
+
 def _warn(warnings, quiet=False):
     for warning in warnings:
         _say(f"agv-cosim: warning: {warning}")
@@ -160,6 +174,20 @@ def make_parser():
                        help="FMI version of the FMUs: 2 (default) or 3 (the FMI 3.0 twins, "
                             "built with pythonfmu3; need a host with Python)")
     build.set_defaults(func=_cmd_build)
+
+    examples = sub.add_parser(
+        "examples", help="copy the shipped experiment manifests into a folder",
+        parents=[debug],
+        description="Copy the shipped experiment manifests (and any file they refer to) "
+                    "into FOLDER, their FMU paths pointing at the FMUs 'agv-cosim build' "
+                    "writes. A file in FOLDER that this command did not write is never "
+                    "replaced (exit 2, nothing copied).")
+    examples.add_argument("folder", metavar="FOLDER", help="where to put the manifests")
+    examples.add_argument("--fmus", default="fmus", metavar="FMUS",
+                          help="folder of the FMUs the manifests use, relative to the "
+                               "current folder (default: fmus, where 'agv-cosim build' "
+                               "writes; with 'agv-cosim build --out X' give --fmus X)")
+    examples.set_defaults(func=_cmd_examples)
 
     selection = argparse.ArgumentParser(add_help=False)
     selection.add_argument("manifest", help="experiment manifest (TOML)")

@@ -178,6 +178,10 @@ class SlaveLogic:
             self.publish()
         except ParameterError as error:
             self._fail(str(error))
+        except ImportError as error:  # a package of requirements.txt is missing
+            self._fail(f"initialisation failed: {type(error).__name__}: {error} (install "
+                       "the packages of this FMU's resources/requirements.txt in the "
+                       "Python that runs it)")
         except Exception as error:  # noqa: BLE001 - reported to the host, then re-raised
             self._fail(f"initialisation failed: {type(error).__name__}: {error}")
         self._stale = False
