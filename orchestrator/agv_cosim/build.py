@@ -34,7 +34,6 @@ import ast
 import functools
 import hashlib
 import json
-import platform
 import shutil
 import subprocess
 import sys
@@ -50,7 +49,7 @@ import pythonfmu
 from pythonfmu.builder import FmuBuilder
 
 #: Bumped whenever the way an FMU is assembled changes, so every FMU is rebuilt.
-BUILD_FORMAT = 2
+BUILD_FORMAT = 3
 
 #: What the host Python needs to run the bundled core (shipped in every FMU).
 HOST_REQUIREMENTS = "numpy>=1.24\nscipy>=1.10\nosqp>=1.0\nscikit-fuzzy>=0.5\n"
@@ -62,8 +61,10 @@ BOOT_SOURCE = Path("agv_core") / "fmi" / BOOT_SCRIPT
 #: as top-level modules of an FMU, never as part of the bundled package.
 SLAVE_PATTERN = "agv_*.py"
 LOADER_SOURCE = Path("fmu_loader") / "agv_fmu_loader.c"
-#: pythonfmu's own binary is shipped under this suffix beside the loader.
-WRAPPER_SUFFIX = ".pythonfmu.so"
+#: The bridge's source, beside the loader's.
+BRIDGE_SOURCE = "agv_fmu_bridge.c"
+#: The bridge is shipped under this suffix beside the loader.
+BRIDGE_SUFFIX = ".bridge.so"
 INDEX_FILE = "build-index.json"
 
 #: FMI versions ``build_fmus`` can write.
@@ -142,74 +143,88 @@ def core_tag(core_dir):
 
 
 def host_python():
-    """The Python the FMUs start in a host that has none, as a dict.
+    """What the building Python says about itself, as a dict (nothing of it goes into an FMU
+    but ``version``).
 
-    ``executable`` is the building interpreter as invoked (a venv's ``bin/python`` keeps
-    its site-packages); ``libpython`` its shared library (``sysconfig`` LIBDIR and
-    INSTSONAME), ``soname`` that library's file name, ``multiarch`` Debian's library
-    subfolder (where a named Python's library may be).
+    ``version`` is ``major.minor`` (the FMUs' binaries are compiled for it and start only a
+    Python of that version); ``executable`` the building interpreter as invoked (a venv's
+    ``bin/python`` keeps its site-packages); ``libpython`` its shared library (``sysconfig``
+    LIBDIR and INSTSONAME, which may not exist: a Python built without --enable-shared).
     """
     libdir = sysconfig.get_config_var("LIBDIR") or ""
     soname = (sysconfig.get_config_var("INSTSONAME")
               or f"libpython{sysconfig.get_python_version()}.so.1.0")
-    multiarch = sysconfig.get_config_var("MULTIARCH") or f"{platform.machine()}-linux-gnu"
-    return {"executable": sys.executable, "libpython": str(Path(libdir) / soname),
-            "soname": soname, "multiarch": multiarch}
+    return {"version": sysconfig.get_python_version(), "executable": sys.executable,
+            "libpython": str(Path(libdir) / soname)}
 
 
-def _loader_source():
-    return default_components_dir() / LOADER_SOURCE
+def _binary_sources():
+    """The C sources of the FMU binary: ``{file name: text}`` (the loader and the bridge)."""
+    folder = default_components_dir() / LOADER_SOURCE.parent
+    return {name: (folder / name).read_text() for name in (LOADER_SOURCE.name, BRIDGE_SOURCE)}
 
 
 @functools.lru_cache(maxsize=4)
-def _compile_loader(source_text, executable, libpython, soname, multiarch):
-    """Compile the FMU loader for this Python; the shared library's bytes."""
+def _compile_binaries(sources, python_include):
+    """Compile the loader and the bridge; ``(loader bytes, bridge bytes)``.
+
+    ``sources`` is ``_binary_sources()`` as a tuple of items. Neither binary holds a path of
+    this machine: both are compiled from a temporary folder, with the Python headers (types
+    and version only; the bridge's Python symbols stay undefined, the loader uses none) and
+    fmpy's FMI headers, ``-ffile-prefix-map`` maps these folders away and ``-DNDEBUG``
+    leaves out the headers' assertions (which would name the header files).
+    """
     import fmpy
 
     compiler = shutil.which("gcc") or shutil.which("cc")
     if compiler is None:
-        raise BuildError("cannot build the FMU loader: no C compiler (gcc) on PATH")
+        raise BuildError("cannot build the FMU binaries: no C compiler (gcc) on PATH")
     fmi_headers = Path(fmpy.__file__).parent / "c-code"
+    built = []
     with tempfile.TemporaryDirectory(prefix="agv_loader_") as tmp:
-        source = Path(tmp) / "agv_fmu_loader.c"
-        source.write_text(source_text)
-        target = Path(tmp) / "loader.so"
-        command = [compiler, "-shared", "-fPIC", "-O2", "-Wall",
-                   "-fvisibility=default", f"-I{sysconfig.get_paths()['include']}",
-                   f"-I{fmi_headers}",
-                   f"-DAGV_PYTHON_EXECUTABLE={json.dumps(executable)}",
-                   f"-DAGV_LIBPYTHON={json.dumps(libpython)}",
-                   f"-DAGV_LIBPYTHON_SONAME={json.dumps(soname)}",
-                   f"-DAGV_MULTIARCH={json.dumps(multiarch)}",
-                   "-o", str(target), str(source), "-ldl", "-lpthread"]
-        done = subprocess.run(command, capture_output=True, text=True)
-        if done.returncode != 0:
-            raise BuildError("cannot build the FMU loader: "
-                             + (done.stderr.strip().splitlines() or ["gcc failed"])[-1])
-        return target.read_bytes()
+        for name, text in sources:
+            (Path(tmp) / name).write_text(text)
+        for name, libraries in ((LOADER_SOURCE.name, ["-ldl", "-lpthread"]),
+                                (BRIDGE_SOURCE, [])):
+            target = Path(tmp) / (Path(name).stem + ".so")
+            command = [compiler, "-shared", "-fPIC", "-O2", "-Wall", "-g0", "-s", "-DNDEBUG",
+                       f"-ffile-prefix-map={tmp}=.",
+                       f"-ffile-prefix-map={python_include}=python",
+                       f"-ffile-prefix-map={fmi_headers}=fmi", f"-I{python_include}",
+                       f"-I{fmi_headers}", "-o", str(target), str(Path(tmp) / name),
+                       *libraries]
+            done = subprocess.run(command, capture_output=True, text=True, cwd=tmp)
+            if done.returncode != 0:
+                raise BuildError(f"cannot build the FMU binary {name}: "
+                                 + (done.stderr.strip().splitlines() or ["gcc failed"])[-1])
+            built.append(target.read_bytes())
+    return tuple(built)
 
 
 def loader_binary():
-    """The FMU loader compiled for the building Python (cached per process)."""
-    python = host_python()
-    return _compile_loader(_loader_source().read_text(), python["executable"],
-                           python["libpython"], python["soname"], python["multiarch"])
+    """``(loader, bridge)``: the FMU binaries compiled for the building Python's version
+    (cached per process)."""
+    return _compile_binaries(tuple(sorted(_binary_sources().items())),
+                             sysconfig.get_paths()["include"])
 
 
-def _install_loader(fmu_path, loader):
-    """Put the loader in the FMU as its Linux binary, pythonfmu's library beside it."""
+def _install_loader(fmu_path, binaries, fmi_version=2):
+    """Put the loader in the FMU as its Linux binary and the bridge beside it; pythonfmu's
+    own Linux library is left out (the bridge takes its place)."""
+    loader, bridge = binaries
     with zipfile.ZipFile(fmu_path) as archive:
         entries = [(info, archive.read(info)) for info in archive.infolist()]
     identifier = _model_description(fmu_path).coSimulation.modelIdentifier
-    binary = f"binaries/linux64/{identifier}.so"
+    platform_dir = "x86_64-linux" if fmi_version == 3 else "linux64"
+    binary = f"binaries/{platform_dir}/{identifier}.so"
     if binary not in {info.filename for info, _ in entries}:
-        raise BuildError(f"{fmu_path.name}: pythonfmu wrote no {binary}")
+        raise BuildError(f"{fmu_path.name}: the FMI library wrote no {binary}")
     rewritten = fmu_path.with_suffix(".loader")
     with zipfile.ZipFile(rewritten, "w", zipfile.ZIP_DEFLATED) as archive:
         for info, data in entries:
             if info.filename == binary:
-                archive.writestr(binary[:-3] + WRAPPER_SUFFIX, data)
                 archive.writestr(binary, loader)
+                archive.writestr(binary[:-3] + BRIDGE_SUFFIX, bridge)
             else:
                 archive.writestr(info, data)
     rewritten.replace(fmu_path)
@@ -352,13 +367,13 @@ def _ship_reference(fmu_path):
 
 
 def fmu_guid(script, boot, tag, fmi_version=2):
-    """GUID of the FMU built from ``script``: a hash of all its sources and the tool chain."""
+    """GUID of the FMU built from ``script``: a hash of all its sources and the tool chain
+    (content only: the same sources give the same GUID wherever they are built)."""
     digest = hashlib.sha256()
-    python = host_python()
     parts = [script.name.encode(), script.read_bytes(), boot.read_bytes(), tag.encode(),
              pythonfmu.__version__.encode(), str(BUILD_FORMAT).encode(),
-             HOST_REQUIREMENTS.encode(), _loader_source().read_bytes(),
-             python["executable"].encode(), python["libpython"].encode()]
+             HOST_REQUIREMENTS.encode(), host_python()["version"].encode()]
+    parts += [text.encode() for _, text in sorted(_binary_sources().items())]
     if fmi_version == 3:  # FMI 2.0 GUIDs stay as they were
         import pythonfmu3
 
@@ -443,10 +458,9 @@ def _stage(script, core_dir, boot, tag, guid, stage_dir, fmi_version=2):
     if fmi_version == 3:
         (core_copy / "fmi" / "fmi_slave.py").write_text(FMI3_ALIAS)
     (core_copy / "BUILD_ID").write_text(tag + "\n")
-    python = host_python()
     info = {"guid": guid, "core_tag": tag, "script": script.name,
             "pythonfmu": pythonfmu.__version__, "build_format": BUILD_FORMAT,
-            "python": python["executable"], "libpython": python["libpython"]}
+            "python_version": host_python()["version"]}
     if fmi_version == 3:
         import pythonfmu3
 
@@ -539,8 +553,7 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_versi
             for module in [m for m in sys.modules
                            if m in own_modules or m.startswith("agv_core_")]:
                 del sys.modules[module]
-        if fmi_version == 2:
-            _install_loader(fmu_path, loader_binary())
+        _install_loader(fmu_path, loader_binary(), fmi_version)
         _validate(fmu_path, fmi_version)
         _ship_reference(fmu_path)
         target = out_dir / fmu_path.name

@@ -65,6 +65,8 @@ class SlaveLogic:
     _INPUT = _OUTPUT = _PARAMETER = _CONTINUOUS = _DISCRETE = _FIXED = _TUNABLE = None
     #: status of a logged error
     _ERROR = None
+    #: the Real getter and setter the bridge's fast path stands for (_fmi_real_access)
+    _FAST_METHODS = ()
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -250,6 +252,34 @@ class SlaveLogic:
         """Balance the wrapper's double release before an exception leaves (see
         pythonfmu_workarounds.py, entry 1)."""
         keep_for_pythonfmu(self)
+
+    # ------------------------------------------------------------------ fast Real access
+    def _map_real_names(self):
+        """Value reference -> attribute name of every Real that the library reads and
+        writes as a plain attribute of this slave (no nested name, not a constant, not an
+        array); also the value references of the inputs no output depends on directly."""
+        self._real_names = {vr: v.name for vr, v in self.vars.items()
+                            if isinstance(v, self._REAL) and "." not in v.name
+                            and getattr(v.variability, "name", None) != "constant"
+                            and not getattr(v, "dimensions", None)}
+        used = {d for deps in self._dependencies.values() for d in deps}
+        self._quiet_inputs = frozenset(vr for vr, v in self.vars.items()
+                                       if v.name in self._input_names
+                                       and v.name not in used)
+        return self._real_names
+
+    def _fmi_real_access(self):
+        """``(names, quiet)`` for the FMU bridge (components/fmu_loader/agv_fmu_bridge.c),
+        which then reads and writes these Reals without calling get/set methods.
+
+        ``names`` maps value references to the attributes that hold the values (floats);
+        ``quiet`` holds the inputs no output depends on directly. The bridge's contract,
+        the same as the FMI 2.0 adapter's ``get_real`` / ``set_real``: before a read, if
+        ``_stale`` is true or ``core`` is None, it calls ``_fresh_outputs()``; after
+        writing an input not in ``quiet`` it sets ``_stale`` true.
+        """
+        names = self._real_names or self._map_real_names()
+        return dict(names), self._quiet_inputs
 
     # ------------------------------------------------------------------ state
     def _get_fmu_state(self):
