@@ -98,6 +98,7 @@ typedef struct {
     PyObject *slave;
     PyObject *log_queue;  /* the slave's list of queued log messages */
     PyObject *do_step, *terminate, *setup_experiment, *enter_init, *exit_init;
+    PyObject *fresh_outputs; /* the Real fast path's refresh (bound method) */
     PyObject *get[N_KINDS], *set[N_KINDS];
 
     /* the Real fast path (see the file comment); NULL when the slave offers none */
@@ -298,7 +299,7 @@ static int get_reals(Instance *inst, const unsigned int *vr, size_t n, double *o
                 Py_DECREF(core);
             }
             if (refresh) {
-                PyObject *done = PyObject_CallMethodNoArgs(inst->slave, s_fresh_outputs);
+                PyObject *done = call0(inst->fresh_outputs);
                 if (done == NULL) return -1;
                 Py_DECREF(done);
             }
@@ -472,6 +473,7 @@ static void drop_slave(Instance *inst)
     Py_CLEAR(inst->setup_experiment);
     Py_CLEAR(inst->enter_init);
     Py_CLEAR(inst->exit_init);
+    Py_CLEAR(inst->fresh_outputs);
     if (inst->real_names != NULL) {
         for (size_t i = 0; i < inst->n_real_names; i++) Py_XDECREF(inst->real_names[i]);
         free(inst->real_names);
@@ -494,6 +496,11 @@ static int real_access(Instance *inst)
     if (access == Py_None) {
         Py_DECREF(access);
         return 0;
+    }
+    inst->fresh_outputs = PyObject_GetAttr(inst->slave, s_fresh_outputs);
+    if (inst->fresh_outputs == NULL) {
+        Py_DECREF(access);
+        return -1;
     }
     PyObject *names = NULL, *quiet = NULL;
     int ok = PyTuple_Check(access) && PyArg_ParseTuple(access, "O!O", &PyDict_Type, &names,

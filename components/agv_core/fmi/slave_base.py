@@ -185,9 +185,10 @@ class SlaveLogic:
         self._stale = False
 
     def do_step(self, current_time, step_size):
+        t, h = float(current_time), float(step_size)
         try:
-            self.advance(float(current_time), float(step_size))
-            self.time = float(current_time) + float(step_size)
+            self.advance(t, h)
+            self.time = t + h
             if self._lazy_step:
                 # outputs that depend on inputs are re-published after the master sets
                 # them anyway: publish once, at the next read (a read without a set
