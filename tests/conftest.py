@@ -64,3 +64,16 @@ def component_fmus(tmp_path_factory):
     out = session_folder(tmp_path_factory, "component_fmus", make)
     return {stem: out / name for stem, name in
             json.loads((out / "fmus.json").read_text()).items()}
+
+
+@pytest.fixture(scope="session")
+def twins(tmp_path_factory):
+    """Every component built as an FMI 3.0 twin; map script stem -> FMU path."""
+    def make(folder):
+        results = build_fmus(folder, slave_scripts(default_components_dir()), fmi_version=3)
+        (folder / "fmus.json").write_text(json.dumps(
+            {result.script.stem: result.fmu.name for result in results}))
+
+    out = session_folder(tmp_path_factory, "component_fmus3", make)
+    return {stem: out / name for stem, name in
+            json.loads((out / "fmus.json").read_text()).items()}

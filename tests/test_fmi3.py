@@ -128,14 +128,6 @@ def _child(code, *args):
 
 
 @pytest.fixture(scope="module")
-def twins(tmp_path_factory):
-    """Every component built as an FMI 3.0 twin; map script stem -> FMU path."""
-    out = tmp_path_factory.mktemp("fmus3")
-    results = build_fmus(out, slave_scripts(default_components_dir()), fmi_version=3)
-    return {result.script.stem: result.fmu for result in results}
-
-
-@pytest.fixture(scope="module")
 def pair_results(component_fmus, twins):
     pairs = {stem: [str(component_fmus[stem]), str(twins[stem])] for stem in SCRIPTS}
     return _child(_SIMULATE_PAIRS, json.dumps(pairs))

@@ -26,11 +26,14 @@
  *    None, is
  *    read and written without a Python call per value: names maps value references to
  *    the attributes that hold the values as floats, quiet lists the inputs no output
- *    depends on directly. Before a read, if the slave's _stale is true or its core is
- *    None, its _fresh_outputs() is called; after a write of an input not in quiet, _stale
- *    is set true. That is the contract of agv_core.fmi.slave_base.SlaveLogic, whose
+ *    depends on directly. Before a read, without a core the slave's _fresh_outputs() is
+ *    called, else with _stale true its publish() (errors to its _outputs_failed) and
+ *    _stale is set false; after a write of an input not in quiet, _stale is set true. That is the contract of agv_core.fmi.slave_base.SlaveLogic, whose
  *    get_real / set_real do the same in Python; any value reference not in names takes
  *    the slave's own get/set method.
+ *  - stepping: a slave whose _fmi_step_access() is true is stepped the way its do_step
+ *    would (advance, time, publish or a lazy mark; see SlaveLogic._fmi_step_access)
+ *    without the call of do_step itself; errors go to its _step_failed.
  *  - FMU state: the object _get_fmu_state() returns is the FMUstate (a reference held by
  *    the host until it frees it); serialisation uses the class's _fmu_state_to_bytes /
  *    _fmu_state_from_bytes.
@@ -59,7 +62,8 @@
 #define EXPORT2(name) __attribute__((visibility("default"))) agv_##name
 
 /* ------------------------------------------------------------------ interned names */
-static PyObject *s_stale, *s_core, *s_fresh_outputs, *s_status, *s_terminate_simulation;
+static PyObject *s_stale, *s_core, *s_fresh_outputs, *s_status, *s_terminate_simulation,
+    *s_time, *s_lazy_step, *s_step_failed, *s_outputs_failed;
 
 static int intern_names(void)
 {
@@ -69,7 +73,12 @@ static int intern_names(void)
     s_fresh_outputs = PyUnicode_InternFromString("_fresh_outputs");
     s_status = PyUnicode_InternFromString("status");
     s_terminate_simulation = PyUnicode_InternFromString("terminateSimulation");
-    return s_stale && s_core && s_fresh_outputs && s_status && s_terminate_simulation;
+    s_time = PyUnicode_InternFromString("time");
+    s_lazy_step = PyUnicode_InternFromString("_lazy_step");
+    s_step_failed = PyUnicode_InternFromString("_step_failed");
+    s_outputs_failed = PyUnicode_InternFromString("_outputs_failed");
+    return s_stale && s_core && s_fresh_outputs && s_status && s_terminate_simulation &&
+           s_time && s_lazy_step && s_step_failed && s_outputs_failed;
 }
 
 /* ------------------------------------------------------------------ instance */
@@ -99,6 +108,7 @@ typedef struct {
     PyObject *log_queue;  /* the slave's list of queued log messages */
     PyObject *do_step, *terminate, *setup_experiment, *enter_init, *exit_init;
     PyObject *fresh_outputs; /* the Real fast path's refresh (bound method) */
+    PyObject *advance, *publish; /* the step fast path's hooks (bound methods), or NULL */
     PyObject *get[N_KINDS], *set[N_KINDS];
 
     /* the Real fast path (see the file comment); NULL when the slave offers none */
@@ -281,28 +291,63 @@ static inline PyObject *real_name(Instance *inst, unsigned int vr)
     return vr < inst->n_real_names ? inst->real_names[vr] : NULL;
 }
 
+/* An exception (an Exception) from a hook goes to the slave's reporting method
+   (_step_failed(t, error) / _outputs_failed(error)), which logs it and raises; -1. */
+static int hook_failed(Instance *inst, PyObject *method, PyObject *time)
+{
+    if (!PyErr_ExceptionMatches(PyExc_Exception)) return -1;
+    PyObject *type, *value, *tb;
+    PyErr_Fetch(&type, &value, &tb);
+    PyErr_NormalizeException(&type, &value, &tb);
+    if (tb != NULL && value != NULL) PyException_SetTraceback(value, tb);
+    PyObject *result = time ? PyObject_CallMethodObjArgs(inst->slave, method, time, value, NULL)
+                            : PyObject_CallMethodObjArgs(inst->slave, method, value, NULL);
+    if (result != NULL) { /* it did not raise: keep the original exception */
+        Py_DECREF(result);
+        PyErr_Restore(type, value, tb);
+        return -1;
+    }
+    Py_XDECREF(type);
+    Py_XDECREF(value);
+    Py_XDECREF(tb);
+    return -1;
+}
+
+/* Before a read on the Real fast path: what SlaveLogic._fresh_outputs does (see
+   _fmi_real_access): without a core the slave's own method, else with stale outputs
+   publish() and _stale = False. 0, or -1 with a Python exception. */
+static int refresh_outputs(Instance *inst)
+{
+    PyObject *core = PyObject_GetAttr(inst->slave, s_core);
+    if (core == NULL) return -1;
+    int no_core = core == Py_None;
+    Py_DECREF(core);
+    PyObject *done;
+    if (no_core) {
+        done = call0(inst->fresh_outputs);
+    } else {
+        PyObject *stale = PyObject_GetAttr(inst->slave, s_stale);
+        if (stale == NULL) return -1;
+        int is_stale = PyObject_IsTrue(stale);
+        Py_DECREF(stale);
+        if (is_stale <= 0) return is_stale;
+        done = call0(inst->publish);
+        if (done == NULL) return hook_failed(inst, s_outputs_failed, NULL);
+        Py_DECREF(done);
+        return PyObject_SetAttr(inst->slave, s_stale, Py_False);
+    }
+    if (done == NULL) return -1;
+    Py_DECREF(done);
+    return 0;
+}
+
 static int get_reals(Instance *inst, const unsigned int *vr, size_t n, double *out)
 {
     if (inst->real_names != NULL) {
         size_t i = 0;
         while (i < n && real_name(inst, vr[i]) != NULL) i++;
         if (i == n) {
-            PyObject *stale = PyObject_GetAttr(inst->slave, s_stale);
-            if (stale == NULL) return -1;
-            int refresh = PyObject_IsTrue(stale);
-            Py_DECREF(stale);
-            if (refresh < 0) return -1;
-            if (!refresh) {
-                PyObject *core = PyObject_GetAttr(inst->slave, s_core);
-                if (core == NULL) return -1;
-                refresh = core == Py_None;
-                Py_DECREF(core);
-            }
-            if (refresh) {
-                PyObject *done = call0(inst->fresh_outputs);
-                if (done == NULL) return -1;
-                Py_DECREF(done);
-            }
+            if (refresh_outputs(inst) < 0) return -1;
             for (i = 0; i < n; i++) {
                 PyObject *value = PyObject_GetAttr(inst->slave, inst->real_names[vr[i]]);
                 if (value == NULL) return -1;
@@ -474,6 +519,8 @@ static void drop_slave(Instance *inst)
     Py_CLEAR(inst->enter_init);
     Py_CLEAR(inst->exit_init);
     Py_CLEAR(inst->fresh_outputs);
+    Py_CLEAR(inst->advance);
+    Py_CLEAR(inst->publish);
     if (inst->real_names != NULL) {
         for (size_t i = 0; i < inst->n_real_names; i++) Py_XDECREF(inst->real_names[i]);
         free(inst->real_names);
@@ -498,7 +545,8 @@ static int real_access(Instance *inst)
         return 0;
     }
     inst->fresh_outputs = PyObject_GetAttr(inst->slave, s_fresh_outputs);
-    if (inst->fresh_outputs == NULL) {
+    inst->publish = inst->fresh_outputs ? PyObject_GetAttrString(inst->slave, "publish") : NULL;
+    if (inst->fresh_outputs == NULL || inst->publish == NULL) {
         Py_DECREF(access);
         return -1;
     }
@@ -557,6 +605,23 @@ static int real_access(Instance *inst)
     return PyErr_Occurred() ? -1 : 0;
 }
 
+/* The step fast path the slave offers through _fmi_step_access(), if any. */
+static int step_access(Instance *inst)
+{
+    if (inst->publish == NULL || !PyObject_HasAttrString(inst->slave, "_fmi_step_access"))
+        return 0;
+    PyObject *allowed = PyObject_CallMethod(inst->slave, "_fmi_step_access", NULL);
+    if (allowed == NULL) return -1;
+    int yes = PyObject_IsTrue(allowed);
+    Py_DECREF(allowed);
+    if (yes < 0) return -1;
+    if (yes) {
+        inst->advance = PyObject_GetAttrString(inst->slave, "advance");
+        if (inst->advance == NULL) return -1;
+    }
+    return 0;
+}
+
 /* Create the slave object from inst->cls and look up its methods. */
 static int make_slave(Instance *inst)
 {
@@ -581,7 +646,8 @@ static int make_slave(Instance *inst)
         !inst->exit_init || !inst->log_queue) {
         return -1;
     }
-    return real_access(inst);
+    if (real_access(inst) < 0) return -1;
+    return step_access(inst);
 }
 
 /* A file URI (file:///a%20b/resources) or a path, as a path; malloc'ed. */
@@ -781,9 +847,41 @@ static int reset(Instance *inst, const char *what)
 
 /* do_step(t, h): 1 for a true result, 0 for false, -1 on an exception; for FMI 3.0 a
    result's status and terminateSimulation attributes when it has them. */
+/* What SlaveLogic.do_step does (see _fmi_step_access); 1, or -1 with an exception. */
+static int fast_step(Instance *inst, PyObject *t, PyObject *h, double end)
+{
+    PyObject *done = call2(inst->advance, t, h);
+    if (done == NULL) return hook_failed(inst, s_step_failed, t);
+    Py_DECREF(done);
+    PyObject *time = PyFloat_FromDouble(end);
+    if (time == NULL) return -1;
+    int failed_set = PyObject_SetAttr(inst->slave, s_time, time);
+    Py_DECREF(time);
+    if (failed_set < 0) return hook_failed(inst, s_step_failed, t);
+    PyObject *lazy = PyObject_GetAttr(inst->slave, s_lazy_step);
+    if (lazy == NULL) return -1;
+    int is_lazy = PyObject_IsTrue(lazy);
+    Py_DECREF(lazy);
+    if (is_lazy < 0) return -1;
+    if (is_lazy) return PyObject_SetAttr(inst->slave, s_stale, Py_True) < 0 ? -1 : 1;
+    done = call0(inst->publish);
+    if (done == NULL) return hook_failed(inst, s_step_failed, t);
+    Py_DECREF(done);
+    return PyObject_SetAttr(inst->slave, s_stale, Py_False) < 0 ? -1 : 1;
+}
+
 static int step(Instance *inst, double t, double h, int *status, int *terminate)
 {
     PyObject *a = PyFloat_FromDouble(t), *b = PyFloat_FromDouble(h);
+    if (inst->advance != NULL && a && b) {
+        *status = -1;
+        *terminate = 0;
+        int done = fast_step(inst, a, b, t + h);
+        Py_DECREF(a);
+        Py_DECREF(b);
+        if (done > 0) flush_log(inst);
+        return done;
+    }
     PyObject *result = (a && b) ? call2(inst->do_step, a, b) : NULL;
     Py_XDECREF(a);
     Py_XDECREF(b);

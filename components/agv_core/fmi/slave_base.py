@@ -197,9 +197,13 @@ class SlaveLogic:
                 return True
             self.publish()
         except Exception as error:  # noqa: BLE001 - reported to the host, then re-raised
-            self._fail(f"step at t={current_time:.9g} s failed: {type(error).__name__}: {error}")
+            self._step_failed(t, error)
         self._stale = False
         return True
+
+    def _step_failed(self, t, error):
+        """Report ``error`` from the step that starts at ``t`` [s] and raise."""
+        self._fail(f"step at t={t:.9g} s failed: {type(error).__name__}: {error}")
 
     def _guarded(self, call, *args):
         try:
@@ -222,9 +226,12 @@ class SlaveLogic:
             try:
                 self.publish()
             except Exception as error:  # noqa: BLE001 - reported to the host, then re-raised
-                self._fail(f"outputs at t={self.time:.9g} s failed: "
-                           f"{type(error).__name__}: {error}")
+                self._outputs_failed(error)
             self._stale = False
+
+    def _outputs_failed(self, error):
+        """Report ``error`` from a publication of the outputs and raise."""
+        self._fail(f"outputs at t={self.time:.9g} s failed: {type(error).__name__}: {error}")
 
     def _initial_outputs(self):
         """Outputs in initialisation mode, from the parameters and inputs set so far.
@@ -281,6 +288,14 @@ class SlaveLogic:
         """
         names = self._real_names or self._map_real_names()
         return dict(names), self._quiet_inputs
+
+    def _fmi_step_access(self):
+        """True if the FMU bridge may step this slave without calling ``do_step``: it then
+        does what :meth:`do_step` does (``advance(t, h)``, ``time = t + h``, then with
+        ``_lazy_step`` ``_stale = True``, else ``publish()`` and ``_stale = False``; an
+        exception from either goes to ``_step_failed(t, error)``). False when a subclass
+        overrides ``do_step``."""
+        return type(self).do_step is SlaveLogic.do_step
 
     # ------------------------------------------------------------------ state
     def _get_fmu_state(self):
