@@ -124,7 +124,8 @@ def run_fmusim(fmusim, fmu, folder, *options, valgrind=None):
     done = subprocess.run([*(valgrind or []), *command], capture_output=True, text=True,
                           env=HOST_ENV, timeout=1800)
     table = None
-    if done.returncode == 0 and output.is_file():
+    # under valgrind, 99 is valgrind's status for reported errors (the caller sorts them)
+    if done.returncode in ((0, 99) if valgrind else (0,)) and output.is_file():
         with output.open() as handle:
             rows = list(csv.reader(handle))
         header = [h.strip('"') for h in rows[0]]
@@ -204,14 +205,13 @@ def _valgrind_errors(log):
     return [r for r in errors if not KNOWN.search(r)]
 
 
-@pytest.mark.parametrize("kind,name", [("fmi3", "agv_fixed_pd"), ("fmi2", "agv_vehicle")])
-def test_fmusim_exits_clean_under_valgrind(fmusim, component_fmus, twins, kind, name,
-                                           tmp_path):
+def test_fmusim_exits_clean_under_valgrind(fmusim, twins, tmp_path):
     """The FMI 3.0 fixed-gain PD crashed fmusim at exit with pythonfmu3's own binary; now
-    neither it nor an FMI 2.0 FMU leaves an error at exit (0.2 s of its experiment)."""
+    it leaves no error (0.2 s of its experiment; one FMU, since valgrind takes a minute
+    or two: benchmarks/check_exit_valgrind.py checks more)."""
     if shutil.which("valgrind") is None:
         _unavailable("valgrind is not installed (`make test-deps`)")
-    fmu = (component_fmus if kind == "fmi2" else twins)[name]
+    fmu = twins["agv_fixed_pd"]
     log = tmp_path / "valgrind.log"
     valgrind = ["valgrind", "--error-exitcode=99", f"--log-file={log}",
                 "--errors-for-leak-kinds=none"]
