@@ -12,7 +12,8 @@
  * the loader looks them up by those names and forwards the host's calls unchanged.
  *
  * What it does per instance:
- *  - instantiation: puts the FMU's resources folder first on sys.path, imports the slave
+ *  - instantiation: puts the FMU's resources folder first on sys.path (and a standalone
+ *    FMU's packages last, if the interpreter is not the FMU's own), imports the slave
  *    module named in resources/slavemodule.txt (re-executing it if an earlier instance
  *    imported it, so that it binds to this FMU's files), takes the one class the module
  *    defines that has a do_step method, and creates the slave with the keyword arguments
@@ -45,13 +46,18 @@
  *  - fmi3EnterInitializationMode calls setup_experiment(startTime) before
  *    enter_initialization_mode(), as fmi2SetupExperiment does in FMI 2.0.
  */
+#define _GNU_SOURCE
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 
+#include <dlfcn.h>
+#include <libgen.h>
+#include <limits.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 #include "fmi2FunctionTypes.h"
 #define FMI3_FUNCTION_PREFIX agv_
@@ -682,6 +688,27 @@ static char *resource_path(const char *location)
     return path;
 }
 
+/* A standalone FMU's packages (python/lib/python3.X/site-packages beside this library)
+   appended to sys.path when they are not on it: the interpreter is then the host's (its
+   packages come first), and the FMU's fill in what the host lacks. 0, or -1. */
+static int add_own_packages(PyObject *sys_path)
+{
+    Dl_info info;
+    if (!dladdr((void *)&add_own_packages, &info) || info.dli_fname == NULL) return 0;
+    char copy[PATH_MAX], packages[PATH_MAX + 64];
+    snprintf(copy, sizeof copy, "%s", info.dli_fname);
+    snprintf(packages, sizeof packages, "%s/python/lib/python%d.%d/site-packages",
+             dirname(copy), PY_MAJOR_VERSION, PY_MINOR_VERSION);
+    struct stat status;
+    if (stat(packages, &status) != 0 || !S_ISDIR(status.st_mode)) return 0;
+    PyObject *folder = PyUnicode_DecodeFSDefault(packages);
+    if (folder == NULL) return -1;
+    int present = PySequence_Contains(sys_path, folder);
+    int done = present != 0 ? present : PyList_Append(sys_path, folder);
+    Py_DECREF(folder);
+    return done < 0 ? -1 : 0;
+}
+
 /* Import (or re-execute) the slave module of `resources`; the slave class. New ref. */
 static PyObject *slave_class(const char *resources)
 {
@@ -709,6 +736,7 @@ static PyObject *slave_class(const char *resources)
         return NULL;
     }
     Py_DECREF(folder);
+    if (add_own_packages(sys_path) < 0) return NULL;
 
     PyObject *modules = PyImport_GetModuleDict(); /* borrowed */
     PyObject *loaded = PyDict_GetItemString(modules, module_name);

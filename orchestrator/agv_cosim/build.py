@@ -366,7 +366,7 @@ def _ship_reference(fmu_path):
             archive.writestr(f"{REFERENCE_DIR}/{name}", data)
 
 
-def fmu_guid(script, boot, tag, fmi_version=2):
+def fmu_guid(script, boot, tag, fmi_version=2, standalone=False):
     """GUID of the FMU built from ``script``: a hash of all its sources and the tool chain
     (content only: the same sources give the same GUID wherever they are built)."""
     digest = hashlib.sha256()
@@ -378,6 +378,12 @@ def fmu_guid(script, boot, tag, fmi_version=2):
         import pythonfmu3
 
         parts += [b"fmi3", pythonfmu3.__version__.encode(), FMI3_ALIAS.encode()]
+    if standalone:
+        from . import standalone as assembly
+        from .standalone import environment_tag
+
+        parts += [b"standalone", environment_tag().encode(),
+                  Path(assembly.__file__).read_bytes()]
     for part in parts:
         digest.update(part + b"\0")
     return str(uuid.UUID(digest.hexdigest()[:32]))
@@ -494,9 +500,12 @@ def _fmi_version_of(fmu_path):
         return None
 
 
-def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_version=2):
+def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_version=2,
+              standalone=False):
     """Build the FMU (FMI ``fmi_version``) of one slave script into ``out_dir``.
 
+    ``standalone`` adds a Python runtime with the packages the slave imports
+    (agv_cosim.standalone), so that the FMU needs no Python on the machine that runs it.
     Skipped if up to date. An FMU of the other FMI version of the same name in
     ``out_dir`` is never replaced (BuildError): the twins go into separate folders.
     """
@@ -511,7 +520,7 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_versi
     tag = core_tag(core_dir)
     if fmi_version == 3:
         tag = fmi3_core_tag(tag)
-    guid = fmu_guid(script, boot, tag, fmi_version)
+    guid = fmu_guid(script, boot, tag, fmi_version, standalone)
     index = {} if index is None else index
     known = index.get(script.name)
     if not force and known and fmu_guid_of(out_dir / known) == guid:
@@ -556,6 +565,13 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_versi
         _install_loader(fmu_path, loader_binary(), fmi_version)
         _validate(fmu_path, fmi_version)
         _ship_reference(fmu_path)
+        if standalone:
+            from .standalone import StandaloneError, add_runtime
+
+            try:
+                add_runtime(fmu_path, "x86_64-linux" if fmi_version == 3 else "linux64")
+            except StandaloneError as error:
+                raise BuildError(f"{script.name}: standalone runtime: {error}") from None
         target = out_dir / fmu_path.name
         other = _fmi_version_of(target) if target.exists() else None
         if other is not None and other != f"{fmi_version}.0":
@@ -568,10 +584,11 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_versi
     return BuildResult(script, target, guid, rebuilt=True)
 
 
-def build_fmus(out_dir, scripts=None, force=False, fmi_version=2):
+def build_fmus(out_dir, scripts=None, force=False, fmi_version=2, standalone=False):
     """Build every slave script (or ``scripts``) into ``out_dir``; return the results.
 
-    ``fmi_version`` 3 builds the FMI 3.0 twins (see the module docstring).
+    ``fmi_version`` 3 builds the FMI 3.0 twins (see the module docstring); ``standalone``
+    FMUs carry their own Python runtime (:func:`build_one`).
     """
     out_dir = Path(out_dir)
     scripts = slave_scripts(default_components_dir()) if scripts is None else scripts
@@ -584,7 +601,7 @@ def build_fmus(out_dir, scripts=None, force=False, fmi_version=2):
     try:
         for script in scripts:
             results.append(build_one(script, out_dir, force=force, index=index,
-                                     fmi_version=fmi_version))
+                                     fmi_version=fmi_version, standalone=standalone))
     finally:
         out_dir.mkdir(parents=True, exist_ok=True)
         index_path.write_text(json.dumps(index, indent=1, sort_keys=True) + "\n")
