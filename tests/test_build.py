@@ -25,6 +25,33 @@ def test_unchanged_rebuild_is_skipped_and_keeps_the_guid(tmp_path):
     assert forced.guid == first.guid  # the GUID comes from the sources, not the clock
 
 
+def test_the_guid_and_the_binaries_do_not_depend_on_where_the_fmu_is_built(tmp_path):
+    """The same sources copied elsewhere, built into another folder, from another working
+    directory: the same GUID and the same loader and bridge bytes, and neither the
+    checkout's nor the venv's path in any file of the FMU."""
+    here = build_one(VEHICLE, tmp_path / "a")
+    copy = tmp_path / "elsewhere" / "components"
+    shutil.copytree(default_components_dir(), copy,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    code = ("import sys\nfrom agv_cosim.build import build_one\n"
+            "print(build_one(sys.argv[1], sys.argv[2], core_dir=sys.argv[3]).guid)\n")
+    done = subprocess.run([sys.executable, "-c", code,
+                           str(copy / "agv_core" / "vehicle" / "agv_vehicle.py"),
+                           str(tmp_path / "b" / "deeper"), str(copy / "agv_core")],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split()[-1] == here.guid
+    there = tmp_path / "b" / "deeper" / here.fmu.name
+    with zipfile.ZipFile(here.fmu) as a, zipfile.ZipFile(there) as b:
+        for name in ("binaries/linux64/AgvVehicle.so", "binaries/linux64/AgvVehicle.bridge.so"):
+            assert a.read(name) == b.read(name), name
+        contents = {info.filename: a.read(info) for info in a.infolist()}
+    machine = [str(default_components_dir().parent).encode(), sys.prefix.encode(),
+               sys.base_prefix.encode()]
+    assert not [(name, path) for name, data in contents.items() for path in machine
+                if path in data]
+
+
 def test_changed_source_changes_the_guid(tmp_path):
     original = build_one(VEHICLE, tmp_path / "a")
     core = tmp_path / "core"
