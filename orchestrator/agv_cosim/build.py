@@ -10,13 +10,14 @@ every source that goes into the FMU. A rebuild with unchanged sources is skipped
 GUID already matches), and a built FMU that ``fmpy.validation`` finds fault with fails the
 build.
 
-pythonfmu's Linux binary needs a Python already in the host process and corrupts the heap
-at exit. The build therefore compiles ``components/fmu_loader/agv_fmu_loader.c`` (gcc, the
-build Python's headers, fmpy's FMI 2.0 headers) into each FMU as
-``binaries/linux64/<modelIdentifier>.so`` and ships pythonfmu's library beside it as
-``<modelIdentifier>.pythonfmu.so``: the loader starts the build's Python in hosts that have
-none (or the one named by ``AGV_COSIM_PYTHON``), forwards the FMI calls, and unloads the
-wrapper cleanly (see the C source for why and how).
+pythonfmu writes the model description; its Linux binary is not shipped. The build
+compiles ``components/fmu_loader/agv_fmu_loader.c`` (the loader: finds or starts a
+Python, no Python symbol of its own) and ``agv_fmu_bridge.c`` (the FMI 2.0 and 3.0 C API
+over the Python slave) with gcc, the build Python's headers and fmpy's FMI headers, from a
+temporary folder, and puts them into each FMU as ``binaries/<platform>/<modelIdentifier>.so``
+and ``<modelIdentifier>.bridge.so`` (see the C sources for how a Python is found). Neither
+holds a path of this machine; the GUID hashes contents only. ``standalone=True`` adds a
+Python runtime (agv_cosim.standalone).
 
 ``fmi_version=3`` builds the FMI 3.0 twin of each slave script with pythonfmu3 instead
 (``agv-cosim build --fmi 3``): the same slave script and core, run on the FMI 3.0 adapter
@@ -25,9 +26,8 @@ names ``Fmi3Slave``, so the build bundles the slave script unchanged under the n
 ``<stem>_fmi3_body.py`` and writes a two-line wrapper script ``<stem>_fmi3.py`` whose class
 derives from the script's class and names ``Fmi3Slave``. The bundled ``agv_core`` has
 ``fmi/fmi_slave.py`` as an alias of ``fmi/fmi3_slave.py`` (and a BUILD_ID of its own), so
-the script's ``core.fmi.fmi_slave.AgvSlave`` is the FMI 3.0 adapter. FMI 3.0 twins ship
-pythonfmu3's own binary: the C loader speaks FMI 2.0 only, so they need a host with Python in
-its process (see docs/using-the-fmus.md).
+the script's ``core.fmi.fmi_slave.AgvSlave`` is the FMI 3.0 adapter. FMI 3.0 twins get the
+same loader and bridge as the FMI 2.0 FMUs.
 """
 
 import ast
