@@ -144,7 +144,8 @@ def main(argv=None):
         md = fmpy.read_model_description(str(loader[1]))
         outputs = ",".join(str(v.valueReference) for v in md.modelVariables
                            if v.causality == "output")
-        env = {"PATH": "/usr/bin:/bin",
+        # a C program's environment with this Python's venv active (how the FMU finds it)
+        env = {"PATH": "/usr/bin:/bin", "VIRTUAL_ENV": sys.prefix,
                **{k: v for k, v in os.environ.items() if k.startswith("OPENBLAS_")}}
         total, ours, code = valgrind([str(host), folder, md.coSimulation.modelIdentifier,
                                       md.guid, "0.2", "0.01", outputs], env=env)
