@@ -7,7 +7,12 @@ STAMP  := $(VENV)/.installed
 # are kept whole on one worker (--dist loadfile) so a file's module fixtures run once.
 JOBS   ?= 2
 
-.PHONY: run test test-fast fmus venv clean
+.PHONY: run test test-fast test-deps fmus venv clean
+
+# Debian packages the interop tests build and run their hosts with (fmusim: libxml2,
+# minizip, sundials; valgrind), installed with apt-get when missing (as root; otherwise
+# the missing ones are named, and those tests skip on a developer machine).
+TEST_DEBS := libxml2-dev libminizip-dev libsundials-dev valgrind
 
 $(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -24,7 +29,17 @@ run: fmus
 	$(BIN)/agv-cosim run experiments/seed000_models_abc.toml --out results/seed000_models_abc
 	@echo "plots: results/seed000_models_abc/*.png"
 
-test: fmus
+test-deps:
+	@missing=$$(for p in $(TEST_DEBS); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
+	if [ -z "$$missing" ]; then exit 0; fi; \
+	if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+		echo "installing" $$missing; \
+		apt-get install -y -q -o DPkg::Lock::Timeout=300 --no-install-recommends $$missing \
+		|| { apt-get update -q -o DPkg::Lock::Timeout=300 && \
+		     apt-get install -y -q -o DPkg::Lock::Timeout=300 --no-install-recommends $$missing; }; \
+	else echo "missing Debian packages (install as root):" $$missing; fi
+
+test: fmus test-deps
 	$(BIN)/python -m pytest -q -n $(JOBS) --dist loadfile
 
 # The fast tier: every test not marked slow (no seed reproductions, no interop checks).

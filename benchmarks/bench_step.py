@@ -34,7 +34,15 @@ its floor. Every child also returns a digest of its recording: the four must be 
 (bit-identical results, and proof that every side did the same work), or the script says
 so and exits with status 1.
 
-Run: ``python benchmarks/bench_step.py [--old 14af212] [--repeats 5] [--stop 10]``.
+``--callgrind`` counts instructions instead (valgrind's callgrind, one child per kind):
+the instrumentation is switched on at the first recorded row and off at the last (a tiny
+library compiled here issues callgrind's client requests), so the count is the macro
+steps' and nothing else. Instruction counts do not depend on the machine's load, which
+the times on a shared machine do; the script prints instructions per macro step and the
+same ratios.
+
+Run: ``python benchmarks/bench_step.py [--old 14af212] [--repeats 5] [--stop 10]
+[--callgrind]``.
 """
 
 import argparse
@@ -234,17 +242,76 @@ def run_child(kind, manifest, env):
     return result
 
 
+# ------------------------------------------------------------------------ callgrind
+CALLGRIND_CONTROL = r"""
+#include <valgrind/callgrind.h>
+void agv_bench_start(void) { CALLGRIND_ZERO_STATS; CALLGRIND_START_INSTRUMENTATION; }
+void agv_bench_stop(void) { CALLGRIND_STOP_INSTRUMENTATION; CALLGRIND_DUMP_STATS; }
+"""
+
+
+def _instrumented_time(library, rows):
+    """A stand-in for the ``time`` module whose ``perf_counter`` switches callgrind's
+    instrumentation on at the first recorded row and off at row ``rows``."""
+    import ctypes
+
+    control = ctypes.CDLL(library)
+    real = time  # the module (the caller then rebinds the name ``time`` to Clock)
+
+    class Clock:
+        calls = 0
+
+        @staticmethod
+        def perf_counter():
+            Clock.calls += 1
+            if Clock.calls == 1:
+                control.agv_bench_start()
+            elif Clock.calls == rows:
+                control.agv_bench_stop()
+            return real.perf_counter()
+
+        process_time = staticmethod(real.process_time)
+
+    return Clock
+
+
+def run_callgrind(kind, manifest, env, library, stop, folder):
+    """Instructions per macro step of one child under callgrind."""
+    steps = int(round(stop / 0.001))
+    rows = steps // 10 + 1
+    out = folder / f"callgrind.{kind}.{abs(hash(str(manifest)))}"
+    for old in folder.glob(out.name + "*"):
+        old.unlink()
+    command = ["valgrind", "--tool=callgrind", "--instr-atstart=no",
+               f"--callgrind-out-file={out}", sys.executable, __file__, "--child", kind,
+               str(manifest), "--instrument", library, str(rows)]
+    subprocess.run(command, check=True, capture_output=True, text=True, env=env,
+                   cwd=str(Path(manifest).parent))
+    totals = [int(line.split()[1]) for dump in folder.glob(out.name + ".*")
+              for line in dump.read_text().splitlines() if line.startswith("totals:")]
+    if not totals or max(totals) == 0:
+        raise SystemExit(f"callgrind counted nothing for {kind} ({manifest})")
+    return max(totals) / steps
+
+
 # ------------------------------------------------------------------------ main
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--old", default="14af212", help="git revision of the old code")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--stop", type=float, default=10.0, help="simulated time [s]")
+    parser.add_argument("--callgrind", action="store_true",
+                        help="count instructions per macro step (valgrind) instead of times")
     parser.add_argument("--child", nargs=2, metavar=("KIND", "MANIFEST"),
+                        help=argparse.SUPPRESS)
+    parser.add_argument("--instrument", nargs=2, metavar=("LIBRARY", "ROWS"),
                         help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
         kind, manifest = args.child
+        if args.instrument:
+            global time
+            time = _instrumented_time(args.instrument[0], int(args.instrument[1]))
         result = (child_orchestrator if kind == "orchestrator" else child_floor)(manifest)
         print(json.dumps(result))
         return 0
@@ -262,6 +329,23 @@ def main(argv=None):
             envs[side] = env_for(tree)
         keys = [("old", "orchestrator"), ("new", "orchestrator"), ("old", "floor"),
                 ("new", "floor")]
+        if args.callgrind:
+            library = tmp / "callgrind_control.so"
+            (tmp / "callgrind_control.c").write_text(CALLGRIND_CONTROL)
+            subprocess.run(["gcc", "-shared", "-fPIC", "-O2", "-o", str(library),
+                            str(tmp / "callgrind_control.c")], check=True)
+            counts = {key: run_callgrind(key[1], manifests[key[0]], envs[key[0]],
+                                         str(library), args.stop, tmp) for key in keys}
+            print(f"seed-000 model a, instructions per macro step (callgrind), "
+                  f"{args.stop:g} s simulated; old = {args.old}, new = this checkout")
+            for key in keys:
+                print(f"  {key[0]:3s} {key[1]:12s} {counts[key]:10.0f}")
+            for side in ("old", "new"):
+                print(f"{side} orchestrator / {side} floor: "
+                      f"{counts[(side, 'orchestrator')] / counts[(side, 'floor')]:.3f}")
+            print(f"old / new orchestrator: "
+                  f"{counts[('old', 'orchestrator')] / counts[('new', 'orchestrator')]:.2f}x")
+            return 0
         results = {key: [] for key in keys}
         print(f"seed-000 model a, 1 ms, record every 10th step, {args.stop:g} s simulated "
               f"= {int(round(args.stop / 0.001))} steps; old = {args.old}, new = this "

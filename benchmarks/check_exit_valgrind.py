@@ -3,18 +3,18 @@
 Two builds of the same FMUs are compared:
 
 loader
-    the FMUs as ``agv-cosim build`` makes them (components/fmu_loader as the binary);
+    the FMUs as ``agv-cosim build`` makes them (components/fmu_loader: the loader and the
+    bridge that implements the FMI API over the slave);
 pythonfmu only
     the same FMUs with pythonfmu's own library put back as the binary (how pythonfmu 0.7
     ships them): the "before".
 
-and two of the FMI 3.0 twins (``agv-cosim build --fmi 3``, pythonfmu3's own library):
+and two of the FMI 3.0 twins (``agv-cosim build --fmi 3``):
 
 FMI 3.0 twin
-    as built (the adapter calls the library's ``finalizePythonInterpreter`` from Python's
-    ``atexit``, agv_core/fmi/pythonfmu_workarounds.py);
-FMI 3.0 twin, no exit hook
-    the same twins with that call taken out of the bundled adapter: the "before".
+    as built (the same loader and bridge);
+FMI 3.0 twin, pythonfmu3 only
+    the same twins with pythonfmu3's own library as the binary: the "before".
 
 Hosts: (1) a Python host (fmpy: ``simulate_fmu`` of the vehicle and of the preview
 controller, which imports scipy, then a normal interpreter exit); (2) the plain C host of
@@ -63,36 +63,26 @@ LOADER_READ_AHEAD = re.compile(r"strncmp.*\n(.*\n)*?.*(is_dst|_dl_dst_count|_dl_
 AT_EXIT = re.compile(r"_dl_fini|__run_exit_handlers|__cxa_finalize")
 
 
-def pythonfmu_only(fmu, out):
-    """A copy of ``fmu`` whose Linux binary is pythonfmu's own library again."""
-    target = Path(out) / Path(fmu).name
-    with zipfile.ZipFile(fmu) as source, zipfile.ZipFile(target, "w",
-                                                         zipfile.ZIP_DEFLATED) as copy:
-        names = source.namelist()
-        for name in names:
-            if name.endswith(".pythonfmu.so"):
-                continue
-            data = source.read(name)
-            wrapper = name[:-3] + ".pythonfmu.so"
-            if name.startswith("binaries/linux64/") and wrapper in names:
-                data = source.read(wrapper)
-            copy.writestr(name, data)
-    return target
-
-
-def without_exit_hook(fmu, out):
-    """A copy of FMI 3.0 twin ``fmu`` whose adapter registers no exit hook."""
+def library_only(fmu, out, fmi_version):
+    """A copy of ``fmu`` whose Linux binary is pythonfmu's (FMI 2.0) or pythonfmu3's
+    (FMI 3.0) own library again, as those packages ship FMUs (the bridge left out)."""
+    if fmi_version == 3:
+        import pythonfmu3 as package
+        platform_dir = "x86_64-linux"
+    else:
+        import pythonfmu as package
+        platform_dir = "linux64"
+    library = (Path(package.__file__).parent / "resources" / "binaries" / platform_dir /
+               "libpythonfmu-export.so").read_bytes()
     target = Path(out) / Path(fmu).name
     with zipfile.ZipFile(fmu) as source, zipfile.ZipFile(target, "w",
                                                          zipfile.ZIP_DEFLATED) as copy:
         for name in source.namelist():
+            if name.endswith(".bridge.so"):
+                continue
             data = source.read(name)
-            if name == "resources/agv_core/fmi/fmi3_slave.py":
-                patched = data.replace(b"finalize_at_exit(self.resources, self.modelName)",
-                                       b"pass")
-                if patched == data:
-                    sys.exit("check_exit_valgrind: the FMI 3.0 adapter's exit hook moved")
-                data = patched
+            if name.startswith(f"binaries/{platform_dir}/") and name.endswith(".so"):
+                data = library
             copy.writestr(name, data)
     return target
 
@@ -125,13 +115,13 @@ def main(argv=None):
         tmp = Path(tmp)
         loader = [build_one(slave_script(name), tmp / "loader").fmu for name in FMUS]
         (tmp / "plain").mkdir()
-        plain = [pythonfmu_only(fmu, tmp / "plain") for fmu in loader]
+        plain = [library_only(fmu, tmp / "plain", 2) for fmu in loader]
         twins = [build_one(slave_script(name), tmp / "fmi3", fmi_version=3).fmu
                  for name in FMUS]
         (tmp / "fmi3_plain").mkdir()
-        twins_plain = [without_exit_hook(fmu, tmp / "fmi3_plain") for fmu in twins]
+        twins_plain = [library_only(fmu, tmp / "fmi3_plain", 3) for fmu in twins]
         builds = (("pythonfmu only", plain), ("loader", loader),
-                  ("FMI 3.0 twin, no exit hook", twins_plain), ("FMI 3.0 twin", twins))
+                  ("FMI 3.0 twin, pythonfmu3 only", twins_plain), ("FMI 3.0 twin", twins))
         script = tmp / "host.py"
         script.write_text(PYTHON_HOST)
 
@@ -154,7 +144,8 @@ def main(argv=None):
         md = fmpy.read_model_description(str(loader[1]))
         outputs = ",".join(str(v.valueReference) for v in md.modelVariables
                            if v.causality == "output")
-        env = {"PATH": "/usr/bin:/bin",
+        # a C program's environment with this Python's venv active (how the FMU finds it)
+        env = {"PATH": "/usr/bin:/bin", "VIRTUAL_ENV": sys.prefix,
                **{k: v for k, v in os.environ.items() if k.startswith("OPENBLAS_")}}
         total, ours, code = valgrind([str(host), folder, md.coSimulation.modelIdentifier,
                                       md.guid, "0.2", "0.01", outputs], env=env)

@@ -25,6 +25,33 @@ def test_unchanged_rebuild_is_skipped_and_keeps_the_guid(tmp_path):
     assert forced.guid == first.guid  # the GUID comes from the sources, not the clock
 
 
+def test_the_guid_and_the_binaries_do_not_depend_on_where_the_fmu_is_built(tmp_path):
+    """The same sources copied elsewhere, built into another folder, from another working
+    directory: the same GUID and the same loader and bridge bytes, and neither the
+    checkout's nor the venv's path in any file of the FMU."""
+    here = build_one(VEHICLE, tmp_path / "a")
+    copy = tmp_path / "elsewhere" / "components"
+    shutil.copytree(default_components_dir(), copy,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    code = ("import sys\nfrom agv_cosim.build import build_one\n"
+            "print(build_one(sys.argv[1], sys.argv[2], core_dir=sys.argv[3]).guid)\n")
+    done = subprocess.run([sys.executable, "-c", code,
+                           str(copy / "agv_core" / "vehicle" / "agv_vehicle.py"),
+                           str(tmp_path / "b" / "deeper"), str(copy / "agv_core")],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split()[-1] == here.guid
+    there = tmp_path / "b" / "deeper" / here.fmu.name
+    with zipfile.ZipFile(here.fmu) as a, zipfile.ZipFile(there) as b:
+        for name in ("binaries/linux64/AgvVehicle.so", "binaries/linux64/AgvVehicle.bridge.so"):
+            assert a.read(name) == b.read(name), name
+        contents = {info.filename: a.read(info) for info in a.infolist()}
+    machine = [str(default_components_dir().parent).encode(), sys.prefix.encode(),
+               sys.base_prefix.encode()]
+    assert not [(name, path) for name, data in contents.items() for path in machine
+                if path in data]
+
+
 def test_changed_source_changes_the_guid(tmp_path):
     original = build_one(VEHICLE, tmp_path / "a")
     core = tmp_path / "core"
@@ -60,30 +87,34 @@ def test_a_module_the_fmu_does_not_ship_leaves_its_guid(tmp_path):
     assert build_one(VEHICLE, tmp_path / "out", core_dir=core).guid != original.guid
 
 
-def test_two_builds_of_one_fmu_in_a_process_are_refused_clearly(tmp_path):
-    """pythonfmu loads a slave module once per process: the second build must not run
-    silently with the first one's code."""
+def test_two_builds_of_one_fmu_in_a_process_each_run_their_own_code(tmp_path):
+    """A slave module is imported once per process by its file name; the FMU bridge
+    executes it again for every instance, from that FMU's own folder, so a second build
+    of the same slave script (here one whose vehicle drifts 1 m in x per step) runs its
+    own code, and the first build, instantiated again afterwards, its own."""
     old = build_one(VEHICLE, tmp_path / "old").fmu
     core = tmp_path / "core"
     shutil.copytree(default_components_dir() / "agv_core", core,
                     ignore=shutil.ignore_patterns("__pycache__"))
     with open(core / "vehicle" / "vehicle.py", "a") as handle:
-        handle.write("\n# another build\n")
+        handle.write("\n\n_step = Vehicle.step\n\n\n"
+                     "def _drifting(self, *args):\n"
+                     "    _step(self, *args)\n"
+                     "    self.x += 1.0\n\n\n"
+                     "Vehicle.step = _drifting\n")
     new = build_one(VEHICLE, tmp_path / "new", core_dir=core).fmu
     code = (
         "import fmpy\n"
-        "def log(c, i, status, category, message): print(message.decode())\n"
-        f"fmpy.simulate_fmu({str(old)!r}, stop_time=0.1)\n"
-        "try:\n"
-        f"    fmpy.simulate_fmu({str(new)!r}, stop_time=0.1, logger=log, debug_logging=True)\n"
-        "except Exception as error:\n"
-        "    print('refused:', error)\n"
+        "for path in [" + ", ".join(repr(str(p)) for p in (old, new, old)) + "]:\n"
+        "    result = fmpy.simulate_fmu(path, stop_time=0.1, step_size=0.01)\n"
+        "    print(repr(float(result['x'][-1])))\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=120)
     assert done.returncode == 0, done.stderr
-    assert "refused:" in done.stdout
-    assert "another build" in done.stdout + done.stderr
+    first, second, third = (float(x) for x in done.stdout.split())
+    assert third == first
+    assert second == pytest.approx(first + 10.0, abs=1e-9)  # 10 steps, 1 m each
 
 
 def test_bad_parameter_fails_initialisation_naming_it(tmp_path):

@@ -336,3 +336,25 @@ def test_orchestrator_runs_fmi2_fmi3_and_mixed_loops_bit_identically(component_f
     assert first["act.alpha"] != last["act.alpha"]
     assert series["fmi3"] == series["fmi2"]
     assert series["mixed"] == series["fmi2"]
+
+
+def test_annotations_stand_where_the_fmi3_schema_puts_them(twins):
+    """FMI 3.0's fmi3ModelDescription.xsd puts <Annotations> last in fmiModelDescription,
+    after ModelStructure: our twins do, and validate. (The FMI Library's FMI 3 parser
+    rejecting it there is that parser's error.) The same document with Annotations
+    moved first does not validate, so the check can fail."""
+    from pathlib import Path
+
+    import fmpy
+    from lxml import etree
+
+    schema = etree.XMLSchema(etree.parse(str(Path(fmpy.__file__).parent / "schema" / "fmi3" /
+                                             "fmi3ModelDescription.xsd")))
+    with zipfile.ZipFile(twins["agv_vehicle"]) as archive:
+        document = etree.fromstring(archive.read("modelDescription.xml"))
+    assert [child.tag for child in document][-2:] == ["ModelStructure", "Annotations"]
+    assert schema.validate(document), schema.error_log
+    annotations = document.find("Annotations")
+    document.remove(annotations)
+    document.insert(0, annotations)
+    assert not schema.validate(document)

@@ -2,8 +2,10 @@
 
 A small FMI 2.0 host in C (tests/c_host/fmi2_host.c, compiled here with gcc against fmpy's
 FMI headers) loads each FMU's binary with dlopen, no LD_PRELOAD, and a minimal
-environment. The FMU's loader (components/fmu_loader) must start the Python the FMU was
-built with, report a missing Python as fmi2Error, and let the host exit with status 0.
+environment. The FMU's loader (components/fmu_loader) must find a Python on this machine
+the way its C source documents (here: the virtual environment named in VIRTUAL_ENV, as
+activating it does; AGV_COSIM_PYTHON; PATH), report a missing Python as fmi2Error, and let
+the host exit with status 0.
 """
 
 import math
@@ -32,6 +34,8 @@ HOST_SOURCE = Path(__file__).parent / "c_host" / "fmi2_host.c"
 BARE_ENV = {"PATH": "/usr/bin:/bin", "LANG": "C",
             **{k: v for k, v in os.environ.items()
                if k.startswith(("OPENBLAS_", "OMP_", "MKL_"))}}
+#: The same with this test's virtual environment active (what `activate` exports, less PATH).
+VENV_ENV = {**BARE_ENV, "VIRTUAL_ENV": sys.prefix}
 
 
 @pytest.fixture(scope="module")
@@ -71,7 +75,7 @@ def run_c_host(c_host, folder, md, stop, step, start_values, env=None, timeout=1
                repr(stop), repr(step), ",".join(str(v.valueReference) for v in outputs),
                *settings]
     done = subprocess.run(command, capture_output=True, text=True, timeout=timeout,
-                          env=BARE_ENV if env is None else env)
+                          env=VENV_ENV if env is None else env)
     table = {}
     if done.returncode == 0:
         rows = np.array([[float(x) for x in line.split()] for line in done.stdout.splitlines()])
@@ -112,7 +116,7 @@ def test_missing_python_is_an_fmi2_error_not_a_dead_host(c_host, unzipped):
     env = {**BARE_ENV, "AGV_COSIM_PYTHON": "/nonexistent/bin/python3"}
     done, _ = run_c_host(c_host, folder, md, 0.1, 0.1, {}, env=env)
     assert done.returncode == 1, done.stderr  # the host's own error exit, not a signal
-    assert "status 3 logError" in done.stderr  # fmi2Error through the host's logger
+    assert "status 3 logStatusError" in done.stderr  # fmi2Error through the host's logger
     assert "/nonexistent/bin/python3" in done.stderr and "AGV_COSIM_PYTHON" in done.stderr
     assert "fmi2Instantiate failed" in done.stderr
 
@@ -121,19 +125,33 @@ def test_host_python_variables_do_not_break_the_fmu(c_host, unzipped):
     """A bad PYTHONHOME used to kill the host inside fmi2Instantiate; the FMU's
     interpreter is isolated from the host's Python variables."""
     folder, md = unzipped["agv_vehicle"]
-    env = {**BARE_ENV, "PYTHONHOME": "/nonexistent", "PYTHONPATH": "/nonexistent"}
+    env = {**VENV_ENV, "PYTHONHOME": "/nonexistent", "PYTHONPATH": "/nonexistent"}
     done, table = run_c_host(c_host, folder, md, 0.2, 0.1, {"alpha": 0.1}, env=env)
     assert done.returncode == 0, done.stderr[-2000:]
     assert table["heading"][-1] > 0.0
 
 
-def test_the_python_can_be_named_and_is_then_used(c_host, unzipped):
+def test_the_python_can_be_named_and_is_then_used(c_host, unzipped, tmp_path):
+    """AGV_COSIM_PYTHON wins over an active venv (here a bare one that would fail)."""
+    bare = tmp_path / "bare"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(bare)], check=True)
     folder, md = unzipped["agv_vehicle"]
-    env = {**BARE_ENV, "AGV_COSIM_PYTHON": sys.executable}
+    env = {**BARE_ENV, "AGV_COSIM_PYTHON": sys.executable, "VIRTUAL_ENV": str(bare)}
     done, table = run_c_host(c_host, folder, md, 0.2, 0.1, {"alpha": 0.1}, env=env)
     assert done.returncode == 0, done.stderr[-2000:]
     assert f"started Python 3.{sys.version_info.minor}" in done.stderr
-    assert f"({sys.executable}," in done.stderr
+    assert "(named by AGV_COSIM_PYTHON)" in done.stderr
+
+
+def test_without_a_named_python_the_one_on_path_is_used(c_host, unzipped):
+    """No AGV_COSIM_PYTHON, no VIRTUAL_ENV: python3.<minor> on PATH (here the venv's bin
+    first on PATH, as activating it does), with that venv's packages."""
+    folder, md = unzipped["agv_vehicle"]
+    env = {**BARE_ENV, "PATH": f"{Path(sys.executable).parent}:/usr/bin:/bin"}
+    done, table = run_c_host(c_host, folder, md, 0.2, 0.1, {"alpha": 0.1}, env=env)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert f"(python3.{sys.version_info.minor} on PATH)" in done.stderr
+    assert table["heading"][-1] > 0.0
 
 
 def test_a_python_without_the_packages_is_reported(c_host, unzipped, tmp_path):

@@ -12,13 +12,14 @@ with unchanged sources is skipped (the FMU's GUID already matches, computed with
 requirement list the FMU ships as long as exactly those versions are installed), and a
 built FMU that ``fmpy.validation`` finds fault with fails the build.
 
-pythonfmu's Linux binary needs a Python already in the host process and corrupts the heap
-at exit. The build therefore compiles ``components/fmu_loader/agv_fmu_loader.c`` (gcc, the
-build Python's headers, fmpy's FMI 2.0 headers) into each FMU as
-``binaries/linux64/<modelIdentifier>.so`` and ships pythonfmu's library beside it as
-``<modelIdentifier>.pythonfmu.so``: the loader starts the build's Python in hosts that have
-none (or the one named by ``AGV_COSIM_PYTHON``), forwards the FMI calls, and unloads the
-wrapper cleanly (see the C source for why and how).
+pythonfmu writes the model description; its Linux binary is not shipped. The build
+compiles ``components/fmu_loader/agv_fmu_loader.c`` (the loader: finds or starts a
+Python, no Python symbol of its own) and ``agv_fmu_bridge.c`` (the FMI 2.0 and 3.0 C API
+over the Python slave) with gcc, the build Python's headers and fmpy's FMI headers, from a
+temporary folder, and puts them into each FMU as ``binaries/<platform>/<modelIdentifier>.so``
+and ``<modelIdentifier>.bridge.so`` (see the C sources for how a Python is found). Neither
+holds a path of this machine; the GUID hashes contents only. ``standalone=True`` adds a
+Python runtime (agv_cosim.standalone).
 
 ``fmi_version=3`` builds the FMI 3.0 twin of each slave script with pythonfmu3 instead
 (``agv-cosim build --fmi 3``): the same slave script and core, run on the FMI 3.0 adapter
@@ -27,16 +28,14 @@ names ``Fmi3Slave``, so the build bundles the slave script unchanged under the n
 ``<stem>_fmi3_body.py`` and writes a two-line wrapper script ``<stem>_fmi3.py`` whose class
 derives from the script's class and names ``Fmi3Slave``. The bundled ``agv_core`` has
 ``fmi/fmi_slave.py`` as an alias of ``fmi/fmi3_slave.py`` (and a BUILD_ID of its own), so
-the script's ``core.fmi.fmi_slave.AgvSlave`` is the FMI 3.0 adapter. FMI 3.0 twins ship
-pythonfmu3's own binary: the C loader speaks FMI 2.0 only, so they need a host with Python in
-its process (see docs/using-the-fmus.md).
+the script's ``core.fmi.fmi_slave.AgvSlave`` is the FMI 3.0 adapter. FMI 3.0 twins get the
+same loader and bridge as the FMI 2.0 FMUs.
 """
 
 import ast
 import functools
 import hashlib
 import json
-import platform
 import shutil
 import subprocess
 import sys
@@ -55,7 +54,7 @@ from .bundle import BundleError, bundle_of, installed_requirements, requirements
 from .shipped import shipped_dir
 
 #: Bumped whenever the way an FMU is assembled changes, so every FMU is rebuilt.
-BUILD_FORMAT = 3
+BUILD_FORMAT = 4
 
 BOOT_SCRIPT = "agv_boot.py"
 #: Where the boot loader lives, relative to ``components/``.
@@ -64,8 +63,10 @@ BOOT_SOURCE = Path("agv_core") / "fmi" / BOOT_SCRIPT
 #: as top-level modules of an FMU, never as part of the bundled package.
 SLAVE_PATTERN = "agv_*.py"
 LOADER_SOURCE = Path("fmu_loader") / "agv_fmu_loader.c"
-#: pythonfmu's own binary is shipped under this suffix beside the loader.
-WRAPPER_SUFFIX = ".pythonfmu.so"
+#: The bridge's source, beside the loader's.
+BRIDGE_SOURCE = "agv_fmu_bridge.c"
+#: The bridge is shipped under this suffix beside the loader.
+BRIDGE_SUFFIX = ".bridge.so"
 INDEX_FILE = "build-index.json"
 
 #: FMI versions ``build_fmus`` can write.
@@ -129,74 +130,88 @@ def slave_script(stem, components_dir=None):
 
 
 def host_python():
-    """The Python the FMUs start in a host that has none, as a dict.
+    """What the building Python says about itself, as a dict (nothing of it goes into an FMU
+    but ``version``).
 
-    ``executable`` is the building interpreter as invoked (a venv's ``bin/python`` keeps
-    its site-packages); ``libpython`` its shared library (``sysconfig`` LIBDIR and
-    INSTSONAME), ``soname`` that library's file name, ``multiarch`` Debian's library
-    subfolder (where a named Python's library may be).
+    ``version`` is ``major.minor`` (the FMUs' binaries are compiled for it and start only a
+    Python of that version); ``executable`` the building interpreter as invoked (a venv's
+    ``bin/python`` keeps its site-packages); ``libpython`` its shared library (``sysconfig``
+    LIBDIR and INSTSONAME, which may not exist: a Python built without --enable-shared).
     """
     libdir = sysconfig.get_config_var("LIBDIR") or ""
     soname = (sysconfig.get_config_var("INSTSONAME")
               or f"libpython{sysconfig.get_python_version()}.so.1.0")
-    multiarch = sysconfig.get_config_var("MULTIARCH") or f"{platform.machine()}-linux-gnu"
-    return {"executable": sys.executable, "libpython": str(Path(libdir) / soname),
-            "soname": soname, "multiarch": multiarch}
+    return {"version": sysconfig.get_python_version(), "executable": sys.executable,
+            "libpython": str(Path(libdir) / soname)}
 
 
-def _loader_source():
-    return shipped_dir("fmu_loader") / LOADER_SOURCE.name
+def _binary_sources():
+    """The C sources of the FMU binary: ``{file name: text}`` (the loader and the bridge)."""
+    folder = shipped_dir("fmu_loader")
+    return {name: (folder / name).read_text() for name in (LOADER_SOURCE.name, BRIDGE_SOURCE)}
 
 
 @functools.lru_cache(maxsize=4)
-def _compile_loader(source_text, executable, libpython, soname, multiarch):
-    """Compile the FMU loader for this Python; the shared library's bytes."""
+def _compile_binaries(sources, python_include):
+    """Compile the loader and the bridge; ``(loader bytes, bridge bytes)``.
+
+    ``sources`` is ``_binary_sources()`` as a tuple of items. Neither binary holds a path of
+    this machine: both are compiled from a temporary folder, with the Python headers (types
+    and version only; the bridge's Python symbols stay undefined, the loader uses none) and
+    fmpy's FMI headers, ``-ffile-prefix-map`` maps these folders away and ``-DNDEBUG``
+    leaves out the headers' assertions (which would name the header files).
+    """
     import fmpy
 
     compiler = shutil.which("gcc") or shutil.which("cc")
     if compiler is None:
-        raise BuildError("cannot build the FMU loader: no C compiler (gcc) on PATH")
+        raise BuildError("cannot build the FMU binaries: no C compiler (gcc) on PATH")
     fmi_headers = Path(fmpy.__file__).parent / "c-code"
+    built = []
     with tempfile.TemporaryDirectory(prefix="agv_loader_") as tmp:
-        source = Path(tmp) / "agv_fmu_loader.c"
-        source.write_text(source_text)
-        target = Path(tmp) / "loader.so"
-        command = [compiler, "-shared", "-fPIC", "-O2", "-Wall",
-                   "-fvisibility=default", f"-I{sysconfig.get_paths()['include']}",
-                   f"-I{fmi_headers}",
-                   f"-DAGV_PYTHON_EXECUTABLE={json.dumps(executable)}",
-                   f"-DAGV_LIBPYTHON={json.dumps(libpython)}",
-                   f"-DAGV_LIBPYTHON_SONAME={json.dumps(soname)}",
-                   f"-DAGV_MULTIARCH={json.dumps(multiarch)}",
-                   "-o", str(target), str(source), "-ldl", "-lpthread"]
-        done = subprocess.run(command, capture_output=True, text=True)
-        if done.returncode != 0:
-            raise BuildError("cannot build the FMU loader: "
-                             + (done.stderr.strip().splitlines() or ["gcc failed"])[-1])
-        return target.read_bytes()
+        for name, text in sources:
+            (Path(tmp) / name).write_text(text)
+        for name, libraries in ((LOADER_SOURCE.name, ["-ldl", "-lpthread"]),
+                                (BRIDGE_SOURCE, [])):
+            target = Path(tmp) / (Path(name).stem + ".so")
+            command = [compiler, "-shared", "-fPIC", "-O2", "-Wall", "-g0", "-s", "-DNDEBUG",
+                       f"-ffile-prefix-map={tmp}=.",
+                       f"-ffile-prefix-map={python_include}=python",
+                       f"-ffile-prefix-map={fmi_headers}=fmi", f"-I{python_include}",
+                       f"-I{fmi_headers}", "-o", str(target), str(Path(tmp) / name),
+                       *libraries]
+            done = subprocess.run(command, capture_output=True, text=True, cwd=tmp)
+            if done.returncode != 0:
+                raise BuildError(f"cannot build the FMU binary {name}: "
+                                 + (done.stderr.strip().splitlines() or ["gcc failed"])[-1])
+            built.append(target.read_bytes())
+    return tuple(built)
 
 
 def loader_binary():
-    """The FMU loader compiled for the building Python (cached per process)."""
-    python = host_python()
-    return _compile_loader(_loader_source().read_text(), python["executable"],
-                           python["libpython"], python["soname"], python["multiarch"])
+    """``(loader, bridge)``: the FMU binaries compiled for the building Python's version
+    (cached per process)."""
+    return _compile_binaries(tuple(sorted(_binary_sources().items())),
+                             sysconfig.get_paths()["include"])
 
 
-def _install_loader(fmu_path, loader):
-    """Put the loader in the FMU as its Linux binary, pythonfmu's library beside it."""
+def _install_loader(fmu_path, binaries, fmi_version=2):
+    """Put the loader in the FMU as its Linux binary and the bridge beside it; pythonfmu's
+    own Linux library is left out (the bridge takes its place)."""
+    loader, bridge = binaries
     with zipfile.ZipFile(fmu_path) as archive:
         entries = [(info, archive.read(info)) for info in archive.infolist()]
     identifier = _model_description(fmu_path).coSimulation.modelIdentifier
-    binary = f"binaries/linux64/{identifier}.so"
+    platform_dir = "x86_64-linux" if fmi_version == 3 else "linux64"
+    binary = f"binaries/{platform_dir}/{identifier}.so"
     if binary not in {info.filename for info, _ in entries}:
-        raise BuildError(f"{fmu_path.name}: pythonfmu wrote no {binary}")
+        raise BuildError(f"{fmu_path.name}: the FMI library wrote no {binary}")
     rewritten = fmu_path.with_suffix(".loader")
     with zipfile.ZipFile(rewritten, "w", zipfile.ZIP_DEFLATED) as archive:
         for info, data in entries:
             if info.filename == binary:
-                archive.writestr(binary[:-3] + WRAPPER_SUFFIX, data)
                 archive.writestr(binary, loader)
+                archive.writestr(binary[:-3] + BRIDGE_SUFFIX, bridge)
             else:
                 archive.writestr(info, data)
     rewritten.replace(fmu_path)
@@ -338,18 +353,24 @@ def _ship_reference(fmu_path):
             archive.writestr(f"{REFERENCE_DIR}/{name}", data)
 
 
-def fmu_guid(script, boot, tag, fmi_version=2):
-    """GUID of the FMU built from ``script``: a hash of all its sources and the tool chain."""
+def fmu_guid(script, boot, tag, fmi_version=2, standalone=False):
+    """GUID of the FMU built from ``script``: a hash of all its sources and the tool chain
+    (content only: the same sources give the same GUID wherever they are built)."""
     digest = hashlib.sha256()
-    python = host_python()
     parts = [script.name.encode(), script.read_bytes(), boot.read_bytes(), tag.encode(),
              pythonfmu.__version__.encode(), str(BUILD_FORMAT).encode(),
-             _loader_source().read_bytes(),
-             python["executable"].encode(), python["libpython"].encode()]
+             host_python()["version"].encode()]
+    parts += [text.encode() for _, text in sorted(_binary_sources().items())]
     if fmi_version == 3:  # FMI 2.0 GUIDs stay as they were
         import pythonfmu3
 
         parts += [b"fmi3", pythonfmu3.__version__.encode(), FMI3_ALIAS.encode()]
+    if standalone:
+        from . import standalone as assembly
+        from .standalone import environment_tag
+
+        parts += [b"standalone", environment_tag().encode(),
+                  Path(assembly.__file__).read_bytes()]
     for part in parts:
         digest.update(part + b"\0")
     return str(uuid.UUID(digest.hexdigest()[:32]))
@@ -463,10 +484,9 @@ def _stage(script, core_dir, boot, tag, guid, stage_dir, fmi_version=2, bundle=N
     if fmi_version == 3:
         (core_copy / "fmi" / "fmi_slave.py").write_text(FMI3_ALIAS)
     (core_copy / "BUILD_ID").write_text(tag + "\n")
-    python = host_python()
     info = {"guid": guid, "core_tag": tag, "script": script.name,
             "pythonfmu": pythonfmu.__version__, "build_format": BUILD_FORMAT,
-            "python": python["executable"], "libpython": python["libpython"]}
+            "python_version": host_python()["version"]}
     if fmi_version == 3:
         import pythonfmu3
 
@@ -501,9 +521,12 @@ def _fmi_version_of(fmu_path):
         return None
 
 
-def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_version=2):
+def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_version=2,
+              standalone=False):
     """Build the FMU (FMI ``fmi_version``) of one slave script into ``out_dir``.
 
+    ``standalone`` adds a Python runtime with the packages the slave imports
+    (agv_cosim.standalone), so that the FMU needs no Python on the machine that runs it.
     Skipped if up to date. An FMU of the other FMI version of the same name in
     ``out_dir`` is never replaced (BuildError): the twins go into separate folders.
     """
@@ -522,12 +545,12 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_versi
     shipped = _shipped_requirements(out_dir / known) if known and not force else None
     if shipped is not None:
         bundle = _bundle(script, core_dir, boot, fmi_version, requirements=shipped)
-        guid = fmu_guid(script, boot, bundle.tag, fmi_version)
+        guid = fmu_guid(script, boot, bundle.tag, fmi_version, standalone)
         if fmu_guid_of(out_dir / known) == guid:
             return BuildResult(script, out_dir / known, guid, rebuilt=False)
     bundle = _bundle(script, core_dir, boot, fmi_version)
     tag = bundle.tag
-    guid = fmu_guid(script, boot, tag, fmi_version)
+    guid = fmu_guid(script, boot, tag, fmi_version, standalone)
 
     with tempfile.TemporaryDirectory(prefix="agv_build_") as tmp:
         stage_dir = Path(tmp) / "stage"
@@ -565,10 +588,16 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_versi
             for module in [m for m in sys.modules
                            if m in own_modules or m.startswith("agv_core_")]:
                 del sys.modules[module]
-        if fmi_version == 2:
-            _install_loader(fmu_path, loader_binary())
+        _install_loader(fmu_path, loader_binary(), fmi_version)
         _validate(fmu_path, fmi_version)
         _ship_reference(fmu_path)
+        if standalone:
+            from .standalone import StandaloneError, add_runtime
+
+            try:
+                add_runtime(fmu_path, "x86_64-linux" if fmi_version == 3 else "linux64")
+            except StandaloneError as error:
+                raise BuildError(f"{script.name}: standalone runtime: {error}") from None
         target = out_dir / fmu_path.name
         other = _fmi_version_of(target) if target.exists() else None
         if other is not None and other != f"{fmi_version}.0":
@@ -581,10 +610,11 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_versi
     return BuildResult(script, target, guid, rebuilt=True)
 
 
-def build_fmus(out_dir, scripts=None, force=False, fmi_version=2):
+def build_fmus(out_dir, scripts=None, force=False, fmi_version=2, standalone=False):
     """Build every slave script (or ``scripts``) into ``out_dir``; return the results.
 
-    ``fmi_version`` 3 builds the FMI 3.0 twins (see the module docstring).
+    ``fmi_version`` 3 builds the FMI 3.0 twins (see the module docstring); ``standalone``
+    FMUs carry their own Python runtime (:func:`build_one`).
     """
     out_dir = Path(out_dir)
     scripts = slave_scripts(default_components_dir()) if scripts is None else scripts
@@ -597,7 +627,7 @@ def build_fmus(out_dir, scripts=None, force=False, fmi_version=2):
     try:
         for script in scripts:
             results.append(build_one(script, out_dir, force=force, index=index,
-                                     fmi_version=fmi_version))
+                                     fmi_version=fmi_version, standalone=standalone))
     finally:
         out_dir.mkdir(parents=True, exist_ok=True)
         index_path.write_text(json.dumps(index, indent=1, sort_keys=True) + "\n")

@@ -35,7 +35,8 @@ def _cmd_build(args):
     from .build import BuildError, build_fmus
 
     try:
-        results = build_fmus(args.out, force=args.force, fmi_version=args.fmi)
+        results = build_fmus(args.out, force=args.force, fmi_version=args.fmi,
+                             standalone=args.standalone)
     except BuildError as error:
         print(f"agv-cosim build: error: {error}", file=sys.stderr)
         return 1
@@ -172,7 +173,10 @@ def make_parser():
     build.add_argument("--force", action="store_true", help="rebuild every FMU")
     build.add_argument("--fmi", type=int, choices=(2, 3), default=2,
                        help="FMI version of the FMUs: 2 (default) or 3 (the FMI 3.0 twins, "
-                            "built with pythonfmu3; need a host with Python)")
+                            "built with pythonfmu3)")
+    build.add_argument("--standalone", action="store_true",
+                       help="FMUs that carry their own Python runtime and packages (run "
+                            "on a Linux x86-64 machine without Python; tens of MB each)")
     build.set_defaults(func=_cmd_build)
 
     examples = sub.add_parser(

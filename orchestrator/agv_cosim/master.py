@@ -93,6 +93,35 @@ def _raw_function(slave, name):
     return function
 
 
+def _passed_as_is(value):
+    """``value`` (a converted argument of :func:`_bare_call`) in the form ctypes passes
+    with the least work, the same bits reaching the C function.
+
+    ctypes wraps every ctypes instance it is given in a new argument object at every
+    call; a ``byref`` object (an address) and a small Python int pass without one. An
+    array passes as the address of its first element, a pointer or ``c_void_p`` as the
+    address it holds (the object at that address keeps the referent alive), an unsigned
+    or int count below 2**31 as a Python int (a C int, which the x86-64 and AArch64
+    calling conventions extend to the register). Anything else (the shared time and step
+    ``c_double``, whose value changes between calls) is passed unchanged.
+    """
+    import ctypes
+
+    if isinstance(value, ctypes.Array):
+        return ctypes.byref(value)
+    if isinstance(value, (ctypes._Pointer, ctypes.c_void_p)):
+        address = ctypes.cast(value, ctypes.c_void_p).value
+        if not address:
+            return value
+        target = ctypes.c_char.from_address(address)
+        target.keep = value  # the pointer (and what it keeps) lives as long as the call
+        return ctypes.byref(target)
+    if isinstance(value, (ctypes.c_int, ctypes.c_uint, ctypes.c_size_t)) and \
+            0 <= value.value < 2 ** 31:
+        return int(value.value)
+    return value
+
+
 def _bare_call(function, args):
     """``(function, args)`` for a call without ctypes' per-call argument conversion.
 
@@ -121,7 +150,10 @@ def _bare_call(function, args):
             converted.append(argtype(value))
         else:
             return function, args
-    bare = ctypes.CFUNCTYPE(function.restype)(ctypes.cast(function, ctypes.c_void_p).value)
+    converted = [_passed_as_is(value) for value in converted]
+    # PYFUNCTYPE: the GIL stays held during the call (an FMU whose slave is Python takes
+    # it again at once; releasing and re-taking it cost more than the call itself)
+    bare = ctypes.PYFUNCTYPE(function.restype)(ctypes.cast(function, ctypes.c_void_p).value)
     bare.argtypes = None
     bare.restype = function.restype
     bare.keep = function  # the library stays referenced by the slave; this is its entry

@@ -62,6 +62,7 @@ class AgvSlave(SlaveLogic, Fmi3Slave):
         Fmi3Variability.continuous, Fmi3Variability.discrete, Fmi3Variability.fixed,
         Fmi3Variability.tunable)
     _ERROR = Fmi3Status.error
+    _FAST_METHODS = ("get_float64", "set_float64")
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)

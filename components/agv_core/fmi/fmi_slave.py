@@ -54,6 +54,7 @@ class AgvSlave(SlaveLogic, Fmi2Slave):
         Fmi2Variability.continuous, Fmi2Variability.discrete, Fmi2Variability.fixed,
         Fmi2Variability.tunable)
     _ERROR = Fmi2Status.error
+    _FAST_METHODS = ("get_real", "set_real")
 
     # ------------------------------------------------------------------ FMI calls
     def set_real(self, vrs, values):
@@ -95,19 +96,6 @@ class AgvSlave(SlaveLogic, Fmi2Slave):
         except Exception:
             self._keep_for_pythonfmu()
             raise
-
-    def _map_real_names(self):
-        """Value reference -> attribute name of every Real that pythonfmu reads and writes
-        as a plain attribute of this slave (no nested name, not a constant); also the
-        value references of the inputs no output depends on directly."""
-        self._real_names = {vr: v.name for vr, v in self.vars.items()
-                            if isinstance(v, Real) and "." not in v.name
-                            and v.variability != Fmi2Variability.constant}
-        used = {d for deps in self._dependencies.values() for d in deps}
-        self._quiet_inputs = frozenset(vr for vr, v in self.vars.items()
-                                       if v.name in self._input_names
-                                       and v.name not in used)
-        return self._real_names
 
     # a feedthrough output of any type is recomputed after a set, not only a Real one
     def get_integer(self, vrs):

@@ -1,5 +1,11 @@
 """Work-arounds for defects of the FMU wrappers pythonfmu 0.7 and pythonfmu3 0.3.4, in one place.
 
+On Linux the FMUs no longer contain those wrappers' libraries: the FMU bridge
+(components/fmu_loader/agv_fmu_bridge.c) implements the FMI API over the slave and has
+none of defects 1-3 (1 then leaks a failed slave's few objects, 2 finds no wrapper library
+loaded and does nothing, 3 keeps one reference per instantiation). They stay for the
+Windows DLL, which is still pythonfmu's; 4-6 hold for every FMU.
+
 Each entry says what the wrapper does wrong and what we do about it. Those that must
 live elsewhere (they run before this package is imported, or at build time) are listed
 with where they are.

@@ -65,6 +65,8 @@ class SlaveLogic:
     _INPUT = _OUTPUT = _PARAMETER = _CONTINUOUS = _DISCRETE = _FIXED = _TUNABLE = None
     #: status of a logged error
     _ERROR = None
+    #: the Real getter and setter the bridge's fast path stands for (_fmi_real_access)
+    _FAST_METHODS = ()
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -187,9 +189,10 @@ class SlaveLogic:
         self._stale = False
 
     def do_step(self, current_time, step_size):
+        t, h = float(current_time), float(step_size)
         try:
-            self.advance(float(current_time), float(step_size))
-            self.time = float(current_time) + float(step_size)
+            self.advance(t, h)
+            self.time = t + h
             if self._lazy_step:
                 # outputs that depend on inputs are re-published after the master sets
                 # them anyway: publish once, at the next read (a read without a set
@@ -198,9 +201,13 @@ class SlaveLogic:
                 return True
             self.publish()
         except Exception as error:  # noqa: BLE001 - reported to the host, then re-raised
-            self._fail(f"step at t={current_time:.9g} s failed: {type(error).__name__}: {error}")
+            self._step_failed(t, error)
         self._stale = False
         return True
+
+    def _step_failed(self, t, error):
+        """Report ``error`` from the step that starts at ``t`` [s] and raise."""
+        self._fail(f"step at t={t:.9g} s failed: {type(error).__name__}: {error}")
 
     def _guarded(self, call, *args):
         try:
@@ -223,9 +230,12 @@ class SlaveLogic:
             try:
                 self.publish()
             except Exception as error:  # noqa: BLE001 - reported to the host, then re-raised
-                self._fail(f"outputs at t={self.time:.9g} s failed: "
-                           f"{type(error).__name__}: {error}")
+                self._outputs_failed(error)
             self._stale = False
+
+    def _outputs_failed(self, error):
+        """Report ``error`` from a publication of the outputs and raise."""
+        self._fail(f"outputs at t={self.time:.9g} s failed: {type(error).__name__}: {error}")
 
     def _initial_outputs(self):
         """Outputs in initialisation mode, from the parameters and inputs set so far.
@@ -254,6 +264,42 @@ class SlaveLogic:
         """Balance the wrapper's double release before an exception leaves (see
         pythonfmu_workarounds.py, entry 1)."""
         keep_for_pythonfmu(self)
+
+    # ------------------------------------------------------------------ fast Real access
+    def _map_real_names(self):
+        """Value reference -> attribute name of every Real that the library reads and
+        writes as a plain attribute of this slave (no nested name, not a constant, not an
+        array); also the value references of the inputs no output depends on directly."""
+        self._real_names = {vr: v.name for vr, v in self.vars.items()
+                            if isinstance(v, self._REAL) and "." not in v.name
+                            and getattr(v.variability, "name", None) != "constant"
+                            and not getattr(v, "dimensions", None)}
+        used = {d for deps in self._dependencies.values() for d in deps}
+        self._quiet_inputs = frozenset(vr for vr, v in self.vars.items()
+                                       if v.name in self._input_names
+                                       and v.name not in used)
+        return self._real_names
+
+    def _fmi_real_access(self):
+        """``(names, quiet)`` for the FMU bridge (components/fmu_loader/agv_fmu_bridge.c),
+        which then reads and writes these Reals without calling get/set methods.
+
+        ``names`` maps value references to the attributes that hold the values (floats);
+        ``quiet`` holds the inputs no output depends on directly. The bridge's contract,
+        the same as the FMI 2.0 adapter's ``get_real`` / ``set_real``: before a read, if
+        ``_stale`` is true or ``core`` is None, it calls ``_fresh_outputs()``; after
+        writing an input not in ``quiet`` it sets ``_stale`` true.
+        """
+        names = self._real_names or self._map_real_names()
+        return dict(names), self._quiet_inputs
+
+    def _fmi_step_access(self):
+        """True if the FMU bridge may step this slave without calling ``do_step``: it then
+        does what :meth:`do_step` does (``advance(t, h)``, ``time = t + h``, then with
+        ``_lazy_step`` ``_stale = True``, else ``publish()`` and ``_stale = False``; an
+        exception from either goes to ``_step_failed(t, error)``). False when a subclass
+        overrides ``do_step``."""
+        return type(self).do_step is SlaveLogic.do_step
 
     # ------------------------------------------------------------------ state
     def _get_fmu_state(self):
