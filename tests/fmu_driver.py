@@ -51,8 +51,14 @@ def _drive(job, messages):
             raise RuntimeError(f"{name} returned status {status}")
 
     if fmi == 2:
+        # fmi2CallbackLogger is variadic: the message is a printf format. ctypes cannot take
+        # a variadic callback, but on x86-64 (System V) the first variadic pointer argument
+        # travels in the register of a sixth fixed one, so the callback is declared with six
+        # arguments and formats the two shapes an FMU sends: "%s" with the text as its
+        # argument (what our bridge sends), or the text itself with "%" written as "%%"; any
+        # other format is recorded as it came.
         Logger = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int,
-                                  ctypes.c_char_p, ctypes.c_char_p)
+                                  ctypes.c_char_p, ctypes.c_char_p, ctypes.c_char_p)
 
         class Callbacks(ctypes.Structure):
             _fields_ = [("logger", Logger), ("allocateMemory", ctypes.c_void_p),
@@ -60,8 +66,15 @@ def _drive(job, messages):
                         ("componentEnvironment", ctypes.c_void_p)]
 
         libc = ctypes.CDLL(None)
-        logger = Logger(lambda env, name, status, category, message:
-                        log(status, category, message))
+
+        def log2(env, name, status, category, message, argument):
+            if message == b"%s":
+                message = argument
+            elif message is not None and b"%" not in message.replace(b"%%", b""):
+                message = message.replace(b"%%", b"%")
+            log(status, category, message)
+
+        logger = Logger(log2)
         callbacks = Callbacks(logger, ctypes.cast(libc.calloc, ctypes.c_void_p),
                               ctypes.cast(libc.free, ctypes.c_void_p), None, None)
         lib.fmi2Instantiate.restype = ctypes.c_void_p

@@ -914,15 +914,13 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet=False, overwrite=F
     (Path, list of dict)
         The output folder and one result dict per job (in job order).
     """
-    from tqdm import tqdm
-
     out_dir = Path(out_dir) if out_dir else default_out_dir(manifest)
     workers = workers or os.cpu_count() or 1
     workers = max(1, min(workers, len(jobs)))
     with AtomicDir(out_dir, overwrite=overwrite) as folder:
         total = sum(int(round((job.plan.stop - job.plan.start) / job.plan.step))
                     for job in jobs)
-        bar = tqdm(total=total, desc=manifest.name, unit="step", delay=2.0, disable=quiet,
+        bar = _progress_bar()(total=total, desc=manifest.name, unit="step", delay=2.0, disable=quiet,
                    file=sys.stderr, mininterval=0.5, postfix={"runs": f"0/{len(jobs)}"})
         finished = 0
 
@@ -963,6 +961,29 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet=False, overwrite=F
                   file=sys.stderr)
         target = folder.commit()
     return target, results
+
+
+def _progress_bar():
+    """tqdm whose ``close`` ends the bar's line whenever the bar was drawn.
+
+    tqdm's ``close`` leaves the line open when no ``update`` drew the bar after its
+    ``delay``, although ``set_postfix`` and tqdm's monitor thread draw it through
+    ``refresh``; a message printed after ``close`` then lands on the bar's line."""
+    from tqdm import tqdm
+
+    class Bar(tqdm):
+        drawn = False
+
+        def display(self, *args, **kwargs):
+            self.drawn = True
+            return super().display(*args, **kwargs)
+
+        def close(self):
+            if self.drawn and not self.disable and hasattr(self, "last_print_t"):
+                self.last_print_t = max(self.last_print_t, self.start_t + self.delay)
+            super().close()
+
+    return Bar
 
 
 def _write_summary(folder, results):

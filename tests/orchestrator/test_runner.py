@@ -140,3 +140,25 @@ def test_kept_extraction_gives_each_instance_its_own_folder_of_links(fmus, tmp_p
         assert files(two.unzip_dir) and files(kept)
     finally:
         two.close()
+
+
+def test_a_bar_drawn_only_through_its_postfix_ends_its_line_on_close():
+    """A run that ends before the bar's delay redraws it through set_postfix; the message
+    printed after close starts on a line of its own (tqdm alone leaves the line open)."""
+    import io
+
+    from agv_cosim.runner import _progress_bar
+
+    stream = io.StringIO()
+    bar = _progress_bar()(total=10, desc="m", delay=2.0, file=stream)
+    bar.update(1)
+    bar.set_postfix(runs="1/1")
+    bar.close()
+    text = stream.getvalue()
+    assert text.endswith("\n") and "runs=1/1]" in text.splitlines()[-1]
+
+    quiet = io.StringIO()
+    bar = _progress_bar()(total=10, desc="m", delay=2.0, file=quiet)
+    bar.update(1)
+    bar.close()
+    assert quiet.getvalue() == ""  # never drawn: nothing written
