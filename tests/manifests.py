@@ -53,3 +53,11 @@ def localise(source, folder, fmus, replace=(), resub=(), name=None):
     path = Path(folder) / (name or source.name)
     path.write_text(text, encoding="utf-8")
     return path
+
+
+def assert_complete(results, count):
+    """Every one of ``count`` runs ended ``complete`` with its metrics computed; the
+    message names each run that did not, with its error or metrics error."""
+    bad = [(r["label"], r["status"], r.get("error"), r.get("metrics_error"))
+           for r in results if r["status"] != "complete" or r.get("metrics_error")]
+    assert len(results) == count and not bad, (len(results), bad)
