@@ -45,6 +45,19 @@ def test_a_non_finite_set_or_sweep_value_is_refused(chain, capsys, text):
     assert ": sweep.gain.k: 'gain.k' = " in line and NOT_FINITE in line
 
 
+@pytest.mark.parametrize("text", ["nan", "inf", "1e999"])
+def test_a_non_finite_event_time_or_value_is_refused(chain, capsys, text):
+    """An event at a non-finite time, or setting a non-finite value, is bad input."""
+    at = chain(extra=f'[events.e]\nat = {text}\nset = {{ "gain.k" = 2.0 }}\n', name="at.toml")
+    line = _fail(capsys, ["validate", str(at), "--no-init"])
+    assert line.startswith(f"agv-cosim: error: {at}: events.e.at: "), line
+    value = chain(extra=f'[events.e]\nat = 0.5\nset = {{ "gain.k" = {text} }}\n',
+                  name="value.toml")
+    line = _fail(capsys, ["validate", str(value), "--no-init"])
+    assert line.startswith(f"agv-cosim: error: {value}: events.e"), line
+    assert "finite" in line, line
+
+
 def test_a_sample_that_overflows_is_refused(chain, capsys):
     path = chain(extra='[montecarlo]\nsamples = 16\nseed = 1\n[montecarlo.parameters]\n'
                        '"gain.k" = { distribution = "normal", mean = 1.7e308, std = 1e308 }\n')
