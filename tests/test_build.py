@@ -72,11 +72,11 @@ def test_a_module_the_fmu_does_not_ship_leaves_its_guid(tmp_path):
                     ignore=shutil.ignore_patterns("__pycache__"))
     original = build_one(VEHICLE, tmp_path / "out", core_dir=core)
     with zipfile.ZipFile(original.fmu) as archive:
-        shipped = {n for n in archive.namelist() if n.startswith("resources/agv_core/")}
-    assert "resources/agv_core/vehicle/vehicle.py" in shipped
-    assert "resources/agv_core/numerics/arc.py" in shipped
-    assert "resources/agv_core/ltv_mpc/ltv_mpc.py" not in shipped
-    assert "resources/agv_core/numerics/paths.py" not in shipped
+        shipped = {n for n in archive.namelist() if n.startswith("resources/agv_core_bundle/")}
+    assert "resources/agv_core_bundle/vehicle/vehicle.py" in shipped
+    assert "resources/agv_core_bundle/numerics/arc.py" in shipped
+    assert "resources/agv_core_bundle/ltv_mpc/ltv_mpc.py" not in shipped
+    assert "resources/agv_core_bundle/numerics/paths.py" not in shipped
     with open(core / "ltv_mpc" / "ltv_mpc.py", "a") as handle:
         handle.write("\n# a changed line\n")
     index = {VEHICLE.name: original.fmu.name}

@@ -11,6 +11,7 @@ import shutil
 import subprocess
 import sys
 import zipfile
+from pathlib import Path
 from xml.etree import ElementTree
 
 import numpy as np
@@ -183,3 +184,30 @@ def test_outputs_are_valid_in_initialisation_mode(component_fmus):
         slave.freeInstance()
     finally:
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def test_a_loaded_fmu_never_shadows_the_installed_agv_core(component_fmus, tmp_path):
+    """A Python host that has an FMU instantiated and then imports agv_core gets the
+    installed package, not the FMU's bundle (which holds only what its slave needs and
+    sits in resources/, on sys.path while the instance lives): the vehicle ships no
+    numerics/paths.py, the installed package has it."""
+    code = (
+        "import sys\n"
+        "from fmpy import extract, read_model_description\n"
+        "from fmpy.fmi2 import FMU2Slave\n"
+        f"folder = extract({str(component_fmus['agv_vehicle'])!r})\n"
+        "md = read_model_description(folder)\n"
+        "slave = FMU2Slave(guid=md.guid, unzipDirectory=folder, instanceName='v',\n"
+        "                  modelIdentifier=md.coSimulation.modelIdentifier)\n"
+        "slave.instantiate()\n"
+        "assert any(p.startswith(str(folder)) for p in sys.path), sys.path\n"
+        "import agv_core.numerics.paths as paths, agv_core\n"
+        "print(agv_core.__file__)\n"
+        "print(paths.parse_path('line:y0=0.5').project(1.0, 0.0).offset)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    where, offset = done.stdout.split()
+    assert Path(where).parent == default_components_dir() / "agv_core"
+    assert float(offset) == -0.5

@@ -5,7 +5,7 @@ folder per component: its core, its slave scripts, its README and reference resu
 components/README.md). Each FMU bundles its slave script, the boot loader
 ``agv_core/fmi/agv_boot.py`` (at the top of ``resources/``) and the part of the ``agv_core``
 package that the script reaches (its modules and package ``__init__`` files, tagged with a
-content hash in ``agv_core/BUILD_ID``), a ``requirements.txt`` that pins the Python
+content hash in ``agv_core_bundle/BUILD_ID``), a ``requirements.txt`` that pins the Python
 distributions that code imports (both derived from the imports: agv_cosim/bundle.py), and
 ``agv_build.json`` with a GUID derived from every source that goes into the FMU. A rebuild
 with unchanged sources is skipped (the FMU's GUID already matches, computed with the
@@ -53,8 +53,11 @@ from pythonfmu.builder import FmuBuilder
 from .bundle import BundleError, bundle_of, installed_requirements, requirements_text
 from .shipped import shipped_dir
 
+#: The folder in resources/ that holds the bundled part of agv_core (agv_boot.py).
+BUNDLE_FOLDER = "agv_core_bundle"
+
 #: Bumped whenever the way an FMU is assembled changes, so every FMU is rebuilt.
-BUILD_FORMAT = 4
+BUILD_FORMAT = 5
 
 BOOT_SCRIPT = "agv_boot.py"
 #: Where the boot loader lives, relative to ``components/``.
@@ -476,7 +479,7 @@ def _stage(script, core_dir, boot, tag, guid, stage_dir, fmi_version=2, bundle=N
         shutil.copy2(script, staged_script)
         extra = []
     shutil.copy2(boot, stage_dir / BOOT_SCRIPT)
-    core_copy = stage_dir / "agv_core"
+    core_copy = stage_dir / BUNDLE_FOLDER
     for relative in bundle.files:
         target = core_copy / relative
         target.parent.mkdir(parents=True, exist_ok=True)

@@ -5,8 +5,11 @@ name once per process, so a plain ``import agv_core`` would take whichever copy 
 first: the host's installed package, or another FMU's older bundle. This loader instead
 imports the bundle that sits next to the given slave script under the name
 ``agv_core_<tag>``, where ``<tag>`` is the content hash the build wrote into
-``agv_core/BUILD_ID``. FMUs built from the same sources share one module; FMUs built from
-different sources each get their own.
+``agv_core_bundle/BUILD_ID``. FMUs built from the same sources share one module; FMUs built
+from different sources each get their own. The bundle's folder is not named ``agv_core``:
+with ``resources/`` on ``sys.path`` a folder of that name would shadow the installed
+package for every later ``import agv_core`` in the host's process, and a bundle holds only
+the modules its slave needs.
 
 Which bundle: pythonfmu 0.7 inserts the instantiated FMU's ``resources/`` folder at
 ``sys.path[0]`` immediately before it executes the slave script (the builder does the same
@@ -23,8 +26,11 @@ import importlib.util
 import sys
 from pathlib import Path
 
-#: 2: the bundle has subpackages (one per component, numerics, fmi), re-pointed on reuse
-BOOT_ABI = 2
+#: 3: the bundle's folder is resources/agv_core_bundle (2: resources/agv_core, still read)
+BOOT_ABI = 3
+
+#: The bundle's folder in resources/, then the one of FMUs built before BOOT_ABI 3.
+BUNDLE_FOLDERS = ("agv_core_bundle", "agv_core")
 
 # pythonfmu 0.7's findClass executes the slave script again at every instantiation, with
 # the module's globals, and then calls Py_DECREF on that globals dict although it only
@@ -43,7 +49,9 @@ def load_core(*submodules):
     Call it at module level of the slave script (it pins the caller's globals, see above).
     """
     _PINNED_GLOBALS.append(sys._getframe(1).f_globals)
-    root = Path(sys.path[0]) / "agv_core"
+    root = next((Path(sys.path[0]) / folder for folder in BUNDLE_FOLDERS
+                 if (Path(sys.path[0]) / folder / "BUILD_ID").is_file()),
+                Path(sys.path[0]) / BUNDLE_FOLDERS[0])
     build_id = root / "BUILD_ID"
     if not build_id.is_file():
         raise ImportError(f"agv_boot: '{root}' holds no BUILD_ID; slave scripts run only "

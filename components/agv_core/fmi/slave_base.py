@@ -90,11 +90,11 @@ class SlaveLogic:
         pythonfmu imports a slave module once per process by file name, so a second FMU
         with the same slave script but other sources would silently run the first one's
         code. The package this class came from is named ``agv_core_<tag>`` by the boot
-        loader; the FMU's own bundle says its tag in ``agv_core/BUILD_ID``.
+        loader; the FMU's own bundle says its tag in ``agv_core_bundle/BUILD_ID``.
         """
         if self.resources is None:
             return
-        build_id = Path(self.resources) / "agv_core" / "BUILD_ID"
+        build_id = Path(self.resources) / "agv_core_bundle" / "BUILD_ID"
         package = __name__.partition(".")[0]  # the root package, agv_core_<tag>
         if not build_id.is_file() or not package.startswith("agv_core_"):
             return
