@@ -27,7 +27,17 @@ also the load average before and after, and the versions of osqp, numpy and scip
 parts, CPU time per update: QP assembly (``LtvMpc.qp``, dense numpy), the two sparse
 conversions, OSQP's ``setup`` (which factorises) and ``solve`` (with polishing).
 
+``--loop REV`` times the FMU loop instead: ``experiments/seed001_scurve.toml`` variant
+``mpc`` (reference, MPC, inverse kinematics, vehicle; 350 steps of 0.2 s) through
+``master.simulate`` in a child process, with the FMUs and code of REV (``git archive``,
+built by its own build code, ``PYTHONPATH`` first) and of this checkout, interleaved
+``--rounds`` times. It prints per side the median CPU time (``time.process_time``) and
+wall time of the simulation, the number of OSQP solves (counted at ``osqp.OSQP.solve``,
+which the FMUs' cores call in the same process), and the median of the per-round CPU
+ratios REV / this checkout; the recordings of all runs must be bit-identical.
+
 Run:  .venv/bin/python benchmarks/bench_mpc.py [--rounds 3] [--baseline a4daefc] [--parts]
+      .venv/bin/python benchmarks/bench_mpc.py --loop 11281e9 [--rounds 5]
 """
 
 import argparse
@@ -138,6 +148,100 @@ def parts():
         print(f"  {key:<30} {1e3 * float(np.median(values)):7.3f}")
 
 
+LOOP_MANIFEST = "experiments/seed001_scurve.toml"
+LOOP_VARIANT = "mpc"
+LOOP_STEMS = ("agv_ref_trajectory", "agv_double_steer", "agv_double_steer_ik", "agv_ltv_mpc",
+              "agv_lateral_pid")
+
+
+def loop_child(manifest):
+    """One simulation of the loop: CPU and wall time [s], OSQP solves, digest."""
+    import hashlib
+    import struct
+
+    import osqp
+
+    from agv_cosim.master import simulate
+    from agv_cosim.runner import prepare
+
+    solves = [0]
+    solve = osqp.OSQP.solve
+
+    def counted(self, *args, **kwargs):
+        solves[0] += 1
+        return solve(self, *args, **kwargs)
+
+    osqp.OSQP.solve = counted
+    _, jobs, _ = prepare(manifest, variants=[LOOP_VARIANT])
+    rows = []
+    c0, w0 = time.process_time(), time.perf_counter()
+    simulate(jobs[0].plan, lambda row: rows.append(tuple(row)))
+    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+    digest = hashlib.sha256()
+    for row in rows:
+        digest.update(struct.pack(f"<{len(row)}d", *row))
+    return {"cpu": cpu, "wall": wall, "solves": solves[0], "rows": len(rows),
+            "digest": digest.hexdigest()[:16]}
+
+
+def _loop_side(tree, folder):
+    """Build the loop's FMUs from ``tree`` into ``folder/fmus`` with ``tree``'s build code
+    and write its manifest into ``folder/experiments``; returns (manifest, env)."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(tree / "orchestrator"), str(tree / "components")])
+    (folder / "fmus").mkdir(parents=True)
+    code = ("import sys\nfrom pathlib import Path\n"
+            "from agv_cosim.build import build_one, default_components_dir, slave_scripts\n"
+            "scripts = {p.stem: p for p in slave_scripts(default_components_dir())}\n"
+            f"for stem in {list(LOOP_STEMS)!r}:\n"
+            "    build_one(scripts[stem], Path(sys.argv[1]))\n")
+    subprocess.run([sys.executable, "-c", code, str(folder / "fmus")], check=True, env=env,
+                   cwd=str(folder), capture_output=True)
+    manifest = folder / LOOP_MANIFEST
+    manifest.parent.mkdir(parents=True)
+    shutil.copyfile(tree / LOOP_MANIFEST, manifest)   # its FMUs are "../fmus/<name>.fmu"
+    return manifest, env
+
+
+def loop(rev, rounds, tmp):
+    """The FMU loop of ``rev`` and of this checkout, interleaved (see the docstring)."""
+    old_tree = tmp / "old_tree"
+    old_tree.mkdir()
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev], check=True,
+                             capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(old_tree)], input=archive, check=True)
+    sides = {rev: _loop_side(old_tree, tmp / "old"), "this checkout": _loop_side(ROOT,
+                                                                                tmp / "new")}
+    results = {side: [] for side in sides}
+    load0 = os.getloadavg()
+    for r in range(rounds):
+        for side, (manifest, env) in sides.items():
+            out = subprocess.run([sys.executable, __file__, "--loop-child", str(manifest)],
+                                 check=True, capture_output=True, text=True, env=env,
+                                 cwd=str(manifest.parent))
+            res = json.loads(out.stdout.strip().splitlines()[-1])
+            results[side].append(res)
+            print(f"  round {r + 1}: {side:<14} CPU {res['cpu']:.3f} s, wall {res['wall']:.3f}"
+                  f" s, {res['solves']} solves [{res['digest']}]", flush=True)
+    load1 = os.getloadavg()
+    print(f"{LOOP_MANIFEST} variant {LOOP_VARIANT} through master.simulate, {rounds} rounds; "
+          f"load average {load0[0]:.1f} before, {load1[0]:.1f} after")
+    for side, rs in results.items():
+        print(f"  {side:<14} median CPU {statistics.median(r['cpu'] for r in rs):.3f} s, wall "
+              f"{statistics.median(r['wall'] for r in rs):.3f} s, OSQP solves "
+              f"{sorted({r['solves'] for r in rs})} for {rs[0]['rows']} samples")
+    pairs = [o["cpu"] / n["cpu"] for o, n in zip(results[rev], results["this checkout"])]
+    print(f"CPU {rev} / this checkout, median of rounds: {statistics.median(pairs):.2f} "
+          f"({', '.join(f'{p:.2f}' for p in pairs)})")
+    digests = {r["digest"] for rs in results.values() for r in rs}
+    if len(digests) != 1:
+        print(f"RECORDINGS DIFFER: {sorted(digests)}")
+        return 1
+    print(f"all {sum(len(rs) for rs in results.values())} recordings bit-identical "
+          f"(digest {digests.pop()})")
+    return 0
+
+
 # ------------------------------------------------------------------------ parent
 def _versions():
     import numpy
@@ -179,7 +283,10 @@ def main(argv=None):
                         help="git revision whose cores run beside this checkout's")
     parser.add_argument("--parts", action="store_true",
                         help="split this checkout's update into its parts (CPU time)")
+    parser.add_argument("--loop", metavar="REV",
+                        help="time the seed-001 FMU loop of REV against this checkout's")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--loop-child", metavar="MANIFEST", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.parts:
         parts()
@@ -187,9 +294,14 @@ def main(argv=None):
     if args.child:
         print(json.dumps(child()))
         return 0
+    if args.loop_child:
+        print(json.dumps(loop_child(args.loop_child)))
+        return 0
 
     tmp = Path(tempfile.mkdtemp(prefix="agv_bench_mpc_"))
     try:
+        if args.loop:
+            return loop(args.loop, args.rounds, tmp)
         sides = {"this checkout": ROOT}
         if args.baseline:
             tree = tmp / "baseline"
