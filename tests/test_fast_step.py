@@ -267,6 +267,16 @@ LAZY_CASES = {  # slave script: (parameters, inputs as functions of t, outputs)
     "agv_state_feedback": ({}, {"alpha": lambda t: 0.1 * t, "heading_error": math.sin,
                                 "lateral_error": math.cos}, ("u",)),
 }
+# the seed-001 tracking controllers, sampled every 2 steps (30 samples in the 60 steps)
+_TRACKING_INPUTS = {"x": lambda t: 0.4 * t + 0.01 * math.sin(50 * t),
+                    "y": lambda t: -0.5 + 2 * t, "heading": lambda t: 0.1 * math.cos(40 * t),
+                    "x_ref": lambda t: 0.4 * t, "y_ref": lambda t: 0.0,
+                    "heading_ref": lambda t: 0.0, "v_ref": lambda t: 0.4,
+                    "omega_ref": lambda t: 0.0}
+LAZY_CASES["agv_ltv_mpc"] = ({"sample_time": 0.002}, _TRACKING_INPUTS,
+                             ("v_c", "omega", "dv_c", "iterations"))
+LAZY_CASES["agv_lateral_pid"] = ({"sample_time": 0.002}, _TRACKING_INPUTS,
+                                 ("v_c", "omega", "e_lat"))
 
 
 def _drive(fmu, folder, params, inputs, outputs, read_after_step, read_every, set_every=1):

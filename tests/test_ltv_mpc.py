@@ -1,6 +1,7 @@
 """Tests of the seed-001 LTV MPC (agv_core.ltv_mpc) and the comparison PID (agv_core.pid)."""
 
 import math
+import shutil
 
 import numpy as np
 import pytest
@@ -165,3 +166,86 @@ def test_pid_saturates_and_holds_its_integral():
     assert out["integral"] == 0.0   # saturated from the first sample: never integrated
     out = pid.update(1.0, 0.4, -0.01, 0.0, _ref(1.0))   # back in the linear range
     assert out["omega"] < 0.6 and out["integral"] == pytest.approx(-0.002)
+
+
+# ---------------------------------------------------------------------- the FMU
+def _pose(t):
+    """A measured pose that moves at every communication point."""
+    return 0.4 * t + 0.01 * math.sin(3 * t), -0.5 + 0.05 * t, 0.02 * math.cos(t)
+
+
+@pytest.mark.parametrize("h, reads_before_sets", [(0.2, False), (0.05, False), (0.2, True)])
+def test_mpc_fmu_solves_once_per_sample_and_reads_show_the_current_inputs(
+        tmp_path, monkeypatch, h, reads_before_sets):
+    """The MPC FMU in the master's Gauss-Seidel pattern (at each communication point:
+    set the inputs, read the outputs, step) solves one QP per sample instant (T = 0.2 s,
+    communication step ``h``), counted at OSQP's ``solve`` over every FMI call from
+    exitInitializationMode on; the outputs read equal the
+    plain core's to the last bit. ``reads_before_sets``: the outputs are also read right
+    after each step, before the sets (FMI: they are those of the held inputs at the new
+    time), which is a second QP at each instant, as it must be."""
+    import osqp
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    from agv_cosim.build import build_one, slave_script
+
+    solves = [0]
+    solve = osqp.OSQP.solve
+
+    def counted(self, *args, **kwargs):
+        solves[0] += 1
+        return solve(self, *args, **kwargs)
+
+    monkeypatch.setattr(osqp.OSQP, "solve", counted)
+    fmu = build_one(slave_script("agv_ltv_mpc"), tmp_path).fmu
+    md = read_model_description(str(fmu))
+    refs = {v.name: v.valueReference for v in md.modelVariables}
+    inputs = [refs[n] for n in ("x", "y", "heading", "x_ref", "y_ref", "heading_ref",
+                                "v_ref", "omega_ref")]
+    outputs = [refs[n] for n in ("v_c", "omega", "dv_c", "domega", "iterations")]
+    folder = extract(str(fmu))
+    core = LtvMpc()                # the FMU's parameter defaults are the core's
+    steps, fmu_solves = int(round(4.0 / h)), 0
+    try:
+        slave = FMU2Slave(guid=md.guid, unzipDirectory=folder,
+                          modelIdentifier=md.coSimulation.modelIdentifier,
+                          instanceName="mpc")
+        slave.instantiate()
+        slave.setupExperiment(startTime=0.0)
+        slave.enterInitializationMode()
+        before = solves[0]
+        slave.exitInitializationMode()     # no QP: the first read after the sets solves
+        fmu_solves += solves[0] - before
+        held = None
+        for k in range(steps + 1):
+            t = k * h
+            if reads_before_sets and held is not None:
+                before = solves[0]
+                got = slave.getReal(outputs)
+                fmu_solves += solves[0] - before
+                want = core.update(t, *held[:3], _ref(held[3]))
+                assert got == [want["v_c"], want["omega"], want["dv_c"], want["domega"],
+                               float(want["iterations"])]
+            x, y, hd = _pose(t)
+            r = _ref(t)
+            before = solves[0]
+            slave.setReal(inputs, [x, y, hd, r["x"], r["y"], r["heading"], r["v"],
+                                   r["omega"]])
+            got = slave.getReal(outputs)
+            fmu_solves += solves[0] - before
+            want = core.update(t, x, y, hd, r)
+            assert got == [want["v_c"], want["omega"], want["dv_c"], want["domega"],
+                           float(want["iterations"])], t
+            if k < steps:
+                before = solves[0]
+                slave.doStep(t, h)
+                fmu_solves += solves[0] - before
+                core.step(t, h, x, y, hd, r)
+                held = (x, y, hd, t)
+        slave.terminate()
+        slave.freeInstance()
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    samples = int(round(4.0 / 0.2)) + 1
+    assert fmu_solves == (2 * samples - 1 if reads_before_sets else samples)

@@ -1,5 +1,6 @@
 """Tests of agv_core.sensors and the vision-sensor FMU."""
 
+import hashlib
 import json
 import math
 import shutil
@@ -257,3 +258,113 @@ def test_total_station_dropout_loses_fixes_and_keeps_the_random_stream():
             same_after = (same_after is None or same_after) and a == b
     assert worst_age > 1.0          # the fix shown aged over the whole dropout
     assert same_after               # and the stream is unchanged afterwards
+
+
+# ---------------------------------------------------------------------- random numbers
+class _NoDraws:
+    """Stands in for a sensor's generator: any use of it fails the test."""
+
+    def __getattr__(self, name):
+        raise AssertionError(f"the generator was used (rng.{name})")
+
+
+def _trace(sensor, kind, h=0.01, n=300):
+    """SHA-256 digests (16 hex digits) of what ``sensor`` shows over ``n`` steps of ``h``
+    [s], read twice at every point (a tentative sample must not take new numbers): of
+    the values (their repr), and of the values and the generator's final state."""
+    rows = []
+    for i in range(n + 1):
+        t = i * h
+        x, y, hd = pose(t)
+        if kind == "vision":
+            read = lambda: sensor.measure(t, x, y, hd)  # noqa: E731
+        elif kind == "station":
+            read = lambda: sensor.measure(t, x, y)  # noqa: E731
+        else:
+            read = lambda: (sensor.measure(t, hd),)  # noqa: E731
+        first = read()
+        assert read() == first
+        rows.append(tuple(first))
+        if i < n:
+            if kind == "vision":
+                sensor.step(t, h, x, y, hd)
+            elif kind == "station":
+                sensor.step(t, h, x, y)
+            else:
+                sensor.step(t, h)
+    values = hashlib.sha256(repr(rows).encode())
+    stream = values.copy()
+    if not isinstance(sensor.rng, _NoDraws):
+        stream.update(repr(sensor.rng.bit_generator.state).encode())
+    return values.hexdigest()[:16], stream.hexdigest()[:16]
+
+
+def _sensors():
+    """(name, kind, factory) of the configurations pinned below."""
+    sine = parse_path("sine:amplitude=3,wavelength=30")
+    return [
+        ("vision, feedthrough", "vision",
+         lambda **k: VisionSensor(sine, frame_period=0.0, latency=0.0, seed=7, **k)),
+        ("vision, frames and latency", "vision",
+         lambda **k: VisionSensor(sine, frame_period=0.04, latency=0.04, seed=7, **k)),
+        ("total station, feedthrough", "station",
+         lambda **k: TotalStation(mean_interval=0.1, latency=0.0, seed=7, **k)),
+        ("total station, latency", "station",
+         lambda **k: TotalStation(mean_interval=0.1, latency=0.05, seed=7, **k)),
+        ("gyro / steering sensor", "instant",
+         lambda **k: InstantSensor(drift=GYRO_DRIFT, resolution=1e-4, seed=7, **k)),
+    ]
+
+
+#: parameters without random spread, per kind
+_ZERO = {"vision": dict(noise_lateral=0.0, noise_heading=0.0),
+         "station": dict(noise=0.0, jitter=0.0), "instant": dict(noise=0.0)}
+
+#: parameters with random spread, per kind (with a zero-weighted number that is still
+#: drawn because another is not)
+_SPREAD = {"vision": [dict(noise_lateral=0.002, noise_heading=0.004),
+                      dict(noise_lateral=0.0, noise_heading=0.004)],
+           "station": [dict(noise=0.003, jitter=0.02), dict(noise=0.0, jitter=0.02),
+                       dict(noise=0.003, jitter=0.0)],
+           "instant": [dict(noise=0.001)]}
+
+#: _trace's digests recorded with the sensors of commit 11281e9, which drew every
+#: number whatever the spread: "<name>-zero" the values without spread (then drawn and
+#: multiplied by 0), "<name>-<i>" the values and the stream with _SPREAD[kind][i]
+_RECORDED = {
+    "vision, feedthrough-zero": "db61530c657f441f",
+    "vision, feedthrough-0": "b81ea6c5d762c04e",
+    "vision, feedthrough-1": "d6b7cd3addffee46",
+    "vision, frames and latency-zero": "ebd986b9abc24203",
+    "vision, frames and latency-0": "3fc9a34db759a5ba",
+    "vision, frames and latency-1": "b5ec4302d998c02e",
+    "total station, feedthrough-zero": "5b30b3e449335032",
+    "total station, feedthrough-0": "7462f927e8d69775",
+    "total station, feedthrough-1": "f86d3601becc065e",
+    "total station, feedthrough-2": "00ad9efbea5a2e8f",
+    "total station, latency-zero": "8c79272b95d157f5",
+    "total station, latency-0": "06361ac491cdbd58",
+    "total station, latency-1": "15d5ced6054d5086",
+    "total station, latency-2": "1e951189ed107d01",
+    "gyro / steering sensor-zero": "ed778939c78883fb",
+    "gyro / steering sensor-0": "c388bd188ca2061d",
+}
+
+
+@pytest.mark.parametrize("name, kind, make", _sensors(), ids=[n for n, _, _ in _sensors()])
+def test_a_sensor_without_random_spread_never_uses_its_generator(name, kind, make):
+    """Zero noise (total station: and zero jitter): the generator is never called (a
+    stand-in fails on any use), and the values are those recorded when the noise was
+    drawn and multiplied by zero."""
+    sensor = make(**_ZERO[kind])
+    sensor.rng = _NoDraws()
+    values, _ = _trace(sensor, kind)
+    assert values == _RECORDED[f"{name}-zero"]
+
+
+@pytest.mark.parametrize("name, kind, i", [(name, kind, i) for name, kind, _ in _sensors()
+                                           for i in range(len(_SPREAD[kind]))])
+def test_a_sensor_with_random_spread_draws_the_stream_recorded_before(name, kind, i):
+    make = next(m for n, _, m in _sensors() if n == name)
+    _, stream = _trace(make(**_SPREAD[kind][i]), kind)
+    assert stream == _RECORDED[f"{name}-{i}"]

@@ -19,7 +19,8 @@ implements three hooks:
     feedthrough output that is consistent with the inputs it has just set. A slave
     whose ``publish`` is a function of the core's state, the inputs and ``self.time``
     alone may say so (``lazy_publish = True``): if it has a direct-feedthrough output,
-    the call after a step then waits for the next read (or state save) too.
+    the calls after initialisation and after a step then wait for the next read (or
+    state save) too.
 
 The behaviour shared with the FMI 3.0 twins is in :mod:`agv_core.slave_base`. This
 adapter also writes what pythonfmu leaves out of ``modelDescription.xml``: units and

@@ -43,8 +43,9 @@ class SlaveLogic:
 
     #: True in a slave whose ``publish`` is a function of the core's state, the inputs
     #: and ``self.time`` alone (calling it again, or once fewer, changes nothing): if
-    #: some output depends directly on an input, the publication after a step then
-    #: waits for the next read (after the master's sets), which saves one per step
+    #: some output depends directly on an input, the publication at exit from
+    #: initialisation and after a step then waits for the next read (after the
+    #: master's sets), which saves one per step
     lazy_publish = False
 
     author = "agv-cosim"
@@ -177,6 +178,10 @@ class SlaveLogic:
         self._lazy_step = self.lazy_publish and any(self._dependencies.values())
         try:
             self.core = self.make_core()
+            if self._lazy_step:
+                # the master sets the inputs of t0 before it reads: publish at that read
+                self._stale = True
+                return
             self.publish()
         except ParameterError as error:
             self._fail(str(error))

@@ -23,6 +23,13 @@ class TrackingSlave(AgvSlave):
     #: exception classes of the core that are reported as an FMU error with their message
     solve_errors = ()
 
+    #: publish shows the core's sample of ``self.time`` for the current inputs (the
+    #: sample-and-hold of agv_core.numerics.sampling): a publication skipped after a step
+    #: is the one the next read (after the master's sets) makes, or the one the step
+    #: from here makes when nothing reads, so each sample's law runs once per set of
+    #: inputs it sees
+    lazy_publish = True
+
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.input("x", 0.0, "m", "Measured x of the AGV centroid")

@@ -34,6 +34,11 @@ sample once, in order, however often the outputs are read. A sensor whose genera
 feeds nothing but the samples' noise (vision) keeps the numbers instead of the state:
 they are the next numbers of its stream whichever sample is committed next, so nothing
 is put back, and its state holds them (``ahead``) with the generator's state after them.
+A sensor without random spread (vision: both noise deviations 0; total station: noise
+and jitter 0; gyro, steering sensor: noise 0) draws nothing: its samples are noise-free
+and its generator stays at the seed's start. One with any spread draws every number of
+its documented order, zero-weighted ones included, so the stream is the same whatever
+the other parameters are.
 """
 
 import math
@@ -72,9 +77,11 @@ def _quantize(value, resolution):
 class _Sampled:
     """Capture schedule, latency line and random generator of a sampled sensor."""
 
-    def __init__(self, latency, seed, t0):
+    def __init__(self, latency, seed, t0, draws=True):
         self.latency = _nonneg("latency", latency)
         self.rng = np.random.default_rng(_seed(seed))
+        #: False for a sensor without random spread: it never uses its generator
+        self.draws = bool(draws)
         self.t0 = float(t0)
         self.pending = deque()       # (t_available, t_capture, values)
         self.current = None          # (t_capture, values) of the newest available sample
@@ -110,7 +117,10 @@ class _Sampled:
     NOISE_ONLY_STREAM = False
 
     def _tentative_noise(self, t_k):
-        """The noise of the sample of instant ``t_k``, drawn once and kept."""
+        """The noise of the sample of instant ``t_k``, drawn once and kept (None: the
+        sensor draws nothing)."""
+        if not self.draws:
+            return None
         drawn = self._drawn
         if drawn is not None:
             if at_instant(drawn[0], t_k):
@@ -152,8 +162,10 @@ class _Sampled:
                 if drawn is not None:
                     self._drawn = None
                     noise = drawn[2]
-                else:
+                elif self.draws:
                     noise = self._noise()
+                else:
+                    noise = None
                 values = self._sample(inputs, noise, commit=True)
                 if self.available:
                     self.pending.append((t_k + self.latency, t_k, values))
@@ -227,7 +239,8 @@ class VisionSensor(_Sampled):
 
     Notes
     -----
-    Per frame the generator draws the lateral noise, then the heading noise.
+    Per frame the generator draws the lateral noise, then the heading noise (both, when
+    either deviation is above 0; none when both are 0).
     ``s``, ``curvature`` and ``curvature_rate`` are those of the projection of the
     captured pose (noise-free); projections after the first use the previous frame's s
     as hint.
@@ -241,7 +254,8 @@ class VisionSensor(_Sampled):
         self.frame_period = _nonneg("frame_period", frame_period)
         self.noise_lateral = _nonneg("noise_lateral", noise_lateral)
         self.noise_heading = _nonneg("noise_heading", noise_heading)
-        super().__init__(latency, seed, t0)
+        super().__init__(latency, seed, t0,
+                         draws=self.noise_lateral > 0.0 or self.noise_heading > 0.0)
         p = self.frame_period
         self.next_k = 0 if p == 0.0 else math.ceil((self.t0 - EPS) / p)
         self.next_t = self.t0
@@ -327,7 +341,9 @@ class TotalStation(_Sampled):
 
     Notes
     -----
-    Per fix the generator draws the x noise, the y noise, then the next interval.
+    Per fix the generator draws the x noise, the y noise, then the next interval (all
+    three when the noise or the jitter is above 0, so the fix times of a noise-free
+    station with jitter are those of a noisy one; none when both are 0).
     """
 
     def __init__(self, mean_interval=0.65, jitter=0.15, latency=0.1, noise=0.003, seed=0,
@@ -340,14 +356,17 @@ class TotalStation(_Sampled):
             raise ParameterError("jitter", f"must be < mean_interval ({mean_interval} s), "
                                            f"got {jitter}")
         self.noise = _nonneg("noise", noise)
-        super().__init__(latency, seed, t0)
+        super().__init__(latency, seed, t0, draws=self.noise > 0.0 or self.jitter > 0.0)
         self.next_t = self.t0
 
     def _next_time(self):
         return self.next_t
 
     def _advance_schedule(self):
-        self.next_t += self.mean_interval + self.jitter * (2.0 * self.rng.random() - 1.0)
+        if self.draws:
+            self.next_t += self.mean_interval + self.jitter * (2.0 * self.rng.random() - 1.0)
+        else:
+            self.next_t += self.mean_interval
 
     def _noise(self):
         normal = self.rng.standard_normal
