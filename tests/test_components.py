@@ -4,10 +4,11 @@ the committed reference results and the documented parameter tables.
 - No core or numerics module imports pythonfmu / pythonfmu3 or the ``agv_core.fmi`` package
   (the imports are read with ``ast``, not run).
 - Every component folder has a README.md, at least one slave script, and for each slave
-  script the reference result ``<Model>_ref.csv`` equal to the byte to the output of the
-  default experiment the built FMU ships (``extra/org.fmi-standard.fmi-ls-ref``). Exact:
-  the build writes both from the same simulation with ``repr`` floats, so any difference
-  is a change of behaviour.
+  script the reference result ``<Model>_ref.csv``, the output of the default experiment
+  that the built FMU ships (``extra/org.fmi-standard.fmi-ls-ref``), computed where the
+  committed file was made. The FMU built here computes its own on this machine, so the two
+  are compared within ``REFERENCE_TOLERANCE`` (see there), not byte for byte: the header,
+  the number of rows and the time column exactly, every output within the band.
 - Each component README's parameter tables (name, unit, default) match the built FMUs'
   modelDescription.xml both ways: no undocumented parameter, no stale row.
 """
@@ -95,14 +96,74 @@ def test_every_component_folder_is_complete(folder):
     assert cores, f"{folder.name}/ has no core module"
 
 
+#: Band of a committed reference result against the one built here, as a fraction of
+#: each column's largest magnitude (at least 1 in the column's unit). A reference result
+#: depends on the machine that computed it: OpenBLAS (scipy's and numpy's LAPACK/BLAS) is
+#: built with DYNAMIC_ARCH and picks its kernel by CPU (Haswell, SkylakeX, ...), and numpy
+#: picks its SIMD loops for tan, arctan, exp by CPU (AVX2, AVX-512), so the last bits of a
+#: Riccati solution or a matrix exponential move with the machine. Measured by re-running
+#: every default experiment here under OPENBLAS_CORETYPE=Haswell/SkylakeX/Prescott with
+#: and without NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR": at most 1.1e-15
+#: of the column (AgvPreviewLq alpha_ref, AgvSteeringC alpha_rate, AgvLtvMpc domega), the
+#: other models bit for bit. 1e-12 leaves a factor of about 1000 and is far below any
+#: modelled effect; a re-run on one machine is checked bit for bit (test_fmu_reference.py).
+REFERENCE_TOLERANCE = 1e-12
+
+
+def _table(data):
+    """(header, rows as lists of floats) of a reference CSV."""
+    lines = data.decode().splitlines()
+    return lines[0].split(","), [[float(x) for x in line.split(",")] for line in lines[1:]]
+
+
+def reference_differences(committed, shipped, tolerance=REFERENCE_TOLERANCE):
+    """Where two reference CSVs (bytes) differ beyond ``tolerance``: one line per column
+    (its worst row), the header, row count and time column compared exactly."""
+    head_c, rows_c = _table(committed)
+    head_s, rows_s = _table(shipped)
+    if head_c != head_s:
+        return [f"columns {head_c} != {head_s}"]
+    if len(rows_c) != len(rows_s):
+        return [f"{len(rows_c)} rows != {len(rows_s)}"]
+    found = []
+    for j, name in enumerate(head_c):
+        column_c = [row[j] for row in rows_c]
+        column_s = [row[j] for row in rows_s]
+        band = 0.0 if j == 0 else tolerance * max(1.0, *map(abs, column_c))
+        worst = max(range(len(column_c)), key=lambda i: abs(column_s[i] - column_c[i]))
+        if not abs(column_s[worst] - column_c[worst]) <= band:
+            found.append(f"{name}: row {worst + 1}: {column_c[worst]!r} committed, "
+                         f"{column_s[worst]!r} built (band {band:.3g})")
+    return found
+
+
+def test_reference_comparison_sees_a_difference_beyond_the_band():
+    committed = b"time,x,y\n0.0,1.0,100.0\n0.1,2.0,-200.0\n"
+    assert reference_differences(committed, committed) == []
+    assert reference_differences(committed, b"time,x,y\n0.0,1.0,100.0\n0.1,2.0,"
+                                            b"-200.00000000000003\n") == []  # 1 ulp
+    assert reference_differences(committed, b"time,x,y\n0.0,1.0000000001,100.0\n"
+                                            b"0.1,2.0,-200.0\n") == [
+        "x: row 1: 1.0 committed, 1.0000000001 built (band 2e-12)"]
+    assert reference_differences(committed, b"time,x,y\n0.0,1.0,100.0\n"
+                                            b"0.10000000000000002,2.0,-200.0\n") == [
+        "time: row 2: 0.1 committed, 0.10000000000000002 built (band 0)"]
+    assert reference_differences(committed, b"time,y,x\n0.0,1.0,100.0\n") == [
+        "columns ['time', 'x', 'y'] != ['time', 'y', 'x']"]
+    assert reference_differences(committed, b"time,x,y\n0.0,1.0,100.0\n") == [
+        "2 rows != 1"]
+
+
 @pytest.mark.parametrize("model", sorted(MODELS))
 def test_committed_reference_result_is_the_one_the_fmu_ships(component_fmus, model):
     script = MODELS[model]
     with zipfile.ZipFile(component_fmus[script.stem]) as archive:
         shipped = archive.read(f"{REFERENCE_DIR}/{model}_out.csv")
     committed = (script.parent / f"{model}_ref.csv").read_bytes()
-    assert committed == shipped, (f"{model}: the built FMU's reference output differs from "
-                                  f"{script.parent.name}/{model}_ref.csv")
+    differences = reference_differences(committed, shipped)
+    assert not differences, (f"{model}: the built FMU's reference output differs from "
+                             f"{script.parent.name}/{model}_ref.csv: "
+                             + "; ".join(differences))
 
 
 _TABLE_HEAD = re.compile(r"^Parameters of `(\w+)`")
