@@ -53,3 +53,22 @@ def localise(source, folder, fmus, replace=(), resub=(), name=None):
     path = Path(folder) / (name or source.name)
     path.write_text(text, encoding="utf-8")
     return path
+
+
+def assert_complete(results, count, metrics=True):
+    """Every one of ``count`` run results (``run_manifest``'s list) is ``complete`` and,
+    with ``metrics``, has its metrics (none missing, no ``metrics_error``). A failure
+    names each run that is not, with its status, rows, error and metrics error, so that
+    an empty metrics table shows its reason instead of a KeyError later."""
+    def wrong(result):
+        if result.get("status") != "complete":
+            return True
+        return metrics and (result.get("metrics_error") is not None
+                            or not result.get("metrics"))
+
+    bad = [f"{r.get('label')}: status {r.get('status')!r}, {r.get('rows')} rows, "
+           f"error {r.get('error')!r}, metrics_error {r.get('metrics_error')!r}, "
+           f"metrics {sorted(r.get('metrics') or {})}" for r in results if wrong(r)]
+    assert len(results) == count and not bad, (
+        f"{len(results)} run(s), {count} expected; not complete with metrics: "
+        + ("; ".join(bad) or "none"))

@@ -16,7 +16,7 @@ import scipy.linalg
 
 from agv_core.state_feedback.state_feedback import PAPER_GAINS, closed_loop, model_b
 from agv_cosim.runner import run_manifest
-from manifests import localise
+from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed
 
@@ -45,7 +45,7 @@ def abc(component_fmus, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("seed000_abc")
     out, results, _ = run_manifest(_localise("seed000_models_abc.toml", tmp, component_fmus),
                                    out_dir=tmp / "out", quiet=True)
-    assert [r["status"] for r in results] == ["complete"] * 3
+    assert_complete(results, 3)
     return {m: _series(out, m) for m in "abc"}
 
 
@@ -56,7 +56,7 @@ def speed(component_fmus, tmp_path_factory):
             (r"^stop = 15\.0$", "stop = 10.0")]
     out, results, _ = run_manifest(_localise("seed000_speed.toml", tmp, component_fmus, trim),
                                    out_dir=tmp / "out", quiet=True)
-    assert all(r["status"] == "complete" for r in results) and len(results) == 8
+    assert_complete(results, 8)
     with open(out / "summary.csv", newline="") as handle:
         summary = {row["run"]: row for row in csv.DictReader(handle)}
     runs = {}

@@ -28,7 +28,7 @@ from agv_core.ref_trajectory.ref_trajectory import RefTrajectory
 from agv_core.double_steer.seed001_loop import run_loop
 from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
-from manifests import localise
+from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed
 
@@ -42,7 +42,7 @@ def _run(name, component_fmus, tmp_path_factory):
     tmp = tmp_path_factory.mktemp(name)
     manifest = localise(EXPERIMENTS / f"{name}.toml", tmp, component_fmus)
     out, results, _ = run_manifest(manifest, tmp / "out", workers=2, quiet=True)
-    assert all(r["status"] == "complete" for r in results), results
+    assert_complete(results, len(results))
     runs = {}
     for r in results:
         t, sig = read_timeseries(out / r["label"] / "timeseries.csv")
@@ -227,7 +227,7 @@ def rate_limit_runs(component_fmus, tmp_path_factory):
                                  ("settle_after = 60.0", "settle_after = 6.0"),
                                  ('"ctrl.horizon" = [5, 6, 7, 8]', '"ctrl.horizon" = [6, 7]')])
     out, results, _ = run_manifest(manifest, tmp / "out", workers=2, quiet=True)
-    assert all(r["status"] == "complete" for r in results), results
+    assert_complete(results, len(results))
     return {r["label"]: read_timeseries(out / r["label"] / "timeseries.csv") for r in results}
 
 

@@ -25,7 +25,7 @@ import pytest
 from agv_core.numerics.paths import parse_path, project_trajectory
 from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
-from manifests import localise
+from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed
 
@@ -149,7 +149,7 @@ def step_runs(component_fmus, tmp_path_factory):
                         name="step.toml")
     out, results, _ = run_manifest(manifest, tmp / "out", variants=["v02kmh", "v08kmh",
                                                                    "v14kmh"], quiet=True)
-    assert [r["status"] for r in results] == ["complete"] * 3
+    assert_complete(results, 3)
     return out
 
 
@@ -160,7 +160,7 @@ def sine_runs(component_fmus, tmp_path_factory):
     manifest = localise(EXPERIMENTS / "seed002_sine.toml", tmp, component_fmus,
                         name="sine.toml", replace=[("stop = 60.0 ", "stop = 42.0 ")])
     out, results, _ = run_manifest(manifest, tmp / "out", variants=["pose"], quiet=True)
-    assert results[0]["status"] == "complete"
+    assert_complete(results, 1)
     return out
 
 
@@ -174,7 +174,7 @@ def cross_runs(component_fmus, tmp_path_factory):
                                  ('"vehicle.v0" = [0.5, 1.0, 2.0, 3.0, 4.0]',
                                   '"vehicle.v0" = [1.0, 4.0]')])
     out, results, _ = run_manifest(manifest, tmp / "out", quiet=True)
-    assert [r["status"] for r in results] == ["complete"] * 4
+    assert_complete(results, 4)
     return out, {r["label"]: r["metrics"] for r in results}
 
 

@@ -19,7 +19,7 @@ from agv_core.axle_pd.track_path import PointErrors, parse_track_path
 from agv_core.train.train import Train, TrainGeometry, steady_offsets
 from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
-from manifests import localise
+from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed
 
@@ -38,7 +38,7 @@ def curve_runs(component_fmus, tmp_path_factory):
                         replace=[("stop = 36.0", f"stop = {STOP}")])
     out, results, _ = run_manifest(manifest, tmp / "out", variants=["fuzzy", "fixed"],
                                    workers=2, quiet=True)
-    assert [r["status"] for r in results] == ["complete"] * 2, results
+    assert_complete(results, 2)
     return {name: read_timeseries(out / name / "timeseries.csv")[1]
             for name in ("fuzzy", "fixed")}
 

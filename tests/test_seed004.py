@@ -18,7 +18,7 @@ import pytest
 from agv_core.numerics.paths import parse_path
 from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
-from manifests import localise
+from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed
 
@@ -52,7 +52,7 @@ def paths_run(component_fmus, tmp_path_factory):
     manifest = _copy_manifest("seed004_paths.toml", tmp, component_fmus,
                               drop=('[sweep]\n"ctrl.dead_reckoning" = [false, true]\n',))
     out, results, _ = run_manifest(manifest, tmp / "out", workers=2, quiet=True)
-    assert [r["status"] for r in results] == ["complete"] * 4, results
+    assert_complete(results, 4)
     return out
 
 
@@ -63,7 +63,7 @@ def sweep_run(component_fmus, tmp_path_factory):
     out, results, _ = run_manifest(manifest, tmp / "out",
                                    variants=["t010", "t030", "t065", "t100"],
                                    workers=2, quiet=True)
-    assert [r["status"] for r in results] == ["complete"] * 4, results
+    assert_complete(results, 4)
     return out
 
 

@@ -23,7 +23,7 @@ from agv_core.state_feedback.state_feedback import PAPER_GAINS, loop_poles
 from agv_core.train.train import TrainGeometry
 from agv_cosim.results import read_timeseries
 from agv_cosim.runner import run_manifest
-from manifests import localise
+from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed
 
@@ -65,7 +65,7 @@ def seed000(component_fmus, tmp_path_factory):
                         resub=[(r'^"vehicle\.v0" = \[.*\]', '"vehicle.v0" = [1.0, 4.0]')])
     out, results, _ = run_manifest(manifest, tmp / "out", quiet=True, workers=2,
                                    variants=["a_kin", "a_dyn", "b_kin", "b_dyn"])
-    assert [r["status"] for r in results] == ["complete"] * 8, results
+    assert_complete(results, 8)
     return {(r, v): _load(out, f"{r}__vehicle.v0={v}")
             for r in ("a_kin", "a_dyn", "b_kin", "b_dyn") for v in (1.0, 4.0)}
 
@@ -148,7 +148,7 @@ def seed003(component_fmus, tmp_path_factory):
                         resub=[(r'^"train\.v0" = \[.*\]', '"train.v0" = [3.888888888888889]')])
     out, results, _ = run_manifest(manifest, tmp / "out", quiet=True, workers=2,
                                    variants=["dyn_fuzzy", "dyn_fixed"])
-    assert [r["status"] for r in results] == ["complete"] * 2, results
+    assert_complete(results, 2)
     return {v: _load(out, f"{v}__train.v0=3.888888888888889")[1]
             for v in ("dyn_fuzzy", "dyn_fixed")}
 
@@ -194,7 +194,7 @@ def seed004(component_fmus, tmp_path_factory):
                         replace=[("stop = 45.0", "stop = 25.0")])
     out, results, _ = run_manifest(manifest, tmp / "out", quiet=True, workers=2,
                                    variants=["r277_kin", "r277_dyn"])
-    assert [r["status"] for r in results] == ["complete"] * 4, results
+    assert_complete(results, 4)
     return {(v, dr): json.loads((out / f"{v}__ctrl.dead_reckoning={dr}" / "metrics.json")
                                 .read_text())
             for v in ("r277_kin", "r277_dyn") for dr in ("False", "True")}
