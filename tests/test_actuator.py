@@ -199,11 +199,10 @@ def _purge_stale_cores():
                 del sys.modules[sub]
 
 
-def build(tmp_path, stem):
-    from agv_cosim.build import build_one, slave_script
-
+def build(component_fmus, stem):
+    """The session's FMU of slave script ``stem`` (component_fmus, built once)."""
     _purge_stale_cores()
-    return build_one(slave_script(stem), tmp_path).fmu
+    return component_fmus[stem]
 
 
 def simulate(fmu, params, inputs, h, n, tmp_path):
@@ -241,13 +240,13 @@ def simulate(fmu, params, inputs, h, n, tmp_path):
 
 
 @pytest.mark.slow  # seconds: builds or runs FMUs in processes
-def test_fmus_declare_truthful_dependencies(tmp_path):
+def test_fmus_declare_truthful_dependencies(component_fmus):
     from fmpy import read_model_description
 
     expected = {"agv_steering_a": set(), "agv_steering_b": {"u", "alpha_ref"},
                 "agv_steering_c": set()}
     for stem, rate_deps in expected.items():
-        md = read_model_description(build(tmp_path, stem))
+        md = read_model_description(build(component_fmus, stem))
         outputs = {o.variable.name: {d.name for d in (o.dependencies or [])}
                    for o in md.outputs}
         assert outputs == {"alpha": set(), "alpha_rate": rate_deps}, stem
@@ -257,26 +256,26 @@ def test_fmus_declare_truthful_dependencies(tmp_path):
 
 
 @pytest.mark.slow  # seconds: builds or runs FMUs in processes
-def test_fmu_a_delay_and_c_step_through_fmpy(tmp_path):
+def test_fmu_a_delay_and_c_step_through_fmpy(component_fmus, tmp_path):
     # the FMUs reproduce the core's closed forms (same tolerances as above)
     h = 0.03
-    out = simulate(build(tmp_path, "agv_steering_a"), {"K": 0.6, "tau": 0.05}, {"u": 1.0},
+    out = simulate(build(component_fmus, "agv_steering_a"), {"K": 0.6, "tau": 0.05}, {"u": 1.0},
                    h, 10, tmp_path)
     t = h * np.arange(1, 11)
     np.testing.assert_allclose(out["alpha"], 0.6 * np.maximum(0.0, t - 0.05), atol=1e-12)
     np.testing.assert_allclose(out["alpha_rate"], np.where(t >= 0.05, 0.6, 0.0), atol=1e-15)
 
     h = 0.01
-    out = simulate(build(tmp_path, "agv_steering_c"), {}, {"u": 1.0}, h, 100, tmp_path)
+    out = simulate(build(component_fmus, "agv_steering_c"), {}, {"u": 1.0}, h, 100, tmp_path)
     num = [0.6 / EQ6_DC_GAIN * c for c in EQ6_NUM]
     _, y = scipy.signal.step((num, list(EQ6_DEN) + [0.0]), T=h * np.arange(0, 101))
     np.testing.assert_allclose(out["alpha"], y[1:], atol=1e-6)
 
 
-def test_fmu_b_angle_mode_with_limits(tmp_path):
+def test_fmu_b_angle_mode_with_limits(component_fmus, tmp_path):
     # angle mode toward 1 rad with a 0.2 rad/s rate limit and a 0.3 rad end stop:
     # the servo asks for 6 rad/s, so alpha ramps at 0.2 rad/s and stops at 0.3 after 1.5 s
-    out = simulate(build(tmp_path, "agv_steering_b"),
+    out = simulate(build(component_fmus, "agv_steering_b"),
                    {"mode": "angle", "rate_max": 0.2, "alpha_max": 0.3},
                    {"alpha_ref": 1.0}, 0.01, 200, tmp_path)
     t = 0.01 * np.arange(1, 201)

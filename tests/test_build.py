@@ -13,6 +13,8 @@ import pytest
 from agv_cosim.build import (BuildError, build_fmus, build_one, default_components_dir,
                              fmu_guid_of, slave_script)
 
+pytestmark = pytest.mark.slow  # every test builds FMUs (seconds each) or runs the built ones
+
 VEHICLE = slave_script("agv_vehicle")
 
 
@@ -195,7 +197,6 @@ def test_failing_instances_do_not_corrupt_the_host(component_fmus):
     assert float(done.stdout.split()[-1]) == pytest.approx(0.03, abs=1e-12)
 
 
-@pytest.mark.slow  # seconds: builds or runs FMUs in processes
 def test_failing_runs_do_not_corrupt_the_orchestrator(tmp_path):
     """The reproducer of the third release (see agv_core/fmi/fmi_slave.py): FMUs built in the
     process, then two runs whose FMU fails, then a garbage collection, with CPython's

@@ -19,7 +19,6 @@ from scipy.integrate import solve_ivp
 from agv_core.chained_form import chained_form as cf
 from agv_core.errors import ParameterError
 from agv_core.vehicle.vehicle import Vehicle
-from agv_cosim.build import build_one, slave_script
 
 KD, KP, L = 0.6, 0.09, 2.0
 DMAX = math.pi / 4
@@ -238,29 +237,23 @@ def test_sine_path_6_kmh_from_half_a_metre_off():
 
 
 # ---------------------------------------------------------------------------- (4) FMU
-def _build(script, out_dir):
-    """build_one, forgetting the bundled core the build imported from its staging folder.
+def _forget_bundled_cores():
+    """Forget the ``agv_core_<tag>`` modules an in-process build left in sys.modules.
 
     Work-around: the build leaves ``agv_core_<tag>`` in sys.modules with a ``__path__``
     in its deleted staging folder, so a later build or instance in this process that needs
     a submodule not imported yet fails (ModuleNotFoundError); reported to the lead.
     """
-    def forget():
-        for name in [m for m in sys.modules if m.startswith("agv_core_")]:
-            del sys.modules[name]
-
-    forget()
-    try:
-        return build_one(script, out_dir).fmu
-    finally:
-        forget()
+    for name in [m for m in sys.modules if m.startswith("agv_core_")]:
+        del sys.modules[name]
 
 
 @pytest.fixture(scope="module")
-def fmu(tmp_path_factory):
-    path = _build(slave_script("agv_chained_form"), tmp_path_factory.mktemp("cf"))
+def fmu(component_fmus):
+    path = str(component_fmus["agv_chained_form"])
+    _forget_bundled_cores()
     md = read_model_description(path)
-    folder = extract(str(path))
+    folder = extract(path)
     yield path, md, folder
     shutil.rmtree(folder, ignore_errors=True)
 
@@ -328,9 +321,9 @@ def test_fmu_pose_mode_matches_the_core_and_the_exact_sine_projection(fmu):
         slave.freeInstance()
 
 
-def test_fmu_closed_loop_with_vehicle_on_the_2_m_step(fmu, tmp_path):
+def test_fmu_closed_loop_with_vehicle_on_the_2_m_step(fmu, component_fmus):
     """Vehicle FMU + controller FMU (pose mode, 'line:step_at=5,step=2'), 6 km/h."""
-    vehicle_fmu = _build(slave_script("agv_vehicle"), tmp_path)
+    vehicle_fmu = str(component_fmus["agv_vehicle"])
     vmd = read_model_description(vehicle_fmu)
     vfolder = extract(str(vehicle_fmu))
     vrefs = {v.name: v.valueReference for v in vmd.modelVariables}

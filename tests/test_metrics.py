@@ -308,7 +308,7 @@ def test_bad_reference_path_names_the_key():
 
 # --------------------------------------------------------------------------- integration
 
-def test_metrics_of_a_vehicle_fmu_run(tmp_path):
+def test_metrics_of_a_vehicle_fmu_run(component_fmus):
     """A straight drive at a heading offset, run as an FMU through fmpy.
 
     The front point starts at y = 0 with heading 0.1 rad at 1 m/s and alpha = 0, so
@@ -317,10 +317,7 @@ def test_metrics_of_a_vehicle_fmu_run(tmp_path):
     """
     from fmpy import simulate_fmu
 
-    from agv_cosim.build import build_one, slave_script
-
-    script = slave_script("agv_vehicle")
-    fmu = build_one(script, tmp_path).fmu
+    fmu = component_fmus["agv_vehicle"]
     stop, heading = 4.0, 0.1
     result = simulate_fmu(str(fmu), stop_time=stop, step_size=0.01, output_interval=0.01,
                           start_values={"heading0": heading}, output=["y", "x"])

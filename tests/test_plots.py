@@ -157,14 +157,11 @@ def test_bad_path_string_names_the_key(tmp_path):
         plot_runs(_runs(), spec, tmp_path)
 
 
-def test_plot_a_vehicle_fmu_run(tmp_path):
+def test_plot_a_vehicle_fmu_run(component_fmus, tmp_path):
     """Two vehicle-FMU runs through fmpy (one cut short as partial) end up in the files."""
     from fmpy import simulate_fmu
 
-    from agv_cosim.build import build_one, slave_script
-
-    script = slave_script("agv_vehicle")
-    fmu = build_one(script, tmp_path / "fmu").fmu
+    fmu = component_fmus["agv_vehicle"]
     runs = []
     for label, alpha, stop in (("alpha=0.1", 0.1, 6.0), ("alpha=0.2", 0.2, 3.0)):
         result = simulate_fmu(str(fmu), stop_time=stop, step_size=0.02, output_interval=0.02,

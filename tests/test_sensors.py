@@ -166,13 +166,11 @@ def test_gyro_drift_resolution_and_noise():
 
 
 # ---------------------------------------------------------------------- integration
-def test_vision_fmu_reproduces_projection(tmp_path):
+def test_vision_fmu_reproduces_projection(component_fmus):
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
-    from agv_cosim.build import build_one, slave_script
-
-    fmu = build_one(slave_script("agv_vision_sensor"), tmp_path).fmu
+    fmu = component_fmus["agv_vision_sensor"]
     md = read_model_description(str(fmu))
     refs = {v.name: v.valueReference for v in md.modelVariables}
     lateral = next(o for o in md.outputs if o.variable.name == "lateral_error")
@@ -211,7 +209,7 @@ def test_vision_fmu_reproduces_projection(tmp_path):
         shutil.rmtree(folder, ignore_errors=True)
 
 
-def test_steer_sensor_fmu_noise_and_resolution(tmp_path):
+def test_steer_sensor_fmu_noise_and_resolution(component_fmus):
     """The steering-angle sensor FMU, defaults: 1 mrad white noise, 0.1 deg resolution.
 
     Over 4000 samples of a constant 0.2 rad: every reading is a whole multiple of the
@@ -220,10 +218,8 @@ def test_steer_sensor_fmu_noise_and_resolution(tmp_path):
     the noise plus uniform quantisation, sqrt(1e-6 + res^2 / 12), within 10 %.
     """
     import fmpy
-    from agv_cosim.build import build_one, slave_script
-
-    fmu = build_one(slave_script("agv_steer_sensor"), tmp_path)
-    result = fmpy.simulate_fmu(str(fmu.fmu), stop_time=40.0, step_size=0.01,
+    fmu = component_fmus["agv_steer_sensor"]
+    result = fmpy.simulate_fmu(str(fmu), stop_time=40.0, step_size=0.01,
                                output_interval=0.01, start_values={"alpha": 0.2})
     readings = result["alpha_meas"][1:]
     resolution = 0.001745329251994

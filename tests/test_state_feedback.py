@@ -128,13 +128,12 @@ def _purge_stale_cores():
                 del sys.modules[sub]
 
 
-def test_fmu_feedthrough_and_sampling(tmp_path):
-    from agv_cosim.build import build_one, slave_script
+def test_fmu_feedthrough_and_sampling(component_fmus, tmp_path):
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
     _purge_stale_cores()
-    fmu = build_one(slave_script("agv_state_feedback"), tmp_path).fmu
+    fmu = str(component_fmus["agv_state_feedback"])
     md = read_model_description(fmu)
     deps = {o.variable.name: {d.name for d in o.dependencies} for o in md.outputs}
     assert deps == {"u": {"alpha", "heading_error", "lateral_error"}}
