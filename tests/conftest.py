@@ -96,11 +96,3 @@ def fmus(tmp_path_factory):
     out = session_folder(tmp_path_factory, "test_fmus", make)
     return {stem: out / name for stem, name in
             json.loads((out / "fmus.json").read_text()).items()}
-
-
-@pytest.fixture(scope="session")
-def fmusim(tmp_path_factory):
-    """The Reference FMUs' fmusim, built once per worker (tests/fmusim_host.py)."""
-    from fmusim_host import build_fmusim
-
-    return build_fmusim(tmp_path_factory.mktemp("fmusim"))

@@ -120,7 +120,7 @@ def test_model_b_matrices_and_bad_L():
 
 # ---------------------------------------------------------------------- FMU
 def _purge_stale_cores():
-    """Forget bundled-core modules whose folder is gone (see tests/test_actuator.py)."""
+    """Forget bundled-core modules whose folder is gone (see tests/components/test_actuator.py)."""
     for name in [n for n in sys.modules if n.startswith("agv_core_")]:
         paths = list(getattr(sys.modules.get(name), "__path__", []) or [])
         if paths and not any(Path(p).is_dir() for p in paths):

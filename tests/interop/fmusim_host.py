@@ -1,6 +1,6 @@
 """The Reference FMUs' fmusim as a test host: built from ../shared, run on an FMU with its
-reference inputs, its output compared with the FMU's shipped reference (tests/test_fmusim.py,
-tests/test_standalone.py). Test support, not part of agv_cosim.
+reference inputs, its output compared with the FMU's shipped reference (test_fmusim.py,
+test_standalone.py beside it). Test support, not part of agv_cosim.
 
 fmusim (Reference FMUs v0.0.39, BSD-2) is built from
 ``../shared/third-party/Reference-FMUs-v0.0.39`` (never copied into the repository) with
@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 SOURCES = Path(os.environ.get("AGV_FMUSIM_SOURCES",
                               ROOT.parent / "shared" / "third-party" /
                               "Reference-FMUs-v0.0.39"))

@@ -2,7 +2,7 @@
 FMI 3.0 twins.
 
 fmusim is built here, into a temporary folder, from the shared Reference FMU sources, its
-state-file bug fixed in the copy (tests/fmusim_host.py, the ``fmusim`` fixture).
+state-file bug fixed in the copy (tests/interop/fmusim_host.py, the ``fmusim`` fixture).
 
 fmusim is a C program with no Python: each FMU's loader finds the Python of this test's
 virtual environment through ``VIRTUAL_ENV`` (as an activated venv exports it), no

@@ -30,7 +30,7 @@ from agv_cosim.build import build_one
 
 pytestmark = pytest.mark.interop
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 SOURCES = Path(os.environ.get("AGV_REFERENCE_FMUS",
                               ROOT.parent / "shared" / "third-party" / "Reference-FMUs"))
 RTOL, ATOL = 1e-9, 1e-12

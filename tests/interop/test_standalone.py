@@ -30,7 +30,7 @@ from agv_cosim.build import build_one, slave_script
 
 pytestmark = pytest.mark.interop
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 #: (slave script, FMI version)
 FMUS = [("agv_vehicle", 2), ("agv_preview_lq", 2), ("agv_fuzzy_pd", 3)]
 

@@ -13,7 +13,7 @@ from agv_cosim.examples import RECORD, ExamplesError, copy_examples
 from agv_cosim.manifest import load_manifest
 from agv_cosim.shipped import shipped_dir
 
-EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
+EXPERIMENTS = Path(__file__).resolve().parents[2] / "experiments"
 
 
 def fmu_paths(data):

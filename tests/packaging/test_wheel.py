@@ -27,7 +27,7 @@ from manifests import localise
 
 pytestmark = pytest.mark.slow
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 NOT_SOURCES = shutil.ignore_patterns(".venv", ".git", "fmus", "results", "build", "dist",
                                      "__pycache__", "*.egg-info", ".pytest_cache")
 MODELS = sorted(p.stem for p in slave_scripts(default_components_dir()))

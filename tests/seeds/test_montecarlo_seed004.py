@@ -20,7 +20,7 @@ from manifests import assert_complete
 
 pytestmark = pytest.mark.seed
 
-EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
+EXPERIMENTS = Path(__file__).resolve().parents[2] / "experiments"
 
 
 def _stem(class_name):

@@ -20,7 +20,7 @@ from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed
 
-EXPERIMENTS = __import__("pathlib").Path(__file__).resolve().parents[1] / "experiments"
+EXPERIMENTS = __import__("pathlib").Path(__file__).resolve().parents[2] / "experiments"
 WHEELBASE = 1.4944   # [m], find_wheelbase(), as in the manifests
 K_ACT = 0.6          # [rad/(V.s)]
 E0 = 0.1             # [m] initial lateral offset of the front wheel (the step)

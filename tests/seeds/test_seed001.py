@@ -32,7 +32,7 @@ from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed
 
-EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
+EXPERIMENTS = Path(__file__).resolve().parents[2] / "experiments"
 T = 0.2
 LAMBDAS = ("0.05", "0.1", "1.0", "5.0", "10.0")
 HORIZONS = ("5", "6", "7", "8")

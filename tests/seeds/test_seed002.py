@@ -29,7 +29,7 @@ from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXPERIMENTS = ROOT / "experiments"
 KMH = (2, 4, 6, 8, 10, 12, 14)
 STEP = 0.01            # [s] communication step of the three manifests
@@ -247,7 +247,7 @@ def test_step_delayed_actuator_drifts_apart(step_runs):
 
 def test_sine_exact_pose(sine_runs):
     # Exact pose, 6 km/h. Ideal actuator: the loop has the same half-step hold as the
-    # core-level test of the law (tests/test_chained_form.py, 1.45 mm), so |y| after 40 m
+    # core-level test of the law (tests/components/test_chained_form.py, 1.45 mm), so |y| after 40 m
     # <= 2 mm (measured 1.45 mm). Delayed actuator: measured 5.2 cm, bound 4-7 cm.
     # Both far below the paper's 25 cm.
     path = parse_path(SINE)

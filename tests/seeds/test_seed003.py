@@ -23,7 +23,7 @@ from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed
 
-EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
+EXPERIMENTS = Path(__file__).resolve().parents[2] / "experiments"
 GEOM = TrainGeometry(5.0, 3.0, 2.1, 9.0)
 QUARTER = math.pi / 2
 V14 = 14 / 3.6

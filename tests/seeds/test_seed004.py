@@ -22,7 +22,7 @@ from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed
 
-EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
+EXPERIMENTS = Path(__file__).resolve().parents[2] / "experiments"
 STOP = 25.0          # [s] shortened run
 T_FROM = 10.0        # [s] start of the statistics window (as settle_after in the manifests)
 PATHS = {"sine": "sine:amplitude=2,wavelength=18.84955592153876",

@@ -27,7 +27,7 @@ from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed
 
-EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
+EXPERIMENTS = Path(__file__).resolve().parents[2] / "experiments"
 E0 = 0.1
 WHEELBASE = 1.4944
 GEOM = TrainGeometry(5.0, 3.0, 2.1, 9.0)
