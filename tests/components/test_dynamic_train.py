@@ -172,6 +172,7 @@ def _drive(train, u, n, h):
         train.step(u, deltas, h)
 
 
+@pytest.mark.slow  # seconds: long integrations at low speeds
 def test_low_speed_limit_is_the_kinematic_train():
     """Same steering as a function of distance (the 20 m steady angles plus 0.05 rad
     sines, 8 m of travel from the steady pose) at 0.4, 0.2 and 0.1 m/s: the largest

@@ -46,6 +46,7 @@ def test_vectorised_inference_matches_scikit_fuzzy(schedule):
         assert sim.output["kd"] == pytest.approx(kd[0], abs=0.02)
 
 
+@pytest.mark.slow  # seconds: the table against direct inference at 20 000 points
 def test_interpolation_error_is_within_the_stated_bound(schedule):
     rng = np.random.default_rng(5)
     e = np.concatenate([rng.uniform(-0.05, 0.05, 20000)])

@@ -174,6 +174,7 @@ def _closed_loop(spec, seconds, dt=0.02, actuator_lag=0.0, **kw):
     return np.array(rows)
 
 
+@pytest.mark.slow  # seconds: a closed loop over the whole sine path
 def test_tracks_the_seed_sine_path():
     rows = _closed_loop(SINE, 30.0)
     after = rows[rows[:, 0] > 10.0]
