@@ -51,8 +51,11 @@ def _drive(job, messages):
             raise RuntimeError(f"{name} returned status {status}")
 
     if fmi == 2:
+        # fmi2CallbackLogger is variadic: its message is a printf format. On x86-64 the
+        # first variadic argument arrives like a sixth fixed one, so it is declared as one
+        # and read when the format is "%s" (the bridge's way of passing a message).
         Logger = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int,
-                                  ctypes.c_char_p, ctypes.c_char_p)
+                                  ctypes.c_char_p, ctypes.c_char_p, ctypes.c_void_p)
 
         class Callbacks(ctypes.Structure):
             _fields_ = [("logger", Logger), ("allocateMemory", ctypes.c_void_p),
@@ -60,8 +63,12 @@ def _drive(job, messages):
                         ("componentEnvironment", ctypes.c_void_p)]
 
         libc = ctypes.CDLL(None)
-        logger = Logger(lambda env, name, status, category, message:
-                        log(status, category, message))
+        def log2(env, name, status, category, message, first):
+            if message == b"%s" and first:
+                message = ctypes.string_at(first)
+            log(status, category, message)
+
+        logger = Logger(log2)
         callbacks = Callbacks(logger, ctypes.cast(libc.calloc, ctypes.c_void_p),
                               ctypes.cast(libc.free, ctypes.c_void_p), None, None)
         lib.fmi2Instantiate.restype = ctypes.c_void_p
