@@ -14,10 +14,11 @@ JOBS   ?= 2
 # the missing ones are named, and those tests skip on a developer machine).
 TEST_DEBS := libxml2-dev libminizip-dev libsundials-dev valgrind
 
-$(STAMP): pyproject.toml setup.py
+# The venv holds the versions of constraints.txt (the results depend on them).
+$(STAMP): pyproject.toml setup.py constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[test]"
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[test]"
 	touch $(STAMP)
 
 venv: $(STAMP)

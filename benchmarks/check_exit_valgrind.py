@@ -18,8 +18,8 @@ FMI 3.0 twin, pythonfmu3 only
 
 Hosts: (1) a Python host (fmpy: ``simulate_fmu`` of the vehicle and of the preview
 controller, which imports scipy, then a normal interpreter exit); (2) the plain C host of
-tests/c_host (the preview controller), loader build only, since the pythonfmu-only build
-cannot load there. A baseline Python process that only imports fmpy, numpy and scipy is
+tests/interop/c_host (the preview controller), loader build only, since the pythonfmu-only
+build cannot load there. A baseline Python process that only imports fmpy, numpy and scipy is
 run too: CPython's own reports (glibc's dynamic loader reading ahead in ``strncmp`` while
 it expands rpaths of numpy's and scipy's extension modules) are in every Python run and
 are not the FMUs' (they also appear when an FMU imports numpy). Every other error is
@@ -138,7 +138,8 @@ def main(argv=None):
 
         host = tmp / "fmi2_host"
         subprocess.run(["gcc", "-O1", f"-I{Path(fmpy.__file__).parent / 'c-code'}", "-o",
-                        str(host), str(ROOT / "tests" / "c_host" / "fmi2_host.c"), "-ldl"],
+                        str(host), str(ROOT / "tests" / "interop" / "c_host" / "fmi2_host.c"),
+                        "-ldl"],
                        check=True)
         folder = fmpy.extract(str(loader[1]), unzipdir=str(tmp / "lq"))
         md = fmpy.read_model_description(str(loader[1]))

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 from filelock import FileLock
 
-from agv_cosim.build import build_fmus, default_components_dir, slave_scripts
+from agv_cosim.build import build_fmus, build_one, default_components_dir, slave_scripts
 
 #: fixtures that build every component FMU (FMI 2.0 or the FMI 3.0 twins): tens of seconds
 BUILDING_FIXTURES = {"component_fmus", "twins"}
@@ -79,9 +79,20 @@ def twins(tmp_path_factory):
             json.loads((out / "fmus.json").read_text()).items()}
 
 
-@pytest.fixture(scope="session")
-def fmusim(tmp_path_factory):
-    """The Reference FMUs' fmusim, built once per worker (tests/fmusim_host.py)."""
-    from fmusim_host import build_fmusim
+#: the small test FMUs' sources (tests/fmu_src/agv_test_*.py)
+TEST_FMU_SOURCES = Path(__file__).resolve().parent / "fmu_src"
 
-    return build_fmusim(tmp_path_factory.mktemp("fmusim"))
+
+@pytest.fixture(scope="session")
+def fmus(tmp_path_factory):
+    """Script stem -> path of the small test FMUs of fmu_src/ (agv_test_source,
+    agv_test_gain, ...), built once per session for every worker: they declare no default
+    experiment, so a build is a zip of a few files (no reference run)."""
+    def make(folder):
+        (folder / "fmus.json").write_text(json.dumps(
+            {p.stem: build_one(p, folder).fmu.name
+             for p in sorted(TEST_FMU_SOURCES.glob("agv_test_*.py"))}))
+
+    out = session_folder(tmp_path_factory, "test_fmus", make)
+    return {stem: out / name for stem, name in
+            json.loads((out / "fmus.json").read_text()).items()}

@@ -55,9 +55,20 @@ def localise(source, folder, fmus, replace=(), resub=(), name=None):
     return path
 
 
-def assert_complete(results, count):
-    """Every one of ``count`` runs ended ``complete`` with its metrics computed; the
-    message names each run that did not, with its error or metrics error."""
-    bad = [(r["label"], r["status"], r.get("error"), r.get("metrics_error"))
-           for r in results if r["status"] != "complete" or r.get("metrics_error")]
-    assert len(results) == count and not bad, (len(results), bad)
+def assert_complete(results, count, metrics=True):
+    """Every one of ``count`` run results (``run_manifest``'s list) is ``complete`` and,
+    with ``metrics``, has its metrics (none missing, no ``metrics_error``). A failure
+    names each run that is not, with its status, rows, error and metrics error, so that
+    an empty metrics table shows its reason instead of a KeyError later."""
+    def wrong(result):
+        if result.get("status") != "complete":
+            return True
+        return metrics and (result.get("metrics_error") is not None
+                            or not result.get("metrics"))
+
+    bad = [f"{r.get('label')}: status {r.get('status')!r}, {r.get('rows')} rows, "
+           f"error {r.get('error')!r}, metrics_error {r.get('metrics_error')!r}, "
+           f"metrics {sorted(r.get('metrics') or {})}" for r in results if wrong(r)]
+    assert len(results) == count and not bad, (
+        f"{len(results)} run(s), {count} expected; not complete with metrics: "
+        + ("; ".join(bad) or "none"))

@@ -5,7 +5,7 @@ Reads results/seed002_step/, results/seed002_sine/ and results/cross_seed_contro
 experiments/figures/seed002_step.png, seed002_sine.png, cross_seed_controllers.png and
 prints the tables of the results page. The analysis definitions (eq (22)'s closed form,
 settling distance, spread, true path offset, sine peaks) are those of
-tests/test_seed002.py, imported from it, so the page and the tests use the same ones.
+tests/seeds/test_seed002.py, imported from it, so the page and the tests use the same ones.
 
 Usage (from the repository root): ``python experiments/figures/seed002_figures.py``
 """
@@ -21,7 +21,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path[:0] = [str(ROOT / "tests" / "seeds"), str(ROOT / "tests")]  # test_seed002, manifests
 
 from agv_core.numerics.paths import parse_path  # noqa: E402
 from test_seed002 import (KMH, LOOPS, SINE, load, on_grid, path_offset,  # noqa: E402

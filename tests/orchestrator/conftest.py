@@ -1,19 +1,6 @@
-"""Shared fixtures: the test FMUs (built once per session) and a manifest writer."""
-
-from pathlib import Path
+"""The orchestrator tests' manifest writer (the test FMUs, ``fmus``: tests/conftest.py)."""
 
 import pytest
-
-from agv_cosim.build import build_one
-
-SRC = Path(__file__).resolve().parent.parent / "fmu_src"
-
-
-@pytest.fixture(scope="session")
-def fmus(tmp_path_factory):
-    """Name -> path of the test FMUs (AgvTestSource, AgvTestGain, ...)."""
-    out = tmp_path_factory.mktemp("fmus")
-    return {p.stem: build_one(p, out).fmu for p in sorted(SRC.glob("agv_test_*.py"))}
 
 
 CHAIN = """

@@ -3,7 +3,8 @@
 The CLI runs as a real process in a session of its own (so its session holds exactly
 its processes: the workers lead process groups of their own inside it) with a private
 temp folder; a long run is interrupted once its children are computing. Each case costs
-a few seconds.
+a few seconds. Every wait is on a condition (rows recorded, a line printed, a process
+gone), bounded only by ``processes.GUARD`` against a case that never gets there.
 """
 
 import csv
@@ -14,11 +15,10 @@ import signal
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import pytest
-from processes import ended
+from processes import GUARD, Collected, ended, wait_until
 
 SWEEP = '[sweep]\n"gain.k" = [1.0, 2.0]\n'  # two runs, each in a child process
 
@@ -40,13 +40,13 @@ def _group(sid):
     return found
 
 
-def _wait_gone(sid, seconds):
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        if not _group(sid):
-            return True
-        time.sleep(0.05)
-    return not _group(sid)
+def _wait_gone(sid):
+    """True once session ``sid`` holds no live process (False after ``GUARD``)."""
+    try:
+        wait_until(lambda: not _group(sid), f"session {sid} empty")
+    except AssertionError:
+        return False
+    return True
 
 
 @pytest.fixture
@@ -62,17 +62,15 @@ def long_run(chain, tmp_path):
              str(tmp_path / out), "--jobs", "2"], env=env, start_new_session=True,
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         started.append(process)
-        # wait until both runs' children have recorded rows (header + at least one row)
-        end = time.monotonic() + 60
-        while time.monotonic() < end:
+
+        def recording():  # both runs' children have recorded rows (header + a row)
+            if process.poll() is not None:
+                raise AssertionError(f"the command ended: {process.communicate()}")
             csvs = [p for p in tmp_path.glob(f".{out}.incomplete-*/*/timeseries.csv")
                     if p.parent.parent not in stale]
-            if len(csvs) == 2 and all(p.read_bytes().count(b"\n") >= 2 for p in csvs):
-                break
-            time.sleep(0.05)
-        else:
-            process.kill()
-            raise AssertionError(f"the runs did not start: {process.communicate()}")
+            return len(csvs) == 2 and all(p.read_bytes().count(b"\n") >= 2 for p in csvs)
+
+        wait_until(recording, "both runs recording rows")
         return process
 
     yield start, tmp, tmp_path
@@ -107,12 +105,12 @@ def test_signal_to_the_parent_ends_everything(long_run, sig):
     start, tmp, root = long_run
     process = start()
     os.kill(process.pid, sig)  # the parent only: it must stop its children itself
-    _, err = process.communicate(timeout=30)
+    _, err = process.communicate(timeout=GUARD)
     assert process.returncode == 128 + sig
     assert err.strip().splitlines()[-1] == (
         f"agv-cosim: interrupted by {signal.Signals(sig).name}; 0 of 2 run(s) complete "
         f"kept in {root / 'out'} (marked partial: partial.txt, summary.csv)")
-    assert _wait_gone(process.pid, 5.0), "processes of the run are left"
+    assert _wait_gone(process.pid), "processes of the run are left"
     assert list(tmp.iterdir()) == []  # scratch, extraction and multiprocessing folders
     assert sorted(p.name for p in root.iterdir()) == ["long.toml", "out"]
     _kept_partial(root / "out", ["interrupted", "interrupted"])
@@ -124,16 +122,16 @@ def test_sigkilled_parent_children_stop_and_next_run_cleans(long_run):
     process = start()
     os.kill(process.pid, signal.SIGKILL)
     process.wait()
-    assert _wait_gone(process.pid, 5.0), "children outlived a SIGKILLed parent"
+    assert _wait_gone(process.pid), "children outlived a SIGKILLed parent"
     stale = set(root.glob(".out.incomplete-*"))
     assert len(stale) == 1 and list(tmp.iterdir())  # left behind by the killed run
     second = start(stale=stale)  # the next run to the same place cleans what was left
     assert not any(p.exists() for p in stale)
     assert [p for p in tmp.iterdir() if f"-{process.pid}-" in p.name] == []
     os.kill(second.pid, signal.SIGTERM)
-    second.communicate(timeout=30)
+    second.communicate(timeout=GUARD)
     assert second.returncode == 128 + signal.SIGTERM
-    assert _wait_gone(second.pid, 5.0)
+    assert _wait_gone(second.pid)
     assert sorted(p.name for p in root.iterdir()) == ["long.toml", "out"]
     _kept_partial(root / "out", ["interrupted", "interrupted"])
     assert list(tmp.iterdir()) == []
@@ -147,7 +145,7 @@ def test_no_process_left_after_a_normal_exit(chain, tmp_path):
                                 "--quiet", "--out", str(tmp_path / "o")],
                                env=dict(os.environ, TMPDIR=str(tmp)),
                                start_new_session=True)
-    assert process.wait(timeout=60) == 0
+    assert process.wait(timeout=GUARD) == 0
     try:
         assert _group(process.pid) == []  # at once: nothing of ours outlives the command
         assert list(tmp.iterdir()) == []
@@ -166,7 +164,8 @@ def test_sigterm_during_a_hung_run_keeps_the_finished_one(fmus, tmp_path):
     """--jobs 1: the first run completes, the second hangs in doStep (no time limit)
     while an FMU of it has forked a helper; SIGTERM keeps the first complete, the second
     'interrupted' with its rows, the third 'not run', ends every process (the helper
-    too), and our line is the last on stderr (the progress bar is not drawn again)."""
+    too), and our line is the last on stderr (the progress bar, drawn once the first run
+    is done, is not drawn again)."""
     path = tmp_path / "hang.toml"
     path.write_text(f"""
 name = "hang"
@@ -184,29 +183,28 @@ parameters = {{ fork_seconds = 300.0 }}
     tmp = Path(tempfile.mkdtemp(prefix="agvsig", dir="/tmp"))
     out = tmp_path / "out"
     process = _cli(["run", str(path), "--out", str(out), "--jobs", "1"], tmp)
+    stdout, stderr = Collected(process.stdout), Collected(process.stderr)
     try:
-        end = time.monotonic() + 60
-        hung = None
-        while time.monotonic() < end:
-            hung = next(iter(tmp_path.glob(".out.incomplete-*/base__h.hang_time=0.3/"
-                                           "timeseries.csv")), None)
-            if hung is not None and hung.read_bytes().count(b"\n") >= 31:  # t = 0.3 s
-                break
-            time.sleep(0.05)
-        else:
-            raise AssertionError(f"the hang was not reached: {process.communicate()}")
+        def hung_at_03():  # the second run has recorded t = 0.3 s (31 rows)
+            if process.poll() is not None:
+                raise AssertionError(f"the command ended: {stderr.rest()}")
+            found = next(iter(tmp_path.glob(".out.incomplete-*/base__h.hang_time=0.3/"
+                                            "timeseries.csv")), None)
+            return found if found and found.read_bytes().count(b"\n") >= 31 else None
+
+        hung = wait_until(hung_at_03, "the hang reached")
+        wait_until(lambda: "hang:" in stderr.text, "the progress bar drawn")
         rows = hung.read_text().splitlines()
         helper = int(rows[1].split(",")[rows[0].split(",").index("r.helper")])
         assert Path(f"/proc/{helper}").exists()
-        time.sleep(2.5)  # the progress bar shows after 2 s
         os.kill(process.pid, signal.SIGTERM)
-        _, err = process.communicate(timeout=30)
-        assert process.returncode == 128 + signal.SIGTERM
-        assert "hang:" in err  # the bar was drawn
+        assert process.wait(timeout=GUARD) == 128 + signal.SIGTERM
+        err = stderr.rest()
+        stdout.rest()
         assert err.replace("\r", "\n").strip().splitlines()[-1] == (
             f"agv-cosim: interrupted by SIGTERM; 1 of 3 run(s) complete kept in {out} "
             "(marked partial: partial.txt, summary.csv)")
-        assert _wait_gone(process.pid, 5.0), "processes of the run are left"
+        assert _wait_gone(process.pid), "processes of the run are left"
         assert ended(helper), "the FMU's helper outlived the run"
         with open(out / "summary.csv", newline="") as stream:
             assert [r["status"] for r in csv.DictReader(stream)] == \
@@ -243,23 +241,24 @@ parameters = {{ hang_time = 0.1 }}
     tmp = Path(tempfile.mkdtemp(prefix="agvsig", dir="/tmp"))
     process = _cli(["run", str(path), "--out", str(tmp_path / "out"), "--quiet"], tmp)
     try:
-        end = time.monotonic() + 60
-        helper = 0
-        while time.monotonic() < end and not helper:
+        def helper_started():  # the helper's pid, once the run has recorded a row
+            if process.poll() is not None:
+                raise AssertionError(f"the command ended: {process.communicate()}")
             for csv_file in tmp_path.glob(".out.incomplete-*/base/timeseries.csv"):
-                rows = csv_file.read_text().splitlines()
-                if len(rows) > 1:
-                    helper = int(rows[1].split(",")[rows[0].split(",").index("r.helper")])
-            time.sleep(0.05)
-        assert helper, process.communicate()
+                rows = csv_file.read_text().split("\n")
+                if len(rows) > 2:  # the header and a whole row
+                    return int(rows[1].split(",")[rows[0].split(",").index("r.helper")])
+            return 0
+
+        helper = wait_until(helper_started, "the FMU's helper started")
         assert Path(f"/proc/{helper}").exists()
         os.kill(process.pid, signal.SIGKILL)
         process.wait()
-        assert _wait_gone(process.pid, 10.0), "processes outlived a SIGKILLed command"
+        assert _wait_gone(process.pid), "processes outlived a SIGKILLed command"
         assert ended(helper), "the FMU's helper outlived it"
         assert [p.name for p in tmp.iterdir() if f"-{process.pid}-" in p.name]
         cleaner = _cli(["validate", str(path), "--no-init"], tmp)
-        cleaner.communicate(timeout=60)
+        cleaner.communicate(timeout=GUARD)
         assert cleaner.returncode == 0
         assert [p.name for p in tmp.iterdir() if f"-{process.pid}-" in p.name] == []
     finally:

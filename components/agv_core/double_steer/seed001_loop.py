@@ -5,7 +5,7 @@ same cores in the same order as the orchestrator's Gauss-Seidel step with the
 communication step equal to the controller's sample time: at every t_k = k T the
 reference is evaluated, the controller reads the pose and the reference, the inverse
 kinematics maps its (v_c, omega) to the wheels, and the vehicle advances one sample with
-the wheels held. tests/test_seed001.py checks that it reproduces an FMU run to rounding.
+the wheels held. tests/seeds/test_seed001.py checks that it reproduces an FMU run to rounding.
 It is used where many runs or per-step timings are needed: the PID calibration
 (experiments/seed001_pid_calibration.py) and the MPC solve-time benchmark
 (benchmarks/bench_mpc.py).

@@ -5,7 +5,7 @@ constants. A slave script declares each FMU parameter with the core's value,
 ``d = defaults_of(core.vehicle.vehicle.Vehicle)`` then ``self.parameter("x0", d["x0"],
 ...)``, so the slave, the core and the modelDescription.xml cannot drift apart; each
 component README's parameter table is checked against the built FMU
-(tests/test_components.py).
+(tests/components/test_components.py).
 """
 
 import inspect

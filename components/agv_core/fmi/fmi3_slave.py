@@ -24,7 +24,7 @@ same slave class body runs as an FMI 3.0 co-simulation FMU:
   ``fmi3ExitInitializationMode``, outputs read in initialisation mode come from a
   provisional core, feedthrough outputs are re-published lazily after an input was set,
   state save/restore covers the variables and the core's ``get_state()``. Outputs are
-  therefore bit-identical to the FMI 2.0 twin's (tests/test_fmi3.py).
+  therefore bit-identical to the FMI 2.0 twin's (tests/packaging/test_fmi3.py).
 
 The behaviour shared with the FMI 2.0 adapter, including the compensation for the
 wrappers' double release of a failed slave (pythonfmu3 0.3.4 has pythonfmu 0.7's), is in
