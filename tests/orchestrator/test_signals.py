@@ -163,9 +163,13 @@ def _cli(args, tmp):
 def test_sigterm_during_a_hung_run_keeps_the_finished_one(fmus, tmp_path):
     """--jobs 1: the first run completes, the second hangs in doStep (no time limit)
     while an FMU of it has forked a helper; SIGTERM keeps the first complete, the second
-    'interrupted' with its rows, the third 'not run', ends every process (the helper
-    too), and our line is the last on stderr (the progress bar, drawn once the first run
-    is done, is not drawn again)."""
+    'interrupted' with its rows, the others 'not run', ends every process (the helper
+    too), and our line is the last on stderr, on a line of its own (the progress bar is
+    not drawn after it).
+
+    The bar shows from the first progress after its 2 s delay: the first run pauses
+    2.5 s in its last step (hang_time 0.99 s, hang_seconds 2.5), so that progress comes
+    after the delay on any machine, and the test waits for the bar on stderr."""
     path = tmp_path / "hang.toml"
     path.write_text(f"""
 name = "hang"
@@ -178,23 +182,25 @@ fmu = "{fmus['agv_test_hang']}"
 fmu = "{fmus['agv_test_rogue']}"
 parameters = {{ fork_seconds = 300.0 }}
 [sweep]
-"h.hang_time" = [10.0, 0.3, 20.0]
+"h.hang_time" = [0.99, 0.3]
+"h.hang_seconds" = [2.5, 3600.0]
 """)
+    hung_label = "base__h.hang_time=0.99__h.hang_seconds=3600.0"
     tmp = Path(tempfile.mkdtemp(prefix="agvsig", dir="/tmp"))
     out = tmp_path / "out"
     process = _cli(["run", str(path), "--out", str(out), "--jobs", "1"], tmp)
     stdout, stderr = Collected(process.stdout), Collected(process.stderr)
     try:
-        def hung_at_03():  # the second run has recorded t = 0.3 s (31 rows)
+        def hung():  # the second run has recorded t = 0.99 s (100 rows) and hangs
             if process.poll() is not None:
                 raise AssertionError(f"the command ended: {stderr.rest()}")
-            found = next(iter(tmp_path.glob(".out.incomplete-*/base__h.hang_time=0.3/"
+            found = next(iter(tmp_path.glob(f".out.incomplete-*/{hung_label}/"
                                             "timeseries.csv")), None)
-            return found if found and found.read_bytes().count(b"\n") >= 31 else None
+            return found if found and found.read_bytes().count(b"\n") >= 100 else None
 
-        hung = wait_until(hung_at_03, "the hang reached")
+        hung_csv = wait_until(hung, "the hang reached")
         wait_until(lambda: "hang:" in stderr.text, "the progress bar drawn")
-        rows = hung.read_text().splitlines()
+        rows = hung_csv.read_text().splitlines()
         helper = int(rows[1].split(",")[rows[0].split(",").index("r.helper")])
         assert Path(f"/proc/{helper}").exists()
         os.kill(process.pid, signal.SIGTERM)
@@ -202,15 +208,15 @@ parameters = {{ fork_seconds = 300.0 }}
         err = stderr.rest()
         stdout.rest()
         assert err.replace("\r", "\n").strip().splitlines()[-1] == (
-            f"agv-cosim: interrupted by SIGTERM; 1 of 3 run(s) complete kept in {out} "
+            f"agv-cosim: interrupted by SIGTERM; 1 of 4 run(s) complete kept in {out} "
             "(marked partial: partial.txt, summary.csv)")
         assert _wait_gone(process.pid), "processes of the run are left"
         assert ended(helper), "the FMU's helper outlived the run"
         with open(out / "summary.csv", newline="") as stream:
             assert [r["status"] for r in csv.DictReader(stream)] == \
-                ["complete", "interrupted", "not run"]
-        info = json.loads((out / "base__h.hang_time=0.3" / "run.json").read_text())
-        assert info["rows"] == 31 and "during doStep at t=0.3 s" in info["error"]
+                ["complete", "interrupted", "not run", "not run"]
+        info = json.loads((out / hung_label / "run.json").read_text())
+        assert info["rows"] == 100 and "during doStep at t=0.99 s" in info["error"]
         assert list(tmp.iterdir()) == []
     finally:
         for pid in _group(process.pid):
