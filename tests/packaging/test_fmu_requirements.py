@@ -202,13 +202,7 @@ def test_a_missing_package_is_an_fmi_error_naming_it(component_fmus, twins, venv
         pip("install", "--no-deps", "--no-compile", *pinned)
 
 
-@pytest.mark.parametrize("version", [
-    "3",
-    pytest.param("2", marks=pytest.mark.xfail(strict=True, reason=(
-        "pythonfmu 0.7's wrapper passes no message at all to the host's logger unless the "
-        "host turned logging on (its PyLogger::log drops every status), and the loader "
-        "forwards fmi2Instantiate's loggingOn unchanged"))),
-])
+@pytest.mark.parametrize("version", ["3", "2"])
 def test_a_host_that_turned_logging_off_still_hears_why(component_fmus, twins, tmp_path,
                                                         version):
     """The vision sensor (numpy at import) in an empty venv, instantiated with loggingOn
