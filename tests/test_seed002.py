@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 
 from agv_core.numerics.paths import parse_path, project_trajectory
-from agv_cosim.results import read_timeseries
-from agv_cosim.runner import run_manifest
+from agv_cosim.timeseries import read_timeseries
+from agv_cosim.pipeline import run_manifest
 from manifests import localise
 
 pytestmark = pytest.mark.seed

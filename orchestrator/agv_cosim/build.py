@@ -50,8 +50,9 @@ from xml.etree import ElementTree
 import pythonfmu
 from pythonfmu.builder import FmuBuilder
 
-from .bundle import BundleError, bundle_of, installed_requirements, requirements_text
+from .bundle import bundle_of, installed_requirements, requirements_text
 from .shipped import shipped_dir
+from .errors import BuildError, BundleError
 
 #: Bumped whenever the way an FMU is assembled changes, so every FMU is rebuilt.
 BUILD_FORMAT = 4
@@ -80,10 +81,6 @@ FMI3_ALIAS = ('"""In FMI 3.0 twins agv_core.fmi.fmi_slave is the FMI 3.0 adapter
               '(written by agv-cosim build)."""\n\n'
               "from .fmi3_slave import *  # noqa: F401,F403\n"
               "from .fmi3_slave import AgvSlave, DefaultExperiment  # noqa: F401\n")
-
-
-class BuildError(RuntimeError):
-    """An FMU could not be built, or the built FMU is not valid FMI."""
 
 
 @dataclass(frozen=True)
@@ -592,7 +589,8 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_versi
         _validate(fmu_path, fmi_version)
         _ship_reference(fmu_path)
         if standalone:
-            from .standalone import StandaloneError, add_runtime
+            from .errors import StandaloneError
+            from .standalone import add_runtime
 
             try:
                 add_runtime(fmu_path, "x86_64-linux" if fmi_version == 3 else "linux64")

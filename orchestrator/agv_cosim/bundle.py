@@ -37,12 +37,10 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from .errors import BundleError
+
 __all__ = ["Bundle", "BundleError", "bundle_of", "installed_requirements",
            "requirements_text"]
-
-
-class BundleError(RuntimeError):
-    """The modules or distributions an FMU needs cannot be derived."""
 
 
 @dataclass(frozen=True)

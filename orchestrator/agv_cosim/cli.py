@@ -15,10 +15,10 @@ import argparse
 import sys
 import traceback
 
-from . import __version__
-from .results import printable
-from .ssp_export import add_cli as add_ssp_cli
-from .ssp_import import opened
+from .files import printable
+from .ssp.exporter import add_cli as add_ssp_cli
+from .ssp.importer import opened
+from .version import __version__
 
 
 def _say(text):
@@ -32,7 +32,8 @@ def _error(text):
 
 
 def _cmd_build(args):
-    from .build import BuildError, build_fmus
+    from .build import build_fmus
+    from .errors import BuildError
 
     try:
         results = build_fmus(args.out, force=args.force, fmi_version=args.fmi,
@@ -47,7 +48,8 @@ def _cmd_build(args):
 
 
 def _cmd_examples(args):
-    from .examples import ExamplesError, copy_examples
+    from .errors import ExamplesError
+    from .examples import copy_examples
 
     try:
         written = copy_examples(args.folder, args.fmus)
@@ -80,7 +82,7 @@ def _timeout(text):
 
 
 def _cmd_validate(args):
-    from .runner import check_initialisation, prepare
+    from .pipeline import check_initialisation, prepare
 
     manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set)
     _warn(warnings)
@@ -103,14 +105,14 @@ def _kept(error):
 
 
 def _cmd_run(args):
-    from .runner import execute, prepare
+    from .pipeline import execute, prepare
 
     if args.jobs is not None and args.jobs < 1:
         return _error("--jobs: must be >= 1")
     manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set,
                                        timeout=args.timeout)
     _warn(warnings)
-    from .distributed import ClusterError
+    from .errors import ClusterError
 
     try:
         target, results = execute(manifest, jobs, args.out, args.jobs, args.quiet,
@@ -134,7 +136,8 @@ def _cmd_run(args):
 def _cmd_list(args):
     from pathlib import Path
 
-    from .model import ModelError, describe, find_fmus, read_model
+    from .errors import ModelError
+    from .system.model import describe, find_fmus, read_model
 
     path = Path(args.path)
     if not path.exists():
@@ -273,10 +276,9 @@ def _interrupted(args, name, signum, error):
 
 def main(argv=None):
     """Entry point of the ``agv-cosim`` console script; returns the exit code."""
-    from .lifetime import (Interrupted, clean_stale_scratch, termination_signals,
+    from .errors import FolderLost, Interrupted, ManifestError, OutputError
+    from .lifetime import (clean_stale_scratch, termination_signals,
                            use_own_scratch_for_multiprocessing)
-    from .manifest import ManifestError
-    from .results import FolderLost, OutputError
 
     args = make_parser().parse_args(argv)
     if not hasattr(args, "debug"):

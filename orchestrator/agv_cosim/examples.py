@@ -28,6 +28,7 @@ import tomllib
 from pathlib import Path, PurePosixPath
 
 from .shipped import shipped_dir
+from .errors import ExamplesError
 
 __all__ = ["RECORD", "ExamplesError", "copy_examples", "example_files"]
 
@@ -35,10 +36,6 @@ __all__ = ["RECORD", "ExamplesError", "copy_examples", "example_files"]
 RECORD = ".agv-cosim-examples.json"
 
 _WAYPOINTS = re.compile(r"waypoints:(?:[^\"']*,)?file=([^,\"']+)")
-
-
-class ExamplesError(Exception):
-    """The examples cannot be copied (a user's file in the way, a bad shipped manifest)."""
 
 
 def _strings(value):

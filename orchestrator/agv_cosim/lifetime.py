@@ -32,6 +32,8 @@ import stat
 import tempfile
 from pathlib import Path
 
+from .errors import Interrupted
+
 #: Signals that end a run cleanly (SIGINT is Python's KeyboardInterrupt already).
 TERMINATION_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
 _SCRATCH = re.compile(r"^agv-cosim-(\d+)-")
@@ -40,18 +42,6 @@ SCRATCH_MARKER = ".agv-cosim-scratch"
 #: Flags of every file we create: a new file (never an existing one), never through a
 #: symbolic link, not inherited by programs we start.
 CREATE_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
-
-
-class Interrupted(BaseException):
-    """A termination signal arrived (a BaseException, like KeyboardInterrupt)."""
-
-    def __init__(self, signum):
-        super().__init__(signal.Signals(signum).name)
-        self.signum = int(signum)
-
-    @property
-    def name(self):
-        return signal.Signals(self.signum).name
 
 
 def _raise(signum, frame):

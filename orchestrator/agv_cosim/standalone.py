@@ -44,6 +44,8 @@ import tempfile
 import zipfile
 from pathlib import Path
 
+from .errors import StandaloneError
+
 #: The runtime's folder inside ``binaries/<platform>/`` (the loader looks for it there).
 RUNTIME_FOLDER = "python"
 
@@ -62,10 +64,6 @@ PACKAGE_EXCLUDED = re.compile(r"(^|/)(tests?|__pycache__)/|\.(pyc|pyi|pxd|pyx|h|
 #: Libraries of the C library itself: every Linux machine has them, they are not shipped.
 SYSTEM_LIBRARIES = re.compile(r"^(libc|libm|libpthread|libdl|librt|libutil|ld-linux[-\w]*|"
                               r"libresolv|libgcc_s|libstdc\+\+|linux-vdso)\.so")
-
-
-class StandaloneError(RuntimeError):
-    """The standalone runtime cannot be assembled on this machine."""
 
 
 # ------------------------------------------------------------------------ what to ship

@@ -65,7 +65,7 @@ def test_a_worker_is_reused_only_after_complete_runs(fmus, tmp_path, monkeypatch
     """--jobs 1, three runs: complete, partial (the FMU fails at t = 0.5), complete. The
     first worker takes runs 1 and 2 and exits after the failure; a fresh worker takes run
     3. Counted by the run scratch folders the parent makes, one per worker process."""
-    from agv_cosim import runner
+    from agv_cosim.pipeline import pool as runner
 
     made = []
     real = runner.scratch_dir
@@ -110,7 +110,7 @@ def test_kept_extraction_gives_each_instance_its_own_folder_of_links(fmus, tmp_p
     instance gets a folder of its own whose files are hard links to that copy; both
     instances instantiate from there, and closing one leaves the other's files and the
     kept copy in place. Without it, each instance unpacks the archive (no shared files)."""
-    from agv_cosim import model
+    from agv_cosim.execution import instance as model
 
     monkeypatch.setattr(model, "_EXTRACT_ROOT", [])
     monkeypatch.setattr(model, "_EXTRACTED", {})

@@ -20,18 +20,12 @@ from typing import Annotated, Any, Literal
 from pydantic import (AfterValidator, BaseModel, ConfigDict, Field, StrictInt, StrictStr,
                       ValidationError, field_validator, model_validator)
 
+from ..errors import SchemaError
+
 #: Default settling band of the lateral error [m] (``[metrics] settle_band``).
 DEFAULT_SETTLE_BAND = 0.02
 #: Default resolution of the figures [dots per inch] (``[plots] dpi``).
 DEFAULT_DPI = 120
-
-
-class SchemaError(ValueError):
-    """A value that does not fit the schema: ``key`` (dotted) and ``problem``."""
-
-    def __init__(self, key, problem):
-        super().__init__(f"{key}: {problem}")
-        self.key, self.problem = key, problem
 
 
 def _dotted(what):

@@ -72,9 +72,10 @@ from matplotlib import rc_context
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from . import schema
-from .results import (CHUNK_ROWS, count_rows, iter_timeseries, open_output,
-                      timeseries_columns)
+from ..files import open_output
+from ..manifest import schema
+from ..timeseries import CHUNK_ROWS, count_rows, iter_timeseries, timeseries_columns
+from .metrics import load_path
 
 #: File names of the figures (stable, so that a rerun overwrites them).
 SIGNALS_FILE = "signals.png"
@@ -529,7 +530,6 @@ def plot_runs(runs, spec, out_dir, *, base_dir=None):
                 _values(run, spec["trajectory"][sub], f"trajectory.{sub}")
     geometry = None
     if "trajectory" in spec and spec["trajectory"]["path"] is not None:
-        from .metrics import load_path
 
         geometry = load_path(spec["trajectory"]["path"], "plots.trajectory.path", base_dir)
     out_dir = Path(out_dir)

@@ -19,8 +19,10 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..errors import ManifestError, SchemaError
+from ..files import check_name
 from . import schema
-from .results import check_name
+from .montecarlo import parse as parse_montecarlo
 
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
@@ -39,14 +41,6 @@ def whole_multiple(span, step):
     steps = span / step
     n = round(steps)
     return n >= 1 and abs(steps - n) <= 1e-9 + 4 * 2.220446049250313e-16 * n
-
-
-class ManifestError(Exception):
-    """A problem in a manifest, named by the manifest, the key and the culprit."""
-
-    def __init__(self, manifest, key, problem):
-        super().__init__(f"{manifest}: {key}: {problem}")
-        self.manifest, self.key, self.problem = str(manifest), key, problem
 
 
 @dataclass
@@ -102,8 +96,23 @@ class Manifest:
     #: wall-clock limit of each run [s] (``[simulation] timeout``), None: no limit
     timeout: float | None = None
 
-    def error(self, key, problem):
+    def error(self, key: str, problem: str) -> ManifestError:
         return ManifestError(self.path, key, problem)
+
+    def step_index(self, at: float) -> int:
+        """k of the communication point ``at`` = start + k step [s] (``at`` checked to
+        be one: :func:`whole_multiple`)."""
+        return 0 if at == self.start else int(round((at - self.start) / self.step))
+
+    @property
+    def steps(self) -> int:
+        """Macro steps of every run: (stop - start) / step."""
+        return self.step_index(self.stop)
+
+    @property
+    def record_every(self) -> int:
+        """A row is recorded every this many macro steps (``[record] interval``)."""
+        return int(round(self.record_interval / self.step))
 
 
 def split_name(text):
@@ -114,7 +123,7 @@ def split_name(text):
     return component, variable
 
 
-def _dotted(manifest, key, text, what="component.variable"):
+def dotted_name(manifest, key, text, what="component.variable"):
     if not isinstance(text, str) or not all(text.partition(".")[::2]) or "." not in text:
         raise ManifestError(manifest, key, f"{text!r} is not of the form '{what}'")
     return split_name(text)
@@ -157,7 +166,7 @@ def event_parts(name):
     return parts if len(parts) == 5 and parts[2] == "set" else name.split(".")
 
 
-def _event_key(manifest, key, name, events):
+def event_key(manifest, key, name, events):
     """An event field as a sweep / --set name: ``events.<event>.at`` (its time) or
     ``events.<event>.set.<component>.<variable>`` (a value it sets; a new target is
     added to the event). Returns the event's name, else raises ManifestError."""
@@ -284,7 +293,7 @@ def manifest_from_data(data, path, sha256, base_dir=None):
     path = Path(path)
     try:
         table = schema.check(schema.ManifestTable, data)
-    except schema.SchemaError as error:
+    except SchemaError as error:
         raise ManifestError(path, error.key, error.problem) from None
     base_dir = path.resolve().parent if base_dir is None else Path(base_dir)
     sim = table.simulation
@@ -340,9 +349,9 @@ def manifest_from_data(data, path, sha256, base_dir=None):
     for name, values in table.sweep.items():
         key = f"sweep.{name}"
         if name.startswith("events."):
-            _event_key(path, key, name, events)
+            event_key(path, key, name, events)
         else:
-            _dotted(path, key, name, "component.parameter")
+            dotted_name(path, key, name, "component.parameter")
         sweep[name] = list(values)
 
     variables = table.record.variables
@@ -358,8 +367,7 @@ def manifest_from_data(data, path, sha256, base_dir=None):
     except ValueError as error:
         raise ManifestError(path, "name", f"{error} (it names the default output folder "
                             "results/<name>)") from None
-    from . import montecarlo  # [montecarlo] is parsed and checked there
-    sampling = montecarlo.parse(path, data.get("montecarlo"), components, sweep)
+    sampling = parse_montecarlo(path, data.get("montecarlo"), components, sweep)
     return Manifest(path=path, sha256=sha256, name=name,
                     description=table.description, start=start, stop=stop,
                     step=step, algorithm=sim.algorithm, components=components,

@@ -1,9 +1,8 @@
-"""Writing and reading results: streamed CSV time series, JSON files, the summary.
-
-Floats are written with ``repr`` (shortest text that round-trips exactly), so a CSV read
-back gives the bit-identical doubles. Output folders are assembled under a temporary name
-and renamed into place at the end (:class:`AtomicDir`): an interrupted run never leaves a
-folder that looks complete.
+"""Files and folders this tool writes, and how safely: every file created new, never
+through a symbolic link; names from manifests checked as one path component; output
+folders assembled under a temporary name and renamed into place at the end
+(:class:`AtomicDir`), so an interrupted run never leaves a folder that looks complete.
+JSON, text and summary files are written through here too.
 """
 
 import csv
@@ -20,6 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import FolderLost, OutputError
+from .lifetime import CREATE_FLAGS, signals_blocked
+from .version import __version__
+
 
 def create_file(path, binary=False):
     """A new file at ``path``, opened for writing (text: UTF-8, ``\\n`` line ends).
@@ -27,8 +30,6 @@ def create_file(path, binary=False):
     Never an existing file and never through a symbolic link (``O_CREAT | O_EXCL |
     O_NOFOLLOW``): every file we write is one we created, in a folder of ours.
     """
-    from .lifetime import CREATE_FLAGS
-
     fd = os.open(path, CREATE_FLAGS, 0o666)
     if binary:
         return os.fdopen(fd, "wb")
@@ -48,194 +49,6 @@ def csv_line(fields):
     buffer = io.StringIO()
     csv.writer(buffer, lineterminator="\n").writerow(fields)
     return buffer.getvalue()
-
-
-class CsvSink:
-    """Stream rows of values to ``path`` (header: ``time`` then the column names).
-
-    The header is written by the csv module, so any FMI variable name (commas, quotes,
-    line breaks) reads back exactly (:func:`timeseries_columns`). Each row goes to the
-    file in one ``write`` call, unbuffered: a run whose process dies keeps every row it
-    recorded (the kernel holds what was written). ``bytes`` counts what was written.
-
-    Parameters
-    ----------
-    path : Path
-    columns : list of str
-        Names after ``time``.
-    formats : list of callable, optional
-        One per column (value -> text, :func:`agv_cosim.fmitypes.record_format`); None
-        when every column is a float (written with ``repr``).
-    """
-
-    def __init__(self, path, columns, formats=None):
-        from .lifetime import CREATE_FLAGS
-
-        self.path = Path(path)
-        self.fd = os.open(self.path, CREATE_FLAGS, 0o666)
-        self.bytes = 0
-        # formats: one callable per column (value -> text, fmitypes.record_format);
-        # None (every column a float) keeps the plain repr path
-        self.formats = None if formats is None else [repr] + list(formats)
-        self._write(csv_line(["time"] + list(columns)).encode("utf-8"))
-
-    def _write(self, data):
-        view = memoryview(data)
-        while view:
-            done = os.write(self.fd, view)
-            view = view[done:]
-            self.bytes += done
-
-    def write(self, row):
-        """Append one row (time, then the column values)."""
-        if self.formats is None:
-            text = ",".join(map(repr, map(float, row)))
-        else:
-            text = ",".join([f(v) for f, v in zip(self.formats, row)])
-        self._write((text + "\n").encode("utf-8"))
-
-    def close(self):
-        if self.fd is not None:
-            fd, self.fd = self.fd, None
-            os.close(fd)
-
-
-def read_timeseries(path, columns=None):
-    """Read a ``timeseries.csv`` back (whole; :func:`iter_timeseries` reads in pieces).
-
-    Returns
-    -------
-    (numpy.ndarray, dict of str -> numpy.ndarray)
-        Time [s] and the requested (default: all) columns.
-    """
-    wanted = timeseries_columns(path) if columns is None else list(columns)
-    times, data = [], {c: [] for c in wanted}
-    for t, chunk in iter_timeseries(path, wanted):
-        times.append(t)
-        for c in wanted:
-            data[c].append(chunk[c])
-    if not times:
-        return np.zeros(0), {c: np.zeros(0) for c in wanted}
-    return np.concatenate(times), {c: np.concatenate(data[c]) for c in wanted}
-
-
-#: Rows per chunk when a ``timeseries.csv`` is read in pieces (:func:`iter_timeseries`).
-#: Parsing a chunk of 10 000 rows of 10 columns peaked 6-10 MiB above one of 2 000 (as
-#: fast), which showed in the peak of a long run against a short one.
-CHUNK_ROWS = 2_000
-
-
-def _header(stream):
-    """The header record of a ``timeseries.csv`` opened as text (csv module: a quoted
-    name may hold commas, quotes and line breaks); the stream is left after it."""
-    try:
-        return next(csv.reader(stream))
-    except StopIteration:
-        return []
-
-
-def timeseries_columns(path):
-    """Column names of a ``timeseries.csv`` after ``time`` (its header)."""
-    with open(path, encoding="utf-8", newline="") as stream:
-        return _header(stream)[1:]
-
-
-def _records(stream, count):
-    """Up to ``count`` CSV records of ``stream`` as lines (a quoted field with a line
-    break keeps its record whole: a record ends where its quotes are balanced)."""
-    lines = list(itertools.islice(stream, count))
-    quoted = any('"' in line for line in lines)
-    if not quoted:
-        return lines, False
-    records, current = [], ""
-    pending = iter(lines)
-    while True:
-        line = next(pending, None)
-        if line is None:
-            if current:  # the last record goes on past this chunk
-                line = stream.readline()
-                if not line:
-                    records.append(current)
-                    break
-            else:
-                break
-        current += line
-        if current.count('"') % 2 == 0:
-            records.append(current)
-            current = ""
-    return records, True
-
-
-def iter_timeseries(path, columns=None, chunk_rows=CHUNK_ROWS):
-    """Read a ``timeseries.csv`` in pieces of at most ``chunk_rows`` rows.
-
-    Memory is bounded by the chunk, whatever the length of the file. The values are the
-    doubles :func:`read_timeseries` gives (same parser); concatenating the chunks gives its
-    arrays. The header is read with the csv module; rows holding quoted text (String
-    columns) are split by it too.
-
-    Yields
-    ------
-    (numpy.ndarray, dict of str -> numpy.ndarray)
-        Time [s] and the requested (default: all) columns of the next rows.
-
-    Raises
-    ------
-    ValueError
-        If a requested column is not in the file (the message names it).
-    """
-    if chunk_rows < 1:
-        raise ValueError(f"chunk_rows must be >= 1, got {chunk_rows!r}")
-    with open(path, encoding="utf-8", newline="") as stream:
-        header = _header(stream)
-        wanted = header[1:] if columns is None else list(columns)
-        position = {name: i for i, name in reversed(list(enumerate(header)))}
-        for name in wanted:
-            if position.get(name, 0) == 0:
-                raise ValueError(f"{path}: no column {name!r}")
-        index = [0] + [position[c] for c in wanted]
-        while True:
-            lines, quoted = _records(stream, chunk_rows)
-            if not lines:
-                return
-            if quoted:
-                rows = list(csv.reader(lines))
-                data = np.array([[float(row[i]) for i in index] for row in rows],
-                                dtype=float).reshape(len(rows), len(index))
-            else:
-                data = np.loadtxt(lines, delimiter=",", usecols=index, ndmin=2)
-            yield data[:, 0].copy(), {c: data[:, i + 1].copy() for i, c in enumerate(wanted)}
-
-
-def _header_end(stream):
-    """Bytes of the header record at the start of a binary stream (quotes respected)."""
-    quoted, size = False, 0
-    while block := stream.read(1 << 16):
-        for i, byte in enumerate(block):
-            if byte == 0x22:
-                quoted = not quoted
-            elif byte == 0x0A and not quoted:
-                return size + i + 1
-        size += len(block)
-    return size
-
-
-def count_rows(path):
-    """Rows of a ``timeseries.csv`` after its header (a last line without its newline
-    counts too). Counted in fixed-size blocks; rows with quoted text (String columns,
-    which may hold line breaks) are counted by the csv module."""
-    with open(path, "rb") as stream:
-        stream.seek(_header_end(stream))
-        lines, last, quoted = 0, b"\n", False
-        while block := stream.read(1 << 20):
-            lines += block.count(b"\n")
-            last = block[-1:]
-            quoted = quoted or b'"' in block
-        if not quoted:
-            return lines + (last != b"\n")
-    with open(path, encoding="utf-8", newline="") as stream:
-        _header(stream)
-        return sum(1 for _ in csv.reader(stream))
 
 
 def write_json(path, data, replace=False):
@@ -302,10 +115,6 @@ def printable(text):
         else:
             out.append(ch)
     return "".join(out)
-
-
-class OutputError(Exception):
-    """An output folder we must not (or cannot) write; the text names the path."""
 
 
 #: File that marks a folder as a result folder this tool wrote (JSON: tool, version).
@@ -380,8 +189,6 @@ def is_result_folder(path):
 
 
 def _write_marker(folder, **extra):
-    from . import __version__
-
     write_json(Path(folder) / MARKER, {"tool": "agv-cosim", "version": __version__,
                                        **extra}, replace=True)
 
@@ -443,10 +250,6 @@ class _Lock:
                 self.path.unlink(missing_ok=True)
             os.close(self.fd)
             self.fd = None
-
-
-class FolderLost(Exception):
-    """The folder a run was writing was removed or replaced during the run."""
 
 
 class AtomicDir:
@@ -560,8 +363,6 @@ class AtomicDir:
                    "(status of each run: summary.csv)\n")
 
     def commit(self):
-        from .lifetime import signals_blocked
-
         with signals_blocked():  # the renames are not cut half-way by a Ctrl-C/SIGTERM
             return self._commit()
 

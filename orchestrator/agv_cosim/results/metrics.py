@@ -103,7 +103,7 @@ Bounded memory
 --------------
 :func:`compute_metrics` takes whole arrays; :func:`compute_metrics_csv` (what a run uses)
 computes the same result from a ``timeseries.csv`` with memory that does not grow with the
-run's length. It reads the file once in chunks of ``results.CHUNK_ROWS`` rows and spools
+run's length. It reads the file once in chunks of ``timeseries.CHUNK_ROWS`` rows and spools
 the signals the metrics use (and the path offsets of ``reference``, computed on the way
 with the projection hint carried across chunks) as float64 to anonymous temporary files
 on disk. Everything is then computed from chunks of that spool, each chunk with the
@@ -147,8 +147,8 @@ import tempfile
 
 import numpy as np
 
-from . import schema
-from .schema import DEFAULT_SETTLE_BAND  # noqa: F401 - part of this module's interface
+from ..manifest import schema
+from .. import timeseries
 
 _SIGNAL_KEYS = ("lateral_error", "heading_error", "steering_angle", "steering_rate", "control")
 
@@ -726,18 +726,17 @@ def compute_metrics_csv(path, spec, *, base_dir=None, chunk_rows=None):
     spec, base_dir
         As for :func:`compute_metrics`.
     chunk_rows : int, optional
-        Rows per chunk (default ``results.CHUNK_ROWS``).
+        Rows per chunk (default ``timeseries.CHUNK_ROWS``).
 
     Raises
     ------
     ValueError
         As :func:`compute_metrics`.
     """
-    from .results import CHUNK_ROWS, iter_timeseries, timeseries_columns
 
     spec = _validate(spec)
-    chunk_rows = chunk_rows or CHUNK_ROWS
-    present = set(timeseries_columns(path))
+    chunk_rows = chunk_rows or timeseries.CHUNK_ROWS
+    present = set(timeseries.timeseries_columns(path))
     used = {key: spec[key] for key in _SIGNAL_KEYS if key in spec}
     checks = [(key, name) for key, name in used.items() if key == "lateral_error"]
     if "reference" in spec:
@@ -758,7 +757,7 @@ def compute_metrics_csv(path, spec, *, base_dir=None, chunk_rows=None):
         finite = dict.fromkeys(names, True)
         path_finite = {"xy": True, "e": True}
         s_hint, previous = None, None
-        for t, signals in iter_timeseries(path, names, chunk_rows):
+        for t, signals in timeseries.iter_timeseries(path, names, chunk_rows):
             if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0) \
                     or (previous is not None and t[0] <= previous):
                 raise ValueError("metrics: time must be finite and strictly increasing")

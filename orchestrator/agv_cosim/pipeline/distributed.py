@@ -2,7 +2,7 @@
 
 The client (the machine running ``agv-cosim``) plans and validates the runs as for a
 local run, then submits one Dask task per run and writes every result itself, into the
-same :class:`~agv_cosim.results.AtomicDir` and ``summary.csv`` as a local run.
+same :class:`~agv_cosim.files.AtomicDir` and ``summary.csv`` as a local run.
 
 What a task does on a worker (:func:`run_remote`):
 
@@ -17,7 +17,7 @@ What a task does on a worker (:func:`run_remote`):
    worker can never run an FMU other than the one the client validated: the hash in
    ``run.json`` is the hash of the bytes that ran.
 2. **The same crash isolation as locally.** The run goes through
-   :func:`agv_cosim.runner._run_isolated`: a child process of its own (``forkserver``),
+   :func:`agv_cosim.pipeline.pool.run_isolated`: a child process of its own (``forkserver``),
    so an FMU that aborts its process fails only its run, reported ``partial`` or
    ``failed`` with the same text as locally; the worker goes on.
 3. The run's folder (``timeseries.csv``, ``run.json``, ``metrics.json``) goes back to the
@@ -37,28 +37,35 @@ children, so start workers with ``DASK_DISTRIBUTED__WORKER__DAEMON=False`` (or
 
 import dataclasses
 import hashlib
+import json
 import logging
 import os
 import re
+import shutil
 import stat
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
+
+from ..errors import ClusterError, Interrupted, WorkerUnfit
+from ..files import create_file, write_json
+from ..lifetime import ignore_termination, scratch_dir
+from ..results import metrics
+from ..results.records import RunResult
+from ..system import Job
+from .pool import not_run, run_isolated
+
+__all__ = ["CONNECT_TIMEOUT", "LOST_TIMEOUT", "cached_fmu", "connect", "run_on_dask",
+           "run_remote"]
 
 #: How long the client waits for the scheduler to answer [s] before giving up.
 CONNECT_TIMEOUT = 10.0
 #: How long a cluster may go without a worker, or the client without its scheduler,
 #: while runs are left [s] before the command gives up (keeping the finished runs).
 LOST_TIMEOUT = 30.0
-
-
-class ClusterError(Exception):
-    """The cluster cannot be used (unreachable scheduler, no workers, ...)."""
-
-
-class WorkerUnfit(RuntimeError):
-    """This worker cannot run any run (a setting or its FMU cache): nothing will run."""
 
 
 def connect(address, timeout=CONNECT_TIMEOUT):
@@ -188,11 +195,6 @@ def run_remote(job, blobs):
     ``files`` mapping each file of the run's folder (relative POSIX path) to its bytes.
     Metrics are left to the client (``metrics_spec`` is dropped here).
     """
-    import shutil
-
-    from .lifetime import scratch_dir
-    from .runner import _run_isolated
-
     _allow_children()
     models = {}
     for cname, info in job.plan.models.items():
@@ -205,7 +207,7 @@ def run_remote(job, blobs):
                                 metrics_spec=None)
     root = Path(scratch_dir("dask"))
     try:
-        [result] = _run_isolated([local], root, 1, lambda steps: None, lambda: None)
+        [result] = run_isolated([local], root, 1, lambda steps: None, lambda: None)
         run_dir = root / job.label
         files = {p.relative_to(run_dir).as_posix(): p.read_bytes()
                  for p in sorted(run_dir.rglob("*")) if p.is_file()}
@@ -216,9 +218,6 @@ def run_remote(job, blobs):
 
 def _write_back(job, result, files, root):
     """Write a run's files under ``root`` and compute its metrics here (the client)."""
-    from . import metrics
-    from .results import create_file, write_json
-
     run_dir = Path(root) / job.label
     run_dir.mkdir(exist_ok=True)  # never its parents: a removed result folder stays gone
     for name, data in files.items():
@@ -228,15 +227,13 @@ def _write_back(job, result, files, root):
         target.parent.mkdir(parents=True, exist_ok=True)
         with create_file(target, binary=True) as stream:
             stream.write(data)
-    result = dict(result)
+    result = RunResult(**result)
     if job.metrics_spec and result["rows"]:
-        import json
-
         values, metrics_error = {}, None
         try:
             values = dict(metrics.compute_metrics_csv(
                 run_dir / "timeseries.csv", job.metrics_spec,
-                base_dir=Path(job.manifest_path).parent))
+                base_dir=job.manifest_dir))
         except Exception as failure:  # noqa: BLE001 - reported in run.json, as locally
             metrics_error = f"{type(failure).__name__}: {failure}"
         write_json(run_dir / "metrics.json", values, replace=True)
@@ -279,7 +276,7 @@ def _quiet_logs():
 def run_on_dask(address, jobs, root, on_progress, on_done):
     """Run ``jobs`` on the cluster at ``address``; write each run under ``root``.
 
-    Same contract as :func:`agv_cosim.runner._run_isolated`: one result dict per job, in
+    Same contract as :func:`agv_cosim.pipeline.pool.run_isolated`: one result dict per job, in
     job order. ``on_progress`` gets each finished run's steps at once. A run whose task
     fails on the cluster (its worker died, ...) is ``failed`` with the reason and the
     others go on. When the command cannot go on (the scheduler gone, no worker left
@@ -288,9 +285,6 @@ def run_on_dask(address, jobs, root, on_progress, on_done):
     that the caller keeps them.
     """
     from distributed import wait as wait_futures
-
-    from .lifetime import Interrupted, ignore_termination
-    from .runner import _not_run
 
     restore_logs = _quiet_logs()
     client = connect(address)
@@ -346,7 +340,7 @@ def run_on_dask(address, jobs, root, on_progress, on_done):
                     raise ClusterError(f"--dask: run {job.label} could not run on the "
                                        f"cluster: {_one_line(error)}") from None
                 except Exception as error:  # noqa: BLE001 - this run's task failed
-                    results[index] = _not_run(job, "failed")
+                    results[index] = not_run(job, "failed")
                     results[index]["error"] = (f"its Dask task failed: "
                                                f"{type(error).__name__}: {_one_line(error)}")
                     on_done()
@@ -374,7 +368,7 @@ def run_on_dask(address, jobs, root, on_progress, on_done):
         if isinstance(stop, (KeyboardInterrupt, Interrupted)):
             stop.restore = ignore_termination()
         if isinstance(stop, (KeyboardInterrupt, Interrupted, ClusterError)) and futures:
-            stop.results = [r if r is not None else _not_run(jobs[i])
+            stop.results = [r if r is not None else not_run(jobs[i])
                             for i, r in enumerate(results)]
             if isinstance(stop, ClusterError):
                 stop.reason = str(stop).removeprefix("--dask: ")

@@ -22,13 +22,10 @@ import csv
 import math
 from pathlib import Path
 
+from ..errors import TableError
 from .model import ModelInfo, Variable, file_sha256
 
 MODES = ("linear", "hold")
-
-
-class TableError(Exception):
-    """A time table that cannot be used; the text names the file, row and column."""
 
 
 class Table:
