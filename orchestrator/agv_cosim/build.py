@@ -192,7 +192,7 @@ def loader_binary():
                              sysconfig.get_paths()["include"])
 
 
-def _install_loader(fmu_path, binaries, fmi_version=2):
+def _install_loader(fmu_path, binaries, fmi_version: int=2):
     """Put the loader in the FMU as its Linux binary and the bridge beside it; pythonfmu's
     own Linux library is left out (the bridge takes its place)."""
     loader, bridge = binaries
@@ -295,7 +295,7 @@ def simulate_reference(fmu_path, input_csv, output_csv):
     signals = read_csv(input_csv) if input_csv else None
     errors = []
 
-    def logger(*args):  # FMI 2.0: (env, instance, status, category, message); 3.0: no instance
+    def logger(*args) -> None:  # FMI 2.0: (env, instance, status, category, message); 3.0: no instance
         status, message = args[-3], args[-1]
         if status >= 3:  # error, fatal
             errors.append(message.decode(errors="replace").strip())
@@ -350,7 +350,7 @@ def _ship_reference(fmu_path):
             archive.writestr(f"{REFERENCE_DIR}/{name}", data)
 
 
-def fmu_guid(script, boot, tag, fmi_version=2, standalone=False):
+def fmu_guid(script, boot, tag, fmi_version: int=2, standalone: bool=False):
     """GUID of the FMU built from ``script``: a hash of all its sources and the tool chain
     (content only: the same sources give the same GUID wherever they are built)."""
     digest = hashlib.sha256()
@@ -403,7 +403,7 @@ def slave_class_name(script):
     return names[0]
 
 
-def fmi3_wrapper_source(script):
+def fmi3_wrapper_source(script) -> str:
     """Source of the FMI 3.0 wrapper script of ``script`` (see the module docstring).
 
     If the body cannot be imported (e.g. a package of requirements.txt missing from the
@@ -460,7 +460,7 @@ def _shipped_requirements(fmu_path):
     return installed_requirements(text)
 
 
-def _stage(script, core_dir, boot, tag, guid, stage_dir, fmi_version=2, bundle=None):
+def _stage(script, core_dir, boot, tag, guid, stage_dir, fmi_version: int=2, bundle=None):
     """Stage the FMU's files (``bundle``: what :func:`_bundle` says the FMU ships); return
     (the script to build from, the project files)."""
     if fmi_version == 3:
@@ -495,7 +495,7 @@ def _stage(script, core_dir, boot, tag, guid, stage_dir, fmi_version=2, bundle=N
                            stage_dir / "requirements.txt", *extra]
 
 
-def _validate(fmu_path, fmi_version=2):
+def _validate(fmu_path, fmi_version: int=2):
     from fmpy.validation import validate_fmu
 
     problems = validate_fmu(str(fmu_path))
@@ -518,8 +518,8 @@ def _fmi_version_of(fmu_path):
         return None
 
 
-def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_version=2,
-              standalone=False):
+def build_one(script, out_dir, core_dir=None, force: bool=False, index=None, fmi_version: int=2,
+              standalone: bool=False):
     """Build the FMU (FMI ``fmi_version``) of one slave script into ``out_dir``.
 
     ``standalone`` adds a Python runtime with the packages the slave imports
@@ -608,7 +608,7 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_versi
     return BuildResult(script, target, guid, rebuilt=True)
 
 
-def build_fmus(out_dir, scripts=None, force=False, fmi_version=2, standalone=False):
+def build_fmus(out_dir, scripts=None, force: bool=False, fmi_version: int=2, standalone: bool=False):
     """Build every slave script (or ``scripts``) into ``out_dir``; return the results.
 
     ``fmi_version`` 3 builds the FMI 3.0 twins (see the module docstring); ``standalone``

@@ -140,7 +140,7 @@ class _CoreView:
     """The package's files as the FMU will hold them (``overrides``: relative path ->
     text that replaces or adds a file, e.g. the FMI 3.0 alias of ``fmi/fmi_slave.py``)."""
 
-    def __init__(self, core_dir, overrides):
+    def __init__(self, core_dir, overrides) -> None:
         self.core_dir = Path(core_dir)
         self.overrides = dict(overrides)
 

@@ -21,17 +21,17 @@ from .ssp.importer import opened
 from .version import __version__
 
 
-def _say(text):
+def _say(text) -> None:
     """One line on stderr, control characters escaped."""
     print(printable(text), file=sys.stderr)
 
 
-def _error(text):
+def _error(text) -> int:
     _say(f"agv-cosim: error: {text}")
     return 2
 
 
-def _cmd_build(args):
+def _cmd_build(args) -> int:
     from .build import build_fmus
     from .errors import BuildError
 
@@ -62,7 +62,7 @@ def _cmd_examples(args):
     return 0
 
 
-def _warn(warnings, quiet=False):
+def _warn(warnings, quiet: bool=False) -> None:
     for warning in warnings:
         _say(f"agv-cosim: warning: {warning}")
 
@@ -81,7 +81,7 @@ def _timeout(text):
     return value
 
 
-def _cmd_validate(args):
+def _cmd_validate(args) -> int:
     from .pipeline import check_initialisation, prepare
 
     manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set)

@@ -139,7 +139,7 @@ def _record_of(folder):
                             "choose another folder") from None
 
 
-def copy_examples(folder, fmus="fmus"):
+def copy_examples(folder, fmus: str="fmus"):
     """Copy the shipped manifests (and the files they reference) into ``folder``, their
     FMU paths pointed at the folder ``fmus`` (relative to the current folder, or
     absolute). Returns the paths written (files already identical are not rewritten,

@@ -22,9 +22,11 @@ import numpy as np
 from .errors import FolderLost, OutputError
 from .lifetime import CREATE_FLAGS, signals_blocked
 from .version import __version__
+from types import TracebackType
+from typing import Optional, Type
 
 
-def create_file(path, binary=False):
+def create_file(path, binary: bool=False):
     """A new file at ``path``, opened for writing (text: UTF-8, ``\\n`` line ends).
 
     Never an existing file and never through a symbolic link (``O_CREAT | O_EXCL |
@@ -51,7 +53,7 @@ def csv_line(fields):
     return buffer.getvalue()
 
 
-def write_json(path, data, replace=False):
+def write_json(path, data, replace: bool=False) -> None:
     """Write ``data`` as indented, key-sorted JSON (NaN/inf written as null) into a new
     file (:func:`create_file`); ``replace`` first removes a file of ours already there."""
     if replace:
@@ -60,7 +62,7 @@ def write_json(path, data, replace=False):
         stream.write(json.dumps(_json_safe(data), indent=1, sort_keys=True) + "\n")
 
 
-def write_text(path, text):
+def write_text(path, text) -> None:
     """Write ``text`` into a new file (:func:`create_file`)."""
     with create_file(path) as stream:
         stream.write(text)
@@ -81,7 +83,7 @@ def _json_safe(value):
     return value
 
 
-def write_summary(path, rows):
+def write_summary(path, rows) -> None:
     """Write ``summary.csv``: one row per run (dicts; columns = union in first-seen order)."""
     columns = {}
     for row in rows:
@@ -128,7 +130,7 @@ _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 MAX_NAME = 128
 
 
-def check_name(name, what="name"):
+def check_name(name, what: str="name"):
     """Return ``name`` if it is one safe path component, else raise ValueError.
 
     Safe: letters, digits, ``-``, ``_``, ``.``; not ``.`` or ``..``; not starting with
@@ -146,7 +148,7 @@ def check_name(name, what="name"):
     return name
 
 
-def user_mode(directory=True):
+def user_mode(directory: bool=True):
     """Permission bits a new folder (file) gets under the process's umask."""
     mask = os.umask(0)
     os.umask(mask)
@@ -170,7 +172,7 @@ def _marker_data(folder):
     return data if isinstance(data, dict) and data.get("tool") == "agv-cosim" else None
 
 
-def is_result_folder(path):
+def is_result_folder(path) -> bool:
     """True when ``path`` is a folder this tool wrote (marker, or the legacy layout)."""
     path = Path(path)
     if _marker_data(path) is not None:
@@ -188,7 +190,7 @@ def is_result_folder(path):
     return True
 
 
-def _write_marker(folder, **extra):
+def _write_marker(folder, **extra) -> None:
     write_json(Path(folder) / MARKER, {"tool": "agv-cosim", "version": __version__,
                                        **extra}, replace=True)
 
@@ -200,7 +202,7 @@ class _Lock:
     file: a link or anything else at its place is refused, never written through.
     """
 
-    def __init__(self, path, target):
+    def __init__(self, path, target) -> None:
         import fcntl
 
         self.path = Path(path)
@@ -244,7 +246,7 @@ class _Lock:
         mine = os.fstat(fd)
         return (here.st_dev, here.st_ino) == (mine.st_dev, mine.st_ino)
 
-    def release(self):
+    def release(self) -> None:
         if self.fd is not None:
             if self._same(self.fd):
                 self.path.unlink(missing_ok=True)
@@ -273,7 +275,7 @@ class AtomicDir:
     context manager it discards on an exception and always releases the lock.
     """
 
-    def __init__(self, target, overwrite=False):
+    def __init__(self, target, overwrite: bool=False) -> None:
         self.target = Path(os.path.abspath(target))
         self.overwrite = overwrite
         self.lock = None
@@ -324,7 +326,7 @@ class AtomicDir:
                           "refusing to replace it (choose another --out, or pass "
                           "--overwrite to replace it)")
 
-    def _clean_stale(self):
+    def _clean_stale(self) -> None:
         name = self.target.name
         for pattern in (f".{name}.incomplete-*", f".{name}.old-*"):
             for stale in self.target.parent.glob(pattern):
@@ -353,7 +355,7 @@ class AtomicDir:
                              "removed or replaced during the run; no result folder was "
                              "written")
 
-    def mark_partial(self, reason, complete, total):
+    def mark_partial(self, reason, complete, total) -> None:
         """Mark the folder as holding only part of the runs: the marker says so
         (``complete: false`` and ``reason``) and ``partial.txt`` says it in words."""
         _write_marker(self.path, complete=False, reason=reason,
@@ -388,14 +390,14 @@ class AtomicDir:
         self._release()
         return self.target
 
-    def discard(self):
+    def discard(self) -> None:
         if self.path is not None:
             if self.intact():
                 shutil.rmtree(self.path, ignore_errors=True)
             self.path = None
         self._release()
 
-    def _release(self):
+    def _release(self) -> None:
         if self.lock is not None:
             self.lock.release()
             self.lock = None
@@ -403,7 +405,7 @@ class AtomicDir:
     def __enter__(self):
         return self
 
-    def __exit__(self, kind, value, traceback):
+    def __exit__(self, kind: Optional[Type[BaseException]], value: Optional[BaseException], traceback: Optional[TracebackType]) -> bool:
         if kind is not None:
             self.discard()
         self._release()

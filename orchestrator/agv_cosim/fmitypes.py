@@ -45,11 +45,11 @@ class FmiType:
     bounds: tuple = None  # (lowest, highest) for integer kinds
 
     @property
-    def is_float(self):
+    def is_float(self) -> bool:
         return self.kind in ("float64", "float32")
 
     @property
-    def is_integer(self):
+    def is_integer(self) -> bool:
         return self.bounds is not None
 
     @property
@@ -266,7 +266,7 @@ def to_c(ftype, value):
     return value
 
 
-def set_parameter(slave, ftype, vr, value):
+def set_parameter(slave, ftype, vr, value) -> None:
     """Set one variable through fmpy's convenience setter (before initialisation).
 
     A tuple ``value`` sets a whole FMI 3.0 array (one call, row-major values)."""

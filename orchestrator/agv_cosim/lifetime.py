@@ -90,7 +90,7 @@ def ignore_termination():
         except ValueError:  # not the main thread
             break
 
-    def restore():
+    def restore() -> None:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
 
@@ -117,7 +117,7 @@ def _wake(signum, frame):
     raise _Wake
 
 
-def own_process_group(life=None):
+def own_process_group(life=None) -> None:
     """Make this process the leader of a process group of its own, with a guard in it.
 
     Every process an FMU forks (and that does not leave the group) is then in this
@@ -160,7 +160,7 @@ def own_process_group(life=None):
         os._exit(0)
 
 
-def drop_helper_channels():
+def drop_helper_channels() -> None:
     """Close, in a child of the fork server, the descriptors multiprocessing gives it
     to reach its helpers (the fork server's liveness pipe, the resource tracker's
     pipe): an FMU that writes into every descriptor it finds cannot then break them for
@@ -181,7 +181,7 @@ def drop_helper_channels():
             setattr(holder, name, None)
 
 
-def kill_group(process):
+def kill_group(process) -> None:
     """SIGKILL the process group led by ``process`` (a multiprocessing Process started
     with :func:`own_process_group`), else the process alone."""
     pid = process.pid
@@ -196,7 +196,7 @@ def kill_group(process):
             pass
 
 
-def die_with_parent():
+def die_with_parent() -> None:
     """Make the kernel kill this process (SIGKILL) when its parent process ends.
 
     Linux ``prctl(PR_SET_PDEATHSIG)``; elsewhere nothing (the parent's ``finally``
@@ -313,7 +313,7 @@ def clean_stale_scratch(tmp=None):
     return removed
 
 
-def use_own_scratch_for_multiprocessing():
+def use_own_scratch_for_multiprocessing() -> None:
     """Once per process: multiprocessing's sockets in a scratch folder of ours, and its
     helper processes stopped at exit.
 
@@ -336,14 +336,14 @@ def use_own_scratch_for_multiprocessing():
     else:
         shutil.rmtree(folder, ignore_errors=True)
 
-    def at_exit():
+    def at_exit() -> None:
         stop_helpers()
         shutil.rmtree(folder, ignore_errors=True)
 
     atexit.register(at_exit)
 
 
-def stop_helpers():
+def stop_helpers() -> None:
     """Stop multiprocessing's fork server and resource tracker if they run."""
     try:
         from multiprocessing import forkserver, resource_tracker

@@ -223,7 +223,7 @@ def _scrubbed(data, prefixes):
     return data
 
 
-def _scrub(path, prefixes):
+def _scrub(path, prefixes) -> None:
     """Overwrite every prefix in file ``path`` (:func:`_scrubbed`)."""
     data = path.read_bytes()
     changed = _scrubbed(data, prefixes)

@@ -52,14 +52,14 @@ class CsvSink:
         self.formats = None if formats is None else [repr] + list(formats)
         self._write(csv_line(["time"] + list(columns)).encode("utf-8"))
 
-    def _write(self, data):
+    def _write(self, data) -> None:
         view = memoryview(data)
         while view:
             done = os.write(self.fd, view)
             view = view[done:]
             self.bytes += done
 
-    def write(self, row):
+    def write(self, row) -> None:
         """Append one row (time, then the column values)."""
         if self.formats is None:
             text = ",".join(map(repr, map(float, row)))
@@ -68,7 +68,7 @@ class CsvSink:
         self._write((text + "\n").encode("utf-8"))
         self.rows += 1
 
-    def close(self):
+    def close(self) -> None:
         if self.fd is not None:
             fd, self.fd = self.fd, None
             os.close(fd)

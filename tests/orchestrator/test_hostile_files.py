@@ -92,6 +92,7 @@ def test_scratch_folders_and_fmu_extractions_are_private(fmus, tmp_path, monkeyp
     """Scratch folders are 0700 and carry the marker (a regular file, not a link); an
     FMU's extraction (binaries/ included) is readable by its user only."""
     from agv_cosim.execution import instance as model
+    from agv_cosim.system import read_model
 
     folder = Path(lifetime.scratch_dir("run"))
     try:
@@ -108,7 +109,7 @@ def test_scratch_folders_and_fmu_extractions_are_private(fmus, tmp_path, monkeyp
     monkeypatch.setattr(model.tempfile, "tempdir", str(tmp_path))
     old = os.umask(0o022)
     try:
-        instance = model.FmuInstance(model.read_model(fmus["agv_test_gain"]), "g")
+        instance = model.FmuInstance(read_model(fmus["agv_test_gain"]), "g")
         try:
             entries = list(Path(instance.unzip_dir).rglob("*"))
             assert any(p.parts[-3:-1] == ("binaries", "linux64") for p in entries)

@@ -111,10 +111,11 @@ def test_kept_extraction_gives_each_instance_its_own_folder_of_links(fmus, tmp_p
     instances instantiate from there, and closing one leaves the other's files and the
     kept copy in place. Without it, each instance unpacks the archive (no shared files)."""
     from agv_cosim.execution import instance as model
+    from agv_cosim.system import read_model
 
     monkeypatch.setattr(model, "_EXTRACT_ROOT", [])
     monkeypatch.setattr(model, "_EXTRACTED", {})
-    info = model.read_model(fmus["agv_test_gain"])
+    info = read_model(fmus["agv_test_gain"])
     monkeypatch.setattr(model.tempfile, "tempdir", str(tmp_path))
 
     def files(folder):

@@ -27,7 +27,7 @@ _KEYS = itertools.count(1)
 _ROUTER = []
 
 
-def _route(environment, instance_name, status, category, message):
+def _route(environment, instance_name, status, category, message) -> None:
     """The one logger every instance is given; hands a message to its own instance."""
     receive = _ROUTES.get(environment or 0)
     if receive is None:  # an FMU that does not pass its environment back
@@ -54,7 +54,7 @@ def _logger():
     return _ROUTER[0]
 
 
-def _route3(environment, status, category, message):
+def _route3(environment, status, category, message) -> None:
     receive = _ROUTES.get(environment or 0)
     if receive is not None:
         receive(int(status), message.decode("utf-8", "replace") if message else "")
@@ -77,7 +77,7 @@ _EXTRACTED = {}
 _EXTRACT_ROOT = []
 
 
-def keep_extractions(folder):
+def keep_extractions(folder) -> None:
     """Extract each FMU once in this process, under ``folder``, and give every instance
     a folder of its own made of hard links to that extraction (far cheaper than
     unpacking the archive again). ``folder`` must be deleted by whoever owns it."""
@@ -85,14 +85,14 @@ def keep_extractions(folder):
     _EXTRACTED.clear()
 
 
-def _link_or_copy(source, dest):
+def _link_or_copy(source, dest) -> None:
     try:
         os.link(source, dest)
     except OSError:  # no hard links here (another file system, ...): a copy
         shutil.copy2(source, dest)
 
 
-def _extract(path, dest):
+def _extract(path, dest) -> None:
     """Extract the FMU at ``path`` into ``dest``, private to this user (umask 077: its
     folders 0700, its files 0600; a binary needs no x bit to be loaded)."""
     old = os.umask(0o077)
@@ -114,7 +114,7 @@ def _kept(info):
     return source
 
 
-def _unpack(info, dest):
+def _unpack(info, dest) -> None:
     """Put the contents of FMU ``info.path`` into the existing folder ``dest``."""
     if not _EXTRACT_ROOT:
         _extract(info.path, dest)
@@ -141,7 +141,7 @@ class FmuInstance:
         deleted on close.
     """
 
-    def __init__(self, info, instance_name, on_message=None, shared=False):
+    def __init__(self, info, instance_name, on_message=None, shared: bool=False) -> None:
         from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE,
                                fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions)
         from fmpy.fmi1 import calloc, free
@@ -228,7 +228,7 @@ class FmuInstance:
         if not slave.component:
             raise RuntimeError("fmi3InstantiateCoSimulation failed")
 
-    def _receive(self, status, text):
+    def _receive(self, status, text) -> None:
         self.messages.append((status, text))
         if self._on_message is not None:
             self._on_message(self.name, status, text)
@@ -244,7 +244,7 @@ class FmuInstance:
             errors = [text for status, text in self.messages if status > 3]
         return " ".join(errors[-1].split()) if errors else ""
 
-    def close(self):
+    def close(self) -> None:
         """Terminate and free the instance, then delete the extraction folder."""
         slave, self.slave = self.slave, None
         if slave is not None:

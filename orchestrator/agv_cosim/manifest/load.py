@@ -64,7 +64,7 @@ class Connection:
     target: tuple
     key: str
 
-    def __str__(self):
+    def __str__(self) -> str:
         return f"{'.'.join(self.source)} -> {'.'.join(self.target)}"
 
 
@@ -123,7 +123,7 @@ def split_name(text):
     return component, variable
 
 
-def dotted_name(manifest, key, text, what="component.variable"):
+def dotted_name(manifest, key, text, what: str="component.variable"):
     if not isinstance(text, str) or not all(text.partition(".")[::2]) or "." not in text:
         raise ManifestError(manifest, key, f"{text!r} is not of the form '{what}'")
     return split_name(text)
@@ -144,7 +144,7 @@ def _component(manifest, base_dir, name, table, key):
     return Component(name, (base_dir / fmu).resolve() if fmu else None, dict(table.parameters))
 
 
-def _event(manifest, key, table, partial=False):
+def _event(manifest, key, table, partial: bool=False):
     """One checked ``[events.<name>]`` table: ``at`` [s] and ``set`` ("comp.var" -> value);
     a variant's change of a base event (``partial``) may give only one of them."""
     event = {}
@@ -188,7 +188,7 @@ MAX_MANIFEST_BYTES = 16 << 20
 MAX_DEPTH = 32
 
 
-def read_regular_file(path, limit, what="file"):
+def read_regular_file(path, limit, what: str="file"):
     """The bytes of the regular file at ``path``, at most ``limit`` of them.
 
     A FIFO, a device, a socket or a folder is refused before any read (opened

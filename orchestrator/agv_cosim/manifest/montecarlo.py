@@ -22,7 +22,7 @@ DISTRIBUTIONS = {
 class MonteCarlo:
     """A checked ``[montecarlo]`` table (see the module docstring)."""
 
-    def __init__(self, samples, seed, design, parameters, seeds, metrics, band):
+    def __init__(self, samples, seed, design, parameters, seeds, metrics, band) -> None:
         self.samples, self.seed, self.design = samples, seed, design
         self.parameters = parameters  # "comp.param" -> {"distribution": ..., ...}
         self.seeds, self.metrics, self.band = seeds, metrics, band

@@ -274,7 +274,7 @@ class ManifestTable(_Table):
 
 # --------------------------------------------------------------------------- errors
 
-def check(model, data, prefix=""):
+def check(model, data, prefix: str=""):
     """``model`` validated from ``data``; else a :class:`SchemaError` for the first problem,
     its key prefixed by ``prefix`` (e.g. ``"metrics"`` for a ``[metrics]`` table alone)."""
     try:
@@ -283,7 +283,7 @@ def check(model, data, prefix=""):
         raise schema_error(model, error, prefix) from None
 
 
-def schema_error(model, error, prefix=""):
+def schema_error(model, error, prefix: str=""):
     """The first error of a pydantic ``ValidationError`` as a :class:`SchemaError`."""
     first = error.errors()[0]
     parts, parent = _walk(model, first["loc"])

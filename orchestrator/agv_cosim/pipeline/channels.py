@@ -38,7 +38,7 @@ MAX_OUTPUT = 1 << 20
 OUTPUT_FILE = "output.txt"
 
 
-def send_frame(fd, message):
+def send_frame(fd, message) -> None:
     """Write one frame (see above) to ``fd``, whole."""
     data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
     view = memoryview(_FRAME.pack(len(data)) + data)
@@ -49,7 +49,7 @@ def send_frame(fd, message):
 class _PipeReader:
     """The parent's end of a pipe from a worker, read without ever blocking."""
 
-    def __init__(self, connection):
+    def __init__(self, connection) -> None:
         self.connection = connection  # keeps the descriptor open
         self.fd = connection.fileno()
         os.set_blocking(self.fd, False)
@@ -72,7 +72,7 @@ class _PipeReader:
             got += len(chunk)
             yield chunk
 
-    def close(self):
+    def close(self) -> None:
         self.connection.close()
 
 
@@ -80,7 +80,7 @@ class Frames(_PipeReader):
     """A worker's frame pipe: complete messages, or ``broken`` set when it holds bytes
     that are not ours."""
 
-    def __init__(self, connection):
+    def __init__(self, connection) -> None:
         super().__init__(connection)
         self.buffer = bytearray()
         self.broken = None  # why the pipe's content cannot be ours
@@ -116,23 +116,23 @@ class OutputLog(_PipeReader):
     run's folder: at most :data:`MAX_OUTPUT` bytes kept, the rest counted. The file is
     created (``O_EXCL | O_NOFOLLOW``) only when there is output."""
 
-    def __init__(self, connection):
+    def __init__(self, connection) -> None:
         super().__init__(connection)
         self.path = None
         self.stream = None
         self.kept = 0
         self.dropped = 0
 
-    def attach(self, run_dir):
+    def attach(self, run_dir) -> None:
         """Output from now on belongs to the run whose folder is ``run_dir``."""
         self.detach()
         self.path = Path(run_dir) / OUTPUT_FILE
 
-    def read(self):
+    def read(self) -> None:
         for chunk in self.chunks():
             self._keep(chunk)
 
-    def _keep(self, chunk):
+    def _keep(self, chunk) -> None:
         room = MAX_OUTPUT - self.kept
         if self.path is None or room <= 0:
             self.dropped += len(chunk)
@@ -153,7 +153,7 @@ class OutputLog(_PipeReader):
         self.kept += len(part)
         self.dropped += len(chunk) - len(part)
 
-    def detach(self):
+    def detach(self) -> None:
         """Close the current run's file (noting what was not kept)."""
         if self.stream is not None:
             try:
@@ -166,12 +166,12 @@ class OutputLog(_PipeReader):
                 pass
         self.stream, self.path, self.kept, self.dropped = None, None, 0, 0
 
-    def close(self):
+    def close(self) -> None:
         self.detach()
         super().close()
 
 
-def flush_c_stdio():
+def flush_c_stdio() -> None:
     """Flush C stdio buffers of this process (an FMU's printf to a pipe is buffered)."""
     import ctypes
     import ctypes.util
@@ -184,7 +184,7 @@ def flush_c_stdio():
         pass
 
 
-def child_setup(output, life):
+def child_setup(output, life) -> None:
     """Common start of a process that runs FMUs: it drops multiprocessing's helper
     channels (an FMU cannot write into them), dies with its parent, leads a process
     group of its own with a guard that ends the group when this process ends or when

@@ -89,7 +89,7 @@ def connect(address, timeout=CONNECT_TIMEOUT):
                            "(e.g. tcp://HOST:8786)")
     box = {}
 
-    def make():
+    def make() -> None:
         try:
             box["client"] = Client(address, timeout=timeout)
         except BaseException as error:  # noqa: BLE001 - handed to the caller's thread
@@ -267,7 +267,7 @@ def _quiet_logs():
     line); return a function that turns logging back on."""
     logging.disable(logging.CRITICAL)
 
-    def restore():
+    def restore() -> None:
         logging.disable(logging.NOTSET)
 
     return restore

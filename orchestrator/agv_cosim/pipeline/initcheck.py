@@ -21,14 +21,14 @@ from .pool import FORKSERVER_PRELOAD
 __all__ = ["INIT_TIMEOUT", "check_initialisation"]
 
 
-def _check_child(checks, channel, life, scratch):
+def _check_child(checks, channel, life, scratch) -> None:
     """Body of the initialisation check's child: instantiate and initialise each FMU."""
     child_setup(None, life)  # an FMU's prints go nowhere: validate writes no results
     tempfile.tempdir = scratch
     keep_extractions(scratch)  # an FMU checked with several parameter sets: unpacked once
     fd = channel.fileno()
 
-    def send(message):
+    def send(message) -> None:
         try:
             send_frame(fd, message)
         except OSError:

@@ -46,7 +46,7 @@ FORKSERVER_PRELOAD = (__name__, "fmpy.fmi2", "numpy", "scipy.signal", "scipy.lin
                       "scipy.optimize", "scipy.special", "scipy.integrate")
 
 
-def _worker(jobs, channel, output, life, scratch, track):
+def _worker(jobs, channel, output, life, scratch, track) -> None:
     """Body of a worker process: run the jobs the parent sends, one at a time.
 
     ``jobs`` is the reading end of a pipe that brings ``(job, run_dir)`` or None (stop);
@@ -68,13 +68,13 @@ def _worker(jobs, channel, output, life, scratch, track):
     keep_extractions(scratch)  # each FMU unpacked once per worker (the parent deletes it)
     fd = channel.fileno()
 
-    def send(message):
+    def send(message) -> None:
         try:
             send_frame(fd, message)
         except OSError:  # the parent is gone (BrokenPipeError): nobody to report to
             os._exit(1)
 
-    def progress(steps):
+    def progress(steps) -> None:
         send(("progress", steps))
 
     while True:
@@ -88,7 +88,7 @@ def _worker(jobs, channel, output, life, scratch, track):
         track[:] = [0.0] * len(track)
         warnings = [0]
 
-        def message(component, status, text):
+        def message(component, status, text) -> None:
             # errors (and the first 100 warnings) reach the parent before a crash loses them
             if status >= 3 or (status >= 1 and warnings[0] < 100):
                 warnings[0] += status < 3
@@ -137,7 +137,7 @@ def not_run(job: Job, why: str = "not run") -> RunResult:
     return run_result(job, why)
 
 
-def _process_end(exitcode):
+def _process_end(exitcode) -> str:
     if exitcode is None:
         return "the run's process ended"
     how = f"signal {-exitcode}" if exitcode < 0 else f"exit code {exitcode}"
@@ -189,7 +189,7 @@ def run_isolated(jobs, root, workers, on_progress, on_done):
         pool.append(worker)
         return worker
 
-    def give(worker):
+    def give(worker) -> None:
         index = waiting.pop(0)
         worker["index"] = index
         job = jobs[index]
@@ -200,7 +200,7 @@ def run_isolated(jobs, root, workers, on_progress, on_done):
         except OSError:  # the worker is already gone: its end is seen below
             pass
 
-    def end(worker, status=None, how=None):
+    def end(worker, status=None, how=None) -> None:
         """Stop a worker (its whole process group) and clean up after it; a run it was
         doing gets ``how`` as its reason (default: how its process ended)."""
         process = worker["process"]
@@ -221,7 +221,7 @@ def run_isolated(jobs, root, workers, on_progress, on_done):
         if worker in pool:  # (an interruption may have come in the middle of an end)
             pool.remove(worker)
 
-    def handle(worker, kind, payload):
+    def handle(worker, kind, payload) -> None:
         index = worker["index"]
         if kind == "progress":
             on_progress(payload)

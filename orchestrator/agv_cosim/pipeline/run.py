@@ -48,7 +48,7 @@ def default_out_dir(manifest):
     return Path("results") / manifest.name
 
 
-def execute(manifest, jobs, out_dir=None, workers=None, quiet=False, overwrite=False,
+def execute(manifest, jobs, out_dir=None, workers=None, quiet: bool=False, overwrite: bool=False,
             dask=None):
     """Run ``jobs`` and write the output folder (see the module docstring).
 
@@ -86,7 +86,7 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet=False, overwrite=F
                    file=sys.stderr, mininterval=0.5, postfix={"runs": f"0/{len(jobs)}"})
         finished = 0
 
-        def run_done():
+        def run_done() -> None:
             nonlocal finished
             finished += 1
             bar.set_postfix(runs=f"{finished}/{len(jobs)}")
@@ -148,7 +148,7 @@ def _checked_files(job, result, root):
                       "its results are lost")
 
 
-def _keep_partial(manifest, jobs, folder, stop):
+def _keep_partial(manifest, jobs, folder, stop) -> None:
     """After an interruption (or a cluster that went away), commit the folder marked
     partial when a run has results (``stop.results``, one per job); ``stop.kept`` is
     then the folder. Termination signals stay ignored meanwhile (``stop.restore``)."""
@@ -199,7 +199,7 @@ def _plots(manifest, jobs, results, out_dir):
 
 
 def run_manifest(manifest_path, out_dir=None, variants=None, sets=(), workers=None,
-                 quiet=False):
+                 quiet: bool=False):
     """Validate and run a manifest; return (out folder, results, warnings)."""
     manifest, jobs, warnings = prepare(manifest_path, variants, sets)
     target, results = execute(manifest, jobs, out_dir, workers, quiet)

@@ -19,7 +19,7 @@ from .spec import MAX_RUNS, RunSpec, run_label
 from ..manifest import Manifest, dotted_name, event_key, event_parts, parse_toml, split_name
 
 
-def _apply_event_key(events, name, value):
+def _apply_event_key(events, name, value) -> None:
     """Set the event field named by :func:`agv_cosim.manifest.event_key` in ``events`` (a run's copy)."""
     parts = event_parts(name)
     if parts[2] == "at":

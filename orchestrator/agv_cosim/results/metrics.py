@@ -416,7 +416,7 @@ def compute_metrics(time, signals, spec, *, base_dir=None):
     settle_after = spec.get("settle_after")
     result = {"duration": float(t[-1] - t[0])}
 
-    def finite(values, names):
+    def finite(values, names) -> bool:
         # all metrics of a signal with non-finite samples are None
         if np.all(np.isfinite(values)):
             return True
@@ -492,7 +492,7 @@ class PairwiseSum:
 
     _BLOCK = 128
 
-    def __init__(self, n):
+    def __init__(self, n) -> None:
         self.n = n
         self.result = 0.0 if n == 0 else None
         self._tree = self._walk(n)
@@ -539,22 +539,22 @@ class PairwiseSum:
 class _Spool:
     """Columns of float64 kept on disk (anonymous temporary files), read back in chunks."""
 
-    def __init__(self, chunk_rows):
+    def __init__(self, chunk_rows) -> None:
         self.chunk_rows = chunk_rows
         self.files = {}
         self.rows = 0
         self.first_time = self.last_time = None
 
-    def append(self, name, values):
+    def append(self, name, values) -> None:
         if name not in self.files:
             self.files[name] = tempfile.TemporaryFile()
         np.ascontiguousarray(values, dtype=float).tofile(self.files[name])
 
-    def close(self):
+    def close(self) -> None:
         for stream in self.files.values():
             stream.close()
 
-    def chunks(self, name, first=0):
+    def chunks(self, name, first: int=0):
         """Arrays of at most ``chunk_rows`` values of column ``name`` from row ``first``."""
         stream = self.files[name]
         stream.flush()
@@ -587,7 +587,7 @@ def _pieces(spool, name, first_row, lead=None):
         previous = (t[-1], f[-1])
 
 
-def _sums(spool, name, first_row=0, lead=None, *, mean=None, squares=True, absolute=False,
+def _sums(spool, name, first_row: int=0, lead=None, *, mean=None, squares: bool=True, absolute: bool=False,
           threshold=None):
     """One pass over a signal (rows from ``first_row``, after the sample ``lead``).
 
@@ -795,7 +795,7 @@ def _stream_metrics(spool, spec, finite, path_finite):
                      "settled_max", "settled_mean", "settled_rms", "settled_signed_mean",
                      "settled_std", "overshoot", "overshoot_ratio")
 
-    def skip(names):
+    def skip(names) -> None:
         result.update({name: None for name in names})
 
     if "lateral_error" in spec:

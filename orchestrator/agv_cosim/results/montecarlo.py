@@ -87,7 +87,7 @@ def _band(folder, members, signal):
     return np.asarray(time), np.percentile(data, [5, 50, 95], axis=0)
 
 
-def figure(mc, jobs, results, folder, title=None, dpi=110):
+def figure(mc, jobs, results, folder, title=None, dpi: int=110):
     """``montecarlo.png``: box plots of the key metrics per group; the band of a signal."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure

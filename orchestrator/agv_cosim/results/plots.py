@@ -185,7 +185,7 @@ class Decimator:
         Keep the extremes of x too (an x-y trajectory).
     """
 
-    def __init__(self, n, buckets, both=False):
+    def __init__(self, n, buckets, both: bool=False) -> None:
         self.both = both
         self.size = 1 if n <= (6 if both else 4) * buckets else -(-n // buckets)
         self.row = 0
@@ -199,7 +199,7 @@ class Decimator:
         index = np.unique(keys)
         return x[index], y[index]
 
-    def add(self, x, y):
+    def add(self, x, y) -> None:
         """Feed the next samples (1-D arrays of equal length)."""
         x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
         if self.size == 1:
@@ -220,7 +220,7 @@ class Decimator:
             if self.row == end:
                 self._flush()
 
-    def _flush(self):
+    def _flush(self) -> None:
         if self._carry is not None:
             self._x.append(self._carry[0])
             self._y.append(self._carry[1])
@@ -236,7 +236,7 @@ class Decimator:
         return np.concatenate(self._x), np.concatenate(self._y)
 
 
-def _buckets(spec, trajectory=False):
+def _buckets(spec, trajectory: bool=False):
     per_column = _TRAJECTORY_BUCKETS_PER_COLUMN if trajectory else _SIGNAL_BUCKETS_PER_COLUMN
     return per_column * int(round(_WIDTH * spec["dpi"]))
 
@@ -251,7 +251,7 @@ def _line_specs(spec):
     return lines
 
 
-def read_run(path, spec, label, *, partial=False, rows=None, chunk_rows=None):
+def read_run(path, spec, label, *, partial: bool=False, rows=None, chunk_rows=None):
     """The lines of one run's ``timeseries.csv`` as the ``[plots]`` table draws them,
     read in chunks of ``chunk_rows`` rows and decimated (see "Long runs").
 
@@ -303,7 +303,7 @@ def read_run(path, spec, label, *, partial=False, rows=None, chunk_rows=None):
 
 # --------------------------------------------------------------------------- drawing
 
-def _line(run, xname, yname, xkey, ykey, buckets, both=False, figure=None):
+def _line(run, xname, yname, xkey, ykey, buckets, both: bool=False, figure=None):
     """(x, y) of one line of ``run``, decimated to ``buckets``; a decimated line marks
     ``figure`` (see :func:`_save`)."""
     if run.lines is not None:
@@ -344,7 +344,7 @@ def _style(run):
             "linestyle": "--" if run.partial else "-", "linewidth": 1.2}
 
 
-def _legend(figure, ax):
+def _legend(figure, ax) -> None:
     # outside the axes, below them: never hides data, and no costly 'best' placement
     handles, labels = ax.get_legend_handles_labels()
     if handles:

@@ -39,7 +39,7 @@ for _prefix, _uri in NS.items():
     ElementTree.register_namespace(_prefix, _uri)
 
 
-def q(prefix, tag):
+def q(prefix, tag) -> str:
     return f"{{{NS[prefix]}}}{tag}"
 
 
@@ -53,7 +53,7 @@ def ssp_type(var):
     return None if var.unsupported() else var.ftype.ssp_type
 
 
-def is_ssp(path):
+def is_ssp(path) -> bool:
     """True when ``path`` names an SSP package (``.ssp`` file or ``.ssd``)."""
     return path is not None and Path(str(path)).suffix.lower() in (".ssp", ".ssd")
 

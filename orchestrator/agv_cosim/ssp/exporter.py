@@ -67,7 +67,7 @@ def _fmu_file_names(models):
 
 
 def build_ssd(name, models, parameters, connections, start, stop, step, algorithm,
-              record=None, record_interval=None, description=""):
+              record=None, record_interval=None, description: str=""):
     """The ``SystemStructure.ssd`` of one run, as an ElementTree element.
 
     Parameters
@@ -189,7 +189,7 @@ def export_ssp(manifest, out_path, variant=None, sets=()):
     ----------
     manifest : path or Manifest
         The experiment manifest (a TOML file, or one already loaded, e.g. from an SSP
-        package by :func:`agv_cosim.ssp_import.opened`).
+        package by :func:`agv_cosim.ssp.importer.opened`).
     out_path : path
         The ``.ssp`` file to write (replaced atomically).
     variant : str, optional
@@ -216,8 +216,9 @@ def export_ssp(manifest, out_path, variant=None, sets=()):
                             "package holds one (choose --variant, remove the sweep or fix "
                             "it with --set)")
     checked = validate(manifest, runs)
-    run, models = runs[0], checked.models[0]
-    params = {c: dict(comp.parameters) for c, comp in run.components.items()}
+    one = checked.runs[0]
+    run, models = one.run, one.models
+    params = {c: dict(values) for c, values in one.parameters.items()}
     for cname, values in params.items():
         for pname, value in values.items():
             if isinstance(value, tuple):
@@ -258,7 +259,7 @@ def export_ssp(manifest, out_path, variant=None, sets=()):
     return out_path
 
 
-def _cmd_export_ssp(args):
+def _cmd_export_ssp(args) -> int:
     with opened(args.manifest) as manifest:
         out = export_ssp(manifest, args.output, args.variant, args.set)
     print(out)

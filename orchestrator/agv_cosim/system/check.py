@@ -37,7 +37,7 @@ def _parameter_key(manifest, run, cname, pname):
     return f"components.{cname}.parameters.{pname}"
 
 
-def _fmu_key(manifest, run, cname):
+def _fmu_key(manifest, run, cname) -> str:
     if run.variant:
         sub = manifest.variants[run.variant]["components"].get(cname)
         if sub is not None and sub.fmu is not None:

@@ -67,7 +67,7 @@ class Variable:
             return 1
         return math.prod(self.shape) if self.shape is not None else None
 
-    def unsupported(self, use="connect"):
+    def unsupported(self, use: str="connect") -> str:
         """Why this variable cannot be used for ``use`` ('' if it can).
 
         ``use`` is "connect" (connection, SSP connector, event), "record" or "parameter".

@@ -13,8 +13,8 @@ from .model import ModelInfo
 __all__ = ["feedthrough_order"]
 
 
-def feedthrough_order(models, connections, manifest_path="manifest",
-                      algorithm="gauss-seidel"):
+def feedthrough_order(models, connections, manifest_path: str="manifest",
+                      algorithm: str="gauss-seidel"):
     """Gauss-Seidel order of the components, or raise on an algebraic loop.
 
     Parameters

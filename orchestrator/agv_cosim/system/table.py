@@ -31,7 +31,7 @@ MODES = ("linear", "hold")
 class Table:
     """Columns of a time table, evaluated at a time [s] (see the module docstring)."""
 
-    def __init__(self, path, interpolation=None):
+    def __init__(self, path, interpolation=None) -> None:
         self.path = Path(path)
         interpolation = dict(interpolation or {})
         if self.path.exists() and not self.path.is_file():  # a FIFO would block a read
@@ -80,7 +80,7 @@ class Table:
         if not self.times:
             raise TableError(f"'{self.path}': no rows")
 
-    def values_at(self, t, out):
+    def values_at(self, t, out) -> None:
         """Write every column's value at ``t`` [s] into ``out`` (a sequence)."""
         times = self.times
         i = bisect.bisect_right(times, t)  # times[i - 1] <= t < times[i]
