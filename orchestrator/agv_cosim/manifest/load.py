@@ -86,8 +86,10 @@ class Manifest:
     sweep: dict
     record: list | None
     record_interval: float
-    metrics: dict
-    plots: dict
+    #: the ``[metrics]`` table as the schema checked it; None when absent or empty
+    metrics: schema.MetricsTable | None
+    #: the ``[plots]`` table as the schema checked it; None when absent or empty
+    plots: schema.PlotsTable | None
     events: dict = field(default_factory=dict)  # name -> {"at": s, "set": {"c.v": value}}
     #: the folder an .ssp archive was unpacked into (run.json names its FMUs
     #: ``<package>!/<entry>``); None for a manifest file
@@ -373,6 +375,7 @@ def manifest_from_data(data, path, sha256, base_dir=None):
                     step=step, algorithm=sim.algorithm, components=components,
                     connections=connections, variants=variants, sweep=sweep,
                     record=variables, record_interval=interval,
-                    metrics=dict(data.get("metrics", {})), plots=dict(data.get("plots", {})),
+                    metrics=table.metrics if data.get("metrics") else None,
+                    plots=table.plots if data.get("plots") else None,
                     events=events, montecarlo=sampling, timeout=sim.timeout)
 

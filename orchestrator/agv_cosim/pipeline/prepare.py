@@ -35,10 +35,10 @@ def _signal_sources(manifest: Manifest) -> list[tuple[str, list[str]]]:
                 raise ManifestError(manifest.path, name, str(error)) from None
     # a path string is checked now, not after the runs (it would leave metrics empty)
     base_dir = Path(manifest.path).parent
-    for key, text in (("metrics.reference.path",
-                       (manifest.metrics.get("reference") or {}).get("path")),
-                      ("plots.trajectory.path",
-                       (manifest.plots.get("trajectory") or {}).get("path"))):
+    reference = manifest.metrics.reference if manifest.metrics else None
+    trajectory = manifest.plots.trajectory if manifest.plots else None
+    for key, text in (("metrics.reference.path", reference.path if reference else None),
+                      ("plots.trajectory.path", trajectory.path if trajectory else None)):
         if isinstance(text, str):
             try:
                 metrics.load_path(text, key, base_dir)

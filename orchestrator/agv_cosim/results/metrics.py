@@ -143,6 +143,7 @@ The result never holds NaN or inf: a metric that is undefined is reported as ``N
 """
 
 import math
+from typing import Any
 import tempfile
 
 import numpy as np
@@ -155,9 +156,12 @@ _SIGNAL_KEYS = ("lateral_error", "heading_error", "steering_angle", "steering_ra
 
 # --------------------------------------------------------------------------- validation
 
-def _validate(spec):
-    """``spec`` checked against :class:`agv_cosim.schema.MetricsTable` and returned
-    normalised (defaults filled in); a problem is a ValueError naming ``metrics.<key>``."""
+def _validate(spec: "schema.MetricsTable | dict[str, Any] | None") -> dict[str, Any]:
+    """``spec`` normalised (defaults filled in): a :class:`~agv_cosim.manifest.schema.MetricsTable`
+    as the manifest's schema checked it, or a plain ``[metrics]`` table checked here (a
+    problem is a ValueError naming ``metrics.<key>``)."""
+    if isinstance(spec, schema.MetricsTable):
+        return spec.spec()
     return schema.check(schema.MetricsTable, {} if spec is None else spec, "metrics").spec()
 
 

@@ -64,6 +64,7 @@ Complete example::
 """
 
 import math
+from typing import Any
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -129,9 +130,12 @@ class RunData:
 
 # --------------------------------------------------------------------------- validation
 
-def _validate(spec):
-    """``spec`` checked against :class:`agv_cosim.schema.PlotsTable` and returned
-    normalised (defaults filled in); a problem is a ValueError naming ``plots.<key>``."""
+def _validate(spec: "schema.PlotsTable | dict[str, Any] | None") -> dict[str, Any]:
+    """``spec`` normalised (defaults filled in): a :class:`~agv_cosim.manifest.schema.PlotsTable`
+    as the manifest's schema checked it, or a plain ``[plots]`` table checked here (a
+    problem is a ValueError naming ``plots.<key>``)."""
+    if isinstance(spec, schema.PlotsTable):
+        return spec.spec()
     return schema.check(schema.PlotsTable, {} if spec is None else spec, "plots").spec()
 
 

@@ -7,6 +7,7 @@ from typing import Any
 
 from ..fmitypes import FmiType
 from ..manifest import Connection
+from ..manifest.schema import MetricsTable
 from ..plan import RunSpec
 from .model import ModelInfo
 
@@ -91,7 +92,8 @@ class Job:
     fmu_sha256: dict[str, str]
     manifest_path: str
     manifest_sha256: str
-    metrics_spec: dict[str, Any]
+    #: the manifest's ``[metrics]`` table (None: no metrics)
+    metrics_spec: MetricsTable | None
     #: how run.json names each FMU (inside an unpacked .ssp: ``<ssp>!/<entry>``)
     fmu_paths: dict[str, str]
     #: wall-clock limit of the run [s] (``[simulation] timeout`` or ``--timeout``); None:
