@@ -28,8 +28,7 @@ Every error of stages 1-3 is one line, ``<manifest>: <key>: <problem>``; every e
 is in :mod:`agv_cosim.errors`.
 """
 
-from .errors import (ManifestError, ModelError, OutputError, SimulationError, SspError,
-                     TableError)
+from .errors import ManifestError, ModelError, OutputError, SimulationError, SspError, TableError
 from .execution import simulate
 from .manifest import Manifest, load_manifest
 from .pipeline import check_initialisation, execute, prepare, run_job, run_manifest

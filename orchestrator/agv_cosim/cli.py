@@ -21,17 +21,17 @@ from .ssp.importer import opened
 from .version import __version__
 
 
-def _say(text) -> None:
+def _say(text: str) -> None:
     """One line on stderr, control characters escaped."""
     print(printable(text), file=sys.stderr)
 
 
-def _error(text) -> int:
+def _error(text: str) -> int:
     _say(f"agv-cosim: error: {text}")
     return 2
 
 
-def _cmd_build(args) -> int:
+def _cmd_build(args: argparse.Namespace) -> int:
     from .build import build_fmus
     from .errors import BuildError
 
@@ -62,7 +62,7 @@ def _cmd_examples(args):
     return 0
 
 
-def _warn(warnings, quiet: bool=False) -> None:
+def _warn(warnings: list[str], quiet: bool = False) -> None:
     for warning in warnings:
         _say(f"agv-cosim: warning: {warning}")
 
@@ -81,7 +81,7 @@ def _timeout(text):
     return value
 
 
-def _cmd_validate(args) -> int:
+def _cmd_validate(args: argparse.Namespace) -> int:
     from .pipeline import check_initialisation, prepare
 
     manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set)
@@ -159,7 +159,7 @@ def _cmd_list(args):
     return status
 
 
-def make_parser():
+def make_parser() -> argparse.ArgumentParser:
     """The argument parser of ``agv-cosim`` with all its subcommands."""
     parser = argparse.ArgumentParser(prog="agv-cosim", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -274,11 +274,14 @@ def _interrupted(args, name, signum, error):
                    128 + signum)
 
 
-def main(argv=None):
+def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``agv-cosim`` console script; returns the exit code."""
     from .errors import FolderLost, Interrupted, ManifestError, OutputError
-    from .lifetime import (clean_stale_scratch, termination_signals,
-                           use_own_scratch_for_multiprocessing)
+    from .lifetime import (
+        clean_stale_scratch,
+        termination_signals,
+        use_own_scratch_for_multiprocessing,
+    )
 
     args = make_parser().parse_args(argv)
     if not hasattr(args, "debug"):

@@ -8,25 +8,25 @@ JSON, text and summary files are written through here too.
 import csv
 import errno
 import io
-import itertools
 import json
 import os
 import re
 import shutil
 import stat
 import tempfile
+from collections.abc import Iterable
 from pathlib import Path
+from types import TracebackType
+from typing import IO, Any, BinaryIO
 
 import numpy as np
 
 from .errors import FolderLost, OutputError
 from .lifetime import CREATE_FLAGS, signals_blocked
 from .version import __version__
-from types import TracebackType
-from typing import Optional, Type
 
 
-def create_file(path, binary: bool=False):
+def create_file(path: str | Path, binary: bool = False) -> IO[Any]:
     """A new file at ``path``, opened for writing (text: UTF-8, ``\\n`` line ends).
 
     Never an existing file and never through a symbolic link (``O_CREAT | O_EXCL |
@@ -38,14 +38,14 @@ def create_file(path, binary: bool=False):
     return os.fdopen(fd, "w", encoding="utf-8", newline="")
 
 
-def open_output(path):
+def open_output(path: str | Path) -> BinaryIO:
     """``path`` opened for writing bytes, created or truncated, never through a
     symbolic link (``O_NOFOLLOW``): for files a library call may write again (figures)."""
     flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW | os.O_CLOEXEC
     return os.fdopen(os.open(path, flags, 0o666), "wb")
 
 
-def csv_line(fields):
+def csv_line(fields: Iterable[Any]) -> str:
     """One CSV record of ``fields`` as the csv module writes it (quoted where a field
     holds a comma, a quote or a line break), ending in ``\\n``."""
     buffer = io.StringIO()
@@ -53,7 +53,7 @@ def csv_line(fields):
     return buffer.getvalue()
 
 
-def write_json(path, data, replace: bool=False) -> None:
+def write_json(path: str | Path, data: Any, replace: bool = False) -> None:
     """Write ``data`` as indented, key-sorted JSON (NaN/inf written as null) into a new
     file (:func:`create_file`); ``replace`` first removes a file of ours already there."""
     if replace:
@@ -62,7 +62,7 @@ def write_json(path, data, replace: bool=False) -> None:
         stream.write(json.dumps(_json_safe(data), indent=1, sort_keys=True) + "\n")
 
 
-def write_text(path, text) -> None:
+def write_text(path: str | Path, text: str) -> None:
     """Write ``text`` into a new file (:func:`create_file`)."""
     with create_file(path) as stream:
         stream.write(text)
@@ -83,7 +83,7 @@ def _json_safe(value):
     return value
 
 
-def write_summary(path, rows) -> None:
+def write_summary(path: str | Path, rows: list[dict[str, Any]]) -> None:
     """Write ``summary.csv``: one row per run (dicts; columns = union in first-seen order)."""
     columns = {}
     for row in rows:
@@ -100,7 +100,7 @@ def write_summary(path, rows) -> None:
 _BIDI = set(range(0x202A, 0x202F)) | set(range(0x2066, 0x206A)) | {0x200E, 0x200F, 0x061C}
 
 
-def printable(text):
+def printable(text: object) -> str:
     """``text`` safe to print on a terminal as one line: control characters (C0, DEL,
     C1: escape sequences, line breaks, bells) and bidi controls are written as escapes
     (``\\x1b``, ``\\n``, ``\\u202e``); everything else is unchanged."""
@@ -130,7 +130,7 @@ _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 MAX_NAME = 128
 
 
-def check_name(name, what: str="name"):
+def check_name(name: object, what: str = "name") -> str:
     """Return ``name`` if it is one safe path component, else raise ValueError.
 
     Safe: letters, digits, ``-``, ``_``, ``.``; not ``.`` or ``..``; not starting with
@@ -148,7 +148,7 @@ def check_name(name, what: str="name"):
     return name
 
 
-def user_mode(directory: bool=True):
+def user_mode(directory: bool = True) -> int:
     """Permission bits a new folder (file) gets under the process's umask."""
     mask = os.umask(0)
     os.umask(mask)
@@ -172,7 +172,7 @@ def _marker_data(folder):
     return data if isinstance(data, dict) and data.get("tool") == "agv-cosim" else None
 
 
-def is_result_folder(path) -> bool:
+def is_result_folder(path: str | Path) -> bool:
     """True when ``path`` is a folder this tool wrote (marker, or the legacy layout)."""
     path = Path(path)
     if _marker_data(path) is not None:
@@ -190,7 +190,7 @@ def is_result_folder(path) -> bool:
     return True
 
 
-def _write_marker(folder, **extra) -> None:
+def _write_marker(folder: str | Path, **extra: Any) -> None:
     write_json(Path(folder) / MARKER, {"tool": "agv-cosim", "version": __version__,
                                        **extra}, replace=True)
 
@@ -202,7 +202,7 @@ class _Lock:
     file: a link or anything else at its place is refused, never written through.
     """
 
-    def __init__(self, path, target) -> None:
+    def __init__(self, path: Path, target: Path) -> None:
         import fcntl
 
         self.path = Path(path)
@@ -235,7 +235,7 @@ class _Lock:
             os.close(fd)
         os.ftruncate(fd, 0)
         os.write(fd, str(os.getpid()).encode())
-        self.fd = fd
+        self.fd: int | None = fd
 
     def _same(self, fd):
         """True when ``path`` is still the file open as ``fd`` (not a link)."""
@@ -275,12 +275,12 @@ class AtomicDir:
     context manager it discards on an exception and always releases the lock.
     """
 
-    def __init__(self, target, overwrite: bool=False) -> None:
+    def __init__(self, target: str | Path, overwrite: bool = False) -> None:
         self.target = Path(os.path.abspath(target))
         self.overwrite = overwrite
-        self.lock = None
-        self.path = None
-        self.identity = None
+        self.lock: _Lock | None = None
+        self.path: Path | None = None
+        self.identity: tuple[int, int] | None = None
         parent, name = self.target.parent, self.target.name
         if not name:
             raise OutputError(f"{target}: not a folder name")
@@ -337,7 +337,7 @@ class AtomicDir:
                 if stat.S_ISDIR(info.st_mode) and _marker_data(stale) is not None:
                     shutil.rmtree(stale, ignore_errors=True)
 
-    def intact(self):
+    def intact(self) -> bool:
         """True while the temporary folder is the one we created (same inode, marked)."""
         if self.path is None or self.identity is None:
             return False
@@ -348,23 +348,24 @@ class AtomicDir:
         return ((info.st_dev, info.st_ino) == self.identity and stat.S_ISDIR(info.st_mode)
                 and _marker_data(self.path) is not None)
 
-    def check_intact(self):
+    def check_intact(self) -> None:
         """Raise :class:`FolderLost` (naming the folder) unless :meth:`intact`."""
         if not self.intact():
             raise FolderLost(f"{self.target}: the folder being written ({self.path}) was "
                              "removed or replaced during the run; no result folder was "
                              "written")
 
-    def mark_partial(self, reason, complete, total) -> None:
+    def mark_partial(self, reason: str, complete: int, total: int) -> None:
         """Mark the folder as holding only part of the runs: the marker says so
         (``complete: false`` and ``reason``) and ``partial.txt`` says it in words."""
+        assert self.path is not None, "the folder was committed or discarded"
         _write_marker(self.path, complete=False, reason=reason,
                       runs_complete=complete, runs=total)
         write_text(self.path / "partial.txt",
                    f"partial result: {reason}; {complete} of {total} run(s) complete "
                    "(status of each run: summary.csv)\n")
 
-    def commit(self):
+    def commit(self) -> Path:
         with signals_blocked():  # the renames are not cut half-way by a Ctrl-C/SIGTERM
             return self._commit()
 
@@ -383,6 +384,7 @@ class AtomicDir:
                     _write_marker(old)  # so that a run killed now still cleans it
                 except OSError:
                     pass
+        assert self.path is not None, "the folder was committed or discarded"
         self.path.rename(self.target)
         self.path = None
         if old is not None:
@@ -402,11 +404,11 @@ class AtomicDir:
             self.lock.release()
             self.lock = None
 
-    def __enter__(self):
+    def __enter__(self) -> "AtomicDir":
         return self
 
-    def __exit__(self, kind: Optional[Type[BaseException]], value: Optional[BaseException], traceback: Optional[TracebackType]) -> bool:
+    def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
+                 traceback: TracebackType | None) -> None:
         if kind is not None:
             self.discard()
         self._release()
-        return False

@@ -30,7 +30,9 @@ import shutil
 import signal
 import stat
 import tempfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 from .errors import Interrupted
 
@@ -49,7 +51,7 @@ def _raise(signum, frame):
 
 
 @contextlib.contextmanager
-def termination_signals():
+def termination_signals() -> Iterator[None]:
     """Context in which SIGTERM and SIGHUP raise :class:`Interrupted` (main thread)."""
     previous = {}
     try:
@@ -65,7 +67,7 @@ def termination_signals():
 
 
 @contextlib.contextmanager
-def signals_blocked():
+def signals_blocked() -> Iterator[None]:
     """Context in which termination signals wait (a rename that must not be cut)."""
     wanted = {signal.SIGINT, *TERMINATION_SIGNALS}
     try:
@@ -79,7 +81,7 @@ def signals_blocked():
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
-def ignore_termination():
+def ignore_termination() -> Callable[[], None]:
     """Ignore SIGINT, SIGTERM and SIGHUP from now on (the last writes after an
     interruption are not cut by a second signal); return a function that puts the
     previous handlers back."""
@@ -117,7 +119,7 @@ def _wake(signum, frame):
     raise _Wake
 
 
-def own_process_group(life=None) -> None:
+def own_process_group(life: int | None = None) -> None:
     """Make this process the leader of a process group of its own, with a guard in it.
 
     Every process an FMU forks (and that does not leave the group) is then in this
@@ -143,7 +145,7 @@ def own_process_group(life=None) -> None:
     try:  # the guard: nothing of the parent's but the group and ``life``
         keep = [] if life is None else [life]
         os.closerange(0, min(keep) if keep else 65536)
-        if keep:
+        if life is not None:
             os.closerange(life + 1, 65536)
         signal.signal(signal.SIGTERM, _wake)
         signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -181,7 +183,7 @@ def drop_helper_channels() -> None:
             setattr(holder, name, None)
 
 
-def kill_group(process) -> None:
+def kill_group(process: Any) -> None:
     """SIGKILL the process group led by ``process`` (a multiprocessing Process started
     with :func:`own_process_group`), else the process alone."""
     pid = process.pid
@@ -227,7 +229,7 @@ def _start_time(pid):
         return None
 
 
-def scratch_dir(kind):
+def scratch_dir(kind: str) -> str:
     """A new private temporary folder ``agv-cosim-<pid>-<kind>-XXXXXXXX`` (0700) that
     carries our marker (:data:`SCRATCH_MARKER`)."""
     folder = tempfile.mkdtemp(prefix=f"agv-cosim-{os.getpid()}-{kind}-")
@@ -281,7 +283,7 @@ def _marker_owner(folder, uid):
     return pid, (start if isinstance(start, int) and not isinstance(start, bool) else None)
 
 
-def clean_stale_scratch(tmp=None):
+def clean_stale_scratch(tmp: str | Path | None = None) -> int:
     """Remove our scratch folders whose process no longer exists; return how many.
 
     Only a folder of this user (not a link) named like :func:`scratch_dir`'s *and*
@@ -326,7 +328,7 @@ def use_own_scratch_for_multiprocessing() -> None:
     import atexit
     import multiprocessing
 
-    config = multiprocessing.current_process()._config
+    config = multiprocessing.current_process()._config  # type: ignore[attr-defined]
     if config.get("agv_cosim_scratch") or config.get("tempdir") is not None:
         return
     folder = scratch_dir("mp")
@@ -348,7 +350,7 @@ def stop_helpers() -> None:
     try:
         from multiprocessing import forkserver, resource_tracker
 
-        forkserver._forkserver._stop()
-        resource_tracker._resource_tracker._stop()
+        forkserver._forkserver._stop()  # type: ignore[attr-defined]
+        resource_tracker._resource_tracker._stop()  # type: ignore[attr-defined]
     except Exception:  # noqa: BLE001 - private API; without it they end at our exit
         pass

@@ -9,9 +9,9 @@ so any FMI variable name (commas, quotes, line breaks) reads back exactly.
 import csv
 import itertools
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -43,7 +43,7 @@ class CsvSink:
     def __init__(self, path: str | Path, columns: Sequence[str],
                  formats: Sequence[Callable[[Any], str]] | None = None) -> None:
         self.path = Path(path)
-        self.fd = os.open(self.path, CREATE_FLAGS, 0o666)
+        self.fd: int | None = os.open(self.path, CREATE_FLAGS, 0o666)
         self.bytes = 0
         #: rows written
         self.rows = 0
@@ -52,14 +52,16 @@ class CsvSink:
         self.formats = None if formats is None else [repr] + list(formats)
         self._write(csv_line(["time"] + list(columns)).encode("utf-8"))
 
-    def _write(self, data) -> None:
+    def _write(self, data: bytes) -> None:
+        fd = self.fd
+        assert fd is not None, "write after close"
         view = memoryview(data)
         while view:
-            done = os.write(self.fd, view)
+            done = os.write(fd, view)
             view = view[done:]
             self.bytes += done
 
-    def write(self, row) -> None:
+    def write(self, row: Sequence[Any]) -> None:
         """Append one row (time, then the column values)."""
         if self.formats is None:
             text = ",".join(map(repr, map(float, row)))
@@ -74,7 +76,8 @@ class CsvSink:
             os.close(fd)
 
 
-def read_timeseries(path, columns=None):
+def read_timeseries(path: str | Path, columns: Iterable[str] | None = None
+                    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Read a ``timeseries.csv`` back (whole; :func:`iter_timeseries` reads in pieces).
 
     Returns
@@ -83,7 +86,8 @@ def read_timeseries(path, columns=None):
         Time [s] and the requested (default: all) columns.
     """
     wanted = timeseries_columns(path) if columns is None else list(columns)
-    times, data = [], {c: [] for c in wanted}
+    times: list[np.ndarray] = []
+    data: dict[str, list[np.ndarray]] = {c: [] for c in wanted}
     for t, chunk in iter_timeseries(path, wanted):
         times.append(t)
         for c in wanted:
@@ -99,7 +103,7 @@ def read_timeseries(path, columns=None):
 CHUNK_ROWS = 2_000
 
 
-def _header(stream):
+def _header(stream: IO[str]) -> list[str]:
     """The header record of a ``timeseries.csv`` opened as text (csv module: a quoted
     name may hold commas, quotes and line breaks); the stream is left after it."""
     try:
@@ -108,13 +112,13 @@ def _header(stream):
         return []
 
 
-def timeseries_columns(path):
+def timeseries_columns(path: str | Path) -> list[str]:
     """Column names of a ``timeseries.csv`` after ``time`` (its header)."""
     with open(path, encoding="utf-8", newline="") as stream:
         return _header(stream)[1:]
 
 
-def _records(stream, count):
+def _records(stream: IO[str], count: int) -> tuple[list[str], bool]:
     """Up to ``count`` CSV records of ``stream`` as lines (a quoted field with a line
     break keeps its record whole: a record ends where its quotes are balanced)."""
     lines = list(itertools.islice(stream, count))
@@ -140,7 +144,9 @@ def _records(stream, count):
     return records, True
 
 
-def iter_timeseries(path, columns=None, chunk_rows=CHUNK_ROWS):
+def iter_timeseries(path: str | Path, columns: Iterable[str] | None = None,
+                    chunk_rows: int = CHUNK_ROWS
+                    ) -> Iterator[tuple[np.ndarray, dict[str, np.ndarray]]]:
     """Read a ``timeseries.csv`` in pieces of at most ``chunk_rows`` rows.
 
     Memory is bounded by the chunk, whatever the length of the file. The values are the
@@ -181,7 +187,7 @@ def iter_timeseries(path, columns=None, chunk_rows=CHUNK_ROWS):
             yield data[:, 0].copy(), {c: data[:, i + 1].copy() for i, c in enumerate(wanted)}
 
 
-def _header_end(stream):
+def _header_end(stream: IO[bytes]) -> int:
     """Bytes of the header record at the start of a binary stream (quotes respected)."""
     quoted, size = False, 0
     while block := stream.read(1 << 16):
@@ -194,7 +200,7 @@ def _header_end(stream):
     return size
 
 
-def count_rows(path):
+def count_rows(path: str | Path) -> int:
     """Rows of a ``timeseries.csv`` after its header (a last line without its newline
     counts too). Counted in fixed-size blocks; rows with quoted text (String columns,
     which may hold line breaks) are counted by the csv module."""

@@ -137,3 +137,30 @@ def test_every_package_declares_its_public_names(name):
     package = importlib.import_module(name)
     assert isinstance(package.__all__, list) and package.__all__
     assert [n for n in package.__all__ if not hasattr(package, n)] == []
+
+
+def test_every_public_function_is_annotated():
+    """Public functions and methods of public classes: every parameter (but self / cls)
+    and the return annotated (``__init__``'s return may be left out)."""
+    missing = []
+    for name, path in modules().items():
+        def visit(body, owner, public):
+            for node in body:
+                if isinstance(node, ast.ClassDef):
+                    visit(node.body, node.name, public and not node.name.startswith("_"))
+                elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    dunder = node.name.startswith("__") and node.name.endswith("__")
+                    if not public or (node.name.startswith("_") and not dunder):
+                        continue
+                    args = node.args.posonlyargs + node.args.args + node.args.kwonlyargs
+                    if owner and args and args[0].arg in ("self", "cls"):
+                        args = args[1:]
+                    args += [a for a in (node.args.vararg, node.args.kwarg) if a]
+                    bare = [a.arg for a in args if a.annotation is None]
+                    if node.returns is None and node.name != "__init__":
+                        bare.append("return")
+                    if bare:
+                        missing.append(f"{name}:{node.lineno} {node.name}: {', '.join(bare)}")
+
+        visit(ast.parse(path.read_text()).body, "", True)
+    assert missing == []

@@ -34,6 +34,8 @@ __all__ = ["Code", "bare_call", "gauss_seidel_pass", "jacobi_get", "jacobi_set",
            "shared_values", "step_all"]
 
 _NUMBERS = itertools.count(1)
+#: The base class of every ctypes function pointer (ctypes names it privately only).
+_FUNCTION_BASE: Any = ctypes._CFuncPtr  # type: ignore[attr-defined]
 
 
 def _passed_as_is(value: Any) -> Any:
@@ -74,7 +76,7 @@ def bare_call(function: Any, args: tuple[Any, ...]) -> tuple[Any, tuple[Any, ...
     else (fmpy's wrapper, an argument this cannot convert) is returned unchanged.
     """
     argtypes = getattr(function, "argtypes", None)
-    if not isinstance(function, ctypes._CFuncPtr) or not argtypes or \
+    if not isinstance(function, _FUNCTION_BASE) or not argtypes or \
             len(argtypes) != len(args):
         return function, args
     converted = []
@@ -92,10 +94,14 @@ def bare_call(function: Any, args: tuple[Any, ...]) -> tuple[Any, tuple[Any, ...
     converted = [_passed_as_is(value) for value in converted]
     # PYFUNCTYPE: the GIL stays held during the call (an FMU whose slave is Python takes
     # it again at once; releasing and re-taking it cost more than the call itself)
-    bare = ctypes.PYFUNCTYPE(function.restype)(ctypes.cast(function, ctypes.c_void_p).value)
+    restype: Any = function.restype
+    address = ctypes.cast(function, ctypes.c_void_p).value
+    if not address:
+        return function, args
+    bare: Any = ctypes.PYFUNCTYPE(restype)(address)
     bare.argtypes = None
-    bare.restype = function.restype
-    bare.keep = function  # type: ignore[attr-defined]  # the library's entry stays referenced
+    bare.restype = restype
+    bare.keep = function  # the library's entry stays referenced
     return bare, tuple(converted)
 
 
@@ -115,7 +121,7 @@ def shared_values(in_val: Any, links: Iterable[tuple[int, Any, int]]) -> Any:
         return None
     pointer = ctypes.cast(ctypes.byref(src, first * ctypes.sizeof(ctype)),
                           ctypes.POINTER(ctype))
-    pointer.keep = src  # type: ignore[attr-defined]  # the source buffer lives as long
+    pointer.keep = src  # the source buffer lives as long
     return pointer
 
 

@@ -14,7 +14,9 @@ import shutil
 import stat
 import tempfile
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from ..system.model import IDENTIFIER, ModelInfo
 
@@ -22,12 +24,13 @@ __all__ = ["FmuInstance", "keep_extractions"]
 
 
 #: Instance key -> message list of that instance (see :func:`_logger`).
-_ROUTES = {}
+_ROUTES: dict[Any, Callable[[int, str], None]] = {}
 _KEYS = itertools.count(1)
-_ROUTER = []
+_ROUTER: list[Any] = []
 
 
-def _route(environment, instance_name, status, category, message) -> None:
+def _route(environment: Any, instance_name: bytes | None, status: int, category: bytes | None,
+           message: bytes | None) -> None:
     """The one logger every instance is given; hands a message to its own instance."""
     receive = _ROUTES.get(environment or 0)
     if receive is None:  # an FMU that does not pass its environment back
@@ -37,7 +40,7 @@ def _route(environment, instance_name, status, category, message) -> None:
         receive(int(status), message.decode("utf-8", "replace") if message else "")
 
 
-def _logger():
+def _logger() -> Any:
     """The process's single C logger callback (created once, kept alive).
 
     fmpy's native proxy, which formats the printf-style message, keeps one logger per
@@ -54,13 +57,14 @@ def _logger():
     return _ROUTER[0]
 
 
-def _route3(environment, status, category, message) -> None:
+def _route3(environment: Any, status: int, category: bytes | None,
+            message: bytes | None) -> None:
     receive = _ROUTES.get(environment or 0)
     if receive is not None:
         receive(int(status), message.decode("utf-8", "replace") if message else "")
 
 
-def _logger3():
+def _logger3() -> Any:
     """The FMI 3.0 counterpart of :func:`_logger` (the environment names the instance)."""
     if len(_ROUTER) < 2:
         _logger()
@@ -73,11 +77,11 @@ def _logger3():
 #: Extracted FMUs kept for reuse in this process, ``(path, sha256) -> folder``; only in a
 #: process that called :func:`keep_extractions` (a worker whose scratch folder its parent
 #: deletes), so nothing is left behind elsewhere.
-_EXTRACTED = {}
-_EXTRACT_ROOT = []
+_EXTRACTED: dict[tuple[str, str], str] = {}
+_EXTRACT_ROOT: list[str] = []
 
 
-def keep_extractions(folder) -> None:
+def keep_extractions(folder: str) -> None:
     """Extract each FMU once in this process, under ``folder``, and give every instance
     a folder of its own made of hard links to that extraction (far cheaper than
     unpacking the archive again). ``folder`` must be deleted by whoever owns it."""
@@ -85,14 +89,14 @@ def keep_extractions(folder) -> None:
     _EXTRACTED.clear()
 
 
-def _link_or_copy(source, dest) -> None:
+def _link_or_copy(source: str, dest: str) -> None:
     try:
         os.link(source, dest)
     except OSError:  # no hard links here (another file system, ...): a copy
         shutil.copy2(source, dest)
 
 
-def _extract(path, dest) -> None:
+def _extract(path: str | Path, dest: str) -> None:
     """Extract the FMU at ``path`` into ``dest``, private to this user (umask 077: its
     folders 0700, its files 0600; a binary needs no x bit to be loaded)."""
     old = os.umask(0o077)
@@ -103,7 +107,7 @@ def _extract(path, dest) -> None:
         os.umask(old)
 
 
-def _kept(info):
+def _kept(info: ModelInfo) -> str:
     """The kept extraction of FMU ``info`` (made on first use; see keep_extractions)."""
     key = (str(info.path), info.sha256)
     source = _EXTRACTED.get(key)
@@ -114,7 +118,7 @@ def _kept(info):
     return source
 
 
-def _unpack(info, dest) -> None:
+def _unpack(info: ModelInfo, dest: str) -> None:
     """Put the contents of FMU ``info.path`` into the existing folder ``dest``."""
     if not _EXTRACT_ROOT:
         _extract(info.path, dest)
@@ -141,23 +145,32 @@ class FmuInstance:
         deleted on close.
     """
 
-    def __init__(self, info, instance_name, on_message=None, shared: bool=False) -> None:
-        from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE,
-                               fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions)
-        from fmpy.fmi1 import calloc, free
+    def __init__(self, info: ModelInfo, instance_name: str,
+                 on_message: Callable[[str, int, str], None] | None = None,
+                 shared: bool = False) -> None:
         from ctypes import byref
+
+        from fmpy.fmi1 import calloc, free
+        from fmpy.fmi2 import (
+            FMU2Slave,
+            fmi2CallbackAllocateMemoryTYPE,
+            fmi2CallbackFreeMemoryTYPE,
+            fmi2CallbackFunctions,
+        )
 
         self.info = info
         self.name = instance_name
-        self.messages = []
-        self.slave = None
+        self.messages: list[tuple[int, str]] = []
+        #: fmpy's FMU2Slave or FMU3Slave (None once closed)
+        self.slave: Any = None
         self._key = next(_KEYS)
         self._on_message = on_message
         _ROUTES[self._key] = self._receive
         _ROUTES[instance_name] = self._receive
         tag = instance_name if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,63}",
                                             instance_name) else "fmu"
-        self.unzip_dir, self._own_dir = None, True
+        self.unzip_dir: str | None = None
+        self._own_dir = True
         try:
             if shared and _EXTRACT_ROOT:
                 self.unzip_dir, self._own_dir = _kept(info), False
@@ -189,7 +202,7 @@ class FmuInstance:
             self.close()
             raise
 
-    def _library(self, info):
+    def _library(self, info: ModelInfo) -> str:
         """The FMU's own binary for this platform, inside its extraction folder: a
         regular file (not a link) named by the modelIdentifier, else RuntimeError."""
         import fmpy
@@ -198,6 +211,7 @@ class FmuInstance:
             raise RuntimeError(f"modelIdentifier {info.identifier!r} is not a name")
         platform = fmpy.platform_tuple if info.fmi_version == "3.0" else fmpy.platform
         relative = f"binaries/{platform}/{info.identifier}{fmpy.sharedLibraryExtension}"
+        assert self.unzip_dir is not None  # extracted before the library is looked up
         library = os.path.join(self.unzip_dir, relative)
         try:
             mode = os.lstat(library).st_mode
@@ -208,16 +222,21 @@ class FmuInstance:
             raise RuntimeError(f"the FMU's binary {relative} is not a regular file")
         return library
 
-    def _instantiate_3(self, info, instance_name):
+    def _instantiate_3(self, info: ModelInfo, instance_name: str) -> None:
         """FMI 3.0: ``fmi3InstantiateCoSimulation`` with our environment key and logger."""
-        from fmpy.fmi3 import (FMU3Slave, fmi3Boolean, fmi3InstanceEnvironment,
-                               fmi3IntermediateUpdateCallback, fmi3ValueReference)
+        from fmpy.fmi3 import (
+            FMU3Slave,
+            fmi3Boolean,
+            fmi3InstanceEnvironment,
+            fmi3IntermediateUpdateCallback,
+            fmi3ValueReference,
+        )
 
         slave = FMU3Slave(guid=info.guid, unzipDirectory=self.unzip_dir,
                           modelIdentifier=info.identifier, instanceName=instance_name,
                           libraryPath=self._library(info))
         self.slave = slave
-        resources = str(Path(self.unzip_dir, "resources")) + "/"
+        resources = str(Path(str(self.unzip_dir), "resources")) + "/"
         slave.logMessage = _logger3()
         slave.intermediateUpdate = fmi3IntermediateUpdateCallback()
         slave.component = slave.fmi3InstantiateCoSimulation(
@@ -228,12 +247,12 @@ class FmuInstance:
         if not slave.component:
             raise RuntimeError("fmi3InstantiateCoSimulation failed")
 
-    def _receive(self, status, text) -> None:
+    def _receive(self, status: int, text: str) -> None:
         self.messages.append((status, text))
         if self._on_message is not None:
             self._on_message(self.name, status, text)
 
-    def last_error(self):
+    def last_error(self) -> str:
         """The FMU's own error message, one line ('' if none was logged).
 
         pythonfmu logs the slave's message with status error, then a generic fatal

@@ -25,7 +25,7 @@ from .algorithm import Algorithm, Stepper, StopRequest, algorithm_for
 from .instance import FmuInstance
 from .observers import Observer
 from .scenario import Scenario
-from .track import (INITIALISATION, INSTANTIATION, PHASES, PROPAGATION, Track)
+from .track import INITIALISATION, INSTANTIATION, PHASES, PROPAGATION, Track
 from .units import Unit, build_units, set_value
 
 __all__ = ["Outcome", "simulate"]
@@ -189,65 +189,91 @@ def simulate(system: System, observers: Iterable[Observer] = (), *,
     from fmpy.fmi1 import FMICallException
 
     observers = list(observers)
-    row_observers = [o.row for o in observers if type(o).row is not Observer.row]
-    progress = [o.steps for o in observers if type(o).steps is not Observer.steps]
+    progress: list[Callable[[int], None]] = [
+        o.steps for o in observers if type(o).steps is not Observer.steps]
     instances: dict[str, FmuInstance] = {}
-    names = list(system.models)
     track = [0.0, 0.0, 0.0] if track is None else track
     track[0], track[1], track[2] = -1, INSTANTIATION, system.start
-    rows = 0
     try:
         _instantiate(system, instances, track, on_message)
         units = build_units(system.models, instances, system.connections, system.record,
                             track)
         algorithm = algorithm_for(system, units, track, fast)
         _initialise(system, instances, algorithm, track)
-
-        row = [0.0] * (1 + len(system.record))
-        record_from = _record_from(system, units)
-
-        def record(t: float) -> None:
-            nonlocal rows
-            row[0] = t
-            for i, buffer, pos in record_from:
-                row[i] = buffer[pos]
-            try:
-                for write in row_observers:
-                    write(row)
-            except Exception as error:  # noqa: BLE001 - re-raised as itself below
-                raise _WriteFailed(error) from None
-            rows += 1
-
+        recorder = _Recorder(system, units, observers)
         scenario = Scenario(system.events, instances, system.models)
         stepper = Stepper(units.values(), system.step, track, fast)
         track[1] = PROPAGATION
         if scenario.next_step == 0:
             scenario.apply(0)
-        algorithm.start(system.start, record)
-        outcome = _loop(system, algorithm, stepper, scenario, record, progress, track)
-        outcome.rows = rows
+        algorithm.start(system.start, recorder.record)
+        outcome = _loop(system, algorithm, stepper, scenario, recorder.record, progress,
+                        track)
+        outcome.rows = recorder.rows
         return outcome
     except FMICallException as error:
-        name = names[int(track[0])] if int(track[0]) >= 0 else "?"
-        detail = instances[name].last_error() if name in instances else ""
-        status = _STATUS_NAMES.get(int(error.status), "")
-        if status == "Discard" and error.function.endswith("DoStep"):
-            status += ", no stop requested"
-        raise SimulationError(f"component '{name}': {error.function} returned status "
-                              f"{error.status}{f' ({status})' if status else ''} during "
-                              f"{PHASES[int(track[1])]} at "
-                              f"t={track[2]!r} s" + (f": {detail}" if detail else "")) \
-            from None
+        raise _failed_call(error, system, instances, track) from None
     except SimulationError:
         raise
     except _WriteFailed as failed:  # not the FMU's fault: the caller's own error
         raise failed.error from None
     except Exception as error:  # noqa: BLE001 - e.g. a failed instantiation
-        name = names[int(track[0])] if int(track[0]) >= 0 else "?"
-        detail = instances[name].last_error() if name in instances else ""
-        raise SimulationError(f"component '{name}': {PHASES[int(track[1])]} at "
-                              f"t={track[2]!r} s: {type(error).__name__}: {error}"
-                              + (f": {detail}" if detail else "")) from None
+        raise _failed_otherwise(error, system, instances, track) from None
     finally:
         for instance in instances.values():
             instance.close()
+
+
+class _Recorder:
+    """The recorded row at a communication point, handed to every observer."""
+
+    def __init__(self, system: System, units: dict[str, Unit],
+                 observers: list[Observer]) -> None:
+        self.rows = 0
+        self._row = [0.0] * (1 + len(system.record))
+        self._from = _record_from(system, units)
+        self._observers: list[Callable[[list[float]], None]] = [
+            o.row for o in observers if type(o).row is not Observer.row]
+
+    def record(self, t: float) -> None:
+        row = self._row
+        row[0] = t
+        for i, buffer, pos in self._from:
+            row[i] = buffer[pos]
+        try:
+            for write in self._observers:
+                write(row)
+        except Exception as error:  # noqa: BLE001 - re-raised as itself by simulate
+            raise _WriteFailed(error) from None
+        self.rows += 1
+
+
+def _culprit(system: System, instances: dict[str, FmuInstance],
+             track: Track) -> tuple[str, str]:
+    """The component the track names and its own last error message ('' if none)."""
+    names = list(system.models)
+    name = names[int(track[0])] if int(track[0]) >= 0 else "?"
+    return name, instances[name].last_error() if name in instances else ""
+
+
+def _failed_call(error: Any, system: System, instances: dict[str, FmuInstance],
+                 track: Track) -> SimulationError:
+    """An FMI call's failure as one line: component, call, status, phase, time, and the
+    FMU's own message."""
+    name, detail = _culprit(system, instances, track)
+    status = _STATUS_NAMES.get(int(error.status), "")
+    if status == "Discard" and error.function.endswith("DoStep"):
+        status += ", no stop requested"
+    return SimulationError(f"component '{name}': {error.function} returned status "
+                           f"{error.status}{f' ({status})' if status else ''} during "
+                           f"{PHASES[int(track[1])]} at t={track[2]!r} s"
+                           + (f": {detail}" if detail else ""))
+
+
+def _failed_otherwise(error: Exception, system: System, instances: dict[str, FmuInstance],
+                      track: Track) -> SimulationError:
+    """Any other failure (e.g. an instantiation) as one line naming component and phase."""
+    name, detail = _culprit(system, instances, track)
+    return SimulationError(f"component '{name}': {PHASES[int(track[1])]} at "
+                           f"t={track[2]!r} s: {type(error).__name__}: {error}"
+                           + (f": {detail}" if detail else ""))

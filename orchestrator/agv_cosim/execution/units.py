@@ -117,13 +117,14 @@ class FmuUnit:
                 base = arrays[v.element[0]] if v.element else v
                 if base.name not in whole:
                     whole[base.name] = (base, offset)
-                    offset += base.size
+                    offset += base.size or 0  # a known size: arrays are checked
             vrs = (vr_type * len(whole))(*[b.vr for b, _ in whole.values()])
             buf = (ftype.ctype * offset)()
             args = (self.component, vrs, len(whole), buf) + ((offset,) if self.fmi3 else ())
             names: list[str] = []  # per buffer position (for error messages)
             for base, _ in whole.values():
-                names += element_names(base.name, base.shape) if base.dims else [base.name]
+                names += (element_names(base.name, base.shape)
+                          if base.dims and base.shape else [base.name])
             for v in variables:
                 at = whole[v.element[0]][1] + v.element[1] if v.element else whole[v.name][1]
                 self.address[v.name] = (buf, at)
@@ -144,7 +145,7 @@ class FmuUnit:
             self._in_groups.append((c_function(self.slave, fname), args, buf, [], fname))
         self.in_groups: tuple[InputGroup, ...] = ()
         #: (input name, source unit, source output name)
-        self.sources: list[tuple[str, "Unit", str]] = []
+        self.sources: list[tuple[str, Unit, str]] = []
 
     def link(self, input_name: str, source: "Unit", output_name: str) -> None:
         """Copy ``source``'s output ``output_name`` into input ``input_name`` at each set."""
@@ -234,7 +235,7 @@ class TableUnit:
         self.address = {n: (buf, i) for i, n in enumerate(names)}
 
         def fill() -> int:
-            table.values_at(track[2], buf)
+            table.values_at(track[2], buf)  # type: ignore[arg-type]  # a float buffer
             return 0
 
         self.out_groups: tuple[Group, ...] = ((fill, (), buf, True, "table", names),)

@@ -7,11 +7,23 @@ problem is a :class:`~agv_cosim.errors.ManifestError`, ``<manifest>: <key>: <pro
 """
 
 from ..errors import ManifestError
-from .load import (MAX_STEPS, Component, Connection, Manifest, dotted_name, event_key,
-                   event_parts, load_manifest, manifest_from_data, parse_toml,
-                   read_regular_file, split_name, whole_multiple)
+from .load import (
+                   MAX_STEPS,
+                   Component,
+                   Connection,
+                   Manifest,
+                   dotted_name,
+                   event_key,
+                   event_parts,
+                   load_manifest,
+                   manifest_from_data,
+                   parse_toml,
+                   read_regular_file,
+                   split_name,
+                   whole_multiple,
+)
 from .montecarlo import MonteCarlo
 
-__all__ = ["MAX_STEPS", "Component", "Connection", "Manifest", "ManifestError", "MonteCarlo", "dotted_name",
-           "event_key", "event_parts", "load_manifest", "manifest_from_data", "parse_toml",
-           "read_regular_file", "split_name", "whole_multiple"]
+__all__ = ["MAX_STEPS", "Component", "Connection", "Manifest", "ManifestError", "MonteCarlo",
+           "dotted_name", "event_key", "event_parts", "load_manifest", "manifest_from_data",
+           "parse_toml", "read_regular_file", "split_name", "whole_multiple"]

@@ -22,16 +22,18 @@ DISTRIBUTIONS = {
 class MonteCarlo:
     """A checked ``[montecarlo]`` table (see the module docstring)."""
 
-    def __init__(self, samples, seed, design, parameters, seeds, metrics, band) -> None:
+    def __init__(self, samples: int, seed: int, design: str,
+                 parameters: dict[str, dict[str, Any]], seeds: list[str],
+                 metrics: list[str] | None, band: str | None) -> None:
         self.samples, self.seed, self.design = samples, seed, design
         self.parameters = parameters  # "comp.param" -> {"distribution": ..., ...}
         self.seeds, self.metrics, self.band = seeds, metrics, band
 
     @property
-    def names(self):
+    def names(self) -> list[str]:
         return list(self.parameters) + list(self.seeds)
 
-    def describe(self):
+    def describe(self) -> dict[str, Any]:
         return {"samples": self.samples, "seed": self.seed, "design": self.design,
                 "parameters": self.parameters, "seeds": self.seeds}
 
@@ -40,7 +42,8 @@ def _error(path, key, problem):
     return ManifestError(path, f"montecarlo.{key}" if key else "montecarlo", problem)
 
 
-def parse(path, table, components=(), swept=()):
+def parse(path: object, table: Any, components: Collection[str] = (),
+          swept: Collection[str] = ()) -> MonteCarlo | None:
     """Check a raw ``[montecarlo]`` TOML table; return a :class:`MonteCarlo` or None.
 
     Its shape is :class:`agv_cosim.schema.MonteCarloTable`; here the names:

@@ -9,7 +9,7 @@ import sys
 from collections.abc import Iterator
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from ..files import create_file
 from ..lifetime import die_with_parent, drop_helper_channels, own_process_group
@@ -38,7 +38,7 @@ MAX_OUTPUT = 1 << 20
 OUTPUT_FILE = "output.txt"
 
 
-def send_frame(fd, message) -> None:
+def send_frame(fd: int, message: tuple[str, Any]) -> None:
     """Write one frame (see above) to ``fd``, whole."""
     data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
     view = memoryview(_FRAME.pack(len(data)) + data)
@@ -49,13 +49,13 @@ def send_frame(fd, message) -> None:
 class _PipeReader:
     """The parent's end of a pipe from a worker, read without ever blocking."""
 
-    def __init__(self, connection) -> None:
+    def __init__(self, connection: Connection) -> None:
         self.connection = connection  # keeps the descriptor open
         self.fd = connection.fileno()
         os.set_blocking(self.fd, False)
         self.closed = False
 
-    def chunks(self, limit=1 << 22):
+    def chunks(self, limit: int = 1 << 22) -> Iterator[bytes]:
         """What the pipe holds now, in pieces (at most ``limit`` bytes in all); sets
         ``closed`` at its end."""
         got = 0
@@ -80,12 +80,12 @@ class Frames(_PipeReader):
     """A worker's frame pipe: complete messages, or ``broken`` set when it holds bytes
     that are not ours."""
 
-    def __init__(self, connection) -> None:
+    def __init__(self, connection: Connection) -> None:
         super().__init__(connection)
         self.buffer = bytearray()
-        self.broken = None  # why the pipe's content cannot be ours
+        self.broken: str | None = None  # why the pipe's content cannot be ours
 
-    def read(self):
+    def read(self) -> list[tuple[str, Any]]:
         """The complete messages now in the pipe."""
         for chunk in self.chunks():
             self.buffer += chunk
@@ -116,14 +116,14 @@ class OutputLog(_PipeReader):
     run's folder: at most :data:`MAX_OUTPUT` bytes kept, the rest counted. The file is
     created (``O_EXCL | O_NOFOLLOW``) only when there is output."""
 
-    def __init__(self, connection) -> None:
+    def __init__(self, connection: Connection) -> None:
         super().__init__(connection)
-        self.path = None
-        self.stream = None
+        self.path: Path | None = None
+        self.stream: IO[bytes] | None = None
         self.kept = 0
         self.dropped = 0
 
-    def attach(self, run_dir) -> None:
+    def attach(self, run_dir: str | Path) -> None:
         """Output from now on belongs to the run whose folder is ``run_dir``."""
         self.detach()
         self.path = Path(run_dir) / OUTPUT_FILE
@@ -132,7 +132,7 @@ class OutputLog(_PipeReader):
         for chunk in self.chunks():
             self._keep(chunk)
 
-    def _keep(self, chunk) -> None:
+    def _keep(self, chunk: bytes) -> None:
         room = MAX_OUTPUT - self.kept
         if self.path is None or room <= 0:
             self.dropped += len(chunk)
@@ -184,7 +184,7 @@ def flush_c_stdio() -> None:
         pass
 
 
-def child_setup(output, life) -> None:
+def child_setup(output: Connection | None, life: Connection) -> None:
     """Common start of a process that runs FMUs: it drops multiprocessing's helper
     channels (an FMU cannot write into them), dies with its parent, leads a process
     group of its own with a guard that ends the group when this process ends or when

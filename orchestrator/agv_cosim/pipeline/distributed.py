@@ -54,7 +54,7 @@ from ..errors import ClusterError, Interrupted, WorkerUnfit
 from ..files import create_file, write_json
 from ..lifetime import ignore_termination, scratch_dir
 from ..results import metrics
-from ..results.records import RunResult
+from ..results.records import RunResult, run_result
 from ..system import Job
 from .pool import not_run, run_isolated
 
@@ -68,7 +68,7 @@ CONNECT_TIMEOUT = 10.0
 LOST_TIMEOUT = 30.0
 
 
-def connect(address, timeout=CONNECT_TIMEOUT):
+def connect(address: str, timeout: float = CONNECT_TIMEOUT) -> Any:
     """A ``distributed.Client`` on the scheduler at ``address``.
 
     The connection is made in a thread of its own and given up after ``timeout`` [s]
@@ -87,7 +87,7 @@ def connect(address, timeout=CONNECT_TIMEOUT):
     if not isinstance(address, str) or "://" not in address:
         raise ClusterError(f"--dask: {address!r} is not a scheduler address "
                            "(e.g. tcp://HOST:8786)")
-    box = {}
+    box: dict[str, Any] = {}
 
     def make() -> None:
         try:
@@ -147,7 +147,7 @@ def _file_sha256(path):
     return digest.hexdigest()
 
 
-def cached_fmu(sha256, blob, cache=None):
+def cached_fmu(sha256: str, blob: bytes, cache: str | Path | None = None) -> Path:
     """The path of the FMU with this SHA-256 in the worker's cache.
 
     The cached file's SHA-256 is checked every time it is used; a file that does not
@@ -188,7 +188,7 @@ def _allow_children():
                           "DASK_DISTRIBUTED__WORKER__DAEMON=False (or --no-nanny)")
 
 
-def run_remote(job, blobs):
+def run_remote(job: Job, blobs: dict[str, bytes]) -> tuple[RunResult, dict[str, bytes]]:
     """Body of a Dask task: run ``job`` isolated on this worker; return its folder.
 
     ``blobs``: SHA-256 -> FMU bytes of the job's FMUs. Returns ``(result dict, files)``,
@@ -273,7 +273,9 @@ def _quiet_logs():
     return restore
 
 
-def run_on_dask(address, jobs, root, on_progress, on_done):
+def run_on_dask(address: str, jobs: list[Job], root: Path,
+                on_progress: Callable[[int], None],
+                on_done: Callable[[], None]) -> list[RunResult]:
     """Run ``jobs`` on the cluster at ``address``; write each run under ``root``.
 
     Same contract as :func:`agv_cosim.pipeline.pool.run_isolated`: one result dict per job, in
@@ -288,7 +290,7 @@ def run_on_dask(address, jobs, root, on_progress, on_done):
 
     restore_logs = _quiet_logs()
     client = connect(address)
-    results = [None] * len(jobs)
+    results: list[RunResult | None] = [None] * len(jobs)
     futures = {}
     try:
         if not client.scheduler_info().get("workers"):
@@ -315,7 +317,7 @@ def run_on_dask(address, jobs, root, on_progress, on_done):
                                    key=f"agv-cosim-{os.getpid()}-{index}-{job.label}")
             futures[future] = index
         pending = set(futures)
-        lost_since = None
+        lost_since: float | None = None
         while pending:
             try:
                 wait_futures(list(pending), timeout=1.0, return_when="FIRST_COMPLETED")
@@ -324,9 +326,10 @@ def run_on_dask(address, jobs, root, on_progress, on_done):
             except Exception as error:  # noqa: BLE001 - e.g. futures cancelled: the end
                 reasons = sorted(set(re.findall(r"for reason: ([^.\n]+)", str(error))))
                 why = ", ".join(reasons) or type(error).__name__
-                problem = (f"lost the scheduler at {address}" if _worker_count(client) is None
-                           else f"the cluster at {address} cancelled the runs left (a "
-                                "worker holding their FMUs died)")
+                problem: str | None = (
+                    f"lost the scheduler at {address}" if _worker_count(client) is None
+                    else f"the cluster at {address} cancelled the runs left (a worker "
+                         "holding their FMUs died)")
                 raise ClusterError(f"--dask: {problem} ({why}); {len(pending)} run(s) did "
                                    "not finish") from None
             done = [f for f in futures if f in pending and f.done()]
@@ -340,13 +343,13 @@ def run_on_dask(address, jobs, root, on_progress, on_done):
                     raise ClusterError(f"--dask: run {job.label} could not run on the "
                                        f"cluster: {_one_line(error)}") from None
                 except Exception as error:  # noqa: BLE001 - this run's task failed
-                    results[index] = not_run(job, "failed")
-                    results[index]["error"] = (f"its Dask task failed: "
-                                               f"{type(error).__name__}: {_one_line(error)}")
+                    results[index] = run_result(
+                        job, "failed", error=f"its Dask task failed: "
+                                             f"{type(error).__name__}: {_one_line(error)}")
                     on_done()
                     continue
                 results[index] = _write_back(job, result, files, root)
-                on_progress(int(round((job.plan.stop - job.plan.start) / job.plan.step)))
+                on_progress(job.plan.steps)
                 on_done()
             if not pending:
                 break
@@ -363,15 +366,17 @@ def run_on_dask(address, jobs, root, on_progress, on_done):
             elif time.monotonic() - lost_since > LOST_TIMEOUT:
                 raise ClusterError(f"--dask: {problem} (for {LOST_TIMEOUT:g} s); "
                                    f"{len(pending)} run(s) did not finish")
-        return results
+        done_results = [r for r in results if r is not None]
+        assert len(done_results) == len(results), "a run ended without a result"
+        return done_results
     except BaseException as stop:
         if isinstance(stop, (KeyboardInterrupt, Interrupted)):
-            stop.restore = ignore_termination()
+            setattr(stop, "restore", ignore_termination())  # noqa: B010 - for the caller
         if isinstance(stop, (KeyboardInterrupt, Interrupted, ClusterError)) and futures:
-            stop.results = [r if r is not None else not_run(jobs[i])
-                            for i, r in enumerate(results)]
+            setattr(stop, "results", [r if r is not None else not_run(jobs[i])  # noqa: B010
+                                      for i, r in enumerate(results)])
             if isinstance(stop, ClusterError):
-                stop.reason = str(stop).removeprefix("--dask: ")
+                setattr(stop, "reason", str(stop).removeprefix("--dask: "))  # noqa: B010
         raise
     finally:
         try:

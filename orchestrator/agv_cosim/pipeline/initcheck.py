@@ -6,7 +6,7 @@ import shutil
 import tempfile
 import time
 from multiprocessing import get_context
-from multiprocessing.connection import wait
+from multiprocessing.connection import Connection, wait
 from typing import Any
 
 from ..errors import ManifestError
@@ -14,21 +14,22 @@ from ..execution.instance import FmuInstance, keep_extractions
 from ..execution.units import set_value
 from ..lifetime import kill_group, scratch_dir
 from ..manifest import Manifest
-from ..system import Job
+from ..system import Job, ModelInfo
 from .channels import Frames, child_setup, send_frame
 from .pool import FORKSERVER_PRELOAD
 
 __all__ = ["INIT_TIMEOUT", "check_initialisation"]
 
 
-def _check_child(checks, channel, life, scratch) -> None:
+def _check_child(checks: list[tuple[str, ModelInfo, dict[str, Any], float, float]],
+                 channel: Connection, life: Connection, scratch: str) -> None:
     """Body of the initialisation check's child: instantiate and initialise each FMU."""
     child_setup(None, life)  # an FMU's prints go nowhere: validate writes no results
     tempfile.tempdir = scratch
     keep_extractions(scratch)  # an FMU checked with several parameter sets: unpacked once
     fd = channel.fileno()
 
-    def send(message) -> None:
+    def send(message: tuple[str, Any]) -> None:
         try:
             send_frame(fd, message)
         except OSError:
@@ -72,7 +73,8 @@ def _check_child(checks, channel, life, scratch) -> None:
 INIT_TIMEOUT = 60.0
 
 
-def check_initialisation(manifest, jobs, timeout=None):
+def check_initialisation(manifest: Manifest, jobs: list[Job],
+                         timeout: float | None = None) -> None:
     """Instantiate and initialise each FMU once with each run's parameters.
 
     Catches what only the FMU knows (a parameter value it refuses), without running.
@@ -87,8 +89,7 @@ def check_initialisation(manifest, jobs, timeout=None):
     ManifestError
         Naming the component, the run, the FMI call and the FMU's own message.
     """
-    if timeout is None:
-        timeout = manifest.timeout if getattr(manifest, "timeout", None) else INIT_TIMEOUT
+    limit = timeout if timeout is not None else (manifest.timeout or INIT_TIMEOUT)
     checks, where, seen = [], [], set()
     for job in jobs:
         for cname, info in job.plan.models.items():
@@ -110,7 +111,7 @@ def check_initialisation(manifest, jobs, timeout=None):
                               args=(checks, writer, life_reader, scratch))
     frames = Frames(reader)
     current, failure, finished = None, None, False
-    deadline = time.monotonic() + timeout
+    deadline = time.monotonic() + limit
     try:
         process.start()
         writer.close()
@@ -120,7 +121,7 @@ def check_initialisation(manifest, jobs, timeout=None):
             wait(handles, timeout=min(1.0, max(0.0, deadline - now)))
             for kind, payload in frames.read():
                 if kind == "checking":
-                    current, deadline = payload, time.monotonic() + timeout
+                    current, deadline = payload, time.monotonic() + limit
                 elif kind == "failed":
                     failure = (*payload, True)
                 elif kind == "done":
@@ -148,7 +149,7 @@ def check_initialisation(manifest, jobs, timeout=None):
             elif time.monotonic() >= deadline:
                 failure = (current if current is not None else 0,
                            f"the FMU did not finish instantiating and initialising within "
-                           f"{timeout!r} s and was stopped (--timeout sets the limit)",
+                           f"{limit!r} s and was stopped (--timeout sets the limit)",
                            False)
     finally:
         kill_group(process)

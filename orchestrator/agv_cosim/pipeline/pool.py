@@ -14,18 +14,17 @@ started.
 
 import os
 import shutil
-import signal
 import tempfile
 import time
 from collections.abc import Callable
 from multiprocessing import get_context
-from multiprocessing.connection import wait
+from multiprocessing.connection import Connection, wait
 from pathlib import Path
 from typing import Any
 
 from ..errors import Interrupted
 from ..execution.instance import keep_extractions
-from ..execution.track import describe_track
+from ..execution.track import Track, describe_track
 from ..lifetime import ignore_termination, kill_group, scratch_dir
 from ..results import metrics
 from ..results.records import RunResult, run_result, write_run_files
@@ -46,7 +45,8 @@ FORKSERVER_PRELOAD = (__name__, "fmpy.fmi2", "numpy", "scipy.signal", "scipy.lin
                       "scipy.optimize", "scipy.special", "scipy.integrate")
 
 
-def _worker(jobs, channel, output, life, scratch, track) -> None:
+def _worker(jobs: Connection, channel: Connection, output: Connection, life: Connection,
+            scratch: str, track: Track) -> None:
     """Body of a worker process: run the jobs the parent sends, one at a time.
 
     ``jobs`` is the reading end of a pipe that brings ``(job, run_dir)`` or None (stop);
@@ -68,13 +68,13 @@ def _worker(jobs, channel, output, life, scratch, track) -> None:
     keep_extractions(scratch)  # each FMU unpacked once per worker (the parent deletes it)
     fd = channel.fileno()
 
-    def send(message) -> None:
+    def send(message: tuple[str, Any]) -> None:
         try:
             send_frame(fd, message)
         except OSError:  # the parent is gone (BrokenPipeError): nobody to report to
             os._exit(1)
 
-    def progress(steps) -> None:
+    def progress(steps: int) -> None:
         send(("progress", steps))
 
     while True:
@@ -88,7 +88,8 @@ def _worker(jobs, channel, output, life, scratch, track) -> None:
         track[:] = [0.0] * len(track)
         warnings = [0]
 
-        def message(component, status, text) -> None:
+        def message(component: str, status: int, text: str,
+                    warnings: list[int] = warnings) -> None:
             # errors (and the first 100 warnings) reach the parent before a crash loses them
             if status >= 3 or (status >= 1 and warnings[0] < 100):
                 warnings[0] += status < 3
@@ -105,7 +106,8 @@ def _worker(jobs, channel, output, life, scratch, track) -> None:
     channel.close()
 
 
-def _ended(job, run_dir, status, how, track, last_message):
+def _ended(job: Job, run_dir: str | Path, status: str | None, how: str, track: Track,
+           last_message: str | None) -> RunResult:
     """The summary of a run whose process ended before it reported: ``how`` says what
     happened; ``track`` (shared with the process) names the component, call and time;
     ``last_message`` is the last message an FMU of the run logged (or None). ``status``
@@ -137,14 +139,16 @@ def not_run(job: Job, why: str = "not run") -> RunResult:
     return run_result(job, why)
 
 
-def _process_end(exitcode) -> str:
+def _process_end(exitcode: int | None) -> str:
     if exitcode is None:
         return "the run's process ended"
     how = f"signal {-exitcode}" if exitcode < 0 else f"exit code {exitcode}"
     return f"the run's process died ({how})"
 
 
-def run_isolated(jobs, root, workers, on_progress, on_done):
+def run_isolated(jobs: list[Job], root: Path, workers: int,
+                 on_progress: Callable[[int], None],
+                 on_done: Callable[[], None]) -> list[RunResult]:
     """Run every job in a worker process, ``workers`` processes at a time.
 
     A worker runs one job at a time and gets the next one only if its last run ended
@@ -163,14 +167,15 @@ def run_isolated(jobs, root, workers, on_progress, on_done):
     """
     context = get_context("forkserver")
     context.set_forkserver_preload(list(FORKSERVER_PRELOAD))
-    results = [None] * len(jobs)
+    results: list[RunResult | None] = [None] * len(jobs)
     last_message = [None] * len(jobs)
     waiting = list(range(len(jobs)))
-    pool = []  # each: dict(process, send, frames, output, scratch, track, index, deadline)
+    #: each: dict(process, send, frames, output, scratch, track, index, deadline)
+    pool: list[dict[str, Any]] = []
     # closes when this process ends, however: each worker's guard then ends its group
     life_reader, life_writer = context.Pipe(duplex=False)
 
-    def start_worker():
+    def start_worker() -> dict[str, Any]:
         job_reader, job_writer = context.Pipe(duplex=False)
         reader, writer = context.Pipe(duplex=False)
         out_reader, out_writer = context.Pipe(duplex=False)
@@ -189,7 +194,7 @@ def run_isolated(jobs, root, workers, on_progress, on_done):
         pool.append(worker)
         return worker
 
-    def give(worker) -> None:
+    def give(worker: dict[str, Any]) -> None:
         index = waiting.pop(0)
         worker["index"] = index
         job = jobs[index]
@@ -200,7 +205,7 @@ def run_isolated(jobs, root, workers, on_progress, on_done):
         except OSError:  # the worker is already gone: its end is seen below
             pass
 
-    def end(worker, status=None, how=None) -> None:
+    def end(worker: dict[str, Any], status: str | None = None, how: str | None = None) -> None:
         """Stop a worker (its whole process group) and clean up after it; a run it was
         doing gets ``how`` as its reason (default: how its process ended)."""
         process = worker["process"]
@@ -221,7 +226,7 @@ def run_isolated(jobs, root, workers, on_progress, on_done):
         if worker in pool:  # (an interruption may have come in the middle of an end)
             pool.remove(worker)
 
-    def handle(worker, kind, payload) -> None:
+    def handle(worker: dict[str, Any], kind: str, payload: Any) -> None:
         index = worker["index"]
         if kind == "progress":
             on_progress(payload)
@@ -272,16 +277,18 @@ def run_isolated(jobs, root, workers, on_progress, on_done):
                                              f"{job.timeout!r} s and was stopped")
     except BaseException as stop:
         if isinstance(stop, (KeyboardInterrupt, Interrupted)):
-            stop.restore = ignore_termination()
+            setattr(stop, "restore", ignore_termination())  # noqa: B010 - for the caller
             name = getattr(stop, "name", "SIGINT")
             for worker in list(pool):
                 end(worker, "interrupted", f"interrupted by {name}")
-            stop.results = [r if r is not None else not_run(jobs[i])
-                            for i, r in enumerate(results)]
+            setattr(stop, "results", [r if r is not None else not_run(jobs[i])  # noqa: B010
+                                      for i, r in enumerate(results)])
         raise
     finally:
         for worker in list(pool):
             end(worker)
         life_reader.close()
         life_writer.close()
-    return results
+    done = [r for r in results if r is not None]
+    assert len(done) == len(results), "a run ended without a result"
+    return done

@@ -28,7 +28,6 @@ import os
 import sys
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
 
 from ..errors import FolderLost
 from ..files import AtomicDir, printable, write_summary, write_text
@@ -43,13 +42,14 @@ from .prepare import prepare
 __all__ = ["default_out_dir", "execute", "run_manifest"]
 
 
-def default_out_dir(manifest):
+def default_out_dir(manifest: Manifest) -> Path:
     """``results/<manifest name>`` relative to the current folder."""
     return Path("results") / manifest.name
 
 
-def execute(manifest, jobs, out_dir=None, workers=None, quiet: bool=False, overwrite: bool=False,
-            dask=None):
+def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = None,
+            workers: int | None = None, quiet: bool = False, overwrite: bool = False,
+            dask: str | None = None) -> tuple[Path, list[RunResult]]:
     """Run ``jobs`` and write the output folder (see the module docstring).
 
     Parameters
@@ -81,6 +81,8 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet: bool=False, overw
     workers = workers or os.cpu_count() or 1
     workers = max(1, min(workers, len(jobs)))
     with AtomicDir(out_dir, overwrite=overwrite) as folder:
+        written = folder.path
+        assert written is not None
         total = sum(job.plan.steps for job in jobs)
         bar = tqdm(total=total, desc=manifest.name, unit="step", delay=2.0, disable=quiet,
                    file=sys.stderr, mininterval=0.5, postfix={"runs": f"0/{len(jobs)}"})
@@ -93,28 +95,28 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet: bool=False, overw
 
         try:
             if dask:
-                results = run_on_dask(dask, jobs, folder.path, bar.update, run_done)
+                results = run_on_dask(dask, jobs, written, bar.update, run_done)
             else:
-                results = run_isolated(jobs, folder.path, workers, bar.update, run_done)
+                results = run_isolated(jobs, written, workers, bar.update, run_done)
         except BaseException as stop:
             bar.close()  # before any message: the error is the last line on stderr
             _keep_partial(manifest, jobs, folder, stop)
             raise
         bar.close()
         folder.check_intact()
-        results = [_checked_files(job, result, folder.path)
+        results = [_checked_files(job, result, written)
                    for job, result in zip(jobs, results)]
         _write_summary(folder, results)
         if manifest.montecarlo is not None:
             figure_error = montecarlo.write_outputs(manifest.montecarlo, jobs, results,
-                                                    folder.path, manifest.name)
+                                                    written, manifest.name)
             if figure_error:
-                write_text(folder.path / "montecarlo_error.txt", figure_error + "\n")
+                write_text(written / "montecarlo_error.txt", figure_error + "\n")
                 print(printable(f"agv-cosim: warning: {manifest.path}: montecarlo figure: "
                                 f"{figure_error}"), file=sys.stderr)
-        plot_error = _plots(manifest, jobs, results, folder.path)
+        plot_error = _plots(manifest, jobs, results, written)
         if plot_error:
-            write_text(folder.path / "plots_error.txt", plot_error + "\n")
+            write_text(written / "plots_error.txt", plot_error + "\n")
             print(printable(f"agv-cosim: warning: {manifest.path}: plots: {plot_error}"),
                   file=sys.stderr)
         target = folder.commit()
@@ -122,10 +124,11 @@ def execute(manifest, jobs, out_dir=None, workers=None, quiet: bool=False, overw
 
 
 def _write_summary(folder: AtomicDir, results: list[RunResult]) -> None:
+    assert folder.path is not None
     write_summary(folder.path / "summary.csv", summary_rows(results))
 
 
-def _checked_files(job, result, root):
+def _checked_files(job: Job, result: RunResult, root: str | Path) -> RunResult:
     """``result``, unless the run's files are not what its process wrote (its folder
     removed or changed during the sweep): then the run is ``failed`` and says why."""
     if result["status"] not in ("complete", "partial"):
@@ -143,12 +146,13 @@ def _checked_files(job, result, root):
         problem = "its timeseries.csv is missing"
     if problem is None:
         return result
-    return dict(result, status="failed", metrics={},
-                error=f"its folder was removed or changed during the sweep ({problem}); "
-                      "its results are lost")
+    return RunResult(**{**result, "status": "failed", "metrics": {},
+                        "error": f"its folder was removed or changed during the sweep "
+                                 f"({problem}); its results are lost"})
 
 
-def _keep_partial(manifest, jobs, folder, stop) -> None:
+def _keep_partial(manifest: Manifest, jobs: list[Job], folder: AtomicDir,
+                  stop: BaseException) -> None:
     """After an interruption (or a cluster that went away), commit the folder marked
     partial when a run has results (``stop.results``, one per job); ``stop.kept`` is
     then the folder. Termination signals stay ignored meanwhile (``stop.restore``)."""
@@ -159,7 +163,7 @@ def _keep_partial(manifest, jobs, folder, stop) -> None:
             return
         if not folder.intact():
             return
-        results = [_checked_files(job, result, folder.path)
+        results = [_checked_files(job, result, str(folder.path))
                    for job, result in zip(jobs, results)]
         complete = sum(r["status"] == "complete" for r in results)
         reason = getattr(stop, "reason", None) or (
@@ -167,16 +171,17 @@ def _keep_partial(manifest, jobs, folder, stop) -> None:
         try:
             _write_summary(folder, results)
             folder.mark_partial(reason, complete, len(results))
-            stop.kept = folder.commit()
+            setattr(stop, "kept", folder.commit())  # noqa: B010 - read by the CLI
         except (OSError, FolderLost):  # nothing to keep: the first error is the story
             return
-        stop.results = results
+        setattr(stop, "results", results)  # noqa: B010 - read by the CLI
     finally:
         if restore is not None:
             restore()
 
 
-def _plots(manifest, jobs, results, out_dir):
+def _plots(manifest: Manifest, jobs: list[Job], results: list[RunResult],
+           out_dir: Path) -> str | None:
     if not manifest.plots:
         return None
     try:
@@ -198,8 +203,10 @@ def _plots(manifest, jobs, results, out_dir):
     return None
 
 
-def run_manifest(manifest_path, out_dir=None, variants=None, sets=(), workers=None,
-                 quiet: bool=False):
+def run_manifest(manifest_path: str | Path, out_dir: str | Path | None = None,
+                 variants: list[str] | None = None, sets: Iterable[str] = (),
+                 workers: int | None = None, quiet: bool = False
+                 ) -> tuple[Path, list[RunResult], list[str]]:
     """Validate and run a manifest; return (out folder, results, warnings)."""
     manifest, jobs, warnings = prepare(manifest_path, variants, sets)
     target, results = execute(manifest, jobs, out_dir, workers, quiet)

@@ -12,15 +12,18 @@ import copy
 import itertools
 import math
 import tomllib
+from collections.abc import Iterable
+from typing import Any
 
 from ..errors import ManifestError
+from ..manifest import Manifest, dotted_name, event_key, event_parts, parse_toml, split_name
 from .sampling import expand_runs
 from .spec import MAX_RUNS, RunSpec, run_label
-from ..manifest import Manifest, dotted_name, event_key, event_parts, parse_toml, split_name
 
 
-def _apply_event_key(events, name, value) -> None:
-    """Set the event field named by :func:`agv_cosim.manifest.event_key` in ``events`` (a run's copy)."""
+def _apply_event_key(events: dict[str, dict[str, Any]], name: str, value: Any) -> None:
+    """Set the event field named by :func:`agv_cosim.manifest.event_key` in ``events``
+    (a run's copy)."""
     parts = event_parts(name)
     if parts[2] == "at":
         events[parts[1]]["at"] = value
@@ -28,7 +31,7 @@ def _apply_event_key(events, name, value) -> None:
         events[parts[1]]["set"][f"{parts[3]}.{parts[4]}"] = value
 
 
-def parse_set(manifest, text):
+def parse_set(manifest: Manifest, text: str) -> tuple[str, Any]:
     """Parse one ``--set comp.param=VALUE`` (VALUE as a TOML value, else a string)."""
     if "=" not in text:
         raise ManifestError(manifest.path, "--set", f"{text!r} is not comp.param=VALUE")
@@ -46,7 +49,8 @@ def parse_set(manifest, text):
     return name.strip(), parsed
 
 
-def plan_runs(manifest, variants=None, sets=()):
+def plan_runs(manifest: Manifest, variants: list[str] | None = None,
+              sets: Iterable[str] = ()) -> list[RunSpec]:
     """Expand a manifest into its runs: (chosen variants or all, or the base) x sweep.
 
     Parameters
@@ -76,7 +80,7 @@ def plan_runs(manifest, variants=None, sets=()):
                 known = ", ".join(manifest.variants) or "none declared"
                 raise ManifestError(manifest.path, "variants",
                                     f"unknown variant '{name}' (known: {known})")
-        chosen = list(dict.fromkeys(variants))
+        chosen: list[str | None] = list(dict.fromkeys(variants))
     else:
         chosen = list(manifest.variants) or [None]
     names = list(manifest.sweep)

@@ -55,11 +55,13 @@ metric (``n + failures`` = runs of the group). ``std`` is the sample standard de
 import copy
 import math
 import warnings
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from ..errors import ManifestError, SamplingError
+from ..manifest import Manifest
 from ..manifest.montecarlo import MonteCarlo
 from .spec import RunSpec, run_label
 
@@ -70,7 +72,7 @@ __all__ = ["SAMPLE", "choice_edges", "draw", "expand_runs", "group_name", "ppf",
 SAMPLE = "montecarlo.sample"
 
 
-def unit_samples(mc):
+def unit_samples(mc: MonteCarlo) -> np.ndarray:
     """The design's points of [0, 1)^d, shape (samples, d) (d = sampled parameters)."""
     design_seq, _ = np.random.SeedSequence(mc.seed).spawn(2)
     d = len(mc.parameters)
@@ -88,24 +90,24 @@ def unit_samples(mc):
         return engine.random(mc.samples)
 
 
-def choice_edges(weights):
+def choice_edges(weights: Sequence[float] | np.ndarray) -> np.ndarray:
     """Cumulative weights normalised to end at 1 (the ``choice`` inverse CDF).
 
     Weights whose sum overflows a double (two of 1e308) are first scaled by the largest
     one, which keeps their ratios; other weights are used as given.
     """
-    weights = np.asarray(weights, dtype=float)
+    array = np.asarray(weights, dtype=float)
     with np.errstate(over="ignore"):
-        total = weights.sum()
+        total = array.sum()
     if not np.isfinite(total):
-        weights = weights / weights.max()
-        total = weights.sum()
-    edges = np.cumsum(weights) / total
+        array = array / array.max()
+        total = array.sum()
+    edges = np.cumsum(array) / total
     edges[-1] = 1.0  # the last edge is 1 whatever the rounding of the sum
     return edges
 
 
-def ppf(spec, u):
+def ppf(spec: dict[str, Any], u: Sequence[float] | np.ndarray) -> list[Any]:
     """Map uniforms ``u`` (array in [0, 1)) through a distribution's inverse CDF.
 
     Returns a list of plain Python values (floats, or the choice's values).
@@ -160,7 +162,7 @@ def ppf(spec, u):
     return [float(v) for v in x]
 
 
-def run_seeds(mc):
+def run_seeds(mc: MonteCarlo) -> list[dict[str, int]]:
     """Per sample index, the derived seed of each ``seeds`` parameter (list of dicts)."""
     _, runs_seq = np.random.SeedSequence(mc.seed).spawn(2)
     return [{name: int(value >> 1) for name, value in
@@ -169,7 +171,7 @@ def run_seeds(mc):
         [{} for _ in range(mc.samples)]
 
 
-def draw(mc):
+def draw(mc: MonteCarlo) -> list[dict[str, Any]]:
     """The sampled values: a list (one per sample index) of {"comp.param": value}."""
     u = unit_samples(mc)
     columns = {}
@@ -184,7 +186,7 @@ def draw(mc):
             for i in range(mc.samples)]
 
 
-def expand_runs(manifest, runs):
+def expand_runs(manifest: Manifest, runs: list[RunSpec]) -> list[RunSpec]:
     """Each run (variant x sweep point) repeated for every sample, values applied.
 
     The sample's values go into the run's parameters (after ``--set``; a ``--set`` on a
@@ -192,6 +194,8 @@ def expand_runs(manifest, runs):
     with the sample index under :data:`SAMPLE`.
     """
     mc = manifest.montecarlo
+    if mc is None:
+        return runs
     try:
         values = draw(mc)
     except SamplingError as error:
@@ -225,7 +229,7 @@ def _copy_component(comp):
     return copy_
 
 
-def group_name(variant, point):
+def group_name(variant: str | None, point: dict[str, Any]) -> str:
     """The name of a run's group: its variant and sweep point, without the sample (the
     sweep values come before :data:`SAMPLE` in the point, the sampled ones after it)."""
     keys = list(point)

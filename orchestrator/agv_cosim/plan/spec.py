@@ -2,6 +2,7 @@
 
 import hashlib
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -16,13 +17,13 @@ class RunSpec:
 
     label: str
     variant: str | None
-    point: dict
-    components: dict
-    overrides: dict
-    events: dict = field(default_factory=dict)
+    point: dict[str, Any]
+    components: dict[str, Component]
+    overrides: dict[str, Any]
+    events: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
-def _slug(text):
+def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9._=+-]", "_", text)
 
 
@@ -34,7 +35,7 @@ MAX_LABEL = 100
 MAX_RUNS = 100_000
 
 
-def run_label(parts):
+def run_label(parts: Iterable[str]) -> str:
     """The folder name of a run: its slugged parts joined by ``__``, bounded."""
     label = "__".join(_slug(p) for p in parts)
     if len(label) > MAX_LABEL:

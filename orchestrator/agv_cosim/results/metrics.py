@@ -125,8 +125,9 @@ signal:
 So the streamed result equals :func:`compute_metrics` bit for bit (no tolerance), which
 ``tests/test_metrics_streaming.py`` checks with chunk boundaries on the settling and
 overshoot samples (and :class:`PairwiseSum` against ``numpy.sum``, so a numpy that changed
-its summation order would be caught there). Memory: a chunk, the per-level partial sums (about log2(n / 128)) and one pending
-block of at most 128 values per sum. Disk: 8 bytes per sample per spooled signal.
+its summation order would be caught there). Memory: a chunk, the per-level partial sums
+(about log2(n / 128)) and one pending block of at most 128 values per sum. Disk: 8 bytes
+per sample per spooled signal.
 
 Undefined values
 ----------------
@@ -143,13 +144,15 @@ The result never holds NaN or inf: a metric that is undefined is reported as ``N
 """
 
 import math
-from typing import Any
 import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from ..manifest import schema
 from .. import timeseries
+from ..manifest import schema
 
 _SIGNAL_KEYS = ("lateral_error", "heading_error", "steering_angle", "steering_rate", "control")
 
@@ -165,7 +168,7 @@ def _validate(spec: "schema.MetricsTable | dict[str, Any] | None") -> dict[str, 
     return schema.check(schema.MetricsTable, {} if spec is None else spec, "metrics").spec()
 
 
-def referenced_signals(spec):
+def referenced_signals(spec: "schema.MetricsTable | dict[str, Any] | None") -> list[str]:
     """Every signal ``"component.variable"`` that the ``[metrics]`` table names.
 
     Parameters
@@ -249,7 +252,7 @@ def _measure_at_least(a, b, threshold):
     return np.where(slope > 0, 1.0 - tau, np.where(slope < 0, tau, flat))
 
 
-def saturated_time(t, f, threshold):
+def saturated_time(t: np.ndarray, f: np.ndarray, threshold: float) -> float:
     """Time [s] during which |f| >= ``threshold`` (> 0), f piecewise linear over ``t``."""
     if len(t) < 2:
         return 0.0
@@ -262,7 +265,7 @@ def _saturated_fractions(f, threshold):
     return _measure_at_least(a, b, threshold) + _measure_at_least(-a, -b, threshold)
 
 
-def settling_time(t, e, band):
+def settling_time(t: np.ndarray, e: np.ndarray, band: float) -> float | None:
     """First time after which |e| <= band for good, or None if the last sample is outside.
 
     The crossing is interpolated linearly between the last sample outside the band and
@@ -319,8 +322,9 @@ def _lateral_metrics(prefix, t, e, band, settle_after):
     return out
 
 
-def load_path(path, key, base_dir=None):
-    """``agv_core.numerics.paths.parse_path(path)``, with a bad path string as ValueError naming ``key``.
+def load_path(path: str, key: str, base_dir: str | Path | None = None) -> Any:
+    """``agv_core.numerics.paths.parse_path(path)``, with a bad path string as ValueError
+    naming ``key``.
 
     Parameters
     ----------
@@ -340,7 +344,8 @@ def load_path(path, key, base_dir=None):
         raise ValueError(f"{key}: {error}") from None
 
 
-def path_offsets(path, x, y, base_dir=None):
+def path_offsets(path: Any, x: np.ndarray, y: np.ndarray,
+                 base_dir: str | Path | None = None) -> np.ndarray:
     """Signed offsets [m] of the points (x, y) from ``path`` (positive left of it).
 
     Each point is projected with the previous point's arc length as the hint, so a path
@@ -382,7 +387,9 @@ def _get(signals, name, key, n):
     return values
 
 
-def compute_metrics(time, signals, spec, *, base_dir=None):
+def compute_metrics(time: np.ndarray, signals: dict[str, np.ndarray],
+                    spec: "schema.MetricsTable | dict[str, Any] | None", *,
+                    base_dir: str | Path | None = None) -> dict[str, Any]:
     """Path-tracking metrics of one run.
 
     Parameters
@@ -418,9 +425,9 @@ def compute_metrics(time, signals, spec, *, base_dir=None):
     n = t.size
     band = spec["settle_band"]
     settle_after = spec.get("settle_after")
-    result = {"duration": float(t[-1] - t[0])}
+    result: dict[str, Any] = {"duration": float(t[-1] - t[0])}
 
-    def finite(values, names) -> bool:
+    def finite(values: np.ndarray, names: Iterable[str]) -> bool:
         # all metrics of a signal with non-finite samples are None
         if np.all(np.isfinite(values)):
             return True
@@ -496,12 +503,13 @@ class PairwiseSum:
 
     _BLOCK = 128
 
-    def __init__(self, n) -> None:
+    def __init__(self, n: int) -> None:
         self.n = n
         self.result = 0.0 if n == 0 else None
         self._tree = self._walk(n)
         self._need = next(self._tree) if n else None
-        self._parts, self._have = [], 0
+        self._parts: list[np.ndarray] = []
+        self._have = 0
 
     @classmethod
     def _walk(cls, n):
@@ -514,7 +522,7 @@ class PairwiseSum:
         right = yield from cls._walk(n - half)
         return left + right
 
-    def add(self, values):
+    def add(self, values: np.ndarray) -> None:
         """Feed the next values (1-D array); more than ``n`` in all is an error."""
         values = np.asarray(values, dtype=float)
         pos, size = 0, values.size
@@ -533,7 +541,7 @@ class PairwiseSum:
                 except StopIteration as done:
                     self.result, self._need = float(done.value), None
 
-    def total(self):
+    def total(self) -> float:
         """The sum; an error if fewer than ``n`` values were fed."""
         if self.result is None:
             raise ValueError(f"PairwiseSum: fewer than {self.n} values fed")
@@ -543,13 +551,14 @@ class PairwiseSum:
 class _Spool:
     """Columns of float64 kept on disk (anonymous temporary files), read back in chunks."""
 
-    def __init__(self, chunk_rows) -> None:
+    def __init__(self, chunk_rows: int) -> None:
         self.chunk_rows = chunk_rows
-        self.files = {}
+        self.files: dict[str, Any] = {}
         self.rows = 0
-        self.first_time = self.last_time = None
+        self.first_time: Any = None
+        self.last_time: Any = None
 
-    def append(self, name, values) -> None:
+    def append(self, name: str, values: np.ndarray) -> None:
         if name not in self.files:
             self.files[name] = tempfile.TemporaryFile()
         np.ascontiguousarray(values, dtype=float).tofile(self.files[name])
@@ -558,7 +567,7 @@ class _Spool:
         for stream in self.files.values():
             stream.close()
 
-    def chunks(self, name, first: int=0):
+    def chunks(self, name: str, first: int = 0) -> Iterator[np.ndarray]:
         """Arrays of at most ``chunk_rows`` values of column ``name`` from row ``first``."""
         stream = self.files[name]
         stream.flush()
@@ -591,8 +600,10 @@ def _pieces(spool, name, first_row, lead=None):
         previous = (t[-1], f[-1])
 
 
-def _sums(spool, name, first_row: int=0, lead=None, *, mean=None, squares: bool=True, absolute: bool=False,
-          threshold=None):
+def _sums(spool: "_Spool", name: str, first_row: int = 0,
+          lead: tuple[float, float] | None = None, *,
+          mean: float | None = None, squares: bool = True, absolute: bool = False,
+          threshold: float | None = None) -> dict[str, Any]:
     """One pass over a signal (rows from ``first_row``, after the sample ``lead``).
 
     Returns the piecewise sums that the in-memory functions compute with ``np.sum``, each
@@ -604,8 +615,8 @@ def _sums(spool, name, first_row: int=0, lead=None, *, mean=None, squares: bool=
     names = ["f"] + ["f2"] * squares + ["abs"] * absolute + ["dev2"] * (mean is not None) \
         + ["sat"] * (threshold is not None)
     sums = {key: PairwiseSum(max(0, count - 1)) for key in names}
-    out = {"max_abs": 0.0 if lead is None else abs(float(lead[1])), "first": None,
-           "last": None}
+    out: dict[str, Any] = {"max_abs": 0.0 if lead is None else abs(float(lead[1])),
+                           "first": None, "last": None}
     for t, f in _pieces(spool, name, first_row, lead):
         if out["first"] is None:
             out["first"] = float(t[0])
@@ -714,7 +725,9 @@ def _lateral_stream(prefix, spool, column, band, settle_after):
     return out
 
 
-def compute_metrics_csv(path, spec, *, base_dir=None, chunk_rows=None):
+def compute_metrics_csv(path: str | Path, spec: "schema.MetricsTable | dict[str, Any] | None",
+                        *, base_dir: str | Path | None = None,
+                        chunk_rows: int | None = None) -> dict[str, Any]:
     """:func:`compute_metrics` of a ``timeseries.csv``, in memory bounded by the chunk.
 
     The file is read once, ``chunk_rows`` rows at a time; the signals the metrics use (and
@@ -760,7 +773,8 @@ def compute_metrics_csv(path, spec, *, base_dir=None, chunk_rows=None):
     try:
         finite = dict.fromkeys(names, True)
         path_finite = {"xy": True, "e": True}
-        s_hint, previous = None, None
+        s_hint: Any = None
+        previous: Any = None
         for t, signals in timeseries.iter_timeseries(path, names, chunk_rows):
             if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0) \
                     or (previous is not None and t[0] <= previous):
@@ -794,12 +808,12 @@ def _stream_metrics(spool, spec, finite, path_finite):
     settle_after = spec.get("settle_after")
     duration = spool.last_time - spool.first_time
     n = spool.rows
-    result = {"duration": duration}
+    result: dict[str, Any] = {"duration": duration}
     lateral_names = ("max", "mean", "rms", "signed_mean", "std", "settling_time",
                      "settled_max", "settled_mean", "settled_rms", "settled_signed_mean",
                      "settled_std", "overshoot", "overshoot_ratio")
 
-    def skip(names) -> None:
+    def skip(names: Iterable[str]) -> None:
         result.update({name: None for name in names})
 
     if "lateral_error" in spec:

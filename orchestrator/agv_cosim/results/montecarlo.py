@@ -8,7 +8,9 @@ metric (``n + failures`` = runs of the group). ``std`` is the sample standard de
 
 import csv
 import math
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -19,12 +21,12 @@ from ..plan.sampling import group_name
 __all__ = ["aggregate", "figure", "statistics", "write_outputs"]
 
 
-def statistics(values, runs):
+def statistics(values: Iterable[float | None], runs: int) -> dict[str, Any]:
     """mean, std (ddof 1), p5, p50, p95, n, failures of finite ``values`` of ``runs``."""
     data = np.asarray([v for v in values if v is not None and math.isfinite(v)], float)
     n = int(data.size)
-    out = {"n": n, "failures": runs - n, "mean": None, "std": None, "p5": None,
-           "p50": None, "p95": None, "min": None, "max": None}
+    out: dict[str, Any] = {"n": n, "failures": runs - n, "mean": None, "std": None,
+                           "p5": None, "p50": None, "p95": None, "min": None, "max": None}
     if n:
         p5, p50, p95 = np.percentile(data, [5, 50, 95])
         out.update(mean=float(data.mean()), p5=float(p5), p50=float(p50),
@@ -41,7 +43,7 @@ def _groups(jobs, results):
     return groups
 
 
-def aggregate(mc, jobs, results):
+def aggregate(mc: MonteCarlo, jobs: list[Any], results: list[Any]) -> dict[str, Any]:
     """The content of ``montecarlo.json`` (see the module docstring)."""
     out = {**mc.describe(), "groups": {}}
     for name, members in _groups(jobs, results).items():
@@ -87,7 +89,8 @@ def _band(folder, members, signal):
     return np.asarray(time), np.percentile(data, [5, 50, 95], axis=0)
 
 
-def figure(mc, jobs, results, folder, title=None, dpi: int=110):
+def figure(mc: MonteCarlo, jobs: list[Any], results: list[Any], folder: str | Path,
+           title: str | None = None, dpi: int = 110) -> Path | None:
     """``montecarlo.png``: box plots of the key metrics per group; the band of a signal."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -139,7 +142,8 @@ def figure(mc, jobs, results, folder, title=None, dpi: int=110):
     return path
 
 
-def write_outputs(mc, jobs, results, folder, title=None):
+def write_outputs(mc: MonteCarlo, jobs: list[Any], results: list[Any], folder: str | Path,
+                  title: str | None = None) -> str | None:
     """Write ``montecarlo.json`` and ``montecarlo.png``; return a figure error or None."""
     write_json(Path(folder) / "montecarlo.json", aggregate(mc, jobs, results))
     try:

@@ -8,16 +8,15 @@ common vocabulary: the XML namespaces and prefixes, the type names, the units.
 
 import re
 from pathlib import Path
-from xml.etree import ElementTree
-
 from typing import Any
+from xml.etree import ElementTree
 
 from .. import fmitypes
 from ..errors import SspError
 from ..system import Variable
 
-__all__ = ["AGV_ANNOTATION", "BASE_UNITS", "FMU_MIME", "IDENTIFIER", "NS",
-           "OSP_ANNOTATION", "PSET_MIME", "SSD_NAME", "TYPES", "SspError", "is_ssp", "model_description",
+__all__ = ["AGV_ANNOTATION", "BASE_UNITS", "FMU_MIME", "IDENTIFIER", "NS", "OSP_ANNOTATION",
+           "PSET_MIME", "SSD_NAME", "TYPES", "SspError", "is_ssp", "model_description",
            "number_text", "q", "ssp_type", "unit_definitions"]
 
 NS = {
@@ -39,26 +38,26 @@ for _prefix, _uri in NS.items():
     ElementTree.register_namespace(_prefix, _uri)
 
 
-def q(prefix, tag) -> str:
+def q(prefix: str, tag: str) -> str:
     return f"{{{NS[prefix]}}}{tag}"
 
 
-def number_text(value):
+def number_text(value: float) -> str:
     """Shortest text that reads back as the same double (``repr``)."""
     return repr(float(value))
 
 
-def ssp_type(var):
+def ssp_type(var: Variable) -> str | None:
     """The SSP type name of an FMU variable (SSP's names are FMI 2.0's), or None."""
     return None if var.unsupported() else var.ftype.ssp_type
 
 
-def is_ssp(path) -> bool:
+def is_ssp(path: object) -> bool:
     """True when ``path`` names an SSP package (``.ssp`` file or ``.ssd``)."""
     return path is not None and Path(str(path)).suffix.lower() in (".ssp", ".ssd")
 
 
-def model_description(fmu_path):
+def model_description(fmu_path: str | Path) -> Any:
     """fmpy's reading of an FMU's modelDescription.xml (schema not re-validated: the
     FMU was read by :func:`agv_cosim.system.read_model` already)."""
     from fmpy import read_model_description
@@ -70,7 +69,7 @@ def model_description(fmu_path):
 BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
 
 
-def unit_definitions(fmu_path):
+def unit_definitions(fmu_path: str | Path) -> dict[str, dict[str, str]]:
     """``{unit name: {BaseUnit attribute: text}}`` of an FMU's unit definitions (the
     attributes that differ from their defaults: exponent 0, factor 1, offset 0)."""
     units = {}

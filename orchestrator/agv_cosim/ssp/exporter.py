@@ -24,7 +24,9 @@ import argparse
 import os
 import tempfile
 import zipfile
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 from xml.etree import ElementTree
 
 from .. import fmitypes
@@ -33,8 +35,18 @@ from ..files import user_mode
 from ..manifest import Manifest, load_manifest
 from ..plan import plan_runs
 from ..system import validate
-from .common import (AGV_ANNOTATION, FMU_MIME, OSP_ANNOTATION, SSD_NAME, TYPES,
-                     model_description, number_text, q, ssp_type, unit_definitions)
+from .common import (
+    AGV_ANNOTATION,
+    FMU_MIME,
+    OSP_ANNOTATION,
+    SSD_NAME,
+    TYPES,
+    model_description,
+    number_text,
+    q,
+    ssp_type,
+    unit_definitions,
+)
 from .importer import opened
 
 
@@ -66,8 +78,11 @@ def _fmu_file_names(models):
     return names
 
 
-def build_ssd(name, models, parameters, connections, start, stop, step, algorithm,
-              record=None, record_interval=None, description: str=""):
+def build_ssd(name: str, models: dict[str, Any], parameters: dict[str, dict[str, Any]],
+              connections: list[Any], start: float, stop: float, step: float,
+              algorithm: str, record: list[str] | None = None,
+              record_interval: float | None = None,
+              description: str = "") -> ElementTree.Element:
     """The ``SystemStructure.ssd`` of one run, as an ElementTree element.
 
     Parameters
@@ -97,7 +112,8 @@ def build_ssd(name, models, parameters, connections, start, stop, step, algorith
         system.set("description", description)
     elements = ElementTree.SubElement(system, q("ssd", "Elements"))
     used_units = {}
-    enumerations = {}  # SSP enumeration name -> [(item name, value text)]
+    #: SSP enumeration name -> [(item name, value text)]
+    enumerations: dict[str, list[tuple[str, str]]] = {}
     for cname, info in models.items():
         comp = ElementTree.SubElement(elements, q("ssd", "Component"),
                                       {"name": cname, "source": sources[cname],
@@ -111,7 +127,7 @@ def build_ssd(name, models, parameters, connections, start, stop, step, algorith
                 continue
             node = ElementTree.SubElement(connectors, q("ssd", "Connector"),
                                           {"name": var.name, "kind": var.causality})
-            kind = ElementTree.SubElement(node, q("ssc", ssp_type(var)))
+            kind = ElementTree.SubElement(node, q("ssc", str(ssp_type(var))))
             if ssp_type(var) == "Enumeration":
                 # SSP names the enumeration (required), defined in ssd:Enumerations;
                 # two FMUs with one type name but other items get instance-qualified
@@ -145,7 +161,7 @@ def build_ssd(name, models, parameters, connections, start, stop, step, algorith
                 attrs = {"value": fmitypes.format_text(var.ftype, value)}
                 if var.ftype.is_float and var.unit:
                     attrs["unit"] = var.unit
-                ElementTree.SubElement(param, q("ssv", ssp_type(var)), attrs)
+                ElementTree.SubElement(param, q("ssv", str(ssp_type(var))), attrs)
     conns = ElementTree.SubElement(system, q("ssd", "Connections"))
     for conn in connections:
         ElementTree.SubElement(conns, q("ssd", "Connection"), {
@@ -182,7 +198,8 @@ def build_ssd(name, models, parameters, connections, start, stop, step, algorith
     return root
 
 
-def export_ssp(manifest, out_path, variant=None, sets=()):
+def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
+               variant: str | None = None, sets: Iterable[str] = ()) -> Path:
     """Write one run of a manifest as a self-contained SSP 1.0 package.
 
     Parameters
@@ -239,9 +256,9 @@ def export_ssp(manifest, out_path, variant=None, sets=()):
         raise OutputError(f"{out_path}: cannot create '{error.filename or out_path.parent}'"
                           f": {error.strerror}") from None
     # a new file of our own beside the target (O_EXCL | O_NOFOLLOW), renamed over it
-    handle, partial = tempfile.mkstemp(dir=out_path.parent, prefix=f".{out_path.name}.",
-                                       suffix=".partial")
-    partial = Path(partial)
+    handle, partial_name = tempfile.mkstemp(dir=out_path.parent, prefix=f".{out_path.name}.",
+                                            suffix=".partial")
+    partial = Path(partial_name)
     try:
         with os.fdopen(handle, "w+b") as stream, \
                 zipfile.ZipFile(stream, "w", zipfile.ZIP_DEFLATED) as archive:
@@ -259,14 +276,14 @@ def export_ssp(manifest, out_path, variant=None, sets=()):
     return out_path
 
 
-def _cmd_export_ssp(args) -> int:
+def _cmd_export_ssp(args: argparse.Namespace) -> int:
     with opened(args.manifest) as manifest:
         out = export_ssp(manifest, args.output, args.variant, args.set)
     print(out)
     return 0
 
 
-def add_cli(subparsers):
+def add_cli(subparsers: Any) -> argparse.ArgumentParser:
     """Register ``agv-cosim export-ssp`` on the CLI's subparsers."""
     parser = subparsers.add_parser(
         "export-ssp", help="write one run of a manifest as an SSP 1.0 package",

@@ -32,7 +32,9 @@ import shutil
 import stat
 import zipfile
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 from urllib.parse import unquote, urlparse
 from xml.etree import ElementTree
 
@@ -40,10 +42,23 @@ from .. import fmitypes
 from ..errors import ManifestError, ModelError, SspError
 from ..files import check_name
 from ..lifetime import scratch_dir
-from ..manifest import manifest_from_data
+from ..manifest import Manifest, manifest_from_data
 from ..system.model import file_sha256, read_model
-from .common import (AGV_ANNOTATION, BASE_UNITS, FMU_MIME, IDENTIFIER, NS, OSP_ANNOTATION,
-                     PSET_MIME, SSD_NAME, TYPES, is_ssp, q, ssp_type, unit_definitions)
+from .common import (
+    AGV_ANNOTATION,
+    BASE_UNITS,
+    FMU_MIME,
+    IDENTIFIER,
+    NS,
+    OSP_ANNOTATION,
+    PSET_MIME,
+    SSD_NAME,
+    TYPES,
+    is_ssp,
+    q,
+    ssp_type,
+    unit_definitions,
+)
 
 
 def _unsafe_reason(info):
@@ -57,7 +72,7 @@ def _unsafe_reason(info):
     return None
 
 
-def safe_extract(archive_path, dest):
+def safe_extract(archive_path: str | Path, dest: str | Path) -> None:
     """Extract a zip archive into ``dest`` after checking every entry.
 
     Raises
@@ -337,7 +352,7 @@ def _bound_parameters(package, components, component_bound, system_bound):
     return params
 
 
-def read_ssd(package, ssd_path):
+def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
     """Translate an SSD into the data of a manifest (a plain dict, TOML-shaped).
 
     Raises
@@ -430,7 +445,7 @@ def read_ssd(package, ssd_path):
     except ValueError as error:
         raise SspError(package, "SystemStructureDescription", f"{error} (it names the "
                        "default output folder results/<name>)") from None
-    data = {"name": name,
+    data: dict[str, Any] = {"name": name,
             "description": system.get("description", ""),
             "simulation": simulation, "components": components, "connections": connections}
     if record or interval is not None:
@@ -448,7 +463,7 @@ def _source_sha256(source):
     return file_sha256(source / SSD_NAME if source.is_dir() else source)
 
 
-def load_ssp(path, workdir):
+def load_ssp(path: str | Path, workdir: str | Path) -> Manifest:
     """Read an SSP package into a :class:`~agv_cosim.manifest.Manifest`.
 
     Parameters
@@ -494,7 +509,7 @@ def load_ssp(path, workdir):
 
 
 @contextlib.contextmanager
-def opened(path):
+def opened(path: str | Path) -> Iterator[Manifest | str | Path]:
     """Context: the manifest to run for ``path``.
 
     A manifest path (or None) is yielded unchanged; an SSP package is unpacked into a

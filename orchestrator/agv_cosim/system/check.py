@@ -24,7 +24,7 @@ __all__ = ["check_connections", "check_events", "check_parameters", "check_run",
            "read_models", "validate"]
 
 
-def _parameter_key(manifest, run, cname, pname):
+def _parameter_key(manifest: Manifest, run: RunSpec, cname: str, pname: str) -> str:
     full = f"{cname}.{pname}"
     if full in run.point:  # a sampled value is named by its [montecarlo] key
         sampled = manifest.montecarlo is not None and full in manifest.montecarlo.names
@@ -37,7 +37,7 @@ def _parameter_key(manifest, run, cname, pname):
     return f"components.{cname}.parameters.{pname}"
 
 
-def _fmu_key(manifest, run, cname) -> str:
+def _fmu_key(manifest: Manifest, run: RunSpec, cname: str) -> str:
     if run.variant:
         sub = manifest.variants[run.variant]["components"].get(cname)
         if sub is not None and sub.fmu is not None:
@@ -115,6 +115,8 @@ def read_models(manifest: Manifest, run: RunSpec) -> dict[str, ModelInfo]:
             except TableError as error:
                 raise err(f"components.{cname}.table", str(error)) from None
             continue
+        if comp.fmu is None:  # the manifest gives an FMU or a table (checked there)
+            raise err(f"components.{cname}.fmu", "missing")
         try:
             models[cname] = read_model(comp.fmu)
         except ModelError as error:
@@ -145,7 +147,7 @@ def check_parameters(manifest: Manifest, run: RunSpec,
             if why:
                 raise err(key, f"'{cname}.{pname}' is {why}")
             try:
-                values[pname] = (fmitypes.parse_array(var.ftype, value, var.size, var)
+                values[pname] = (fmitypes.parse_array(var.ftype, value, var.size or 0, var)
                                  if var.dims else fmitypes.parse(var.ftype, value, var))
             except ValueError as error:
                 problem = str(error)
@@ -272,15 +274,15 @@ def validate(manifest: Manifest, runs: list[RunSpec],
     return Checked(runs=checked, record=record or [], warnings=warnings)
 
 
-def _first_fmu_key(manifest, run):
+def _first_fmu_key(manifest: Manifest, run: RunSpec) -> str:
     return f"variants.{run.variant}" if run.variant else "components"
 
 
-def _article(causality):
+def _article(causality: str) -> str:
     return ("an " if causality[0] in "aeiou" else "a ") + causality
 
 
-def _record_list(manifest, models):
+def _record_list(manifest: Manifest, models: dict[str, ModelInfo]) -> list[str]:
     if manifest.record is None:
         return [f"{c}.{v.name}" for c, info in models.items() for v in info.outputs
                 if not v.unsupported("record") and v.ftype.numeric]

@@ -22,18 +22,16 @@ Instantiating an FMU is :mod:`agv_cosim.execution.instance`.
 import hashlib
 import itertools
 import math
-import os
 import re
-import shutil
-import stat
-import tempfile
 import zipfile
 import zlib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 from .. import fmitypes
 from ..errors import ModelError
+from ..fmitypes import FmiType
 
 
 @dataclass(frozen=True)
@@ -49,32 +47,39 @@ class Variable:
     description: str
     start: str | None
     fmi: str = "2.0"     # FMI version of the FMU (selects the fmitypes table)
-    dims: tuple = ()     # FMI 3.0 array dimensions as written (empty: a scalar)
-    shape: tuple = None  # the dimensions as integers (None: a dimension is unknown)
-    element: tuple = None  # of an array element "y[2]": (array name, flat index)
+    dims: tuple[str, ...] = ()  # FMI 3.0 array dimensions as written (empty: a scalar)
+    #: the dimensions as integers (None: a dimension is unknown)
+    shape: tuple[int, ...] | None = None
+    #: of an array element "y[2]": (array name, flat index)
+    element: tuple[str, int] | None = None
     min: str | None = None   # as written (the variable's, else its declared type's)
     max: str | None = None
 
     @property
-    def ftype(self):
-        """Its :class:`~agv_cosim.fmitypes.FmiType`, or None (Binary, Clock)."""
-        return fmitypes.of(self)
+    def ftype(self) -> FmiType:
+        """Its :class:`~agv_cosim.fmitypes.FmiType`. A Binary or Clock variable has
+        none: :meth:`unsupported` names it, and the system check refuses it before
+        this is used."""
+        ftype = fmitypes.of(self)
+        if ftype is None:
+            raise ValueError(f"variable {self.name!r} is of type {self.type}, not supported")
+        return ftype
 
     @property
-    def size(self):
+    def size(self) -> int | None:
         """Number of values (1 for a scalar or an element; None if unknown)."""
         if not self.dims:
             return 1
         return math.prod(self.shape) if self.shape is not None else None
 
-    def unsupported(self, use: str="connect") -> str:
+    def unsupported(self, use: str = "connect") -> str:
         """Why this variable cannot be used for ``use`` ('' if it can).
 
         ``use`` is "connect" (connection, SSP connector, event), "record" or "parameter".
         A whole array with known dimensions may be set as a parameter (a flat list in
         row-major order); its elements ``name[i]`` / ``name[i,j]`` may be recorded.
         """
-        if self.ftype is None:
+        if fmitypes.of(self) is None:
             return f"of type {self.type} (not supported)"
         if self.dims:
             if self.shape is None:
@@ -91,7 +96,7 @@ class Variable:
         return ""
 
 
-def element_names(name, shape):
+def element_names(name: str, shape: tuple[int, ...]) -> list[str]:
     """Element names of an array in row-major (FMI 3.0 serialisation) order, 1-based:
     ``y[1]``, ``y[2]`` for a vector, ``A[1,1]``, ``A[1,2]`` .. for a matrix."""
     return [f"{name}[{','.join(str(i + 1) for i in index)}]"
@@ -111,34 +116,35 @@ class ModelInfo:
     identifier: str
     guid: str
     description: str
-    variables: dict = field(default_factory=dict)
-    dependencies: dict = field(default_factory=dict)
+    variables: dict[str, Variable] = field(default_factory=dict)
+    dependencies: dict[str, list[str]] = field(default_factory=dict)
     fmi_version: str = "2.0"
     can_handle_variable_step: bool = True
     can_get_set_state: bool = False
-    table: object = None  # a time table (agv_cosim.table.Table) instead of an FMU
+    #: a time table (:class:`agv_cosim.system.table.Table`) instead of an FMU
+    table: Any = None
 
-    def of_causality(self, causality):
+    def of_causality(self, causality: str) -> list[Variable]:
         """Variables with the given causality, in model-description order."""
         return [v for v in self.variables.values() if v.causality == causality]
 
     @property
-    def inputs(self):
+    def inputs(self) -> list[Variable]:
         return self.of_causality("input")
 
     @property
-    def outputs(self):
+    def outputs(self) -> list[Variable]:
         return self.of_causality("output")
 
     @property
-    def parameters(self):
+    def parameters(self) -> list[Variable]:
         return self.of_causality("parameter")
 
 
-_CACHE = {}
+_CACHE: dict[tuple[str, int, int], ModelInfo] = {}
 
 
-def file_sha256(path):
+def file_sha256(path: str | Path) -> str:
     """SHA-256 (hex) of a file's bytes."""
     digest = hashlib.sha256()
     with open(path, "rb") as stream:
@@ -147,7 +153,7 @@ def file_sha256(path):
     return digest.hexdigest()
 
 
-def read_model(path):
+def read_model(path: str | Path) -> ModelInfo:
     """Read the model description of the FMU at ``path`` (cached by path, size, mtime).
 
     Raises
@@ -192,13 +198,13 @@ IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _SCHEMA_PROBLEM = re.compile(r"[A-Z]+ \(line \d+, column \d+\): ")
 
 
-def _parse_model(path):
+def _parse_model(path: Path) -> ModelInfo:
     """Map fmpy's ModelDescription (``fmpy.read_model_description``, schema and fmpy's
     own checks on) onto a :class:`ModelInfo`; fmpy's errors become one line."""
     from fmpy.model_description import ValidationError, read_model_description
     from lxml.etree import XMLSyntaxError
 
-    def broken(reason):
+    def broken(reason: object) -> ModelError:
         reason = " ".join(str(reason).split())
         return ModelError(f"broken FMU (modelDescription.xml: {reason}): '{path}'")
 
@@ -278,7 +284,7 @@ def _parse_model(path):
     return info
 
 
-def _fmi_version(path):
+def _fmi_version(path: Path) -> str | None:
     """The root's ``fmiVersion`` (None if unreadable), read before fmpy so that an FMI 1.0
     FMU is named as such instead of failing fmpy's FMI 1.0 schema check."""
     from lxml import etree
@@ -292,7 +298,7 @@ def _fmi_version(path):
     return None
 
 
-def _variable(sv, version):
+def _variable(sv: Any, version: str) -> Variable:
     """One fmpy ModelVariable as our :class:`Variable`."""
     dims = tuple(str(d.start) if d.start is not None else f"vr:{d.valueReference}"
                  for d in sv.dimensions)
@@ -306,7 +312,7 @@ def _variable(sv, version):
                     max=sv.max if sv.max is not None else getattr(declared, "max", None))
 
 
-def find_fmus(path):
+def find_fmus(path: str | Path) -> list[Path]:
     """The FMUs at ``path``: the file itself, or every ``*.fmu`` in a folder (sorted)."""
     path = Path(path)
     if path.is_dir():
@@ -314,7 +320,7 @@ def find_fmus(path):
     return [path]
 
 
-def describe(info):
+def describe(info: ModelInfo) -> str:
     """Human-readable listing of an FMU's variables (``agv-cosim list``)."""
     lines = [f"{info.path.name}  ({info.model_name}): {info.description}"]
     order = {"parameter": 0, "input": 1, "output": 2}

@@ -3,7 +3,8 @@ direct-feedthrough graph (:mod:`graphlib`); an algebraic loop is refused, its cy
 
 import graphlib
 import heapq
-from collections.abc import Hashable, Sequence
+from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 from ..errors import ManifestError
@@ -13,8 +14,9 @@ from .model import ModelInfo
 __all__ = ["feedthrough_order"]
 
 
-def feedthrough_order(models, connections, manifest_path: str="manifest",
-                      algorithm: str="gauss-seidel"):
+def feedthrough_order(models: dict[str, ModelInfo], connections: Sequence[Connection],
+                      manifest_path: str | Path = "manifest",
+                      algorithm: str = "gauss-seidel") -> list[str]:
     """Gauss-Seidel order of the components, or raise on an algebraic loop.
 
     Parameters
@@ -37,7 +39,7 @@ def feedthrough_order(models, connections, manifest_path: str="manifest",
     """
     # variable-level graph: input -> feedthrough output (inside an FMU), output -> input;
     # graphlib takes each node with its predecessors, so a reported cycle runs forwards
-    variables = graphlib.TopologicalSorter()
+    variables: graphlib.TopologicalSorter[tuple[str, str]] = graphlib.TopologicalSorter()
     for cname, info in models.items():
         for out, deps in info.dependencies.items():
             for inp in deps:
@@ -47,11 +49,12 @@ def feedthrough_order(models, connections, manifest_path: str="manifest",
     try:
         variables.prepare()
     except graphlib.CycleError as error:
-        names = " -> ".join(".".join(v) for v in _rotated(error.args[1]))
+        loop = " -> ".join(".".join(v) for v in _rotated(error.args[1]))
         raise ManifestError(manifest_path, "connections",
-                            f"algebraic loop (a cycle of direct feedthrough): {names}") from None
+                            f"algebraic loop (a cycle of direct feedthrough): {loop}") from None
     names = list(models)
-    components = graphlib.TopologicalSorter({n: set() for n in names})
+    components: graphlib.TopologicalSorter[str] = graphlib.TopologicalSorter(
+        {n: set() for n in names})
     for conn in connections:
         src, dst = conn.source[0], conn.target[0]
         if models[src].dependencies.get(conn.source[1]) and src != dst:
@@ -70,7 +73,8 @@ def feedthrough_order(models, connections, manifest_path: str="manifest",
     # ties keep the manifest's order: always take the first ready component (a heap of
     # manifest positions: linear-logarithmic in the number of components)
     position = {name: i for i, name in enumerate(names)}
-    order, ready = [], []
+    order: list[str] = []
+    ready: list[int] = []
     while components.is_active():
         for node in components.get_ready():
             heapq.heappush(ready, position[node])
@@ -80,9 +84,9 @@ def feedthrough_order(models, connections, manifest_path: str="manifest",
     return order
 
 
-def _rotated(cycle, key=None):
+def _rotated(cycle: Sequence[Any], key: Callable[[Any], Any] | None = None) -> list[Any]:
     """A cycle ``[a, b, ..., a]`` started at its smallest node (a stable message)."""
     ring = list(cycle[:-1])
-    first = ring.index(min(ring, key=key))
+    first = ring.index(min(ring, key=key) if key is not None else min(ring))
     ring = ring[first:] + ring[:first]
     return ring + ring[:1]
