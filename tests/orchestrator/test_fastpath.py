@@ -185,3 +185,19 @@ def test_fmpy_declares_the_library_functions_it_calls(fmus):
         assert c_function(slave, "fmi2GetReal") == slave.fmi2GetReal
     finally:
         instance.close()
+
+
+@pytest.mark.slow  # builds the test FMUs
+def test_a_closed_instance_leaves_nothing_on_sys_path(fmus):
+    """pythonfmu puts the FMU's resources folder on sys.path; close takes it off."""
+    import sys
+
+    from agv_cosim.system import read_model
+
+    before = list(sys.path)
+    instance = FmuInstance(read_model(fmus["agv_test_gain"]), "gain")
+    folder = instance.unzip_dir
+    added = [p for p in sys.path if p not in before]
+    instance.close()
+    assert added and all(p.startswith(folder) for p in added)
+    assert sys.path == before

@@ -12,6 +12,7 @@ import os
 import re
 import shutil
 import stat
+import sys
 import tempfile
 import zipfile
 from collections.abc import Callable
@@ -279,6 +280,11 @@ class FmuInstance:
             except Exception:  # noqa: BLE001 - cleanup must go on
                 pass
         if self.unzip_dir is not None:
+            # pythonfmu put the FMU's resources folder (a partial agv_core among its
+            # files) on sys.path; left there, a later ``import agv_core`` of this process,
+            # or of a fork server it starts, could find that copy first
+            inside = os.path.join(self.unzip_dir, "")
+            sys.path[:] = [p for p in sys.path if not os.path.join(p, "").startswith(inside)]
             if self._own_dir:
                 shutil.rmtree(self.unzip_dir, ignore_errors=True)
             self.unzip_dir = None
