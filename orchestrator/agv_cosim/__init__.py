@@ -28,16 +28,35 @@ Every error of stages 1-3 is one line, ``<manifest>: <key>: <problem>``; every e
 is in :mod:`agv_cosim.errors`.
 """
 
-from .errors import ManifestError, ModelError, OutputError, SimulationError, SspError, TableError
-from .execution import simulate
-from .manifest import Manifest, load_manifest
-from .pipeline import check_initialisation, execute, prepare, run_job, run_manifest
-from .plan import plan_runs
-from .system import Job, System, validate
-from .timeseries import read_timeseries
+import importlib
+from typing import Any
+
 from .version import __version__
 
-__all__ = ["Job", "Manifest", "ManifestError", "ModelError", "OutputError",
-           "SimulationError", "SspError", "System", "TableError", "__version__",
-           "check_initialisation", "execute", "load_manifest", "plan_runs", "prepare",
-           "read_timeseries", "run_job", "run_manifest", "simulate", "validate"]
+#: The public API, name -> the module that defines it. Imported on first use (PEP 562), so
+#: that importing one part (e.g. ``agv_cosim.build`` for ``agv-cosim build``) does not
+#: import every stage and its libraries (matplotlib, fmpy).
+_API = {
+    "ManifestError": "agv_cosim.errors", "ModelError": "agv_cosim.errors",
+    "OutputError": "agv_cosim.errors", "SimulationError": "agv_cosim.errors",
+    "SspError": "agv_cosim.errors", "TableError": "agv_cosim.errors",
+    "Manifest": "agv_cosim.manifest", "load_manifest": "agv_cosim.manifest",
+    "plan_runs": "agv_cosim.plan",
+    "Job": "agv_cosim.system", "System": "agv_cosim.system", "validate": "agv_cosim.system",
+    "simulate": "agv_cosim.execution",
+    "read_timeseries": "agv_cosim.timeseries",
+    "check_initialisation": "agv_cosim.pipeline", "execute": "agv_cosim.pipeline",
+    "prepare": "agv_cosim.pipeline", "run_job": "agv_cosim.pipeline",
+    "run_manifest": "agv_cosim.pipeline",
+}
+
+__all__ = ["__version__", *sorted(_API)]
+
+
+def __getattr__(name: str) -> Any:
+    module = _API.get(name)
+    if module is None:
+        raise AttributeError(f"module 'agv_cosim' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
