@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from agv_cosim.results.metrics import PairwiseSum, compute_metrics, compute_metrics_csv
+from agv_cosim.report.metrics import PairwiseSum, compute_metrics, compute_metrics_csv
 from agv_cosim.timeseries import CsvSink, count_rows, iter_timeseries, read_timeseries
 
 SPEC = {

@@ -17,7 +17,7 @@ stages before it and from the foundation modules (``errors``, ``fmitypes``,
 4. :mod:`agv_cosim.execution`: one run simulated, composed of parts: the FMU units, the
    algorithm (Gauss-Seidel, Jacobi), the scenario's events, the observers that record,
    the stop-request rule.
-5. :mod:`agv_cosim.results`: metrics, plots, Monte Carlo statistics, run records.
+5. :mod:`agv_cosim.report`: the results: metrics, plots, Monte Carlo statistics, run records.
 
 :mod:`agv_cosim.pipeline` runs the stages end to end (local worker processes or a Dask
 cluster); :mod:`agv_cosim.ssp` reads and writes SSP packages; :mod:`agv_cosim.cli` is the

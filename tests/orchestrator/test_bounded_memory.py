@@ -5,7 +5,7 @@ import pytest
 import numpy as np
 
 from agv_cosim import pipeline as runner, timeseries as results
-from agv_cosim.results import metrics, plots
+from agv_cosim.report import metrics, plots
 
 PLOTS = """
 [metrics]

@@ -17,10 +17,10 @@ PACKAGE = "agv_cosim"
 
 #: Layer of each top-level part: a module may import only from its own layer or below.
 #: The foundation (0) serves every stage; the stages follow the pipeline (manifest ->
-#: plan -> system -> execution -> results); the pipeline and the tools sit on top.
+#: plan -> system -> execution -> report); the pipeline and the tools sit on top.
 LAYERS = {
     "errors": 0, "version": 0, "fmitypes": 0, "lifetime": 0, "files": 0, "timeseries": 0,
-    "manifest": 1, "plan": 2, "system": 3, "execution": 4, "results": 5, "pipeline": 6,
+    "manifest": 1, "plan": 2, "system": 3, "execution": 4, "report": 5, "pipeline": 6,
     "ssp": 7, "shipped": 7, "bundle": 7, "standalone": 7, "build": 7, "examples": 7,
     "cli": 8, "": 9,
 }

@@ -1,7 +1,7 @@
 """The ``[montecarlo]`` table of a manifest, checked into a :class:`MonteCarlo`.
 
 How the table is sampled into runs is :mod:`agv_cosim.plan.sampling`; the statistics and
-figure over the runs are :mod:`agv_cosim.results.montecarlo`.
+figure over the runs are :mod:`agv_cosim.report.montecarlo`.
 """
 
 from collections.abc import Collection

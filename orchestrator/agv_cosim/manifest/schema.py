@@ -167,7 +167,7 @@ class MetricsTable(_Table):
     reference: Reference | None = None
 
     def spec(self) -> dict[str, Any]:
-        """The table as the dict :mod:`agv_cosim.results.metrics` computes from (defaults
+        """The table as the dict :mod:`agv_cosim.report.metrics` computes from (defaults
         in)."""
         return self.model_dump(exclude_none=True)
 
@@ -195,7 +195,7 @@ class PlotsTable(_Table):
     trajectory: Trajectory | None = None
 
     def spec(self) -> dict[str, Any]:
-        """The table as the dict :mod:`agv_cosim.results.plots` draws from (defaults in)."""
+        """The table as the dict :mod:`agv_cosim.report.plots` draws from (defaults in)."""
         out = self.model_dump(exclude={"signals", "trajectory"})
         if self.signals is not None:
             out["signals"] = list(self.signals)

@@ -53,8 +53,8 @@ from typing import Any
 from ..errors import ClusterError, Interrupted, WorkerUnfit
 from ..files import create_file, write_json
 from ..lifetime import ignore_termination, scratch_dir
-from ..results import metrics
-from ..results.records import RunResult, run_result
+from ..report import metrics
+from ..report.records import RunResult, run_result
 from ..system import Job
 from .pool import not_run, run_isolated
 

@@ -9,8 +9,8 @@ from .. import fmitypes
 from ..errors import SimulationError
 from ..execution import CsvObserver, Observer, ProgressObserver, simulate
 from ..execution.track import Track
-from ..results import metrics
-from ..results.records import RunResult, write_run_files
+from ..report import metrics
+from ..report.records import RunResult, write_run_files
 from ..system import Job
 from ..timeseries import CsvSink
 

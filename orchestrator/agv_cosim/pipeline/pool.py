@@ -26,8 +26,8 @@ from ..errors import Interrupted
 from ..execution.instance import keep_extractions
 from ..execution.track import Track, describe_track
 from ..lifetime import ignore_termination, kill_group, scratch_dir
-from ..results import metrics
-from ..results.records import RunResult, run_result, write_run_files
+from ..report import metrics
+from ..report.records import RunResult, run_result, write_run_files
 from ..system import Job
 from ..timeseries import count_rows
 from .channels import Frames, OutputLog, child_setup, flush_c_stdio, send_frame

@@ -9,7 +9,7 @@ from .. import fmitypes
 from ..errors import ManifestError
 from ..manifest import Manifest, load_manifest
 from ..plan import plan_runs
-from ..results import metrics, plots
+from ..report import metrics, plots
 from ..system import Job, System, Variable, validate
 
 __all__ = ["prepare"]

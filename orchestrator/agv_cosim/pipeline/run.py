@@ -6,13 +6,13 @@ processes (:mod:`.pool`; up to ``workers`` at once) or on a Dask cluster
 (:mod:`.distributed`), and writes the output folder::
 
     DIR/<run label>/timeseries.csv   time, then component.variable (csv module; repr floats)
-    DIR/<run label>/metrics.json     metrics of the run (agv_cosim.results.metrics)
+    DIR/<run label>/metrics.json     metrics of the run (agv_cosim.report.metrics)
     DIR/<run label>/run.json         hashes, parameters, versions, wall time, status, and
                                      the run's inputs with their SHA-256
     DIR/<run label>/output.txt       what the run's process printed (only if it did)
     DIR/summary.csv                  one row per run: label, status, sweep values, metrics
-    DIR/*.png                        the runs overlaid (agv_cosim.results.plots)
-    DIR/montecarlo.json, .png        with [montecarlo] (agv_cosim.results.montecarlo)
+    DIR/*.png                        the runs overlaid (agv_cosim.report.plots)
+    DIR/montecarlo.json, .png        with [montecarlo] (agv_cosim.report.montecarlo)
     DIR/partial.txt                  only in a folder kept after an interruption
 
 A run's status is ``complete``, ``partial`` (rows recorded, then a failure), ``failed``,
@@ -32,8 +32,8 @@ from pathlib import Path
 from ..errors import FolderLost
 from ..files import AtomicDir, printable, write_summary, write_text
 from ..manifest import Manifest
-from ..results import montecarlo, plots
-from ..results.records import RunResult, summary_rows
+from ..report import montecarlo, plots
+from ..report.records import RunResult, summary_rows
 from ..system import Job
 from .distributed import run_on_dask
 from .pool import run_isolated
@@ -64,7 +64,7 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         No progress bars.
     overwrite : bool
         Replace ``out_dir`` even when it is not a result folder of ours (see
-        :class:`~agv_cosim.results.AtomicDir`; without it such a folder is refused).
+        :class:`~agv_cosim.report.AtomicDir`; without it such a folder is refused).
     dask : str, optional
         Address of a Dask scheduler (``tcp://HOST:PORT``): run the jobs on that cluster
         (see :mod:`agv_cosim.distributed`) instead of local processes; ``workers`` is

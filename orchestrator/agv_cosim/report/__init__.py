@@ -1,4 +1,4 @@
-"""Stage 5, results: what is made of the runs' time series. :mod:`.metrics` (tracking
+"""Stage 5, the report: the results made of the runs' time series. :mod:`.metrics` (tracking
 metrics, streamed from ``timeseries.csv``), :mod:`.plots` (the runs overlaid),
 :mod:`.montecarlo` (``montecarlo.json`` and its figure), :mod:`.records` (``run.json``,
 ``metrics.json``, ``summary.csv``). The time series file itself is
