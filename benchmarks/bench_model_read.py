@@ -15,7 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from agv_cosim import model as new_model
+from agv_cosim.system import model as new_model
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -10,8 +10,8 @@ The closed loop is seed 000 model a (5 FMUs) at a 1 ms communication step::
 Two runners do the same work on the same FMUs:
 
 orchestrator
-    ``agv_cosim.runner.prepare`` on a manifest written to a temporary folder, then
-    ``agv_cosim.master.simulate`` with a ``write_row`` that copies each recorded row into
+    ``agv_cosim.pipeline.prepare`` on a manifest written to a temporary folder, then
+    ``agv_cosim.execution.simulate`` (fast path) with an observer that copies each recorded row into
     a preallocated numpy array (no CSV, so both sides record the same way).
 minimal
     A hand-written Gauss-Seidel loop: per macro step one ``fmi2DoStep`` per FMU, then
@@ -55,8 +55,8 @@ from pathlib import Path
 import numpy as np
 
 from agv_cosim.build import build_one, slave_script
-from agv_cosim.master import simulate
-from agv_cosim.runner import prepare, run_job
+from agv_cosim.execution import RowObserver, simulate
+from agv_cosim.pipeline import prepare, run_job
 
 STEP = 0.001
 SCRIPTS = {"vehicle": "agv_vehicle.py", "actuator": "agv_steering_a.py",
@@ -137,8 +137,9 @@ def load_baseline(rev):
     return module.simulate
 
 
-def run_orchestrator(manifest_path, simulate=simulate):
-    """Run through ``master.simulate``; return (per-step wall [s], CPU [s], recording)."""
+def run_orchestrator(manifest_path, baseline=None):
+    """Run through ``execution.simulate`` (or a ``--baseline`` master's
+    ``simulate(plan, write_row)``); return (per-step wall [s], CPU [s], recording)."""
     _, jobs, _ = prepare(manifest_path)
     plan = jobs[0].plan
     n_steps = int(round((plan.stop - plan.start) / plan.step))
@@ -154,7 +155,10 @@ def run_orchestrator(manifest_path, simulate=simulate):
         if i == 1 or i == n_rows:
             stamps.append((time.perf_counter(), time.process_time()))
 
-    simulate(plan, write_row)
+    if baseline is None:
+        simulate(plan, [RowObserver(write_row)], fast=True)
+    else:  # the --baseline master's simulate(plan, write_row)
+        baseline(plan, write_row)
     assert i == n_rows, (i, n_rows)
     return ((stamps[1][0] - stamps[0][0]) / n_steps,
             (stamps[1][1] - stamps[0][1]) / n_steps, out)

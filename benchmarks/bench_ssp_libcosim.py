@@ -1,14 +1,14 @@
 """Benchmark: the same SSP package stepped by libcosim and by the agv-cosim master.
 
 The package is seed 000 model a (experiments/seed000_models_abc.toml, variant a, Jacobi, its
-step) exported with ``agv_cosim.ssp_export.export_ssp`` from FMUs built into a temporary
+step) exported with ``agv_cosim.ssp.exporter.export_ssp`` from FMUs built into a temporary
 folder. Both masters load the package, then the time of the macro steps alone is taken:
 
 libcosim
     ``CosimExecution.from_ssp_file`` (fixed step, Jacobi, worker threads), the recorded
     variables observed by a time-series observer; timed: ``execution.step(n)``.
 agv-cosim
-    ``agv_cosim.ssp_import.load_ssp`` + ``runner.prepare`` + ``master.simulate`` in
+    ``agv_cosim.ssp.importer.load_ssp`` + ``pipeline.prepare`` + ``execution.simulate`` in
     this process (not through ``runner.run_manifest``, which would run it in a child
     process of its own), with rows copied into a list (no CSV); timed: first recorded row
     (after initialisation) to the last.
@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def make_package(folder, stop):
     from agv_cosim.build import build_fmus, default_components_dir, slave_scripts
-    from agv_cosim.ssp_export import export_ssp
+    from agv_cosim.ssp.exporter import export_ssp
 
     results = build_fmus(Path(folder) / "fmus", slave_scripts(default_components_dir()))
     by_model = {r.fmu.stem: r.fmu for r in results}
@@ -45,9 +45,9 @@ def make_package(folder, stop):
 
 
 def time_ours(package, work):
-    from agv_cosim.master import simulate
-    from agv_cosim.runner import prepare
-    from agv_cosim.ssp_import import load_ssp
+    from agv_cosim.execution import RowObserver, simulate
+    from agv_cosim.pipeline import prepare
+    from agv_cosim.ssp.importer import load_ssp
 
     _, jobs, _ = prepare(load_ssp(package, work))
     plan = jobs[0].plan
@@ -57,7 +57,7 @@ def time_ours(package, work):
         stamps.append(time.perf_counter())
         rows.append(list(row))
 
-    simulate(plan, write)
+    simulate(plan, [RowObserver(write)], fast=True)
     n = int(round((plan.stop - plan.start) / plan.step))
     return (stamps[-1] - stamps[0]) / n, plan.record, plan.step, n
 

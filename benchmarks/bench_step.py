@@ -126,16 +126,19 @@ def _digest(rows):
 
 
 def _plan(manifest):
-    from agv_cosim.runner import prepare
+    try:
+        from agv_cosim.pipeline import prepare
+    except ImportError:  # a tree before agv_cosim.pipeline (its runner module)
+        from agv_cosim.runner import prepare
 
     _, jobs, _ = prepare(manifest, variants=[VARIANT])
     return jobs[0].plan
 
 
-def child_orchestrator(manifest):
-    """Run through ``master.simulate``; per-step wall and CPU time [s], digest."""
-    from agv_cosim.master import simulate
-
+def child_orchestrator(manifest, fast=True):
+    """Run through the orchestrator's simulate (``fast``: its generated per-step functions,
+    else the plain reference loops, where a tree has both); per-step wall and CPU time
+    [s], digest."""
     plan = _plan(manifest)
     n_steps = int(round((plan.stop - plan.start) / plan.step))
     rows, stamps = [], []
@@ -144,7 +147,14 @@ def child_orchestrator(manifest):
         rows.append(tuple(row))
         stamps.append((time.perf_counter(), time.process_time()))
 
-    simulate(plan, write_row)
+    try:
+        from agv_cosim.execution import RowObserver, simulate
+
+        simulate(plan, [RowObserver(write_row)], fast=fast)
+    except ImportError:  # a tree before agv_cosim.execution (its master module)
+        from agv_cosim.master import simulate
+
+        simulate(plan, write_row)
     return {"wall": (stamps[-1][0] - stamps[0][0]) / n_steps,
             "cpu": (stamps[-1][1] - stamps[0][1]) / n_steps, "rows": len(rows),
             "digest": _digest(rows)}
@@ -300,6 +310,8 @@ def main(argv=None):
     parser.add_argument("--old", default="14af212", help="git revision of the old code")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--stop", type=float, default=10.0, help="simulated time [s]")
+    parser.add_argument("--plain", action="store_true",
+                        help="also time this checkout's plain reference loops (fast=False)")
     parser.add_argument("--callgrind", action="store_true",
                         help="count instructions per macro step (valgrind) instead of times")
     parser.add_argument("--child", nargs=2, metavar=("KIND", "MANIFEST"),
@@ -312,7 +324,9 @@ def main(argv=None):
         if args.instrument:
             global time
             time = _instrumented_time(args.instrument[0], int(args.instrument[1]))
-        result = (child_orchestrator if kind == "orchestrator" else child_floor)(manifest)
+        run = {"orchestrator": child_orchestrator, "floor": child_floor,
+               "plain": lambda m: child_orchestrator(m, fast=False)}[kind]
+        result = run(manifest)
         print(json.dumps(result))
         return 0
 
@@ -329,6 +343,8 @@ def main(argv=None):
             envs[side] = env_for(tree)
         keys = [("old", "orchestrator"), ("new", "orchestrator"), ("old", "floor"),
                 ("new", "floor")]
+        if args.plain:  # this checkout's reference loops beside its fast path
+            keys.append(("new", "plain"))
         if args.callgrind:
             library = tmp / "callgrind_control.so"
             (tmp / "callgrind_control.c").write_text(CALLGRIND_CONTROL)
@@ -367,6 +383,13 @@ def main(argv=None):
                                                       results[("new", "orchestrator")])]
         pair_cpu = [o["cpu"] / n["cpu"] for o, n in zip(results[("old", "orchestrator")],
                                                         results[("new", "orchestrator")])]
+        if ("new", "plain") in results:
+            plain = [p["wall"] / n["wall"] for p, n in zip(results[("new", "plain")],
+                                                         results[("new", "orchestrator")])]
+            plain_cpu = [p["cpu"] / n["cpu"] for p, n in zip(results[("new", "plain")],
+                                                           results[("new", "orchestrator")])]
+            print(f"\nnew plain loops / new fast path, median of pairs: wall "
+                  f"{statistics.median(plain):.2f}, CPU {statistics.median(plain_cpu):.2f}")
         print(f"\nspeed-up old / new (orchestrator), median of pairs: wall "
               f"{statistics.median(pair):.2f}x, CPU {statistics.median(pair_cpu):.2f}x "
               f"(target >= 2)")

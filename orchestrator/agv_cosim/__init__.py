@@ -1,30 +1,62 @@
 """agv_cosim: the orchestrator that runs agv-cosim FMUs from experiment manifests.
 
-A manifest goes through five stages, one module (or two) each:
+A manifest goes through five stages, one subpackage each; a stage imports only from the
+stages before it and from the foundation modules (``errors``, ``fmitypes``,
+``lifetime``, ``files``, ``timeseries``, ``version``):
 
-1. manifest (:mod:`agv_cosim.manifest`): the TOML file read, its shape checked against
-   one declarative schema (:mod:`agv_cosim.schema`, pydantic models of every table,
-   ``[metrics]``, ``[plots]`` and ``[montecarlo]`` included), and built into a
-   :class:`~agv_cosim.manifest.Manifest`; no FMU is opened. An SSP package is read into
-   the same object (:mod:`agv_cosim.ssp_import`), and written from it
-   (:mod:`agv_cosim.ssp_export`).
-2. plan (:mod:`agv_cosim.plan`): variants x sweep points (and ``--set``) -> one
+1. :mod:`agv_cosim.manifest`: the TOML file read, its shape checked against one
+   declarative schema (pydantic models of every table) and built into a
+   :class:`~agv_cosim.manifest.Manifest`; no FMU is opened.
+2. :mod:`agv_cosim.plan`: variants x sweep points (and ``--set``) -> one
    :class:`~agv_cosim.plan.RunSpec` per run; with ``[montecarlo]`` each of them x the
-   samples (:mod:`agv_cosim.montecarlo`: designs, distributions, per-run seeds).
-3. system (:mod:`agv_cosim.system`): each run's components read from their model
-   descriptions (:mod:`agv_cosim.model`, :mod:`agv_cosim.table`), parameters,
-   connections (causality, type, unit), events and recorded signals checked, and the
-   Gauss-Seidel schedule found (:mod:`graphlib`). Checked per run because a variant may
-   swap an FMU.
-4. run (:mod:`agv_cosim.runner` prepares the jobs and runs them in worker processes, a
-   worker reused only after a run that ended complete, locally or on a Dask cluster
-   (:mod:`agv_cosim.distributed`); :mod:`agv_cosim.master` steps one
-   :class:`~agv_cosim.master.Plan`).
-5. results (:mod:`agv_cosim.results` files, :mod:`agv_cosim.metrics`,
-   :mod:`agv_cosim.plots`; ``montecarlo.json`` and its figure from
-   :mod:`agv_cosim.montecarlo`).
+   samples.
+3. :mod:`agv_cosim.system`: each run's components read from their model descriptions
+   (or time tables) and checked as one system (parameters, connections, events,
+   recorded signals, the Gauss-Seidel schedule) into a :class:`~agv_cosim.system.Job`
+   holding its :class:`~agv_cosim.system.System`.
+4. :mod:`agv_cosim.execution`: one run simulated, composed of parts: the FMU units, the
+   algorithm (Gauss-Seidel, Jacobi), the scenario's events, the observers that record,
+   the stop-request rule.
+5. :mod:`agv_cosim.report`: the results: metrics, plots, Monte Carlo statistics, run records.
 
-Every error of stages 1-3 is one line, ``<manifest>: <key>: <problem>``.
+:mod:`agv_cosim.pipeline` runs the stages end to end (local worker processes or a Dask
+cluster); :mod:`agv_cosim.ssp` reads and writes SSP packages; :mod:`agv_cosim.cli` is the
+``agv-cosim`` command; :mod:`agv_cosim.build` (with ``bundle``, ``standalone``,
+``shipped``, ``examples``) builds the component FMUs.
+
+Every error of stages 1-3 is one line, ``<manifest>: <key>: <problem>``; every error type
+is in :mod:`agv_cosim.errors`.
 """
 
-__version__ = "0.1.0"
+import importlib
+from typing import Any
+
+from .version import __version__
+
+#: The public API, name -> the module that defines it. Imported on first use (PEP 562), so
+#: that importing one part (e.g. ``agv_cosim.build`` for ``agv-cosim build``) does not
+#: import every stage and its libraries (matplotlib, fmpy).
+_API = {
+    "ManifestError": "agv_cosim.errors", "ModelError": "agv_cosim.errors",
+    "OutputError": "agv_cosim.errors", "SimulationError": "agv_cosim.errors",
+    "SspError": "agv_cosim.errors", "TableError": "agv_cosim.errors",
+    "Manifest": "agv_cosim.manifest", "load_manifest": "agv_cosim.manifest",
+    "plan_runs": "agv_cosim.plan",
+    "Job": "agv_cosim.system", "System": "agv_cosim.system", "validate": "agv_cosim.system",
+    "simulate": "agv_cosim.execution",
+    "read_timeseries": "agv_cosim.timeseries",
+    "check_initialisation": "agv_cosim.pipeline", "execute": "agv_cosim.pipeline",
+    "prepare": "agv_cosim.pipeline", "run_job": "agv_cosim.pipeline",
+    "run_manifest": "agv_cosim.pipeline",
+}
+
+__all__ = ["__version__", *sorted(_API)]
+
+
+def __getattr__(name: str) -> Any:
+    module = _API.get(name)
+    if module is None:
+        raise AttributeError(f"module 'agv_cosim' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value

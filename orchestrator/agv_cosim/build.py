@@ -45,12 +45,14 @@ import uuid
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 from xml.etree import ElementTree
 
 import pythonfmu
 from pythonfmu.builder import FmuBuilder
 
-from .bundle import BundleError, bundle_of, installed_requirements, requirements_text
+from .bundle import bundle_of, installed_requirements, requirements_text
+from .errors import BuildError, BundleError
 from .shipped import shipped_dir
 
 #: The folder in resources/ that holds the bundled part of agv_core (agv_boot.py).
@@ -85,10 +87,6 @@ FMI3_ALIAS = ('"""In FMI 3.0 twins agv_core.fmi.fmi_slave is the FMI 3.0 adapter
               "from .fmi3_slave import AgvSlave, DefaultExperiment  # noqa: F401\n")
 
 
-class BuildError(RuntimeError):
-    """An FMU could not be built, or the built FMU is not valid FMI."""
-
-
 @dataclass(frozen=True)
 class BuildResult:
     """What :func:`build_fmus` did for one slave script."""
@@ -99,14 +97,14 @@ class BuildResult:
     rebuilt: bool
 
 
-def default_components_dir():
+def default_components_dir() -> Path:
     """``components/`` of the checkout this package is installed from (editable install)."""
     import agv_core
 
     return Path(agv_core.__file__).resolve().parent.parent
 
 
-def slave_scripts(components_dir):
+def slave_scripts(components_dir: str | Path) -> list[Path]:
     """The slave scripts of every component folder ``components_dir/agv_core/<component>/``.
 
     Every ``agv_*.py`` there but the boot loader, sorted by file name (the file name is the
@@ -124,7 +122,7 @@ def slave_scripts(components_dir):
     return scripts
 
 
-def slave_script(stem, components_dir=None):
+def slave_script(stem: str, components_dir: str | Path | None = None) -> Path:
     """The slave script named ``stem`` (e.g. ``"agv_vehicle"``), in whichever component folder."""
     for script in slave_scripts(components_dir or default_components_dir()):
         if script.stem == stem:
@@ -132,7 +130,7 @@ def slave_script(stem, components_dir=None):
     raise BuildError(f"no slave script named '{stem}.py'")
 
 
-def host_python():
+def host_python() -> dict[str, Any]:
     """What the building Python says about itself, as a dict (nothing of it goes into an FMU
     but ``version``).
 
@@ -191,14 +189,14 @@ def _compile_binaries(sources, python_include):
     return tuple(built)
 
 
-def loader_binary():
+def loader_binary() -> tuple[bytes, bytes]:
     """``(loader, bridge)``: the FMU binaries compiled for the building Python's version
     (cached per process)."""
     return _compile_binaries(tuple(sorted(_binary_sources().items())),
                              sysconfig.get_paths()["include"])
 
 
-def _install_loader(fmu_path, binaries, fmi_version=2):
+def _install_loader(fmu_path: Path, binaries: tuple[bytes, bytes], fmi_version: int = 2) -> None:
     """Put the loader in the FMU as its Linux binary and the bridge beside it; pythonfmu's
     own Linux library is left out (the bridge takes its place)."""
     loader, bridge = binaries
@@ -231,7 +229,7 @@ REFERENCE_MANIFEST = """<?xml version="1.0" encoding="UTF-8"?>
 """
 
 
-def reference_experiment(model_description_xml):
+def reference_experiment(model_description_xml: str | bytes) -> dict[str, Any] | None:
     """The reference experiment an FMU declares, or None if it declares none.
 
     Returns ``{"start", "stop", "step", "inputs"}`` from ``DefaultExperiment`` and the
@@ -245,7 +243,8 @@ def reference_experiment(model_description_xml):
         return None
     try:
         start = float(experiment.get("startTime", "0"))
-        stop, step = float(experiment.get("stopTime")), float(experiment.get("stepSize"))
+        stop = float(experiment.get("stopTime"))  # type: ignore[arg-type]  # None: TypeError
+        step = float(experiment.get("stepSize"))  # type: ignore[arg-type]  # None: TypeError
     except (TypeError, ValueError):
         raise BuildError("DefaultExperiment needs numeric startTime, stopTime and "
                          "stepSize") from None
@@ -256,12 +255,14 @@ def reference_experiment(model_description_xml):
         nodes = root.iterfind("Annotations/Annotation[@type='org.agv-cosim']/"
                               "ReferenceInputs/Input")
     for node in nodes:
-        inputs[node.get("name")] = [(float(h.get("time")), float(h.get("value")))
+        inputs[node.get("name")] = [(float(h.get("time")),  # type: ignore[arg-type]
+                                     float(h.get("value")))  # type: ignore[arg-type]
                                     for h in node.iterfind("Hold")]
     return {"start": start, "stop": stop, "step": step, "inputs": inputs}
 
 
-def reference_input_rows(experiment):
+def reference_input_rows(experiment: dict[str, Any]
+                         ) -> tuple[list[str], list[tuple[float, ...]]]:
     """Rows (time, value per input) of the held inputs: a step is two rows at one time."""
     names = list(experiment["inputs"])
     start, stop = experiment["start"], experiment["stop"]
@@ -284,7 +285,8 @@ def _csv(header, rows):
     return "\n".join(lines) + "\n"
 
 
-def simulate_reference(fmu_path, input_csv, output_csv):
+def simulate_reference(fmu_path: str | Path, input_csv: str | Path | None,
+                       output_csv: str | Path) -> Any:
     """Run an FMU's reference experiment with fmpy; write its Real outputs as CSV.
 
     The build calls this in a child process (pythonfmu loads a slave module once per
@@ -295,13 +297,15 @@ def simulate_reference(fmu_path, input_csv, output_csv):
 
     with zipfile.ZipFile(fmu_path) as archive:
         experiment = reference_experiment(archive.read("modelDescription.xml"))
+    assert experiment is not None, f"{fmu_path}: no DefaultExperiment"
     md = fmpy.read_model_description(str(fmu_path))
     outputs = [v.name for v in md.modelVariables
                if v.causality == "output" and v.type in ("Real", "Float64")]
     signals = read_csv(input_csv) if input_csv else None
     errors = []
 
-    def logger(*args):  # FMI 2.0: (env, instance, status, category, message); 3.0: no instance
+    # FMI 2.0: (env, instance, status, category, message); FMI 3.0: no instance
+    def logger(*args: Any) -> None:
         status, message = args[-3], args[-1]
         if status >= 3:  # error, fatal
             errors.append(message.decode(errors="replace").strip())
@@ -356,7 +360,8 @@ def _ship_reference(fmu_path):
             archive.writestr(f"{REFERENCE_DIR}/{name}", data)
 
 
-def fmu_guid(script, boot, tag, fmi_version=2, standalone=False):
+def fmu_guid(script: Path, boot: Path, tag: str, fmi_version: int = 2,
+             standalone: bool = False) -> str:
     """GUID of the FMU built from ``script``: a hash of all its sources and the tool chain
     (content only: the same sources give the same GUID wherever they are built)."""
     digest = hashlib.sha256()
@@ -387,7 +392,7 @@ def _model_description(fmu_path):
     return read_model_description(str(fmu_path), validate=False)
 
 
-def fmu_guid_of(fmu_path):
+def fmu_guid_of(fmu_path: str | Path) -> str | None:
     """The GUID (FMI 2.0) or instantiationToken (FMI 3.0, fmpy's ``guid`` too) in an
     existing FMU's ``modelDescription.xml``, or None if unreadable."""
     try:
@@ -396,7 +401,7 @@ def fmu_guid_of(fmu_path):
         return None
 
 
-def slave_class_name(script):
+def slave_class_name(script: str | Path) -> str:
     """Name of the one top-level class a slave script defines (BuildError otherwise)."""
     try:
         tree = ast.parse(Path(script).read_text(), filename=str(script))
@@ -409,7 +414,7 @@ def slave_class_name(script):
     return names[0]
 
 
-def fmi3_wrapper_source(script):
+def fmi3_wrapper_source(script: Path) -> str:
     """Source of the FMI 3.0 wrapper script of ``script`` (see the module docstring).
 
     If the body cannot be imported (e.g. a package of requirements.txt missing from the
@@ -466,7 +471,8 @@ def _shipped_requirements(fmu_path):
     return installed_requirements(text)
 
 
-def _stage(script, core_dir, boot, tag, guid, stage_dir, fmi_version=2, bundle=None):
+def _stage(script: Path, core_dir: Path, boot: Path, tag: str, guid: str, stage_dir: Path,
+           fmi_version: int = 2, bundle: Any = None) -> tuple[Path, list[Path]]:
     """Stage the FMU's files (``bundle``: what :func:`_bundle` says the FMU ships); return
     (the script to build from, the project files)."""
     if fmi_version == 3:
@@ -501,7 +507,7 @@ def _stage(script, core_dir, boot, tag, guid, stage_dir, fmi_version=2, bundle=N
                            stage_dir / "requirements.txt", *extra]
 
 
-def _validate(fmu_path, fmi_version=2):
+def _validate(fmu_path: Path, fmi_version: int = 2) -> None:
     from fmpy.validation import validate_fmu
 
     problems = validate_fmu(str(fmu_path))
@@ -524,8 +530,9 @@ def _fmi_version_of(fmu_path):
         return None
 
 
-def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_version=2,
-              standalone=False):
+def build_one(script: str | Path, out_dir: str | Path, core_dir: str | Path | None = None,
+              force: bool = False, index: dict[str, Any] | None = None,
+              fmi_version: int = 2, standalone: bool = False) -> "BuildResult":
     """Build the FMU (FMI ``fmi_version``) of one slave script into ``out_dir``.
 
     ``standalone`` adds a Python runtime with the packages the slave imports
@@ -542,11 +549,11 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_versi
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     index = {} if index is None else index
-    known = index.get(script.name)
+    known: str | None = index.get(script.name)
     # Up to date: the FMU there has the GUID of these sources with its own requirement
     # list, and that list is what this Python has installed (no child process needed).
     shipped = _shipped_requirements(out_dir / known) if known and not force else None
-    if shipped is not None:
+    if shipped is not None and known:
         bundle = _bundle(script, core_dir, boot, fmi_version, requirements=shipped)
         guid = fmu_guid(script, boot, bundle.tag, fmi_version, standalone)
         if fmu_guid_of(out_dir / known) == guid:
@@ -595,7 +602,8 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_versi
         _validate(fmu_path, fmi_version)
         _ship_reference(fmu_path)
         if standalone:
-            from .standalone import StandaloneError, add_runtime
+            from .errors import StandaloneError
+            from .standalone import add_runtime
 
             try:
                 add_runtime(fmu_path, "x86_64-linux" if fmi_version == 3 else "linux64")
@@ -613,7 +621,8 @@ def build_one(script, out_dir, core_dir=None, force=False, index=None, fmi_versi
     return BuildResult(script, target, guid, rebuilt=True)
 
 
-def build_fmus(out_dir, scripts=None, force=False, fmi_version=2, standalone=False):
+def build_fmus(out_dir: str | Path, scripts: list[Path] | None = None, force: bool = False,
+               fmi_version: int = 2, standalone: bool = False) -> list["BuildResult"]:
     """Build every slave script (or ``scripts``) into ``out_dir``; return the results.
 
     ``fmi_version`` 3 builds the FMI 3.0 twins (see the module docstring); ``standalone``

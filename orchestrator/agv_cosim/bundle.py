@@ -34,15 +34,15 @@ import json
 import re
 import subprocess
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
+
+from .errors import BundleError
 
 __all__ = ["Bundle", "BundleError", "bundle_of", "installed_requirements",
            "requirements_text"]
-
-
-class BundleError(RuntimeError):
-    """The modules or distributions an FMU needs cannot be derived."""
 
 
 @dataclass(frozen=True)
@@ -132,7 +132,7 @@ def _imports_of(tree):
     return _Imports(tuple(absolute), tuple(relative), own, dynamic)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _module_imports(text, where):
     """:class:`_Imports` of a package module's source (parsed once per process)."""
     return _imports_of(_parse(text, where))
@@ -142,7 +142,7 @@ class _CoreView:
     """The package's files as the FMU will hold them (``overrides``: relative path ->
     text that replaces or adds a file, e.g. the FMI 3.0 alias of ``fmi/fmi_slave.py``)."""
 
-    def __init__(self, core_dir, overrides):
+    def __init__(self, core_dir: Path, overrides: dict[str, Any]) -> None:
         self.core_dir = Path(core_dir)
         self.overrides = dict(overrides)
 
@@ -272,7 +272,7 @@ print(json.dumps({"found": found, "direct": sorted(direct), "provides": provides
 """
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _distributions(python, names, shipped=()):
     """(direct, indirect): the distributions providing ``names`` themselves, and those
     their loading brings in besides, each as sorted ((name, version), ...); leaving out
@@ -299,8 +299,9 @@ def _distributions(python, names, shipped=()):
             ordered((d, v) for d, v in found.items() if d not in answer["direct"]))
 
 
-def bundle_of(script, core_dir, overrides=(), extra_sources=(), local=(), shipped=(),
-              requirements=None, python=None):
+def bundle_of(script: Path, core_dir: Path, overrides: Any = (), extra_sources: Any = (),
+              local: Any = (), shipped: Any = (), requirements: Any = None,
+              python: str | None = None) -> "Bundle":
     """The :class:`Bundle` of slave script ``script`` over the package in ``core_dir``.
 
     ``overrides``: (path relative to the package, text) pairs that the FMU holds instead
@@ -341,13 +342,15 @@ def bundle_of(script, core_dir, overrides=(), extra_sources=(), local=(), shippe
                   digest.hexdigest()[:16])
 
 
-def installed_requirements(text):
+def installed_requirements(text: str) -> tuple[tuple[tuple[str, str], ...],
+                                               tuple[tuple[str, str], ...]] | None:
     """(direct, indirect) of a ``requirements.txt`` written by :func:`requirements_text`,
     or None if it is not one or if some pinned version is not the one installed in this
     Python (then the list must be derived again)."""
     if not text or not text.startswith(_HEADER[0]):
         return None
-    groups, current = {"direct": [], "indirect": []}, None
+    groups: dict[str, list[tuple[str, str]]] = {"direct": [], "indirect": []}
+    current = None
     for line in text.splitlines():
         if line == _DIRECT:
             current = "direct"
@@ -382,7 +385,8 @@ _DIRECT = "# imported by the FMU's own code:"
 _INDIRECT = "# imported by those when they load:"
 
 
-def requirements_text(direct, indirect):
+def requirements_text(direct: Sequence[tuple[str, str]],
+                      indirect: Sequence[tuple[str, str]]) -> str:
     """``requirements.txt`` of an FMU: its distributions pinned, in two commented groups."""
     lines = [*_HEADER, _DIRECT]
     lines += [f"{name}=={version}" for name, version in direct]

@@ -15,24 +15,25 @@ import argparse
 import sys
 import traceback
 
-from . import __version__
-from .results import printable
-from .ssp_export import add_cli as add_ssp_cli
-from .ssp_import import opened
+from .files import printable
+from .ssp.exporter import add_cli as add_ssp_cli
+from .ssp.importer import opened
+from .version import __version__
 
 
-def _say(text):
+def _say(text: str) -> None:
     """One line on stderr, control characters escaped."""
     print(printable(text), file=sys.stderr)
 
 
-def _error(text):
+def _error(text: str) -> int:
     _say(f"agv-cosim: error: {text}")
     return 2
 
 
-def _cmd_build(args):
-    from .build import BuildError, build_fmus
+def _cmd_build(args: argparse.Namespace) -> int:
+    from .build import build_fmus
+    from .errors import BuildError
 
     try:
         results = build_fmus(args.out, force=args.force, fmi_version=args.fmi,
@@ -47,7 +48,8 @@ def _cmd_build(args):
 
 
 def _cmd_examples(args):
-    from .examples import ExamplesError, copy_examples
+    from .errors import ExamplesError
+    from .examples import copy_examples
 
     try:
         written = copy_examples(args.folder, args.fmus)
@@ -60,7 +62,7 @@ def _cmd_examples(args):
     return 0
 
 
-def _warn(warnings, quiet=False):
+def _warn(warnings: list[str], quiet: bool = False) -> None:
     for warning in warnings:
         _say(f"agv-cosim: warning: {warning}")
 
@@ -79,8 +81,8 @@ def _timeout(text):
     return value
 
 
-def _cmd_validate(args):
-    from .runner import check_initialisation, prepare
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from .pipeline import check_initialisation, prepare
 
     manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set)
     _warn(warnings)
@@ -103,14 +105,14 @@ def _kept(error):
 
 
 def _cmd_run(args):
-    from .runner import execute, prepare
+    from .pipeline import execute, prepare
 
     if args.jobs is not None and args.jobs < 1:
         return _error("--jobs: must be >= 1")
     manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set,
                                        timeout=args.timeout)
     _warn(warnings)
-    from .distributed import ClusterError
+    from .errors import ClusterError
 
     try:
         target, results = execute(manifest, jobs, args.out, args.jobs, args.quiet,
@@ -134,7 +136,8 @@ def _cmd_run(args):
 def _cmd_list(args):
     from pathlib import Path
 
-    from .model import ModelError, describe, find_fmus, read_model
+    from .errors import ModelError
+    from .system.model import describe, find_fmus, read_model
 
     path = Path(args.path)
     if not path.exists():
@@ -156,7 +159,7 @@ def _cmd_list(args):
     return status
 
 
-def make_parser():
+def make_parser() -> argparse.ArgumentParser:
     """The argument parser of ``agv-cosim`` with all its subcommands."""
     parser = argparse.ArgumentParser(prog="agv-cosim", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -271,12 +274,14 @@ def _interrupted(args, name, signum, error):
                    128 + signum)
 
 
-def main(argv=None):
+def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``agv-cosim`` console script; returns the exit code."""
-    from .lifetime import (Interrupted, clean_stale_scratch, termination_signals,
-                           use_own_scratch_for_multiprocessing)
-    from .manifest import ManifestError
-    from .results import FolderLost, OutputError
+    from .errors import FolderLost, Interrupted, ManifestError, OutputError
+    from .lifetime import (
+        clean_stale_scratch,
+        termination_signals,
+        use_own_scratch_for_multiprocessing,
+    )
 
     args = make_parser().parse_args(argv)
     if not hasattr(args, "debug"):

@@ -27,6 +27,7 @@ import tempfile
 import tomllib
 from pathlib import Path, PurePosixPath
 
+from .errors import ExamplesError
 from .shipped import shipped_dir
 
 __all__ = ["RECORD", "ExamplesError", "copy_examples", "example_files"]
@@ -35,10 +36,6 @@ __all__ = ["RECORD", "ExamplesError", "copy_examples", "example_files"]
 RECORD = ".agv-cosim-examples.json"
 
 _WAYPOINTS = re.compile(r"waypoints:(?:[^\"']*,)?file=([^,\"']+)")
-
-
-class ExamplesError(Exception):
-    """The examples cannot be copied (a user's file in the way, a bad shipped manifest)."""
 
 
 def _strings(value):
@@ -110,7 +107,7 @@ def _digest(data):
     return hashlib.sha256(data).hexdigest()
 
 
-def example_files(fmu_folder):
+def example_files(fmu_folder: str) -> dict[str, bytes]:
     """What :func:`copy_examples` writes: relative path -> bytes (``fmu_folder``: the
     FMU folder as the manifests should name it)."""
     source_dir = shipped_dir("experiments")
@@ -142,7 +139,7 @@ def _record_of(folder):
                             "choose another folder") from None
 
 
-def copy_examples(folder, fmus="fmus"):
+def copy_examples(folder: str | Path, fmus: str = "fmus") -> list[Path]:
     """Copy the shipped manifests (and the files they reference) into ``folder``, their
     FMU paths pointed at the folder ``fmus`` (relative to the current folder, or
     absolute). Returns the paths written (files already identical are not rewritten,

@@ -28,7 +28,9 @@ FMI 3.0 Binary and Clock variables are read but refused wherever they would be u
 
 import ctypes
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 
 @dataclass(frozen=True)
@@ -38,27 +40,27 @@ class FmiType:
     name: str        # as written in modelDescription.xml
     version: str     # "2.0" or "3.0"
     kind: str        # value class a connection must keep (see the module table)
-    ctype: type      # ctypes scalar type of a value
+    ctype: Any       # ctypes scalar type of a value (c_double, c_int32, ...)
     get: str         # batched C getter, e.g. "fmi2GetReal"
     set: str         # batched C setter
     py_set: str      # fmpy convenience setter (e.g. "setReal")
-    bounds: tuple = None  # (lowest, highest) for integer kinds
+    bounds: tuple[int, int] | None = None  # (lowest, highest) for integer kinds
 
     @property
-    def is_float(self):
+    def is_float(self) -> bool:
         return self.kind in ("float64", "float32")
 
     @property
-    def is_integer(self):
+    def is_integer(self) -> bool:
         return self.bounds is not None
 
     @property
-    def numeric(self):
+    def numeric(self) -> bool:
         """Recorded by default (a number a metric or plot can use)."""
         return self.kind != "string"
 
     @property
-    def ssp_type(self):
+    def ssp_type(self) -> str:
         """The SSP connector/parameter type element (``ssc:``/``ssv:`` local name)."""
         if self.is_float:
             return "Real"
@@ -115,17 +117,17 @@ NAMES = {"2.0": ("Real", "Integer", "Boolean", "String", "Enumeration"),
 SSP_VALUE_TYPES = NAMES["2.0"][:4]
 
 
-def lookup(version, name):
+def lookup(version: str, name: str) -> FmiType | None:
     """The :class:`FmiType` of type ``name`` in FMI ``version``, or None if unsupported."""
     return TYPES.get((version, name))
 
 
-def of(variable):
+def of(variable: Any) -> FmiType | None:
     """The :class:`FmiType` of a model variable (``variable.fmi`` / ``variable.type``)."""
     return TYPES.get((variable.fmi, variable.type))
 
 
-def compatible(a, b):
+def compatible(a: FmiType | None, b: FmiType | None) -> bool:
     """True when an output of type ``a`` may feed an input of type ``b``."""
     return a is not None and b is not None and a.kind == b.kind
 
@@ -137,7 +139,7 @@ def _number(text):
         return None
 
 
-def declares_legal(variable, value):
+def declares_legal(variable: Any, value: Any) -> bool:
     """True when ``variable`` declares the non-finite ``value`` legal.
 
     What we take as a declaration (FMI has no explicit one): +inf when its ``max`` (or
@@ -154,7 +156,7 @@ def declares_legal(variable, value):
     return bound is not None and bound == value
 
 
-def parse(ftype, value, variable=None):
+def parse(ftype: FmiType, value: Any, variable: Any = None) -> Any:
     """A manifest (TOML) value checked for ``ftype``; ValueError with a one-line reason.
 
     Strict: a float type takes an int or float (not a bool), finite unless ``variable``
@@ -179,7 +181,7 @@ def parse(ftype, value, variable=None):
     if ftype.is_integer:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ValueError(f"is {ftype.name}, got {value!r}")
-        low, high = ftype.bounds
+        low, high = ftype.bounds or (value, value)
         if not low <= value <= high:
             raise ValueError(f"= {value!r} is out of the range of an FMI {ftype.name} "
                              f"({low} .. {high})")
@@ -193,7 +195,7 @@ def parse(ftype, value, variable=None):
     return value
 
 
-def parse_array(ftype, value, size, variable=None):
+def parse_array(ftype: FmiType, value: Any, size: int, variable: Any = None) -> tuple[Any, ...]:
     """A manifest value for a whole FMI 3.0 array of ``size`` elements: a flat list in
     row-major order, each element checked by :func:`parse`; returned as a tuple."""
     if not isinstance(value, list):
@@ -214,7 +216,7 @@ def parse_array(ftype, value, size, variable=None):
     return tuple(items)
 
 
-def parse_text(ftype, text):
+def parse_text(ftype: FmiType, text: str) -> Any:
     """A value from model-description or SSP text (``start``, ``ssv`` values)."""
     if ftype.is_float:
         return float(text)
@@ -227,7 +229,7 @@ def parse_text(ftype, text):
     return text
 
 
-def format_text(ftype, value):
+def format_text(ftype: FmiType, value: Any) -> str:
     """``value`` as model-description / SSP text (inverse of :func:`parse_text`)."""
     if ftype.is_float:
         return repr(float(value))
@@ -248,7 +250,7 @@ def _record_string(value):
     return _csv_quote("" if value is None else value)
 
 
-def record_format(ftype):
+def record_format(ftype: FmiType) -> Callable[[Any], str]:
     """Callable turning a value read from the FMU into its ``timeseries.csv`` text."""
     if ftype.is_float:
         return lambda value: repr(float(value))
@@ -259,14 +261,14 @@ def record_format(ftype):
     return _record_string
 
 
-def to_c(ftype, value):
+def to_c(ftype: FmiType, value: Any) -> Any:
     """A Python value as the C buffer element for ``ftype`` (strings as UTF-8 bytes)."""
     if ftype.kind == "string":
         return value.encode("utf-8")
     return value
 
 
-def set_parameter(slave, ftype, vr, value):
+def set_parameter(slave: Any, ftype: FmiType, vr: int, value: Any) -> None:
     """Set one variable through fmpy's convenience setter (before initialisation).
 
     A tuple ``value`` sets a whole FMI 3.0 array (one call, row-major values)."""

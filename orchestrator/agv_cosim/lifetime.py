@@ -30,7 +30,11 @@ import shutil
 import signal
 import stat
 import tempfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
+
+from .errors import Interrupted
 
 #: Signals that end a run cleanly (SIGINT is Python's KeyboardInterrupt already).
 TERMINATION_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
@@ -42,24 +46,12 @@ SCRATCH_MARKER = ".agv-cosim-scratch"
 CREATE_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
 
 
-class Interrupted(BaseException):
-    """A termination signal arrived (a BaseException, like KeyboardInterrupt)."""
-
-    def __init__(self, signum):
-        super().__init__(signal.Signals(signum).name)
-        self.signum = int(signum)
-
-    @property
-    def name(self):
-        return signal.Signals(self.signum).name
-
-
 def _raise(signum, frame):
     raise Interrupted(signum)
 
 
 @contextlib.contextmanager
-def termination_signals():
+def termination_signals() -> Iterator[None]:
     """Context in which SIGTERM and SIGHUP raise :class:`Interrupted` (main thread)."""
     previous = {}
     try:
@@ -75,7 +67,7 @@ def termination_signals():
 
 
 @contextlib.contextmanager
-def signals_blocked():
+def signals_blocked() -> Iterator[None]:
     """Context in which termination signals wait (a rename that must not be cut)."""
     wanted = {signal.SIGINT, *TERMINATION_SIGNALS}
     try:
@@ -89,7 +81,7 @@ def signals_blocked():
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
-def ignore_termination():
+def ignore_termination() -> Callable[[], None]:
     """Ignore SIGINT, SIGTERM and SIGHUP from now on (the last writes after an
     interruption are not cut by a second signal); return a function that puts the
     previous handlers back."""
@@ -100,7 +92,7 @@ def ignore_termination():
         except ValueError:  # not the main thread
             break
 
-    def restore():
+    def restore() -> None:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
 
@@ -127,7 +119,7 @@ def _wake(signum, frame):
     raise _Wake
 
 
-def own_process_group(life=None):
+def own_process_group(life: int | None = None) -> None:
     """Make this process the leader of a process group of its own, with a guard in it.
 
     Every process an FMU forks (and that does not leave the group) is then in this
@@ -153,7 +145,7 @@ def own_process_group(life=None):
     try:  # the guard: nothing of the parent's but the group and ``life``
         keep = [] if life is None else [life]
         os.closerange(0, min(keep) if keep else 65536)
-        if keep:
+        if life is not None:
             os.closerange(life + 1, 65536)
         signal.signal(signal.SIGTERM, _wake)
         signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -170,7 +162,7 @@ def own_process_group(life=None):
         os._exit(0)
 
 
-def drop_helper_channels():
+def drop_helper_channels() -> None:
     """Close, in a child of the fork server, the descriptors multiprocessing gives it
     to reach its helpers (the fork server's liveness pipe, the resource tracker's
     pipe): an FMU that writes into every descriptor it finds cannot then break them for
@@ -191,7 +183,7 @@ def drop_helper_channels():
             setattr(holder, name, None)
 
 
-def kill_group(process):
+def kill_group(process: Any) -> None:
     """SIGKILL the process group led by ``process`` (a multiprocessing Process started
     with :func:`own_process_group`), else the process alone."""
     pid = process.pid
@@ -206,7 +198,7 @@ def kill_group(process):
             pass
 
 
-def die_with_parent():
+def die_with_parent() -> None:
     """Make the kernel kill this process (SIGKILL) when its parent process ends.
 
     Linux ``prctl(PR_SET_PDEATHSIG)``; elsewhere nothing (the parent's ``finally``
@@ -237,7 +229,7 @@ def _start_time(pid):
         return None
 
 
-def scratch_dir(kind):
+def scratch_dir(kind: str) -> str:
     """A new private temporary folder ``agv-cosim-<pid>-<kind>-XXXXXXXX`` (0700) that
     carries our marker (:data:`SCRATCH_MARKER`)."""
     folder = tempfile.mkdtemp(prefix=f"agv-cosim-{os.getpid()}-{kind}-")
@@ -291,7 +283,7 @@ def _marker_owner(folder, uid):
     return pid, (start if isinstance(start, int) and not isinstance(start, bool) else None)
 
 
-def clean_stale_scratch(tmp=None):
+def clean_stale_scratch(tmp: str | Path | None = None) -> int:
     """Remove our scratch folders whose process no longer exists; return how many.
 
     Only a folder of this user (not a link) named like :func:`scratch_dir`'s *and*
@@ -323,7 +315,7 @@ def clean_stale_scratch(tmp=None):
     return removed
 
 
-def use_own_scratch_for_multiprocessing():
+def use_own_scratch_for_multiprocessing() -> None:
     """Once per process: multiprocessing's sockets in a scratch folder of ours, and its
     helper processes stopped at exit.
 
@@ -336,7 +328,7 @@ def use_own_scratch_for_multiprocessing():
     import atexit
     import multiprocessing
 
-    config = multiprocessing.current_process()._config
+    config = multiprocessing.current_process()._config  # type: ignore[attr-defined]
     if config.get("agv_cosim_scratch") or config.get("tempdir") is not None:
         return
     folder = scratch_dir("mp")
@@ -346,19 +338,19 @@ def use_own_scratch_for_multiprocessing():
     else:
         shutil.rmtree(folder, ignore_errors=True)
 
-    def at_exit():
+    def at_exit() -> None:
         stop_helpers()
         shutil.rmtree(folder, ignore_errors=True)
 
     atexit.register(at_exit)
 
 
-def stop_helpers():
+def stop_helpers() -> None:
     """Stop multiprocessing's fork server and resource tracker if they run."""
     try:
         from multiprocessing import forkserver, resource_tracker
 
-        forkserver._forkserver._stop()
-        resource_tracker._resource_tracker._stop()
+        forkserver._forkserver._stop()  # type: ignore[attr-defined]
+        resource_tracker._resource_tracker._stop()  # type: ignore[attr-defined]
     except Exception:  # noqa: BLE001 - private API; without it they end at our exit
         pass

@@ -42,7 +42,11 @@ import sys
 import sysconfig
 import tempfile
 import zipfile
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
+
+from .errors import StandaloneError
 
 #: The runtime's folder inside ``binaries/<platform>/`` (the loader looks for it there).
 RUNTIME_FOLDER = "python"
@@ -62,10 +66,6 @@ PACKAGE_EXCLUDED = re.compile(r"(^|/)(tests?|__pycache__)/|\.(pyc|pyi|pxd|pyx|h|
 #: Libraries of the C library itself: every Linux machine has them, they are not shipped.
 SYSTEM_LIBRARIES = re.compile(r"^(libc|libm|libpthread|libdl|librt|libutil|ld-linux[-\w]*|"
                               r"libresolv|libgcc_s|libstdc\+\+|linux-vdso)\.so")
-
-
-class StandaloneError(RuntimeError):
-    """The standalone runtime cannot be assembled on this machine."""
 
 
 # ------------------------------------------------------------------------ what to ship
@@ -96,7 +96,7 @@ print(json.dumps([f for f in files if f]))
 """
 
 
-def imported_files(fmu_path):
+def imported_files(fmu_path: str | Path) -> list[Path]:
     """Files of the modules the FMU's slave imports (a child process of this Python)."""
     with tempfile.TemporaryDirectory(prefix="agv_probe_") as tmp:
         with zipfile.ZipFile(fmu_path) as archive:
@@ -116,7 +116,7 @@ def _site_packages():
                                         sysconfig.get_paths()["platlib"]}]
 
 
-def needed_distributions(fmu_path):
+def needed_distributions(fmu_path: str | Path) -> list[str]:
     """Names of the installed distributions whose modules the FMU's slave imports."""
     sites = _site_packages()
     top_names = set()
@@ -133,7 +133,7 @@ def needed_distributions(fmu_path):
     return sorted(names, key=str.lower)
 
 
-def distribution_files(name):
+def distribution_files(name: str) -> list[tuple[Path, str]]:
     """``[(absolute path, path inside site-packages)]`` of an installed distribution, less
     what a run never reads (PACKAGE_EXCLUDED)."""
     dist = importlib.metadata.distribution(name)
@@ -142,7 +142,7 @@ def distribution_files(name):
         relative = entry.as_posix()
         if relative.startswith("..") or PACKAGE_EXCLUDED.search(relative):
             continue
-        path = Path(dist.locate_file(entry))
+        path = Path(str(dist.locate_file(entry)))
         if path.is_file():
             files.append((path, relative))
     return files
@@ -195,7 +195,7 @@ def _shared_dependencies(paths):
     return found
 
 
-def build_prefixes():
+def build_prefixes() -> list[str]:
     """Paths of this machine's Python that may appear as text in copied files."""
     prefixes = {sys.base_prefix, sys.base_exec_prefix, os.path.realpath(sys.base_prefix),
                 sys.prefix,
@@ -225,7 +225,7 @@ def _scrubbed(data, prefixes):
     return data
 
 
-def _scrub(path, prefixes):
+def _scrub(path: Path, prefixes: Iterable[str]) -> None:
     """Overwrite every prefix in file ``path`` (:func:`_scrubbed`)."""
     data = path.read_bytes()
     changed = _scrubbed(data, prefixes)
@@ -234,7 +234,7 @@ def _scrub(path, prefixes):
 
 
 @functools.lru_cache(maxsize=2)
-def runtime_base(platform_dir):
+def runtime_base(platform_dir: str) -> Path:
     """A temporary folder with the runtime less its packages (cached per process):
     ``{relative path: absolute file}`` to put under ``binaries/<platform>/python/``."""
     version, libpython, stdlib = _python_facts()
@@ -273,7 +273,7 @@ def runtime_base(platform_dir):
     return root
 
 
-def runtime_files(fmu_path, platform_dir):
+def runtime_files(fmu_path: str | Path, platform_dir: str) -> tuple[dict[str, Path], Any]:
     """``{path inside the FMU: file}`` of the standalone runtime for ``fmu_path``, and the
     distributions shipped (name==version)."""
     base = runtime_base(platform_dir)
@@ -302,7 +302,7 @@ def _packaged_bytes(path, prefixes):
 SHIPPED_LIST = "distributions.txt"
 
 
-def add_runtime(fmu_path, platform_dir):
+def add_runtime(fmu_path: str | Path, platform_dir: str) -> None:
     """Add the standalone runtime to the FMU at ``fmu_path`` (appended to the archive); the
     distributions shipped (name==version), also listed in the runtime's distributions.txt."""
     files, shipped = runtime_files(fmu_path, platform_dir)
@@ -321,7 +321,7 @@ def add_runtime(fmu_path, platform_dir):
     return shipped
 
 
-def environment_tag():
+def environment_tag() -> str:
     """What a standalone FMU's GUID adds: the Python version and every installed
     distribution with its version (no path)."""
     import platform

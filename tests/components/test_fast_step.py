@@ -362,7 +362,7 @@ def test_lazy_publication_after_a_step_without_sets_shows_the_new_time(component
 def test_set_passes_the_source_buffer_only_where_it_holds_the_same_values():
     from ctypes import c_double, c_int
 
-    from agv_cosim.master import _shared_values
+    from agv_cosim.execution.fastpath import shared_values as _shared_values
 
     src = (c_double * 5)(1.5, -0.0, 2.5, float("nan"), 7.0)
     other = (c_double * 5)(*src)

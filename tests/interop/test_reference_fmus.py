@@ -288,7 +288,7 @@ def test_ssp_enumeration_connectors_round_trip(reference_fmus, tmp_path):
     same one), read back into the same connections, and the .ssp runs like the manifest."""
     from xml.etree import ElementTree
 
-    from agv_cosim import ssp, ssp_export, ssp_import
+    from agv_cosim.ssp import common as ssp, exporter as ssp_export, importer as ssp_import
     from agv_cosim.manifest import load_manifest
 
     ft2, ft3 = (reference_fmus[v] / "Feedthrough.fmu" for v in ("2", "3"))

@@ -6,7 +6,7 @@ test dependency.
 
 import tempfile
 
-from agv_cosim.ssp_import import load_ssp
+from agv_cosim.ssp.importer import load_ssp
 
 
 def run_libcosim(ssp_path, variables, step=None, stop=None, start=0.0):

@@ -4,7 +4,8 @@ chunks into decimated lines, and the run's metrics are streamed from its file.""
 import pytest
 import numpy as np
 
-from agv_cosim import metrics, plots, results, runner
+from agv_cosim import pipeline as runner, timeseries as results
+from agv_cosim.report import metrics, plots
 
 PLOTS = """
 [metrics]

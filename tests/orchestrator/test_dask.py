@@ -15,7 +15,8 @@ from pathlib import Path
 import pytest
 
 from agv_cosim.cli import main
-from agv_cosim.distributed import ClusterError, cached_fmu, connect
+from agv_cosim.errors import ClusterError
+from agv_cosim.pipeline.distributed import cached_fmu, connect
 
 pytestmark = pytest.mark.slow
 

@@ -11,8 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from agv_cosim import cli, lifetime, results, runner
-from agv_cosim.results import MARKER, AtomicDir, OutputError
+from agv_cosim import cli, errors, files as results, lifetime, pipeline as runner
+from agv_cosim.pipeline import run as runner_run
+from agv_cosim.errors import OutputError
+from agv_cosim.files import MARKER, AtomicDir
 
 
 def _run(path, out, *extra):
@@ -89,7 +91,8 @@ def test_the_cleaner_keeps_live_folders_and_tells_a_reused_pid(tmp_path):
 def test_scratch_folders_and_fmu_extractions_are_private(fmus, tmp_path, monkeypatch):
     """Scratch folders are 0700 and carry the marker (a regular file, not a link); an
     FMU's extraction (binaries/ included) is readable by its user only."""
-    from agv_cosim import model
+    from agv_cosim.execution import instance as model
+    from agv_cosim.system import read_model
 
     folder = Path(lifetime.scratch_dir("run"))
     try:
@@ -106,7 +109,7 @@ def test_scratch_folders_and_fmu_extractions_are_private(fmus, tmp_path, monkeyp
     monkeypatch.setattr(model.tempfile, "tempdir", str(tmp_path))
     old = os.umask(0o022)
     try:
-        instance = model.FmuInstance(model.read_model(fmus["agv_test_gain"]), "g")
+        instance = model.FmuInstance(read_model(fmus["agv_test_gain"]), "g")
         try:
             entries = list(Path(instance.unzip_dir).rglob("*"))
             assert any(p.parts[-3:-1] == ("binaries", "linux64") for p in entries)
@@ -185,14 +188,14 @@ def test_a_result_folder_removed_before_the_summary_is_one_line(chain, tmp_path,
     claims complete runs, one line names the folder, exit 1, nothing half-written."""
     import shutil
 
-    real = runner._run_isolated
+    real = runner_run.run_isolated
 
     def runs_then_removed(jobs, root, *args, **kwargs):
         done = real(jobs, root, *args, **kwargs)
         shutil.rmtree(root)
         return done
 
-    monkeypatch.setattr(runner, "_run_isolated", runs_then_removed)
+    monkeypatch.setattr(runner_run, "run_isolated", runs_then_removed)
     assert _run(chain(), tmp_path / "out") == 1
     line = _last_error(capsys)
     assert line.startswith(f"agv-cosim: error: {tmp_path / 'out'}: the folder being "
@@ -204,14 +207,14 @@ def test_a_result_folder_whose_parent_is_removed_is_one_line(chain, tmp_path, ca
                                                              monkeypatch):
     import shutil
 
-    real = runner._run_isolated
+    real = runner_run.run_isolated
 
     def runs_then_parent_removed(jobs, root, *args, **kwargs):
         done = real(jobs, root, *args, **kwargs)
         shutil.rmtree(root.parent)
         return done
 
-    monkeypatch.setattr(runner, "_run_isolated", runs_then_parent_removed)
+    monkeypatch.setattr(runner_run, "run_isolated", runs_then_parent_removed)
     assert _run(chain(), tmp_path / "deep" / "out") == 1
     assert "was removed or replaced during the run" in _last_error(capsys)
     assert not (tmp_path / "deep").exists()  # not recreated by us
@@ -223,14 +226,14 @@ def test_a_run_folder_removed_after_its_run_is_not_complete(chain, tmp_path, cap
     why, the other run stays complete."""
     import shutil
 
-    real = runner._run_isolated
+    real = runner_run.run_isolated
 
     def one_removed(jobs, root, *args, **kwargs):
         done = real(jobs, root, *args, **kwargs)
         shutil.rmtree(root / jobs[0].label)
         return done
 
-    monkeypatch.setattr(runner, "_run_isolated", one_removed)
+    monkeypatch.setattr(runner_run, "run_isolated", one_removed)
     path = chain(extra='[sweep]\n"gain.k" = [1.0, 2.0]\n')
     assert _run(path, tmp_path / "out") == 1
     err = capsys.readouterr().err
@@ -255,7 +258,7 @@ def test_commit_checks_the_folder_is_still_ours(tmp_path):
         (folder.path / MARKER).unlink()
         (folder.path / MARKER).write_text("{}")  # replaced by something not ours
         assert not folder.intact()
-        with pytest.raises(results.FolderLost, match="removed or replaced"):
+        with pytest.raises(errors.FolderLost, match="removed or replaced"):
             folder.commit()
     finally:
         folder.discard()

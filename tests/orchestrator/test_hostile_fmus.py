@@ -14,8 +14,9 @@ from pathlib import Path
 import pytest
 from processes import ended
 
-from agv_cosim import cli, runner
-from agv_cosim.results import MARKER
+from agv_cosim import cli, pipeline as runner
+from agv_cosim.pipeline import channels, initcheck, pool, run as runner_run
+from agv_cosim.files import MARKER
 
 HANG = """
 name = "hang"
@@ -76,7 +77,7 @@ def test_a_hung_run_is_stopped_at_its_limit_and_the_sweep_goes_on(fmus, tmp_path
     root = tmp_path / "root"
     root.mkdir()
     begin = time.monotonic()
-    results = runner._run_isolated(jobs, root, 2, lambda steps: None, lambda: None)
+    results = runner_run.run_isolated(jobs, root, 2, lambda steps: None, lambda: None)
     assert time.monotonic() - begin < 600  # not the hour the FMU would hang
     by_label = {r["label"]: r for r in results}
     for job in jobs:
@@ -126,7 +127,7 @@ def test_validate_stops_an_fmu_that_hangs_in_initialisation(fmus, tmp_path, caps
                   name="timed.toml")
     assert cli.main(["validate", str(timed)]) == 2  # the manifest's limit
     assert "within 1.0 s" in capsys.readouterr().err
-    assert runner.INIT_TIMEOUT == 60.0  # the default stated in validate --help
+    assert initcheck.INIT_TIMEOUT == 60.0  # the default stated in validate --help
 
 
 # ---------------------------------------------------------------- interruptions
@@ -135,16 +136,16 @@ def test_an_interruption_keeps_the_finished_runs_marked_partial(chain, tmp_path,
                                                                 monkeypatch):
     """SIGINT after the first of two runs: the folder is committed with that run
     complete, the other 'not run', the marker and partial.txt saying so; exit 130."""
-    real = runner._run_isolated
+    real = runner_run.run_isolated
 
     def first_then_interrupted(jobs, root, *args, **kwargs):
         [first] = real(jobs[:1], root, *args, **kwargs)
         stop = KeyboardInterrupt()
-        stop.results = [first, runner._not_run(jobs[1])]
+        stop.results = [first, pool.not_run(jobs[1])]
         stop.restore = lambda: None
         raise stop
 
-    monkeypatch.setattr(runner, "_run_isolated", first_then_interrupted)
+    monkeypatch.setattr(runner_run, "run_isolated", first_then_interrupted)
     path = chain(extra='[sweep]\n"gain.k" = [1.0, 2.0]\n')
     out = tmp_path / "out"
     assert cli.main(["run", str(path), "--out", str(out), "--quiet"]) == 130
@@ -190,12 +191,12 @@ def test_an_fmus_stdout_goes_to_its_run_folder_bounded(fmus, tmp_path, capfd):
     captured = capfd.readouterr()
     assert captured.out == f"{out}: 2/2 run(s) complete\n"
     assert "FMU output" not in captured.err
-    text = (out / "loud" / runner.OUTPUT_FILE).read_bytes()
-    kept, note = text[:runner.MAX_OUTPUT], text[runner.MAX_OUTPUT:].decode()
-    assert kept.startswith(b"FMU output") and len(kept) == runner.MAX_OUTPUT
-    dropped = 10 * 2 * 200000 - runner.MAX_OUTPUT  # the prints' lines come on top
+    text = (out / "loud" / channels.OUTPUT_FILE).read_bytes()
+    kept, note = text[:channels.MAX_OUTPUT], text[channels.MAX_OUTPUT:].decode()
+    assert kept.startswith(b"FMU output") and len(kept) == channels.MAX_OUTPUT
+    dropped = 10 * 2 * 200000 - channels.MAX_OUTPUT  # the prints' lines come on top
     assert note.startswith("\n[agv-cosim: ") and int(note.split()[1]) > dropped
-    assert not (out / "quiet" / runner.OUTPUT_FILE).exists()
+    assert not (out / "quiet" / channels.OUTPUT_FILE).exists()
 
 
 def test_an_fmus_escape_sequences_never_reach_the_terminal(fmus, tmp_path, capfd):

@@ -7,7 +7,8 @@ import threading
 
 import pytest
 
-from agv_cosim import cli, manifest
+from agv_cosim import cli
+from agv_cosim.manifest import load as manifest
 from agv_cosim.system import feedthrough_order
 
 
@@ -77,7 +78,7 @@ def test_deep_set_value_is_one_line(chain, capsys):
 def test_the_order_of_many_independent_components_is_the_manifest_order():
     """3000 components, none feeding another through a feedthrough output: the
     Gauss-Seidel order is the manifest order (ties keep it)."""
-    from agv_cosim.model import ModelInfo
+    from agv_cosim.system.model import ModelInfo
 
     models = {f"c{i}": ModelInfo(path=None, sha256="", model_name="m", identifier="m",
                                  guid="", description="") for i in range(3000)}

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from agv_cosim import cli, fmitypes, results
+from agv_cosim import cli, files, fmitypes, timeseries as results
 
 NAMES = """
 name = "names"
@@ -123,6 +123,6 @@ def test_plain_names_keep_the_header_bytes_of_before(tmp_path):
 
 
 def test_terminal_text_is_escaped():
-    assert results.printable("plain é ok") == "plain é ok"
-    assert results.printable("a\x1b[2Jb\nc\x07\u202ed\x9b") == \
+    assert files.printable("plain é ok") == "plain é ok"
+    assert files.printable("a\x1b[2Jb\nc\x07\u202ed\x9b") == \
         "a\\x1b[2Jb\\nc\\x07\\u202ed\\x9b"

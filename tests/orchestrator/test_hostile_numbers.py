@@ -9,7 +9,8 @@ import zipfile
 import numpy as np
 import pytest
 
-from agv_cosim import cli, montecarlo
+from agv_cosim import cli
+from agv_cosim.plan import sampling as montecarlo
 
 
 def _fail(capsys, argv):

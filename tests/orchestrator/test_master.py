@@ -8,8 +8,8 @@ import tempfile
 import numpy as np
 import pytest
 
-from agv_cosim import cli, model
-from agv_cosim.results import read_timeseries
+from agv_cosim import cli
+from agv_cosim.timeseries import read_timeseries
 
 A, B, K, H, N = 1.0, 2.0, 1.5, 0.1, 10  # src offset, slope; gain * gain2; step; steps
 
@@ -126,12 +126,12 @@ def test_bad_parameter_value_fails_run(fmus, tmp_path):
 
 
 def test_interrupted_run_leaves_no_complete_folder(chain, tmp_path, monkeypatch):
-    from agv_cosim import runner
+    from agv_cosim.pipeline import run as runner
 
     def boom(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(runner, "_run_isolated", boom)
+    monkeypatch.setattr(runner, "run_isolated", boom)
     assert _run(chain(), tmp_path / "out") == 130
     assert not (tmp_path / "out").exists()
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".out")] == []

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from agv_cosim.metrics import PairwiseSum, compute_metrics, compute_metrics_csv
-from agv_cosim.results import CsvSink, count_rows, iter_timeseries, read_timeseries
+from agv_cosim.report.metrics import PairwiseSum, compute_metrics, compute_metrics_csv
+from agv_cosim.timeseries import CsvSink, count_rows, iter_timeseries, read_timeseries
 
 SPEC = {
     "lateral_error": "s.e",

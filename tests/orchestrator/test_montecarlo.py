@@ -10,14 +10,15 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from agv_cosim import montecarlo
+from agv_cosim.manifest import montecarlo as montecarlo_table
+from agv_cosim.plan import sampling as montecarlo
 from agv_cosim.cli import main
 from agv_cosim.manifest import ManifestError, load_manifest
 from agv_cosim.plan import plan_runs
 
 
 def _mc(parameters, samples=4096, seed=7, design="random", seeds=()):
-    return montecarlo.parse("m.toml", {"samples": samples, "seed": seed, "design": design,
+    return montecarlo_table.parse("m.toml", {"samples": samples, "seed": seed, "design": design,
                                        "parameters": parameters, "seeds": list(seeds)})
 
 

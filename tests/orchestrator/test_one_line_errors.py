@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from agv_cosim import cli, results, runner
+from agv_cosim import cli, files, pipeline as runner, timeseries
+from agv_cosim.pipeline import run as runner_run
 from agv_cosim.manifest import whole_multiple
 
 
@@ -177,7 +178,7 @@ def test_full_disk_is_one_line(chain, tmp_path, capsys, monkeypatch):
         os.write(sink.fd, data)
 
     with monkeypatch.context() as patch:
-        patch.setattr(results.CsvSink, "_write", filling)
+        patch.setattr(timeseries.CsvSink, "_write", filling)
         result = runner.run_job(jobs[0], run_dir)
     assert result["status"] != "complete"
     assert "No space left on device" in result["error"] and "component" not in result["error"]
@@ -186,9 +187,9 @@ def test_full_disk_is_one_line(chain, tmp_path, capsys, monkeypatch):
     def full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device", "summary.csv")
 
-    monkeypatch.setattr(runner, "write_summary", full)
+    monkeypatch.setattr(runner_run, "write_summary", full)
     line = _fail(capsys, ["run", str(chain()), "--quiet", "--out", str(tmp_path / "o")],
                  code=1)
     assert line == "agv-cosim: error: summary.csv: No space left on device"
     assert not (tmp_path / "o").exists()
-    assert results.is_result_folder(tmp_path) is False
+    assert files.is_result_folder(tmp_path) is False

@@ -14,7 +14,8 @@ import pytest
 
 from agv_cosim import cli
 from agv_cosim.plan import MAX_LABEL, run_label
-from agv_cosim.results import MARKER, AtomicDir, OutputError, check_name
+from agv_cosim.errors import OutputError
+from agv_cosim.files import MARKER, AtomicDir, check_name
 
 
 def _run(path, out, *extra):
@@ -149,7 +150,7 @@ def test_check_name():
 def test_legacy_result_folder_is_recognised(tmp_path):
     """A folder written before the stamp existed (summary.csv, run folders with
     run.json, plots) is ours; one more file of the user's makes it not ours."""
-    from agv_cosim.results import is_result_folder
+    from agv_cosim.files import is_result_folder
 
     old = tmp_path / "old"
     (old / "base").mkdir(parents=True)

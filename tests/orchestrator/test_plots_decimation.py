@@ -5,8 +5,8 @@ in-memory decimation."""
 import numpy as np
 import pytest
 
-from agv_cosim.plots import Decimator, RunData, read_run, signals_figure, trajectory_figure
-from agv_cosim.results import CsvSink
+from agv_cosim.report.plots import Decimator, RunData, read_run, signals_figure, trajectory_figure
+from agv_cosim.timeseries import CsvSink
 
 SPEC = {"signals": ["s.e", "s.u"], "dpi": 10, "trajectory": {"x": "v.x", "y": "v.y"}}
 
@@ -98,7 +98,7 @@ def test_read_run_equals_in_memory_decimation(tmp_path):
 
 
 def test_only_figures_with_decimated_lines_are_drawn_in_chunks(tmp_path):
-    from agv_cosim.plots import plot_runs
+    from agv_cosim.report.plots import plot_runs
 
     long_t, long_y = _signal(5_000)
     short = RunData("short", long_t[:300], {"s.e": long_y[:300], "s.u": long_y[:300]})

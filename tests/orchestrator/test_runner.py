@@ -65,7 +65,7 @@ def test_a_worker_is_reused_only_after_complete_runs(fmus, tmp_path, monkeypatch
     """--jobs 1, three runs: complete, partial (the FMU fails at t = 0.5), complete. The
     first worker takes runs 1 and 2 and exits after the failure; a fresh worker takes run
     3. Counted by the run scratch folders the parent makes, one per worker process."""
-    from agv_cosim import runner
+    from agv_cosim.pipeline import pool as runner
 
     made = []
     real = runner.scratch_dir
@@ -110,11 +110,12 @@ def test_kept_extraction_gives_each_instance_its_own_folder_of_links(fmus, tmp_p
     instance gets a folder of its own whose files are hard links to that copy; both
     instances instantiate from there, and closing one leaves the other's files and the
     kept copy in place. Without it, each instance unpacks the archive (no shared files)."""
-    from agv_cosim import model
+    from agv_cosim.execution import instance as model
+    from agv_cosim.system import read_model
 
     monkeypatch.setattr(model, "_EXTRACT_ROOT", [])
     monkeypatch.setattr(model, "_EXTRACTED", {})
-    info = model.read_model(fmus["agv_test_gain"])
+    info = read_model(fmus["agv_test_gain"])
     monkeypatch.setattr(model.tempfile, "tempdir", str(tmp_path))
 
     def files(folder):
@@ -147,10 +148,10 @@ def test_a_bar_drawn_only_through_its_postfix_ends_its_line_on_close():
     printed after close starts on a line of its own (tqdm alone leaves the line open)."""
     import io
 
-    from agv_cosim.runner import _progress_bar
+    from agv_cosim.pipeline.run import progress_bar
 
     stream = io.StringIO()
-    bar = _progress_bar()(total=10, desc="m", delay=2.0, file=stream)
+    bar = progress_bar()(total=10, desc="m", delay=2.0, file=stream)
     bar.update(1)
     bar.set_postfix(runs="1/1")
     bar.close()
@@ -158,7 +159,7 @@ def test_a_bar_drawn_only_through_its_postfix_ends_its_line_on_close():
     assert text.endswith("\n") and "runs=1/1]" in text.splitlines()[-1]
 
     quiet = io.StringIO()
-    bar = _progress_bar()(total=10, desc="m", delay=2.0, file=quiet)
+    bar = progress_bar()(total=10, desc="m", delay=2.0, file=quiet)
     bar.update(1)
     bar.close()
     assert quiet.getvalue() == ""  # never drawn: nothing written

@@ -16,11 +16,11 @@ from xml.etree import ElementTree
 import numpy as np
 import pytest
 
-from agv_cosim import ssp, ssp_export, ssp_import
+from agv_cosim.ssp import common as ssp, exporter as ssp_export, importer as ssp_import
 from agv_cosim.manifest import ManifestError, load_manifest
 from agv_cosim.plan import plan_runs
-from agv_cosim.master import simulate
-from agv_cosim.runner import prepare
+from agv_cosim.execution import RowObserver, simulate
+from agv_cosim.pipeline import prepare
 from manifests import localise_text
 from libcosim_runner import run_libcosim
 
@@ -93,11 +93,11 @@ def variant_of(manifest_path):
 
 
 def run_ours(manifest_path, variant=None):
-    """Run one job with agv_cosim.master.simulate; (record names, rows array)."""
+    """Run one job with agv_cosim.execution.simulate; (record names, rows array)."""
     _, jobs, _ = prepare(manifest_path, [variant] if variant else None)
     assert len(jobs) == 1
     rows = []
-    simulate(jobs[0].plan, lambda row: rows.append(list(row)))
+    simulate(jobs[0].plan, [RowObserver(lambda row: rows.append(list(row)))])
     return jobs[0].plan.record, np.array(rows)
 
 

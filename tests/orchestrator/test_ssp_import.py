@@ -14,7 +14,7 @@ import zipfile
 import pytest
 
 from agv_cosim import cli
-from agv_cosim.results import read_timeseries
+from agv_cosim.timeseries import read_timeseries
 
 HEAD = ('<?xml version="1.0" encoding="UTF-8"?>\n'
         '<ssd:SystemStructureDescription name="imp" version="1.0" '
@@ -189,7 +189,7 @@ def test_hostile_text_reaches_the_manifest_unchanged(vehicle, tmp_path):
     escaped as well; here they are simply strings."""
     from xml.sax.saxutils import escape
 
-    from agv_cosim.ssp_import import load_ssp
+    from agv_cosim.ssp.importer import load_ssp
 
     hostile = '"] \\ #\n[components.x]\nfmu = "/etc/passwd" \U000E0041'
     attribute = escape(hostile, {'"': "&quot;", "\n": "&#10;"})

@@ -5,7 +5,8 @@ import csv
 import pytest
 
 from agv_cosim import cli
-from agv_cosim.table import Table, TableError
+from agv_cosim.errors import TableError
+from agv_cosim.system.table import Table
 
 TABLE = "time,a,b\n0.0,0.0,1.0\n0.2,1.0,2.0\n0.5,4.0,3.0\n"
 

@@ -8,7 +8,8 @@ import textwrap
 
 import pytest
 
-from agv_cosim.bundle import BundleError, bundle_of, installed_requirements, requirements_text
+from agv_cosim.errors import BundleError
+from agv_cosim.bundle import bundle_of, installed_requirements, requirements_text
 
 NONE = ((), ())  # no child process: the requirement list given
 BOOT = ["agv_boot"]  # the boot loader: shipped by the FMU, not a distribution

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from agv_cosim.runner import run_manifest
+from agv_cosim.pipeline import run_manifest
 from manifests import assert_complete
 
 pytestmark = pytest.mark.seed

@@ -15,7 +15,7 @@ import pytest
 import scipy.linalg
 
 from agv_core.state_feedback.state_feedback import PAPER_GAINS, closed_loop, model_b
-from agv_cosim.runner import run_manifest
+from agv_cosim.pipeline import run_manifest
 from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed

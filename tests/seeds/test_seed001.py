@@ -26,8 +26,8 @@ from agv_core.ltv_mpc.ltv_mpc import LtvMpc
 from agv_core.lateral_pid.pid import LateralPid
 from agv_core.ref_trajectory.ref_trajectory import RefTrajectory
 from agv_core.double_steer.seed001_loop import run_loop
-from agv_cosim.results import read_timeseries
-from agv_cosim.runner import run_manifest
+from agv_cosim.timeseries import read_timeseries
+from agv_cosim.pipeline import run_manifest
 from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed

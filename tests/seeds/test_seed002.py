@@ -3,7 +3,7 @@
 The experiments are the manifests ``experiments/seed002_step.toml``,
 ``experiments/seed002_sine.toml`` and ``experiments/cross_seed_controllers.toml``. The
 tests copy them into ``tmp_path`` pointed at the session-built FMUs (``component_fmus``),
-run a subset of their runs through :func:`agv_cosim.runner.run_manifest`, and check the
+run a subset of their runs through :func:`agv_cosim.pipeline.run_manifest`, and check the
 numbers quoted on ``experiments/seed002.md``.
 
 The figures and tables of the results page are made from every run of the three
@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 
 from agv_core.numerics.paths import parse_path, project_trajectory
-from agv_cosim.results import read_timeseries
-from agv_cosim.runner import run_manifest
+from agv_cosim.timeseries import read_timeseries
+from agv_cosim.pipeline import run_manifest
 from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed

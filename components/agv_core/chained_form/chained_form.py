@@ -144,7 +144,7 @@ class ChainedFormController:
         Steering saturation [rad], 0 < delta_max < pi/2. Seed 002: 45 deg.
     sample_period : float
         Controller sample period [s]; 0 computes on every call (every step). Samples at
-        multiples of it, by the rule of :mod:`agv_core.sampling` (an instant inside a
+        multiples of it, by the rule of :mod:`agv_core.numerics.sampling` (an instant inside a
         communication step is sampled from the inputs held over it, committed by
         :meth:`step` / :meth:`step_from_pose`).
     path : object, optional
@@ -224,7 +224,7 @@ class ChainedFormController:
     def step(self, t, h, lateral_error, heading_error, curvature, curvature_rate):
         """Commit the samples of the step from ``t`` to ``t + h`` [s] (inputs held).
 
-        The sampling rule is :mod:`agv_core.sampling`'s: an instant inside the step is
+        The sampling rule is :mod:`agv_core.numerics.sampling`'s: an instant inside the step is
         sampled from these held inputs.
         """
         self._hold.step(t, h, self._state_inputs(lateral_error, heading_error, curvature,

@@ -28,7 +28,7 @@ same slave class body runs as an FMI 3.0 co-simulation FMU:
 
 The behaviour shared with the FMI 2.0 adapter, including the compensation for the
 wrappers' double release of a failed slave (pythonfmu3 0.3.4 has pythonfmu 0.7's), is in
-:mod:`agv_core.slave_base`. pythonfmu3's exit-time defect
+:mod:`agv_core.fmi.slave_base`. pythonfmu3's exit-time defect
 (also pythonfmu 0.7's) is avoided in Python hosts by an ``atexit`` hook (see
 :mod:`agv_core.fmi.pythonfmu_workarounds`, which lists every wrapper work-around).
 """

@@ -22,13 +22,13 @@ implements three hooks:
     the calls after initialisation and after a step then wait for the next read (or
     state save) too.
 
-The behaviour shared with the FMI 3.0 twins is in :mod:`agv_core.slave_base`. This
+The behaviour shared with the FMI 3.0 twins is in :mod:`agv_core.fmi.slave_base`. This
 adapter also writes what pythonfmu leaves out of ``modelDescription.xml``: units and
 their definitions, output dependencies, ``InitialUnknowns``, a GUID derived from the
 sources (written by the build into ``resources/agv_build.json``), and a deterministic
 header. State save/restore covers the variables and the core's ``get_state()`` /
 ``set_state()`` (JSON-safe dicts). The workaround for pythonfmu 0.7's double release of a
-failed slave is in :mod:`agv_core.slave_base`.
+failed slave is in :mod:`agv_core.fmi.slave_base`.
 """
 
 from xml.etree.ElementTree import Element, SubElement

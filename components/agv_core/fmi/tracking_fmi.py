@@ -71,7 +71,7 @@ class TrackingSlave(AgvSlave):
                 "v": self.v_ref, "omega": self.omega_ref}
 
     def advance(self, t, h):
-        # commits the samples of [t, t + h) from the held inputs (agv_core.sampling)
+        # commits the samples of [t, t + h) from the held inputs (agv_core.numerics.sampling)
         try:
             self.core.step(t, h, self.x, self.y, self.heading, self._ref())
         except self.solve_errors as error:

@@ -9,7 +9,7 @@ feed-forward::
     v_c   = v_r
     omega = -(Kp e_lat + Ki I + Kd D),  |omega| <= omega_max
 
-sampled every T [s] and held in between (the rule of agv_core.sampling, a
+sampled every T [s] and held in between (the rule of agv_core.numerics.sampling, a
 sample-and-hold with memory): I is the rectangle-rule integral
 I(k) = I(k-1) + T e_lat(k) (not advanced while omega is saturated in the direction that
 would grow it: conditional integration as anti-windup), D the backward difference
@@ -80,7 +80,7 @@ class LateralPid:
 
     def update(self, t, x, y, heading, ref):
         """Output at time ``t`` [s], sampled at k T and held (the rule of
-        :mod:`agv_core.sampling`, as :meth:`LtvMpc.update`)."""
+        :mod:`agv_core.numerics.sampling`, as :meth:`LtvMpc.update`)."""
         return dict(self._hold.output(t, LtvMpc._inputs(x, y, heading, ref), self._law)["out"])
 
     def step(self, t, h, x, y, heading, ref):

@@ -26,7 +26,7 @@ The slack softens the optional "feasible region" bound e_max on the predicted po
 errors; with e_max = 0 (default: its value is lost from the paper) it appears in the
 cost only and the optimum has gamma = 0. The first increment is applied:
 u(k) = u(k-1) + Delta u(k) (eq 30); the controller output is held for T (sampled at
-k T by the rule of :mod:`agv_core.sampling`, :class:`~agv_core.sampling.SampleHold`
+k T by the rule of :mod:`agv_core.numerics.sampling`, :class:`~agv_core.numerics.sampling.SampleHold`
 with memory: u(k-1) and the warm start come from the committed sample before).
 
 The QP (1/2 z' P z + q' z, l <= A z <= u with z = [Delta U; gamma]) is solved by OSQP
@@ -303,7 +303,7 @@ class LtvMpc:
     def update(self, t, x, y, heading, ref):
         """Output at time ``t`` [s], sampled at k T and held in between.
 
-        The project's one sampling rule (:mod:`agv_core.sampling`, a sample-and-hold
+        The project's one sampling rule (:mod:`agv_core.numerics.sampling`, a sample-and-hold
         with memory): at an instant k T on a communication point the law is evaluated
         from the current inputs at every call (newer inputs at the same instant), each
         time from the same u(k-1) and warm start; between instants the held output is

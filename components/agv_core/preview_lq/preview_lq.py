@@ -352,7 +352,7 @@ class PreviewLQ:
         Steering limit [rad], in (0, pi/2).
     sample_period : float
         Controller period [s]; 0 evaluates on every call (every communication step).
-        Sampling follows :mod:`agv_core.sampling`.
+        Sampling follows :mod:`agv_core.numerics.sampling`.
     dead_reckoning : bool
         Propagate the last fix by ``fix_age`` along the kinematic arc (our addition).
     alpha_fixed_point : bool
@@ -510,7 +510,7 @@ class PreviewLQ:
     def update(self, t, x_meas, y_meas, heading_meas, alpha_meas, fix_age=0.0):
         """Output at time ``t`` [s], with sample-and-hold when ``sample_period`` > 0.
 
-        The rule is :mod:`agv_core.sampling`'s: at an instant k T the law is evaluated
+        The rule is :mod:`agv_core.numerics.sampling`'s: at an instant k T the law is evaluated
         on the current inputs (again at every call at that time); an instant inside a
         communication step is sampled from the inputs held over it by :meth:`step`;
         between instants the sample is held.

@@ -2,7 +2,7 @@
 
 Timing semantics shared by the sampled sensors (vision, total station)
 ---------------------------------------------------------------------
-The rule is the one of every sampled component (agv_core.sampling, components/README.md
+The rule is the one of every sampled component (agv_core.numerics.sampling, components/README.md
 "Sampling"); the sensors add latency and noise to it.
 The master holds every input constant over a communication step [t, t + h). A sample
 (camera frame, total-station fix) is *captured* at its instant t_k from the input held
@@ -51,7 +51,7 @@ from ..numerics.paths import heading_error
 from ..numerics.sampling import TIME_EPS, at_instant, in_step
 
 #: Time tolerance [s] for matching sample instants to communication points: the one
-#: tolerance of agv_core.sampling.
+#: tolerance of agv_core.numerics.sampling.
 EPS = TIME_EPS
 
 
@@ -157,7 +157,7 @@ class _Sampled:
         end = t + h
         while self._next_time() < end - EPS:
             t_k = self._next_time()
-            if in_step(t_k, t, h):  # agv_core.sampling's rule (instants before t: skipped)
+            if in_step(t_k, t, h):  # agv_core.numerics.sampling's rule (instants before t: skipped)
                 drawn = self._drawn
                 if drawn is not None:
                     self._drawn = None
@@ -464,7 +464,7 @@ class InstantSensor:
 GYRO_DRIFT = math.radians(0.5) / 3600.0
 GYRO_RESOLUTION = math.radians(0.01)
 #: Defaults of the steering-angle (displacement) sensor: noise 0.001 rad, resolution 0.1 deg
-#: as the first version wrote it (0.001745329251994, 13 digits; math.radians(0.1) differs
-#: in the last ones and would move every result that uses the default).
+#: written to 13 digits (0.001745329251994; math.radians(0.1) differs in the last ones, and
+#: the committed results use this value).
 STEER_NOISE = 0.001
 STEER_RESOLUTION = 0.001745329251994

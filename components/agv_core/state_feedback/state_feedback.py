@@ -45,7 +45,7 @@ class StateFeedback:
     sample_period : float
         Sample period [s], >= 0. 0: the law is evaluated at every communication point.
         Otherwise the output is sampled at multiples ``k * sample_period`` of absolute
-        time and held, by the project's one rule (:mod:`agv_core.sampling`): an instant
+        time and held, by the project's one rule (:mod:`agv_core.numerics.sampling`): an instant
         is sampled from the inputs held at it (an instant inside a communication step
         from the inputs held over that step, committed by :meth:`step`).
     u_max : float

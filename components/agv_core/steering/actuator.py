@@ -78,9 +78,6 @@ class SteeringActuator:
         limiter), > 0.
     """
 
-    #: True when ``alpha_rate`` depends directly on the current command.
-    feedthrough = False
-
     def __init__(self, K=0.6, alpha0=0.0, alpha_max=0.0, rate_max=0.0, mode="command",
                  servo_gain=10.0, servo_period=1e-3):
         K = _finite("K", K)
@@ -178,8 +175,6 @@ class SteeringActuator:
 
 class IntegratorActuator(SteeringActuator):
     """Model b: ``alpha' = K u`` (seed 000 eq 8 without delay). See :class:`SteeringActuator`."""
-
-    feedthrough = True
 
     def _step_command(self, t, h, u):
         self._advance_constant_rate(self.K * u, h)

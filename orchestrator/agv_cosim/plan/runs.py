@@ -9,31 +9,21 @@ checked against the FMUs by :func:`agv_cosim.system.validate`.
 """
 
 import copy
-import hashlib
 import itertools
 import math
-import re
 import tomllib
-from dataclasses import dataclass, field
+from collections.abc import Iterable
+from typing import Any
 
-from .manifest import (ManifestError, _dotted, _event_key, event_parts, parse_toml,
-                       split_name)
-
-
-@dataclass
-class RunSpec:
-    """One run: the resolved components of a variant at one sweep point."""
-
-    label: str
-    variant: str | None
-    point: dict
-    components: dict
-    overrides: dict
-    events: dict = field(default_factory=dict)
+from ..errors import ManifestError
+from ..manifest import Manifest, dotted_name, event_key, event_parts, parse_toml, split_name
+from .sampling import expand_runs
+from .spec import MAX_RUNS, RunSpec, run_label
 
 
-def _apply_event_key(events, name, value):
-    """Set the event field named by :func:`_event_key` in ``events`` (a run's copy)."""
+def _apply_event_key(events: dict[str, dict[str, Any]], name: str, value: Any) -> None:
+    """Set the event field named by :func:`agv_cosim.manifest.event_key` in ``events``
+    (a run's copy)."""
     parts = event_parts(name)
     if parts[2] == "at":
         events[parts[1]]["at"] = value
@@ -41,15 +31,15 @@ def _apply_event_key(events, name, value):
         events[parts[1]]["set"][f"{parts[3]}.{parts[4]}"] = value
 
 
-def parse_set(manifest, text):
+def parse_set(manifest: Manifest, text: str) -> tuple[str, Any]:
     """Parse one ``--set comp.param=VALUE`` (VALUE as a TOML value, else a string)."""
     if "=" not in text:
         raise ManifestError(manifest.path, "--set", f"{text!r} is not comp.param=VALUE")
     name, value = text.split("=", 1)
     if name.strip().startswith("events."):
-        _event_key(manifest.path, "--set", name.strip(), manifest.events)
+        event_key(manifest.path, "--set", name.strip(), manifest.events)
     else:
-        _dotted(manifest.path, "--set", name.strip(), "component.parameter")
+        dotted_name(manifest.path, "--set", name.strip(), "component.parameter")
     try:
         parsed = parse_toml(f"v = {value}")["v"]
     except tomllib.TOMLDecodeError:
@@ -59,28 +49,8 @@ def parse_set(manifest, text):
     return name.strip(), parsed
 
 
-def _slug(text):
-    return re.sub(r"[^A-Za-z0-9._=+-]", "_", text)
-
-
-#: Longest run label (a folder name); longer labels (many or long sweep values) are cut
-#: and end in a hash of the full label, so they stay distinct.
-MAX_LABEL = 100
-#: Most runs of one manifest (variants x sweep points x Monte Carlo samples): each run
-#: is a folder of its own and a row of summary.csv; more is refused before any is made.
-MAX_RUNS = 100_000
-
-
-def run_label(parts):
-    """The folder name of a run: its slugged parts joined by ``__``, bounded."""
-    label = "__".join(_slug(p) for p in parts)
-    if len(label) > MAX_LABEL:
-        digest = hashlib.sha256(label.encode()).hexdigest()[:12]
-        label = f"{label[:MAX_LABEL - 13]}-{digest}"
-    return label
-
-
-def plan_runs(manifest, variants=None, sets=()):
+def plan_runs(manifest: Manifest, variants: list[str] | None = None,
+              sets: Iterable[str] = ()) -> list[RunSpec]:
     """Expand a manifest into its runs: (chosen variants or all, or the base) x sweep.
 
     Parameters
@@ -110,7 +80,7 @@ def plan_runs(manifest, variants=None, sets=()):
                 known = ", ".join(manifest.variants) or "none declared"
                 raise ManifestError(manifest.path, "variants",
                                     f"unknown variant '{name}' (known: {known})")
-        chosen = list(dict.fromkeys(variants))
+        chosen: list[str | None] = list(dict.fromkeys(variants))
     else:
         chosen = list(manifest.variants) or [None]
     names = list(manifest.sweep)
@@ -151,8 +121,7 @@ def plan_runs(manifest, variants=None, sets=()):
                                 point=point, components=comps, overrides=overrides,
                                 events=events))
     if manifest.montecarlo is not None:  # each run x the Monte Carlo samples
-        from . import montecarlo
-        runs = montecarlo.expand_runs(manifest, runs)
+        runs = expand_runs(manifest, runs)
     labels = [r.label for r in runs]
     if len(set(labels)) != len(labels):
         raise ManifestError(manifest.path, "sweep", "two sweep points give the same run "

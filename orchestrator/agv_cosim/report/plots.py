@@ -64,17 +64,20 @@ Complete example::
 """
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from matplotlib import rc_context
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from . import schema
-from .results import (CHUNK_ROWS, count_rows, iter_timeseries, open_output,
-                      timeseries_columns)
+from ..files import open_output
+from ..manifest import schema
+from ..timeseries import CHUNK_ROWS, count_rows, iter_timeseries, timeseries_columns
+from .metrics import load_path
 
 #: File names of the figures (stable, so that a rerun overwrites them).
 SIGNALS_FILE = "signals.png"
@@ -128,13 +131,16 @@ class RunData:
 
 # --------------------------------------------------------------------------- validation
 
-def _validate(spec):
-    """``spec`` checked against :class:`agv_cosim.schema.PlotsTable` and returned
-    normalised (defaults filled in); a problem is a ValueError naming ``plots.<key>``."""
+def _validate(spec: "schema.PlotsTable | dict[str, Any] | None") -> dict[str, Any]:
+    """``spec`` normalised (defaults filled in): a :class:`~agv_cosim.manifest.schema.PlotsTable`
+    as the manifest's schema checked it, or a plain ``[plots]`` table checked here (a
+    problem is a ValueError naming ``plots.<key>``)."""
+    if isinstance(spec, schema.PlotsTable):
+        return spec.spec()
     return schema.check(schema.PlotsTable, {} if spec is None else spec, "plots").spec()
 
 
-def referenced_signals(spec):
+def referenced_signals(spec: "schema.PlotsTable | dict[str, Any] | None") -> list[str]:
     """Every signal ``"component.variable"`` that the ``[plots]`` table names.
 
     Parameters
@@ -184,12 +190,13 @@ class Decimator:
         Keep the extremes of x too (an x-y trajectory).
     """
 
-    def __init__(self, n, buckets, both=False):
+    def __init__(self, n: int, buckets: int, both: bool = False) -> None:
         self.both = both
         self.size = 1 if n <= (6 if both else 4) * buckets else -(-n // buckets)
         self.row = 0
         self._carry = None
-        self._x, self._y = [], []
+        self._x: list[np.ndarray] = []
+        self._y: list[np.ndarray] = []
 
     def _extremes(self, x, y):
         keys = [0, x.size - 1, int(np.argmin(y)), int(np.argmax(y))]
@@ -198,7 +205,7 @@ class Decimator:
         index = np.unique(keys)
         return x[index], y[index]
 
-    def add(self, x, y):
+    def add(self, x: np.ndarray, y: np.ndarray) -> None:
         """Feed the next samples (1-D arrays of equal length)."""
         x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
         if self.size == 1:
@@ -219,13 +226,13 @@ class Decimator:
             if self.row == end:
                 self._flush()
 
-    def _flush(self):
+    def _flush(self) -> None:
         if self._carry is not None:
             self._x.append(self._carry[0])
             self._y.append(self._carry[1])
             self._carry = None
 
-    def result(self):
+    def result(self) -> tuple[np.ndarray, np.ndarray]:
         """(x, y) of the kept samples."""
         self._flush()
         if not self._x:
@@ -235,7 +242,7 @@ class Decimator:
         return np.concatenate(self._x), np.concatenate(self._y)
 
 
-def _buckets(spec, trajectory=False):
+def _buckets(spec: dict[str, Any], trajectory: bool = False) -> int:
     per_column = _TRAJECTORY_BUCKETS_PER_COLUMN if trajectory else _SIGNAL_BUCKETS_PER_COLUMN
     return per_column * int(round(_WIDTH * spec["dpi"]))
 
@@ -250,7 +257,9 @@ def _line_specs(spec):
     return lines
 
 
-def read_run(path, spec, label, *, partial=False, rows=None, chunk_rows=None):
+def read_run(path: str | Path, spec: "schema.PlotsTable | dict[str, Any]", label: str, *,
+             partial: bool = False, rows: int | None = None,
+             chunk_rows: int | None = None) -> "RunData":
     """The lines of one run's ``timeseries.csv`` as the ``[plots]`` table draws them,
     read in chunks of ``chunk_rows`` rows and decimated (see "Long runs").
 
@@ -302,7 +311,8 @@ def read_run(path, spec, label, *, partial=False, rows=None, chunk_rows=None):
 
 # --------------------------------------------------------------------------- drawing
 
-def _line(run, xname, yname, xkey, ykey, buckets, both=False, figure=None):
+def _line(run: "RunData", xname: str, yname: str, xkey: str, ykey: str, buckets: int,
+          both: bool = False, figure: Any = None) -> Any:
     """(x, y) of one line of ``run``, decimated to ``buckets``; a decimated line marks
     ``figure`` (see :func:`_save`)."""
     if run.lines is not None:
@@ -343,7 +353,7 @@ def _style(run):
             "linestyle": "--" if run.partial else "-", "linewidth": 1.2}
 
 
-def _legend(figure, ax):
+def _legend(figure: Any, ax: Any) -> None:
     # outside the axes, below them: never hides data, and no costly 'best' placement
     handles, labels = ax.get_legend_handles_labels()
     if handles:
@@ -369,7 +379,8 @@ def _save(figure, path, dpi):
     return path
 
 
-def signals_figure(runs, spec):
+def signals_figure(runs: Iterable["RunData"],
+                   spec: "schema.PlotsTable | dict[str, Any] | None") -> Figure:
     """The figure of ``signals.png``: one subplot per signal, every run overlaid.
 
     Parameters
@@ -440,7 +451,9 @@ def _reference_polyline(path, runs, traj, buckets):
     return path.polyline(s0, s1, (s1 - s0) / _PATH_POINTS)
 
 
-def trajectory_figure(runs, spec, geometry=None):
+def trajectory_figure(runs: Iterable["RunData"],
+                      spec: "schema.PlotsTable | dict[str, Any] | None",
+                      geometry: Any = None) -> Figure:
     """The figure of ``trajectory.png``: x-y of every run over the reference path.
 
     Parameters
@@ -484,7 +497,8 @@ def trajectory_figure(runs, spec, geometry=None):
     return figure
 
 
-def plot_runs(runs, spec, out_dir, *, base_dir=None):
+def plot_runs(runs: Iterable["RunData"], spec: "schema.PlotsTable | dict[str, Any] | None",
+              out_dir: str | Path, *, base_dir: str | Path | None = None) -> list[Path]:
     """Draw the figures the ``[plots]`` table asks for, every run overlaid.
 
     Parameters
@@ -529,7 +543,6 @@ def plot_runs(runs, spec, out_dir, *, base_dir=None):
                 _values(run, spec["trajectory"][sub], f"trajectory.{sub}")
     geometry = None
     if "trajectory" in spec and spec["trajectory"]["path"] is not None:
-        from .metrics import load_path
 
         geometry = load_path(spec["trajectory"]["path"], "plots.trajectory.path", base_dir)
     out_dir = Path(out_dir)

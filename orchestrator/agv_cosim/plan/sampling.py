@@ -1,4 +1,4 @@
-"""Monte Carlo runs of a manifest: the ``[montecarlo]`` table, sampling and statistics.
+"""Monte Carlo runs of a manifest: the ``[montecarlo]`` table sampled into runs.
 
 A manifest with a ``[montecarlo]`` table runs ``samples`` runs per variant (and per sweep
 point), each with parameter values drawn from the distributions given, and writes, beside
@@ -52,96 +52,27 @@ metric (``n + failures`` = runs of the group). ``std`` is the sample standard de
 (ddof = 1; null for n < 2); the percentiles are ``numpy.percentile``'s linear ones.
 """
 
-import csv
+import copy
 import math
 import warnings
-from pathlib import Path
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
-from . import schema
-from .manifest import ManifestError
-from .plan import run_label
+from ..errors import ManifestError, SamplingError
+from ..manifest import Manifest
+from ..manifest.montecarlo import MonteCarlo
+from .spec import RunSpec, run_label
 
-DESIGNS = ("random", "sobol", "lhs")
-DISTRIBUTIONS = {
-    "normal": ("mean", "std"),
-    "uniform": ("low", "high"),
-    "truncnormal": ("mean", "std", "low", "high"),
-    "choice": ("values",),
-}
+__all__ = ["SAMPLE", "choice_edges", "draw", "expand_runs", "group_name", "ppf",
+           "run_seeds", "unit_samples"]
+
 #: Column of summary.csv (and key of a run's sweep point) holding the sample index.
 SAMPLE = "montecarlo.sample"
 
 
-class MonteCarlo:
-    """A checked ``[montecarlo]`` table (see the module docstring)."""
-
-    def __init__(self, samples, seed, design, parameters, seeds, metrics, band):
-        self.samples, self.seed, self.design = samples, seed, design
-        self.parameters = parameters  # "comp.param" -> {"distribution": ..., ...}
-        self.seeds, self.metrics, self.band = seeds, metrics, band
-
-    @property
-    def names(self):
-        return list(self.parameters) + list(self.seeds)
-
-    def describe(self):
-        return {"samples": self.samples, "seed": self.seed, "design": self.design,
-                "parameters": self.parameters, "seeds": self.seeds}
-
-
-def _error(path, key, problem):
-    return ManifestError(path, f"montecarlo.{key}" if key else "montecarlo", problem)
-
-
-def parse(path, table, components=(), swept=()):
-    """Check a raw ``[montecarlo]`` TOML table; return a :class:`MonteCarlo` or None.
-
-    Its shape is :class:`agv_cosim.schema.MonteCarloTable`; here the names:
-    ``components``, the manifest's component names; ``swept``, its swept names (a
-    parameter is sampled or swept, not both).
-
-    Raises
-    ------
-    ManifestError
-        Naming the key (``montecarlo.<key>``) and the problem.
-    """
-    if table is None:
-        return None
-    try:
-        checked = schema.check(schema.MonteCarloTable, table, "montecarlo")
-    except schema.SchemaError as error:
-        raise ManifestError(path, error.key, error.problem) from None
-    parameters = {}
-    for name, spec in checked.parameters.items():
-        key = f"parameters.{name}"
-        cname, dot, rest = name.partition(".")
-        if not cname or not rest:
-            raise _error(path, key, f"{name!r} is not of the form 'component.parameter'")
-        if components and cname not in components:
-            raise _error(path, key, f"unknown component '{cname}'")
-        if name in swept:
-            raise _error(path, key, f"'{name}' is also swept in [sweep]")
-        kind = spec.distribution  # keys in the documented order (montecarlo.json)
-        parameters[name] = {"distribution": kind, **{
-            sub: getattr(spec, sub) for sub in DISTRIBUTIONS[kind] + ("weights",)
-            if getattr(spec, sub, None) is not None}}
-    seeds = checked.seeds
-    for name in seeds:
-        cname = name.partition(".")[0]
-        if components and cname not in components:
-            raise _error(path, "seeds", f"unknown component '{cname}' in '{name}'")
-        if name in parameters or name in swept or seeds.count(name) > 1:
-            raise _error(path, "seeds", f"'{name}' is listed twice (seeds, parameters or "
-                         "sweep)")
-    if not parameters and not seeds:
-        raise _error(path, "parameters", "nothing to sample: give parameters or seeds")
-    return MonteCarlo(checked.samples, checked.seed, checked.design, parameters, list(seeds),
-                      checked.metrics, checked.band)
-
-
-def unit_samples(mc):
+def unit_samples(mc: MonteCarlo) -> np.ndarray:
     """The design's points of [0, 1)^d, shape (samples, d) (d = sampled parameters)."""
     design_seq, _ = np.random.SeedSequence(mc.seed).spawn(2)
     d = len(mc.parameters)
@@ -159,28 +90,24 @@ def unit_samples(mc):
         return engine.random(mc.samples)
 
 
-class SamplingError(ValueError):
-    """A distribution whose numbers a double cannot hold (the text says which)."""
-
-
-def choice_edges(weights):
+def choice_edges(weights: Sequence[float] | np.ndarray) -> np.ndarray:
     """Cumulative weights normalised to end at 1 (the ``choice`` inverse CDF).
 
     Weights whose sum overflows a double (two of 1e308) are first scaled by the largest
     one, which keeps their ratios; other weights are used as given.
     """
-    weights = np.asarray(weights, dtype=float)
+    array = np.asarray(weights, dtype=float)
     with np.errstate(over="ignore"):
-        total = weights.sum()
+        total = array.sum()
     if not np.isfinite(total):
-        weights = weights / weights.max()
-        total = weights.sum()
-    edges = np.cumsum(weights) / total
+        array = array / array.max()
+        total = array.sum()
+    edges = np.cumsum(array) / total
     edges[-1] = 1.0  # the last edge is 1 whatever the rounding of the sum
     return edges
 
 
-def ppf(spec, u):
+def ppf(spec: dict[str, Any], u: Sequence[float] | np.ndarray) -> list[Any]:
     """Map uniforms ``u`` (array in [0, 1)) through a distribution's inverse CDF.
 
     Returns a list of plain Python values (floats, or the choice's values).
@@ -235,7 +162,7 @@ def ppf(spec, u):
     return [float(v) for v in x]
 
 
-def run_seeds(mc):
+def run_seeds(mc: MonteCarlo) -> list[dict[str, int]]:
     """Per sample index, the derived seed of each ``seeds`` parameter (list of dicts)."""
     _, runs_seq = np.random.SeedSequence(mc.seed).spawn(2)
     return [{name: int(value >> 1) for name, value in
@@ -244,7 +171,7 @@ def run_seeds(mc):
         [{} for _ in range(mc.samples)]
 
 
-def draw(mc):
+def draw(mc: MonteCarlo) -> list[dict[str, Any]]:
     """The sampled values: a list (one per sample index) of {"comp.param": value}."""
     u = unit_samples(mc)
     columns = {}
@@ -259,7 +186,7 @@ def draw(mc):
             for i in range(mc.samples)]
 
 
-def expand_runs(manifest, runs):
+def expand_runs(manifest: Manifest, runs: list[RunSpec]) -> list[RunSpec]:
     """Each run (variant x sweep point) repeated for every sample, values applied.
 
     The sample's values go into the run's parameters (after ``--set``; a ``--set`` on a
@@ -267,11 +194,13 @@ def expand_runs(manifest, runs):
     with the sample index under :data:`SAMPLE`.
     """
     mc = manifest.montecarlo
+    if mc is None:
+        return runs
     try:
         values = draw(mc)
     except SamplingError as error:
         key, _, problem = str(error).partition(": ")
-        raise _error(manifest.path, key, problem) from None
+        raise ManifestError(manifest.path, f"montecarlo.{key}", problem) from None
     width = max(4, len(str(mc.samples - 1)))
     expanded = []
     for run in runs:
@@ -295,14 +224,12 @@ def expand_runs(manifest, runs):
 
 
 def _copy_component(comp):
-    import copy
-
     copy_ = copy.copy(comp)
     copy_.parameters = dict(comp.parameters)
     return copy_
 
 
-def group_name(variant, point):
+def group_name(variant: str | None, point: dict[str, Any]) -> str:
     """The name of a run's group: its variant and sweep point, without the sample (the
     sweep values come before :data:`SAMPLE` in the point, the sampled ones after it)."""
     keys = list(point)
@@ -310,135 +237,3 @@ def group_name(variant, point):
     return run_label([variant or "base"] + [f"{k}={point[k]!r}" for k in sweep])
 
 
-def statistics(values, runs):
-    """mean, std (ddof 1), p5, p50, p95, n, failures of finite ``values`` of ``runs``."""
-    data = np.asarray([v for v in values if v is not None and math.isfinite(v)], float)
-    n = int(data.size)
-    out = {"n": n, "failures": runs - n, "mean": None, "std": None, "p5": None,
-           "p50": None, "p95": None, "min": None, "max": None}
-    if n:
-        p5, p50, p95 = np.percentile(data, [5, 50, 95])
-        out.update(mean=float(data.mean()), p5=float(p5), p50=float(p50),
-                   p95=float(p95), min=float(data.min()), max=float(data.max()))
-        if n > 1:
-            out["std"] = float(data.std(ddof=1))
-    return out
-
-
-def _groups(jobs, results):
-    groups = {}
-    for job, result in zip(jobs, results):
-        groups.setdefault(group_name(job.variant, job.point), []).append((job, result))
-    return groups
-
-
-def aggregate(mc, jobs, results):
-    """The content of ``montecarlo.json`` (see the module docstring)."""
-    out = {**mc.describe(), "groups": {}}
-    for name, members in _groups(jobs, results).items():
-        names = []
-        for _, result in members:
-            for metric in result["metrics"]:
-                if metric not in names:
-                    names.append(metric)
-        complete = [r for _, r in members if r["status"] == "complete"]
-        out["groups"][name] = {
-            "variant": members[0][0].variant, "runs": len(members),
-            "failed_runs": len(members) - len(complete),
-            "metrics": {m: statistics([_number(r["metrics"].get(m)) for r in complete],
-                                      len(members)) for m in names}}
-    return out
-
-
-def _number(value):
-    return float(value) if isinstance(value, (int, float)) and \
-        not isinstance(value, bool) else None
-
-
-def _band(folder, members, signal):
-    """Time and (p5, p50, p95) of ``signal`` over the group's complete runs."""
-    series, time = [], None
-    for job, result in members:
-        if result["status"] != "complete":
-            continue
-        path = Path(folder) / job.label / "timeseries.csv"
-        with open(path, encoding="utf-8", newline="") as stream:
-            reader = csv.reader(stream)
-            header = next(reader)
-            column = header.index(signal)
-            rows = [(float(row[0]), float(row[column])) for row in reader]
-        t = [r[0] for r in rows]
-        if time is None or len(t) < len(time):
-            time = t
-        series.append([r[1] for r in rows])
-    if not series:
-        return None
-    k = len(time)
-    data = np.asarray([s[:k] for s in series])
-    return np.asarray(time), np.percentile(data, [5, 50, 95], axis=0)
-
-
-def figure(mc, jobs, results, folder, title=None, dpi=110):
-    """``montecarlo.png``: box plots of the key metrics per group; the band of a signal."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    groups = _groups(jobs, results)
-    names = mc.metrics
-    if names is None:
-        names = []
-        for result in results:
-            for metric in result["metrics"]:
-                if metric not in names and len(names) < 4:
-                    names.append(metric)
-    panels = len(names) + (1 if mc.band else 0)
-    if not panels:
-        return None
-    fig = Figure(figsize=(8.0, 2.6 * panels), layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(panels, 1, squeeze=False)[:, 0]
-    labels = list(groups)
-    for ax, metric in zip(axes, names):
-        data = [[v for v in (_number(r["metrics"].get(metric)) for _, r in members
-                             if r["status"] == "complete") if v is not None and
-                 math.isfinite(v)] for members in groups.values()]
-        shown = [(label, d) for label, d in zip(labels, data) if d]
-        if shown:
-            ax.boxplot([d for _, d in shown], whis=(5, 95), orientation="horizontal")
-            ax.set_yticks(range(1, len(shown) + 1), [label for label, _ in shown])
-        ax.set_xlabel(metric)
-        ax.grid(True, axis="x", alpha=0.3)
-    if mc.band:
-        ax = axes[-1]
-        colours = [f"C{i % 10}" for i in range(len(groups))]
-        for colour, (label, members) in zip(colours, groups.items()):
-            band = _band(folder, members, mc.band)
-            if band is None:
-                continue
-            t, (p5, p50, p95) = band
-            ax.fill_between(t, p5, p95, color=colour, alpha=0.25, linewidth=0)
-            ax.plot(t, p50, color=colour, label=f"{label}: median, p5-p95")
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel(mc.band)
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize="small", frameon=False)
-    fig.suptitle((title + ": " if title else "") + f"{mc.samples} samples per group "
-                 "(box: p25-p75, whiskers p5-p95)", fontsize="medium")
-    from .results import open_output
-
-    path = Path(folder) / "montecarlo.png"
-    with open_output(path) as stream:  # never written through a symbolic link
-        fig.savefig(stream, dpi=dpi, format="png", metadata={"Software": None})
-    return path
-
-
-def write_outputs(mc, jobs, results, folder, title=None):
-    """Write ``montecarlo.json`` and ``montecarlo.png``; return a figure error or None."""
-    from .results import write_json
-
-    write_json(Path(folder) / "montecarlo.json", aggregate(mc, jobs, results))
-    try:
-        figure(mc, jobs, results, folder, title)
-    except Exception as failure:  # noqa: BLE001 - a figure must not lose the results
-        return f"{type(failure).__name__}: {failure}"
-    return None

@@ -1,13 +1,9 @@
-"""Stage 1 of the pipeline, the manifest: an experiment's TOML file read and checked.
+"""A manifest file read and checked into a :class:`Manifest`.
 
-The pipeline, one module a stage::
-
-    manifest (this module)  ->  plan (agv_cosim.plan)  ->  system (agv_cosim.system)
-      -> run (agv_cosim.runner, agv_cosim.master)  ->  results (results, metrics, plots)
-
-The format is documented, key by key, in ``experiments/example.toml`` and
-``experiments/FORMAT.md``. :func:`load_manifest` checks the syntax, the shape (the schema
-of :mod:`agv_cosim.schema`: unknown keys, types) and the numbers (no FMU is opened). Every problem is a :class:`ManifestError` whose text is
+The format is documented, key by key, in ``experiments/example.toml``.
+:func:`load_manifest` checks the syntax, the shape (the schema of
+:mod:`agv_cosim.manifest.schema`: unknown keys, types) and the numbers (no FMU is
+opened). Every problem is a :class:`~agv_cosim.errors.ManifestError` whose text is
 ``<manifest>: <key>: <problem>``.
 """
 
@@ -18,9 +14,13 @@ import stat
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
+from ..errors import ManifestError, SchemaError
+from ..files import check_name
 from . import schema
-from .results import check_name
+from .montecarlo import MonteCarlo
+from .montecarlo import parse as parse_montecarlo
 
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
@@ -29,7 +29,7 @@ _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 MAX_STEPS = float(2 ** 53)
 
 
-def whole_multiple(span, step):
+def whole_multiple(span: float, step: float) -> bool:
     """True when ``span`` is n * ``step`` for a whole n >= 1, up to rounding.
 
     The tolerance is absolute in steps: 1e-9 of a step, plus the rounding error of the
@@ -41,36 +41,28 @@ def whole_multiple(span, step):
     return n >= 1 and abs(steps - n) <= 1e-9 + 4 * 2.220446049250313e-16 * n
 
 
-class ManifestError(Exception):
-    """A problem in a manifest, named by the manifest, the key and the culprit."""
-
-    def __init__(self, manifest, key, problem):
-        super().__init__(f"{manifest}: {key}: {problem}")
-        self.manifest, self.key, self.problem = str(manifest), key, problem
-
-
 @dataclass
 class Component:
     """One component instance: its FMU and the parameter values the manifest gives, or a
     time table (``table``, see :mod:`agv_cosim.table`)."""
 
     name: str
-    fmu: Path
-    parameters: dict = field(default_factory=dict)
-    table: Path = None
-    interpolation: dict = field(default_factory=dict)
-    units: dict = field(default_factory=dict)
+    fmu: Path | None
+    parameters: dict[str, Any] = field(default_factory=dict)
+    table: Path | None = None
+    interpolation: dict[str, str] = field(default_factory=dict)
+    units: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
 class Connection:
     """``source`` output -> ``target`` input, both ``(component, variable)``."""
 
-    source: tuple
-    target: tuple
+    source: tuple[str, str]
+    target: tuple[str, str]
     key: str
 
-    def __str__(self):
+    def __str__(self) -> str:
         return f"{'.'.join(self.source)} -> {'.'.join(self.target)}"
 
 
@@ -86,27 +78,47 @@ class Manifest:
     stop: float
     step: float
     algorithm: str
-    components: dict
-    connections: list
-    variants: dict
-    sweep: dict
-    record: list | None
+    components: dict[str, Component]
+    connections: list[Connection]
+    #: name -> {"description": str, "components": {name: Component}, "events": {...}}
+    variants: dict[str, dict[str, Any]]
+    sweep: dict[str, list[Any]]
+    record: list[str] | None
     record_interval: float
-    metrics: dict
-    plots: dict
-    events: dict = field(default_factory=dict)  # name -> {"at": s, "set": {"c.v": value}}
+    #: the ``[metrics]`` table as the schema checked it; None when absent or empty
+    metrics: schema.MetricsTable | None
+    #: the ``[plots]`` table as the schema checked it; None when absent or empty
+    plots: schema.PlotsTable | None
+    #: name -> {"at": s, "set": {"c.v": value}}
+    events: dict[str, dict[str, Any]] = field(default_factory=dict)
     #: the folder an .ssp archive was unpacked into (run.json names its FMUs
     #: ``<package>!/<entry>``); None for a manifest file
     unpacked: Path | None = None
-    montecarlo: object = None  # a montecarlo.MonteCarlo ([montecarlo] table), or None
+    #: the ``[montecarlo]`` table checked, or None
+    montecarlo: MonteCarlo | None = None
     #: wall-clock limit of each run [s] (``[simulation] timeout``), None: no limit
     timeout: float | None = None
 
-    def error(self, key, problem):
+    def error(self, key: str, problem: str) -> ManifestError:
         return ManifestError(self.path, key, problem)
 
+    def step_index(self, at: float) -> int:
+        """k of the communication point ``at`` = start + k step [s] (``at`` checked to
+        be one: :func:`whole_multiple`)."""
+        return 0 if at == self.start else int(round((at - self.start) / self.step))
 
-def split_name(text):
+    @property
+    def steps(self) -> int:
+        """Macro steps of every run: (stop - start) / step."""
+        return self.step_index(self.stop)
+
+    @property
+    def record_every(self) -> int:
+        """A row is recorded every this many macro steps (``[record] interval``)."""
+        return int(round(self.record_interval / self.step))
+
+
+def split_name(text: str) -> tuple[str, str]:
     """``"component.variable"`` as ``(component, variable)``, split at the first dot:
     component names are identifiers (no dot), FMI variable names may hold any number
     (``body.frame_a.r_0[1]``)."""
@@ -114,13 +126,15 @@ def split_name(text):
     return component, variable
 
 
-def _dotted(manifest, key, text, what="component.variable"):
+def dotted_name(manifest: object, key: str, text: object,
+                what: str = "component.variable") -> tuple[str, str]:
     if not isinstance(text, str) or not all(text.partition(".")[::2]) or "." not in text:
         raise ManifestError(manifest, key, f"{text!r} is not of the form '{what}'")
     return split_name(text)
 
 
-def _component(manifest, base_dir, name, table, key):
+def _component(manifest: object, base_dir: Path, name: str, table: Any,
+               key: str) -> Component:
     """A checked :class:`schema.ComponentTable` as a :class:`Component`: an FMU or a table."""
     if table.table is not None:
         if table.fmu is not None or "parameters" in table.model_fields_set:
@@ -135,21 +149,22 @@ def _component(manifest, base_dir, name, table, key):
     return Component(name, (base_dir / fmu).resolve() if fmu else None, dict(table.parameters))
 
 
-def _event(manifest, key, table, partial=False):
+def _event(manifest: object, key: str, table: Any, partial: bool = False) -> dict[str, Any]:
     """One checked ``[events.<name>]`` table: ``at`` [s] and ``set`` ("comp.var" -> value);
     a variant's change of a base event (``partial``) may give only one of them."""
     event = {}
     for sub in ("at", "set"):
         value = getattr(table, sub)
         if value is None and not partial:
-            raise ManifestError(manifest, f"{key}.{sub}", "missing (a number is required)" if sub == "at" else
+            raise ManifestError(manifest, f"{key}.{sub}",
+                                "missing (a number is required)" if sub == "at" else
                                 'must be a non-empty table of "component.variable" = value')
         if value is not None:
             event[sub] = dict(value) if sub == "set" else value
     return event
 
 
-def event_parts(name):
+def event_parts(name: str) -> list[str]:
     """``events.<event>.at`` as 3 parts, ``events.<event>.set.<component>.<variable>``
     as 5 (the variable's name may hold dots); anything else as its dot-separated
     parts."""
@@ -157,7 +172,7 @@ def event_parts(name):
     return parts if len(parts) == 5 and parts[2] == "set" else name.split(".")
 
 
-def _event_key(manifest, key, name, events):
+def event_key(manifest: object, key: str, name: str, events: dict[str, Any]) -> str:
     """An event field as a sweep / --set name: ``events.<event>.at`` (its time) or
     ``events.<event>.set.<component>.<variable>`` (a value it sets; a new target is
     added to the event). Returns the event's name, else raises ManifestError."""
@@ -179,7 +194,7 @@ MAX_MANIFEST_BYTES = 16 << 20
 MAX_DEPTH = 32
 
 
-def read_regular_file(path, limit, what="file"):
+def read_regular_file(path: str | Path, limit: int, what: str = "file") -> bytes:
     """The bytes of the regular file at ``path``, at most ``limit`` of them.
 
     A FIFO, a device, a socket or a folder is refused before any read (opened
@@ -207,7 +222,7 @@ def read_regular_file(path, limit, what="file"):
     return data
 
 
-def nesting_problem(data, limit=MAX_DEPTH):
+def nesting_problem(data: Any, limit: int = MAX_DEPTH) -> str | None:
     """The dotted key of the first value nested deeper than ``limit`` levels in TOML
     data (tables and arrays), or None. Iterative: any depth is measured safely."""
     stack = [(data, "", 0)]
@@ -223,7 +238,7 @@ def nesting_problem(data, limit=MAX_DEPTH):
     return None
 
 
-def parse_toml(text):
+def parse_toml(text: str) -> dict[str, Any]:
     """``tomllib.loads(text)`` whose nesting is checked (:data:`MAX_DEPTH`); a
     tomllib.TOMLDecodeError or ValueError names the problem."""
     try:
@@ -237,7 +252,7 @@ def parse_toml(text):
     return data
 
 
-def load_manifest(path):
+def load_manifest(path: str | Path) -> Manifest:
     """Read and syntax-check a manifest (no FMU is opened).
 
     The file must be a regular file of at most :data:`MAX_MANIFEST_BYTES`, nested at
@@ -264,7 +279,8 @@ def load_manifest(path):
     return manifest_from_data(data, path, hashlib.sha256(raw).hexdigest())
 
 
-def manifest_from_data(data, path, sha256, base_dir=None):
+def manifest_from_data(data: dict[str, Any], path: str | Path, sha256: str,
+                       base_dir: str | Path | None = None) -> Manifest:
     """Check a manifest given as data (the dict TOML gives) and build the Manifest.
 
     The one schema check for every source: a TOML file (:func:`load_manifest`) or an SSP
@@ -284,7 +300,7 @@ def manifest_from_data(data, path, sha256, base_dir=None):
     path = Path(path)
     try:
         table = schema.check(schema.ManifestTable, data)
-    except schema.SchemaError as error:
+    except SchemaError as error:
         raise ManifestError(path, error.key, error.problem) from None
     base_dir = path.resolve().parent if base_dir is None else Path(base_dir)
     sim = table.simulation
@@ -304,7 +320,8 @@ def manifest_from_data(data, path, sha256, base_dir=None):
     for name, ctable in table.components.items():
         key = f"components.{name}"
         if not _NAME.match(name):
-            raise ManifestError(path, key, "instance names are identifiers ([A-Za-z_][A-Za-z0-9_]*)")
+            raise ManifestError(path, key,
+                                "instance names are identifiers ([A-Za-z_][A-Za-z0-9_]*)")
         comp = _component(path, base_dir, name, ctable, key)
         if comp.fmu is None and comp.table is None:
             raise ManifestError(path, f"{key}.fmu", "missing (path of the FMU, relative to "
@@ -340,9 +357,9 @@ def manifest_from_data(data, path, sha256, base_dir=None):
     for name, values in table.sweep.items():
         key = f"sweep.{name}"
         if name.startswith("events."):
-            _event_key(path, key, name, events)
+            event_key(path, key, name, events)
         else:
-            _dotted(path, key, name, "component.parameter")
+            dotted_name(path, key, name, "component.parameter")
         sweep[name] = list(values)
 
     variables = table.record.variables
@@ -358,13 +375,13 @@ def manifest_from_data(data, path, sha256, base_dir=None):
     except ValueError as error:
         raise ManifestError(path, "name", f"{error} (it names the default output folder "
                             "results/<name>)") from None
-    from . import montecarlo  # [montecarlo] is parsed and checked there
-    sampling = montecarlo.parse(path, data.get("montecarlo"), components, sweep)
+    sampling = parse_montecarlo(path, data.get("montecarlo"), components, sweep)
     return Manifest(path=path, sha256=sha256, name=name,
                     description=table.description, start=start, stop=stop,
                     step=step, algorithm=sim.algorithm, components=components,
                     connections=connections, variants=variants, sweep=sweep,
                     record=variables, record_interval=interval,
-                    metrics=dict(data.get("metrics", {})), plots=dict(data.get("plots", {})),
+                    metrics=table.metrics if data.get("metrics") else None,
+                    plots=table.plots if data.get("plots") else None,
                     events=events, montecarlo=sampling, timeout=sim.timeout)
 

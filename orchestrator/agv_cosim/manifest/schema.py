@@ -15,23 +15,28 @@ step multiples, FMU binding, cycles) is checked in plain code by the stage that 
 
 import types
 import typing
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, TypeVar
 
-from pydantic import (AfterValidator, BaseModel, ConfigDict, Field, StrictInt, StrictStr,
-                      ValidationError, field_validator, model_validator)
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    StrictInt,
+    StrictStr,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+
+from ..errors import SchemaError
+
+M = TypeVar("M", bound=BaseModel)
 
 #: Default settling band of the lateral error [m] (``[metrics] settle_band``).
 DEFAULT_SETTLE_BAND = 0.02
 #: Default resolution of the figures [dots per inch] (``[plots] dpi``).
 DEFAULT_DPI = 120
-
-
-class SchemaError(ValueError):
-    """A value that does not fit the schema: ``key`` (dotted) and ``problem``."""
-
-    def __init__(self, key, problem):
-        super().__init__(f"{key}: {problem}")
-        self.key, self.problem = key, problem
 
 
 def _dotted(what):
@@ -161,8 +166,9 @@ class MetricsTable(_Table):
     saturation: Saturation | None = None
     reference: Reference | None = None
 
-    def spec(self):
-        """The table as the dict :mod:`agv_cosim.metrics` computes from (defaults in)."""
+    def spec(self) -> dict[str, Any]:
+        """The table as the dict :mod:`agv_cosim.report.metrics` computes from (defaults
+        in)."""
         return self.model_dump(exclude_none=True)
 
 
@@ -188,8 +194,8 @@ class PlotsTable(_Table):
     dpi: Annotated[StrictInt, Field(ge=10, le=1200)] = DEFAULT_DPI
     trajectory: Trajectory | None = None
 
-    def spec(self):
-        """The table as the dict :mod:`agv_cosim.plots` draws from (defaults in)."""
+    def spec(self) -> dict[str, Any]:
+        """The table as the dict :mod:`agv_cosim.report.plots` draws from (defaults in)."""
         out = self.model_dump(exclude={"signals", "trajectory"})
         if self.signals is not None:
             out["signals"] = list(self.signals)
@@ -280,7 +286,7 @@ class ManifestTable(_Table):
 
 # --------------------------------------------------------------------------- errors
 
-def check(model, data, prefix=""):
+def check(model: type[M], data: Any, prefix: str = "") -> M:
     """``model`` validated from ``data``; else a :class:`SchemaError` for the first problem,
     its key prefixed by ``prefix`` (e.g. ``"metrics"`` for a ``[metrics]`` table alone)."""
     try:
@@ -289,7 +295,8 @@ def check(model, data, prefix=""):
         raise schema_error(model, error, prefix) from None
 
 
-def schema_error(model, error, prefix=""):
+def schema_error(model: type[BaseModel], error: ValidationError,
+                 prefix: str = "") -> SchemaError:
     """The first error of a pydantic ``ValidationError`` as a :class:`SchemaError`."""
     first = error.errors()[0]
     parts, parent = _walk(model, first["loc"])

@@ -24,44 +24,30 @@ import argparse
 import os
 import tempfile
 import zipfile
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 from xml.etree import ElementTree
 
-from . import fmitypes
-from .manifest import Manifest, ManifestError, load_manifest
-from .plan import plan_runs
-from .results import OutputError, user_mode
-from .ssp import (_TYPES, AGV_ANNOTATION, FMU_MIME, OSP_ANNOTATION, SSD_NAME, _number_text,
-                  _q, _ssp_type)
-from .system import validate
-
-
-def _model_description(fmu_path):
-    """fmpy's reading of an FMU's modelDescription.xml (schema not re-validated: the
-    FMU was read by :func:`agv_cosim.model.read_model` already)."""
-    from fmpy import read_model_description
-
-    return read_model_description(str(fmu_path), validate=False)
-
-
-#: SI base-unit exponents of a BaseUnit, in the order FMI and SSP write them.
-BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
-
-
-def _unit_definitions(fmu_path):
-    """``{unit name: {BaseUnit attribute: text}}`` of an FMU's unit definitions (the
-    attributes that differ from their defaults: exponent 0, factor 1, offset 0)."""
-    units = {}
-    for unit in _model_description(fmu_path).unitDefinitions:
-        base, attrs = unit.baseUnit, {}
-        if base is not None:
-            attrs = {b: str(int(getattr(base, b))) for b in BASE_UNITS if getattr(base, b)}
-            if float(base.factor) != 1.0:
-                attrs["factor"] = _number_text(base.factor)
-            if float(base.offset) != 0.0:
-                attrs["offset"] = _number_text(base.offset)
-        units[unit.name] = attrs
-    return units
+from .. import fmitypes
+from ..errors import ManifestError, OutputError
+from ..files import user_mode
+from ..manifest import Manifest, load_manifest
+from ..plan import plan_runs
+from ..system import validate
+from .common import (
+    AGV_ANNOTATION,
+    FMU_MIME,
+    OSP_ANNOTATION,
+    SSD_NAME,
+    TYPES,
+    model_description,
+    number_text,
+    q,
+    ssp_type,
+    unit_definitions,
+)
+from .importer import opened
 
 
 def _enumeration_types(fmu_path):
@@ -69,7 +55,7 @@ def _enumeration_types(fmu_path):
     variables of an FMU (FMI 2.0 ``SimpleType``/``Enumeration``, FMI 3.0
     ``EnumerationType``, both as fmpy reads them)."""
     found = {}
-    for var in _model_description(fmu_path).modelVariables:
+    for var in model_description(fmu_path).modelVariables:
         declared = var.declaredType
         if var.type == "Enumeration" and declared is not None:
             found[var.name] = (declared.name, [(item.name, str(item.value))
@@ -92,8 +78,11 @@ def _fmu_file_names(models):
     return names
 
 
-def build_ssd(name, models, parameters, connections, start, stop, step, algorithm,
-              record=None, record_interval=None, description=""):
+def build_ssd(name: str, models: dict[str, Any], parameters: dict[str, dict[str, Any]],
+              connections: list[Any], start: float, stop: float, step: float,
+              algorithm: str, record: list[str] | None = None,
+              record_interval: float | None = None,
+              description: str = "") -> ElementTree.Element:
     """The ``SystemStructure.ssd`` of one run, as an ElementTree element.
 
     Parameters
@@ -116,29 +105,30 @@ def build_ssd(name, models, parameters, connections, start, stop, step, algorith
         Record interval [s].
     """
     sources = _fmu_file_names(models)
-    root = ElementTree.Element(_q("ssd", "SystemStructureDescription"),
+    root = ElementTree.Element(q("ssd", "SystemStructureDescription"),
                                {"name": name, "version": "1.0"})
-    system = ElementTree.SubElement(root, _q("ssd", "System"), {"name": name})
+    system = ElementTree.SubElement(root, q("ssd", "System"), {"name": name})
     if description:
         system.set("description", description)
-    elements = ElementTree.SubElement(system, _q("ssd", "Elements"))
+    elements = ElementTree.SubElement(system, q("ssd", "Elements"))
     used_units = {}
-    enumerations = {}  # SSP enumeration name -> [(item name, value text)]
+    #: SSP enumeration name -> [(item name, value text)]
+    enumerations: dict[str, list[tuple[str, str]]] = {}
     for cname, info in models.items():
-        comp = ElementTree.SubElement(elements, _q("ssd", "Component"),
+        comp = ElementTree.SubElement(elements, q("ssd", "Component"),
                                       {"name": cname, "source": sources[cname],
                                        "type": FMU_MIME})
-        connectors = ElementTree.SubElement(comp, _q("ssd", "Connectors"))
+        connectors = ElementTree.SubElement(comp, q("ssd", "Connectors"))
         fmu_units = None
         fmu_enums = None
         for var in info.variables.values():
             if var.causality not in ("input", "output") or \
-                    _ssp_type(var) not in _TYPES + ("Enumeration",):
+                    ssp_type(var) not in TYPES + ("Enumeration",):
                 continue
-            node = ElementTree.SubElement(connectors, _q("ssd", "Connector"),
+            node = ElementTree.SubElement(connectors, q("ssd", "Connector"),
                                           {"name": var.name, "kind": var.causality})
-            kind = ElementTree.SubElement(node, _q("ssc", _ssp_type(var)))
-            if _ssp_type(var) == "Enumeration":
+            kind = ElementTree.SubElement(node, q("ssc", str(ssp_type(var))))
+            if ssp_type(var) == "Enumeration":
                 # SSP names the enumeration (required), defined in ssd:Enumerations;
                 # two FMUs with one type name but other items get instance-qualified
                 # names
@@ -155,67 +145,68 @@ def build_ssd(name, models, parameters, connections, start, stop, step, algorith
                 kind.set("unit", var.unit)
                 if var.unit not in used_units:
                     if fmu_units is None:
-                        fmu_units = _unit_definitions(info.path)
+                        fmu_units = unit_definitions(info.path)
                     used_units[var.unit] = fmu_units.get(var.unit, {})
         values = parameters.get(cname) or {}
         if values:
-            bindings = ElementTree.SubElement(comp, _q("ssd", "ParameterBindings"))
-            binding = ElementTree.SubElement(bindings, _q("ssd", "ParameterBinding"))
-            holder = ElementTree.SubElement(binding, _q("ssd", "ParameterValues"))
-            pset = ElementTree.SubElement(holder, _q("ssv", "ParameterSet"),
+            bindings = ElementTree.SubElement(comp, q("ssd", "ParameterBindings"))
+            binding = ElementTree.SubElement(bindings, q("ssd", "ParameterBinding"))
+            holder = ElementTree.SubElement(binding, q("ssd", "ParameterValues"))
+            pset = ElementTree.SubElement(holder, q("ssv", "ParameterSet"),
                                           {"version": "1.0", "name": f"{cname}"})
-            plist = ElementTree.SubElement(pset, _q("ssv", "Parameters"))
+            plist = ElementTree.SubElement(pset, q("ssv", "Parameters"))
             for pname, value in values.items():
                 var = info.variables[pname]
-                param = ElementTree.SubElement(plist, _q("ssv", "Parameter"), {"name": pname})
+                param = ElementTree.SubElement(plist, q("ssv", "Parameter"), {"name": pname})
                 attrs = {"value": fmitypes.format_text(var.ftype, value)}
                 if var.ftype.is_float and var.unit:
                     attrs["unit"] = var.unit
-                ElementTree.SubElement(param, _q("ssv", _ssp_type(var)), attrs)
-    conns = ElementTree.SubElement(system, _q("ssd", "Connections"))
+                ElementTree.SubElement(param, q("ssv", str(ssp_type(var))), attrs)
+    conns = ElementTree.SubElement(system, q("ssd", "Connections"))
     for conn in connections:
-        ElementTree.SubElement(conns, _q("ssd", "Connection"), {
+        ElementTree.SubElement(conns, q("ssd", "Connection"), {
             "startElement": conn.source[0], "startConnector": conn.source[1],
             "endElement": conn.target[0], "endConnector": conn.target[1]})
     if enumerations:
-        enums = ElementTree.SubElement(root, _q("ssd", "Enumerations"))
+        enums = ElementTree.SubElement(root, q("ssd", "Enumerations"))
         for tname in sorted(enumerations):
-            enum = ElementTree.SubElement(enums, _q("ssc", "Enumeration"), {"name": tname})
+            enum = ElementTree.SubElement(enums, q("ssc", "Enumeration"), {"name": tname})
             for item, value in enumerations[tname]:
-                ElementTree.SubElement(enum, _q("ssc", "Item"),
+                ElementTree.SubElement(enum, q("ssc", "Item"),
                                        {"name": item, "value": value})
     if used_units:
-        units = ElementTree.SubElement(root, _q("ssd", "Units"))
+        units = ElementTree.SubElement(root, q("ssd", "Units"))
         for uname in sorted(used_units):
-            unit = ElementTree.SubElement(units, _q("ssc", "Unit"), {"name": uname})
-            ElementTree.SubElement(unit, _q("ssc", "BaseUnit"), used_units[uname])
-    experiment = ElementTree.SubElement(root, _q("ssd", "DefaultExperiment"),
-                                        {"startTime": _number_text(start),
-                                         "stopTime": _number_text(stop)})
-    notes = ElementTree.SubElement(experiment, _q("ssd", "Annotations"))
-    osp = ElementTree.SubElement(notes, _q("ssc", "Annotation"), {"type": OSP_ANNOTATION})
-    algo = ElementTree.SubElement(osp, _q("osp", "Algorithm"))
-    ElementTree.SubElement(algo, _q("osp", "FixedStepAlgorithm"),
-                           {"baseStepSize": _number_text(step)})
-    ours = ElementTree.SubElement(notes, _q("ssc", "Annotation"), {"type": AGV_ANNOTATION})
-    exp = ElementTree.SubElement(ours, _q("agv", "Experiment"),
-                                 {"algorithm": algorithm, "stepSize": _number_text(step)})
+            unit = ElementTree.SubElement(units, q("ssc", "Unit"), {"name": uname})
+            ElementTree.SubElement(unit, q("ssc", "BaseUnit"), used_units[uname])
+    experiment = ElementTree.SubElement(root, q("ssd", "DefaultExperiment"),
+                                        {"startTime": number_text(start),
+                                         "stopTime": number_text(stop)})
+    notes = ElementTree.SubElement(experiment, q("ssd", "Annotations"))
+    osp = ElementTree.SubElement(notes, q("ssc", "Annotation"), {"type": OSP_ANNOTATION})
+    algo = ElementTree.SubElement(osp, q("osp", "Algorithm"))
+    ElementTree.SubElement(algo, q("osp", "FixedStepAlgorithm"),
+                           {"baseStepSize": number_text(step)})
+    ours = ElementTree.SubElement(notes, q("ssc", "Annotation"), {"type": AGV_ANNOTATION})
+    exp = ElementTree.SubElement(ours, q("agv", "Experiment"),
+                                 {"algorithm": algorithm, "stepSize": number_text(step)})
     if record_interval is not None:
-        exp.set("recordInterval", _number_text(record_interval))
+        exp.set("recordInterval", number_text(record_interval))
     for item in record or ():
-        ElementTree.SubElement(exp, _q("agv", "Record"), {"variable": item})
+        ElementTree.SubElement(exp, q("agv", "Record"), {"variable": item})
     ElementTree.indent(root)
     return root
 
 
-def export_ssp(manifest, out_path, variant=None, sets=()):
+def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
+               variant: str | None = None, sets: Iterable[str] = ()) -> Path:
     """Write one run of a manifest as a self-contained SSP 1.0 package.
 
     Parameters
     ----------
     manifest : path or Manifest
         The experiment manifest (a TOML file, or one already loaded, e.g. from an SSP
-        package by :func:`agv_cosim.ssp_import.opened`).
+        package by :func:`agv_cosim.ssp.importer.opened`).
     out_path : path
         The ``.ssp`` file to write (replaced atomically).
     variant : str, optional
@@ -242,8 +233,9 @@ def export_ssp(manifest, out_path, variant=None, sets=()):
                             "package holds one (choose --variant, remove the sweep or fix "
                             "it with --set)")
     checked = validate(manifest, runs)
-    run, models = runs[0], checked.models[0]
-    params = {c: dict(comp.parameters) for c, comp in run.components.items()}
+    one = checked.runs[0]
+    run, models = one.run, one.models
+    params = {c: dict(values) for c, values in one.parameters.items()}
     for cname, values in params.items():
         for pname, value in values.items():
             if isinstance(value, tuple):
@@ -264,9 +256,9 @@ def export_ssp(manifest, out_path, variant=None, sets=()):
         raise OutputError(f"{out_path}: cannot create '{error.filename or out_path.parent}'"
                           f": {error.strerror}") from None
     # a new file of our own beside the target (O_EXCL | O_NOFOLLOW), renamed over it
-    handle, partial = tempfile.mkstemp(dir=out_path.parent, prefix=f".{out_path.name}.",
-                                       suffix=".partial")
-    partial = Path(partial)
+    handle, partial_name = tempfile.mkstemp(dir=out_path.parent, prefix=f".{out_path.name}.",
+                                            suffix=".partial")
+    partial = Path(partial_name)
     try:
         with os.fdopen(handle, "w+b") as stream, \
                 zipfile.ZipFile(stream, "w", zipfile.ZIP_DEFLATED) as archive:
@@ -284,16 +276,14 @@ def export_ssp(manifest, out_path, variant=None, sets=()):
     return out_path
 
 
-def _cmd_export_ssp(args):
-    from .ssp_import import opened
-
+def _cmd_export_ssp(args: argparse.Namespace) -> int:
     with opened(args.manifest) as manifest:
         out = export_ssp(manifest, args.output, args.variant, args.set)
     print(out)
     return 0
 
 
-def add_cli(subparsers):
+def add_cli(subparsers: Any) -> argparse.ArgumentParser:
     """Register ``agv-cosim export-ssp`` on the CLI's subparsers."""
     parser = subparsers.add_parser(
         "export-ssp", help="write one run of a manifest as an SSP 1.0 package",

@@ -32,17 +32,33 @@ import shutil
 import stat
 import zipfile
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 from urllib.parse import unquote, urlparse
 from xml.etree import ElementTree
 
-from . import fmitypes
-from .lifetime import scratch_dir
-from .manifest import ManifestError, manifest_from_data
-from .results import check_name
-from .ssp import (_IDENTIFIER, _TYPES, AGV_ANNOTATION, FMU_MIME, NS, OSP_ANNOTATION,
-                  PSET_MIME, SSD_NAME, SspError, _q, _ssp_type, is_ssp)
-from .ssp_export import BASE_UNITS, _unit_definitions
+from .. import fmitypes
+from ..errors import ManifestError, ModelError, SspError
+from ..files import check_name
+from ..lifetime import scratch_dir
+from ..manifest import Manifest, manifest_from_data
+from ..system.model import file_sha256, read_model
+from .common import (
+    AGV_ANNOTATION,
+    BASE_UNITS,
+    FMU_MIME,
+    IDENTIFIER,
+    NS,
+    OSP_ANNOTATION,
+    PSET_MIME,
+    SSD_NAME,
+    TYPES,
+    is_ssp,
+    q,
+    ssp_type,
+    unit_definitions,
+)
 
 
 def _unsafe_reason(info):
@@ -56,7 +72,7 @@ def _unsafe_reason(info):
     return None
 
 
-def safe_extract(archive_path, dest):
+def safe_extract(archive_path: str | Path, dest: str | Path) -> None:
     """Extract a zip archive into ``dest`` after checking every entry.
 
     Raises
@@ -103,7 +119,7 @@ def _float_attr(package, key, node, attr, default=None):
 def _parse_value(package, key, node):
     """(type, value, unit or None) of an ssv:Parameter."""
     kind = next((child for child in node if child.tag in
-                 [_q("ssv", t) for t in _TYPES]), None)
+                 [q("ssv", t) for t in TYPES]), None)
     if kind is None:
         raise SspError(package, key, "no ssv:Real/Integer/Boolean/String value "
                        "(Enumeration and Binary are not supported)")
@@ -180,7 +196,7 @@ def _bindings(package, base, element, key, ssd_units):
             except ElementTree.ParseError as error:
                 raise SspError(package, bkey, f"{source}: not well-formed XML: {error}") \
                     from None
-            if pset.tag != _q("ssv", "ParameterSet"):
+            if pset.tag != q("ssv", "ParameterSet"):
                 raise SspError(package, bkey, f"{source}: root is not ssv:ParameterSet")
             bkey = f"{bkey} ({source})"
         else:
@@ -232,7 +248,7 @@ def _inside(base, relative):
 def _component(package, base, node, ssd_units):
     cname = node.get("name")
     key = f"Component '{cname}'"
-    if not cname or not _IDENTIFIER.match(cname):
+    if not cname or not IDENTIFIER.match(cname):
         raise SspError(package, key, "component names must be identifiers "
                        "([A-Za-z_][A-Za-z0-9_]*, used as 'component.variable')")
     kind = node.get("type", FMU_MIME)
@@ -255,8 +271,6 @@ def _component(package, base, node, ssd_units):
 
 def _check_connectors(package, cname, fmu, node):
     """Refuse connectors that do not match the FMU (we convert no connector units)."""
-    from .model import ModelError, read_model
-
     connectors = node.findall("ssd:Connectors/ssd:Connector", NS)
     if not connectors:
         return
@@ -275,11 +289,11 @@ def _check_connectors(package, cname, fmu, node):
             raise SspError(package, key, f"kind '{kind}', but the FMU's variable is "
                            f"{var.causality}")
         typed = next((child for child in connector if child.tag in
-                      [_q("ssc", t) for t in _TYPES + ("Enumeration", "Binary")]), None)
+                      [q("ssc", t) for t in TYPES + ("Enumeration", "Binary")]), None)
         if typed is None:
             continue
         vtype = typed.tag.split("}")[1]
-        if vtype != _ssp_type(var):
+        if vtype != ssp_type(var):
             raise SspError(package, key, f"type {vtype}, but the FMU's variable is "
                            f"{var.type}")
         unit = typed.get("unit")
@@ -296,8 +310,6 @@ def _bound_parameters(package, components, component_bound, system_bound):
     an earlier one; a system binding (``component.parameter``) overrides the
     component's own.
     """
-    from .model import ModelError, read_model
-
     chosen = {cname: {} for cname in components}
     for cname, bound in component_bound.items():
         for name, *rest in bound:
@@ -322,7 +334,7 @@ def _bound_parameters(package, components, component_bound, system_bound):
             raise SspError(package, f"Component '{cname}'", str(error)) from None
         fmu_units = {}
         if any(unit is not None for _, _, unit, _, _ in values.values()):
-            defs = _unit_definitions(info.path)
+            defs = unit_definitions(info.path)
             fmu_units = {u: _unit_of(package, f"Component '{cname}'", d)
                          for u, d in defs.items()}
         for pname, (vtype, value, unit, definition, where) in values.items():
@@ -340,7 +352,7 @@ def _bound_parameters(package, components, component_bound, system_bound):
     return params
 
 
-def read_ssd(package, ssd_path):
+def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
     """Translate an SSD into the data of a manifest (a plain dict, TOML-shaped).
 
     Raises
@@ -356,7 +368,7 @@ def read_ssd(package, ssd_path):
         raise SspError(package, SSD_NAME, f"not well-formed XML: {error}") from None
     except OSError:
         raise SspError(package, SSD_NAME, "missing (not an SSP package)") from None
-    if root.tag != _q("ssd", "SystemStructureDescription"):
+    if root.tag != q("ssd", "SystemStructureDescription"):
         raise SspError(package, SSD_NAME, "root is not ssd:SystemStructureDescription "
                        "(SSP 1.0)")
     system = root.find("ssd:System", NS)
@@ -433,7 +445,7 @@ def read_ssd(package, ssd_path):
     except ValueError as error:
         raise SspError(package, "SystemStructureDescription", f"{error} (it names the "
                        "default output folder results/<name>)") from None
-    data = {"name": name,
+    data: dict[str, Any] = {"name": name,
             "description": system.get("description", ""),
             "simulation": simulation, "components": components, "connections": connections}
     if record or interval is not None:
@@ -447,13 +459,11 @@ def read_ssd(package, ssd_path):
 
 def _source_sha256(source):
     """SHA-256 of an SSP source: the .ssp file, or the SSD of a package folder."""
-    from .model import file_sha256
-
     source = Path(source)
     return file_sha256(source / SSD_NAME if source.is_dir() else source)
 
 
-def load_ssp(path, workdir):
+def load_ssp(path: str | Path, workdir: str | Path) -> Manifest:
     """Read an SSP package into a :class:`~agv_cosim.manifest.Manifest`.
 
     Parameters
@@ -499,7 +509,7 @@ def load_ssp(path, workdir):
 
 
 @contextlib.contextmanager
-def opened(path):
+def opened(path: str | Path) -> Iterator[Manifest | str | Path]:
     """Context: the manifest to run for ``path``.
 
     A manifest path (or None) is yielded unchanged; an SSP package is unpacked into a

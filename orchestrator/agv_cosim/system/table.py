@@ -20,21 +20,19 @@ unit a connection checks (``units = { <name> = "rad" }``; default none = dimensi
 import bisect
 import csv
 import math
+from collections.abc import MutableSequence
 from pathlib import Path
 
+from ..errors import TableError
 from .model import ModelInfo, Variable, file_sha256
 
 MODES = ("linear", "hold")
 
 
-class TableError(Exception):
-    """A time table that cannot be used; the text names the file, row and column."""
-
-
 class Table:
     """Columns of a time table, evaluated at a time [s] (see the module docstring)."""
 
-    def __init__(self, path, interpolation=None):
+    def __init__(self, path: str | Path, interpolation: dict[str, str] | None = None) -> None:
         self.path = Path(path)
         interpolation = dict(interpolation or {})
         if self.path.exists() and not self.path.is_file():  # a FIFO would block a read
@@ -60,7 +58,8 @@ class Table:
                 raise TableError(f"interpolation.{name}: {mode!r} is not one of "
                                  f"{', '.join(MODES)}")
         self.modes = [interpolation.get(name, "linear") for name in self.names]
-        self.times, self.columns = [], [[] for _ in self.names]
+        self.times: list[float] = []
+        self.columns: list[list[float]] = [[] for _ in self.names]
         for number, row in enumerate(rows[1:], start=2):
             if not row:
                 continue
@@ -83,7 +82,7 @@ class Table:
         if not self.times:
             raise TableError(f"'{self.path}': no rows")
 
-    def values_at(self, t, out):
+    def values_at(self, t: float, out: MutableSequence[float]) -> None:
         """Write every column's value at ``t`` [s] into ``out`` (a sequence)."""
         times = self.times
         i = bisect.bisect_right(times, t)  # times[i - 1] <= t < times[i]
@@ -101,8 +100,9 @@ class Table:
                 out[j] = v0 + (v1 - v0) * ((t - t0) / (t1 - t0))
 
 
-def read_table(path, interpolation=None, units=None):
-    """A :class:`~agv_cosim.model.ModelInfo` for a time table (``info.table`` set)."""
+def read_table(path: str | Path, interpolation: dict[str, str] | None = None,
+               units: dict[str, str] | None = None) -> ModelInfo:
+    """A :class:`~agv_cosim.system.model.ModelInfo` for a time table (``info.table`` set)."""
     table = Table(path, interpolation)
     units = dict(units or {})
     unknown = set(units) - set(table.names)

@@ -103,7 +103,7 @@ Bounded memory
 --------------
 :func:`compute_metrics` takes whole arrays; :func:`compute_metrics_csv` (what a run uses)
 computes the same result from a ``timeseries.csv`` with memory that does not grow with the
-run's length. It reads the file once in chunks of ``results.CHUNK_ROWS`` rows and spools
+run's length. It reads the file once in chunks of ``timeseries.CHUNK_ROWS`` rows and spools
 the signals the metrics use (and the path offsets of ``reference``, computed on the way
 with the projection hint carried across chunks) as float64 to anonymous temporary files
 on disk. Everything is then computed from chunks of that spool, each chunk with the
@@ -125,8 +125,9 @@ signal:
 So the streamed result equals :func:`compute_metrics` bit for bit (no tolerance), which
 ``tests/test_metrics_streaming.py`` checks with chunk boundaries on the settling and
 overshoot samples (and :class:`PairwiseSum` against ``numpy.sum``, so a numpy that changed
-its summation order would be caught there). Memory: a chunk, the per-level partial sums (about log2(n / 128)) and one pending
-block of at most 128 values per sum. Disk: 8 bytes per sample per spooled signal.
+its summation order would be caught there). Memory: a chunk, the per-level partial sums
+(about log2(n / 128)) and one pending block of at most 128 values per sum. Disk: 8 bytes
+per sample per spooled signal.
 
 Undefined values
 ----------------
@@ -144,24 +145,30 @@ The result never holds NaN or inf: a metric that is undefined is reported as ``N
 
 import math
 import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from . import schema
-from .schema import DEFAULT_SETTLE_BAND  # noqa: F401 - part of this module's interface
+from .. import timeseries
+from ..manifest import schema
 
 _SIGNAL_KEYS = ("lateral_error", "heading_error", "steering_angle", "steering_rate", "control")
 
 
 # --------------------------------------------------------------------------- validation
 
-def _validate(spec):
-    """``spec`` checked against :class:`agv_cosim.schema.MetricsTable` and returned
-    normalised (defaults filled in); a problem is a ValueError naming ``metrics.<key>``."""
+def _validate(spec: "schema.MetricsTable | dict[str, Any] | None") -> dict[str, Any]:
+    """``spec`` normalised (defaults filled in): a :class:`~agv_cosim.manifest.schema.MetricsTable`
+    as the manifest's schema checked it, or a plain ``[metrics]`` table checked here (a
+    problem is a ValueError naming ``metrics.<key>``)."""
+    if isinstance(spec, schema.MetricsTable):
+        return spec.spec()
     return schema.check(schema.MetricsTable, {} if spec is None else spec, "metrics").spec()
 
 
-def referenced_signals(spec):
+def referenced_signals(spec: "schema.MetricsTable | dict[str, Any] | None") -> list[str]:
     """Every signal ``"component.variable"`` that the ``[metrics]`` table names.
 
     Parameters
@@ -245,7 +252,7 @@ def _measure_at_least(a, b, threshold):
     return np.where(slope > 0, 1.0 - tau, np.where(slope < 0, tau, flat))
 
 
-def saturated_time(t, f, threshold):
+def saturated_time(t: np.ndarray, f: np.ndarray, threshold: float) -> float:
     """Time [s] during which |f| >= ``threshold`` (> 0), f piecewise linear over ``t``."""
     if len(t) < 2:
         return 0.0
@@ -258,7 +265,7 @@ def _saturated_fractions(f, threshold):
     return _measure_at_least(a, b, threshold) + _measure_at_least(-a, -b, threshold)
 
 
-def settling_time(t, e, band):
+def settling_time(t: np.ndarray, e: np.ndarray, band: float) -> float | None:
     """First time after which |e| <= band for good, or None if the last sample is outside.
 
     The crossing is interpolated linearly between the last sample outside the band and
@@ -315,8 +322,9 @@ def _lateral_metrics(prefix, t, e, band, settle_after):
     return out
 
 
-def load_path(path, key, base_dir=None):
-    """``agv_core.numerics.paths.parse_path(path)``, with a bad path string as ValueError naming ``key``.
+def load_path(path: str, key: str, base_dir: str | Path | None = None) -> Any:
+    """``agv_core.numerics.paths.parse_path(path)``, with a bad path string as ValueError
+    naming ``key``.
 
     Parameters
     ----------
@@ -336,7 +344,8 @@ def load_path(path, key, base_dir=None):
         raise ValueError(f"{key}: {error}") from None
 
 
-def path_offsets(path, x, y, base_dir=None):
+def path_offsets(path: Any, x: np.ndarray, y: np.ndarray,
+                 base_dir: str | Path | None = None) -> np.ndarray:
     """Signed offsets [m] of the points (x, y) from ``path`` (positive left of it).
 
     Each point is projected with the previous point's arc length as the hint, so a path
@@ -378,7 +387,9 @@ def _get(signals, name, key, n):
     return values
 
 
-def compute_metrics(time, signals, spec, *, base_dir=None):
+def compute_metrics(time: np.ndarray, signals: dict[str, np.ndarray],
+                    spec: "schema.MetricsTable | dict[str, Any] | None", *,
+                    base_dir: str | Path | None = None) -> dict[str, Any]:
     """Path-tracking metrics of one run.
 
     Parameters
@@ -414,9 +425,9 @@ def compute_metrics(time, signals, spec, *, base_dir=None):
     n = t.size
     band = spec["settle_band"]
     settle_after = spec.get("settle_after")
-    result = {"duration": float(t[-1] - t[0])}
+    result: dict[str, Any] = {"duration": float(t[-1] - t[0])}
 
-    def finite(values, names):
+    def finite(values: np.ndarray, names: Iterable[str]) -> bool:
         # all metrics of a signal with non-finite samples are None
         if np.all(np.isfinite(values)):
             return True
@@ -492,12 +503,13 @@ class PairwiseSum:
 
     _BLOCK = 128
 
-    def __init__(self, n):
+    def __init__(self, n: int) -> None:
         self.n = n
         self.result = 0.0 if n == 0 else None
         self._tree = self._walk(n)
         self._need = next(self._tree) if n else None
-        self._parts, self._have = [], 0
+        self._parts: list[np.ndarray] = []
+        self._have = 0
 
     @classmethod
     def _walk(cls, n):
@@ -510,7 +522,7 @@ class PairwiseSum:
         right = yield from cls._walk(n - half)
         return left + right
 
-    def add(self, values):
+    def add(self, values: np.ndarray) -> None:
         """Feed the next values (1-D array); more than ``n`` in all is an error."""
         values = np.asarray(values, dtype=float)
         pos, size = 0, values.size
@@ -529,7 +541,7 @@ class PairwiseSum:
                 except StopIteration as done:
                     self.result, self._need = float(done.value), None
 
-    def total(self):
+    def total(self) -> float:
         """The sum; an error if fewer than ``n`` values were fed."""
         if self.result is None:
             raise ValueError(f"PairwiseSum: fewer than {self.n} values fed")
@@ -539,22 +551,23 @@ class PairwiseSum:
 class _Spool:
     """Columns of float64 kept on disk (anonymous temporary files), read back in chunks."""
 
-    def __init__(self, chunk_rows):
+    def __init__(self, chunk_rows: int) -> None:
         self.chunk_rows = chunk_rows
-        self.files = {}
+        self.files: dict[str, Any] = {}
         self.rows = 0
-        self.first_time = self.last_time = None
+        self.first_time: Any = None
+        self.last_time: Any = None
 
-    def append(self, name, values):
+    def append(self, name: str, values: np.ndarray) -> None:
         if name not in self.files:
             self.files[name] = tempfile.TemporaryFile()
         np.ascontiguousarray(values, dtype=float).tofile(self.files[name])
 
-    def close(self):
+    def close(self) -> None:
         for stream in self.files.values():
             stream.close()
 
-    def chunks(self, name, first=0):
+    def chunks(self, name: str, first: int = 0) -> Iterator[np.ndarray]:
         """Arrays of at most ``chunk_rows`` values of column ``name`` from row ``first``."""
         stream = self.files[name]
         stream.flush()
@@ -587,8 +600,10 @@ def _pieces(spool, name, first_row, lead=None):
         previous = (t[-1], f[-1])
 
 
-def _sums(spool, name, first_row=0, lead=None, *, mean=None, squares=True, absolute=False,
-          threshold=None):
+def _sums(spool: "_Spool", name: str, first_row: int = 0,
+          lead: tuple[float, float] | None = None, *,
+          mean: float | None = None, squares: bool = True, absolute: bool = False,
+          threshold: float | None = None) -> dict[str, Any]:
     """One pass over a signal (rows from ``first_row``, after the sample ``lead``).
 
     Returns the piecewise sums that the in-memory functions compute with ``np.sum``, each
@@ -600,8 +615,8 @@ def _sums(spool, name, first_row=0, lead=None, *, mean=None, squares=True, absol
     names = ["f"] + ["f2"] * squares + ["abs"] * absolute + ["dev2"] * (mean is not None) \
         + ["sat"] * (threshold is not None)
     sums = {key: PairwiseSum(max(0, count - 1)) for key in names}
-    out = {"max_abs": 0.0 if lead is None else abs(float(lead[1])), "first": None,
-           "last": None}
+    out: dict[str, Any] = {"max_abs": 0.0 if lead is None else abs(float(lead[1])),
+                           "first": None, "last": None}
     for t, f in _pieces(spool, name, first_row, lead):
         if out["first"] is None:
             out["first"] = float(t[0])
@@ -710,7 +725,9 @@ def _lateral_stream(prefix, spool, column, band, settle_after):
     return out
 
 
-def compute_metrics_csv(path, spec, *, base_dir=None, chunk_rows=None):
+def compute_metrics_csv(path: str | Path, spec: "schema.MetricsTable | dict[str, Any] | None",
+                        *, base_dir: str | Path | None = None,
+                        chunk_rows: int | None = None) -> dict[str, Any]:
     """:func:`compute_metrics` of a ``timeseries.csv``, in memory bounded by the chunk.
 
     The file is read once, ``chunk_rows`` rows at a time; the signals the metrics use (and
@@ -726,18 +743,17 @@ def compute_metrics_csv(path, spec, *, base_dir=None, chunk_rows=None):
     spec, base_dir
         As for :func:`compute_metrics`.
     chunk_rows : int, optional
-        Rows per chunk (default ``results.CHUNK_ROWS``).
+        Rows per chunk (default ``timeseries.CHUNK_ROWS``).
 
     Raises
     ------
     ValueError
         As :func:`compute_metrics`.
     """
-    from .results import CHUNK_ROWS, iter_timeseries, timeseries_columns
 
     spec = _validate(spec)
-    chunk_rows = chunk_rows or CHUNK_ROWS
-    present = set(timeseries_columns(path))
+    chunk_rows = chunk_rows or timeseries.CHUNK_ROWS
+    present = set(timeseries.timeseries_columns(path))
     used = {key: spec[key] for key in _SIGNAL_KEYS if key in spec}
     checks = [(key, name) for key, name in used.items() if key == "lateral_error"]
     if "reference" in spec:
@@ -757,8 +773,9 @@ def compute_metrics_csv(path, spec, *, base_dir=None, chunk_rows=None):
     try:
         finite = dict.fromkeys(names, True)
         path_finite = {"xy": True, "e": True}
-        s_hint, previous = None, None
-        for t, signals in iter_timeseries(path, names, chunk_rows):
+        s_hint: Any = None
+        previous: Any = None
+        for t, signals in timeseries.iter_timeseries(path, names, chunk_rows):
             if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0) \
                     or (previous is not None and t[0] <= previous):
                 raise ValueError("metrics: time must be finite and strictly increasing")
@@ -791,12 +808,12 @@ def _stream_metrics(spool, spec, finite, path_finite):
     settle_after = spec.get("settle_after")
     duration = spool.last_time - spool.first_time
     n = spool.rows
-    result = {"duration": duration}
+    result: dict[str, Any] = {"duration": duration}
     lateral_names = ("max", "mean", "rms", "signed_mean", "std", "settling_time",
                      "settled_max", "settled_mean", "settled_rms", "settled_signed_mean",
                      "settled_std", "overshoot", "overshoot_ratio")
 
-    def skip(names):
+    def skip(names: Iterable[str]) -> None:
         result.update({name: None for name in names})
 
     if "lateral_error" in spec:

@@ -2,7 +2,7 @@
 
 The client (the machine running ``agv-cosim``) plans and validates the runs as for a
 local run, then submits one Dask task per run and writes every result itself, into the
-same :class:`~agv_cosim.results.AtomicDir` and ``summary.csv`` as a local run.
+same :class:`~agv_cosim.files.AtomicDir` and ``summary.csv`` as a local run.
 
 What a task does on a worker (:func:`run_remote`):
 
@@ -17,7 +17,7 @@ What a task does on a worker (:func:`run_remote`):
    worker can never run an FMU other than the one the client validated: the hash in
    ``run.json`` is the hash of the bytes that ran.
 2. **The same crash isolation as locally.** The run goes through
-   :func:`agv_cosim.runner._run_isolated`: a child process of its own (``forkserver``),
+   :func:`agv_cosim.pipeline.pool.run_isolated`: a child process of its own (``forkserver``),
    so an FMU that aborts its process fails only its run, reported ``partial`` or
    ``failed`` with the same text as locally; the worker goes on.
 3. The run's folder (``timeseries.csv``, ``run.json``, ``metrics.json``) goes back to the
@@ -37,14 +37,29 @@ children, so start workers with ``DASK_DISTRIBUTED__WORKER__DAEMON=False`` (or
 
 import dataclasses
 import hashlib
+import json
 import logging
 import os
 import re
+import shutil
 import stat
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
+
+from ..errors import ClusterError, Interrupted, WorkerUnfit
+from ..files import create_file, write_json
+from ..lifetime import ignore_termination, scratch_dir
+from ..report import metrics
+from ..report.records import RunResult, run_result
+from ..system import Job
+from .pool import not_run, run_isolated
+
+__all__ = ["CONNECT_TIMEOUT", "LOST_TIMEOUT", "cached_fmu", "connect", "run_on_dask",
+           "run_remote"]
 
 #: How long the client waits for the scheduler to answer [s] before giving up.
 CONNECT_TIMEOUT = 10.0
@@ -53,15 +68,7 @@ CONNECT_TIMEOUT = 10.0
 LOST_TIMEOUT = 30.0
 
 
-class ClusterError(Exception):
-    """The cluster cannot be used (unreachable scheduler, no workers, ...)."""
-
-
-class WorkerUnfit(RuntimeError):
-    """This worker cannot run any run (a setting or its FMU cache): nothing will run."""
-
-
-def connect(address, timeout=CONNECT_TIMEOUT):
+def connect(address: str, timeout: float = CONNECT_TIMEOUT) -> Any:
     """A ``distributed.Client`` on the scheduler at ``address``.
 
     The connection is made in a thread of its own and given up after ``timeout`` [s]
@@ -80,9 +87,9 @@ def connect(address, timeout=CONNECT_TIMEOUT):
     if not isinstance(address, str) or "://" not in address:
         raise ClusterError(f"--dask: {address!r} is not a scheduler address "
                            "(e.g. tcp://HOST:8786)")
-    box = {}
+    box: dict[str, Any] = {}
 
-    def make():
+    def make() -> None:
         try:
             box["client"] = Client(address, timeout=timeout)
         except BaseException as error:  # noqa: BLE001 - handed to the caller's thread
@@ -140,7 +147,7 @@ def _file_sha256(path):
     return digest.hexdigest()
 
 
-def cached_fmu(sha256, blob, cache=None):
+def cached_fmu(sha256: str, blob: bytes, cache: str | Path | None = None) -> Path:
     """The path of the FMU with this SHA-256 in the worker's cache.
 
     The cached file's SHA-256 is checked every time it is used; a file that does not
@@ -181,18 +188,13 @@ def _allow_children():
                           "DASK_DISTRIBUTED__WORKER__DAEMON=False (or --no-nanny)")
 
 
-def run_remote(job, blobs):
+def run_remote(job: Job, blobs: dict[str, bytes]) -> tuple[RunResult, dict[str, bytes]]:
     """Body of a Dask task: run ``job`` isolated on this worker; return its folder.
 
     ``blobs``: SHA-256 -> FMU bytes of the job's FMUs. Returns ``(result dict, files)``,
     ``files`` mapping each file of the run's folder (relative POSIX path) to its bytes.
     Metrics are left to the client (``metrics_spec`` is dropped here).
     """
-    import shutil
-
-    from .lifetime import scratch_dir
-    from .runner import _run_isolated
-
     _allow_children()
     models = {}
     for cname, info in job.plan.models.items():
@@ -205,7 +207,7 @@ def run_remote(job, blobs):
                                 metrics_spec=None)
     root = Path(scratch_dir("dask"))
     try:
-        [result] = _run_isolated([local], root, 1, lambda steps: None, lambda: None)
+        [result] = run_isolated([local], root, 1, lambda steps: None, lambda: None)
         run_dir = root / job.label
         files = {p.relative_to(run_dir).as_posix(): p.read_bytes()
                  for p in sorted(run_dir.rglob("*")) if p.is_file()}
@@ -216,9 +218,6 @@ def run_remote(job, blobs):
 
 def _write_back(job, result, files, root):
     """Write a run's files under ``root`` and compute its metrics here (the client)."""
-    from . import metrics
-    from .results import create_file, write_json
-
     run_dir = Path(root) / job.label
     run_dir.mkdir(exist_ok=True)  # never its parents: a removed result folder stays gone
     for name, data in files.items():
@@ -228,15 +227,13 @@ def _write_back(job, result, files, root):
         target.parent.mkdir(parents=True, exist_ok=True)
         with create_file(target, binary=True) as stream:
             stream.write(data)
-    result = dict(result)
+    result = RunResult(**result)
     if job.metrics_spec and result["rows"]:
-        import json
-
         values, metrics_error = {}, None
         try:
             values = dict(metrics.compute_metrics_csv(
                 run_dir / "timeseries.csv", job.metrics_spec,
-                base_dir=Path(job.manifest_path).parent))
+                base_dir=job.manifest_dir))
         except Exception as failure:  # noqa: BLE001 - reported in run.json, as locally
             metrics_error = f"{type(failure).__name__}: {failure}"
         write_json(run_dir / "metrics.json", values, replace=True)
@@ -270,16 +267,18 @@ def _quiet_logs():
     line); return a function that turns logging back on."""
     logging.disable(logging.CRITICAL)
 
-    def restore():
+    def restore() -> None:
         logging.disable(logging.NOTSET)
 
     return restore
 
 
-def run_on_dask(address, jobs, root, on_progress, on_done):
+def run_on_dask(address: str, jobs: list[Job], root: Path,
+                on_progress: Callable[[int], None],
+                on_done: Callable[[], None]) -> list[RunResult]:
     """Run ``jobs`` on the cluster at ``address``; write each run under ``root``.
 
-    Same contract as :func:`agv_cosim.runner._run_isolated`: one result dict per job, in
+    Same contract as :func:`agv_cosim.pipeline.pool.run_isolated`: one result dict per job, in
     job order. ``on_progress`` gets each finished run's steps at once. A run whose task
     fails on the cluster (its worker died, ...) is ``failed`` with the reason and the
     others go on. When the command cannot go on (the scheduler gone, no worker left
@@ -289,12 +288,9 @@ def run_on_dask(address, jobs, root, on_progress, on_done):
     """
     from distributed import wait as wait_futures
 
-    from .lifetime import Interrupted, ignore_termination
-    from .runner import _not_run
-
     restore_logs = _quiet_logs()
     client = connect(address)
-    results = [None] * len(jobs)
+    results: list[RunResult | None] = [None] * len(jobs)
     futures = {}
     try:
         if not client.scheduler_info().get("workers"):
@@ -321,7 +317,7 @@ def run_on_dask(address, jobs, root, on_progress, on_done):
                                    key=f"agv-cosim-{os.getpid()}-{index}-{job.label}")
             futures[future] = index
         pending = set(futures)
-        lost_since = None
+        lost_since: float | None = None
         while pending:
             try:
                 wait_futures(list(pending), timeout=1.0, return_when="FIRST_COMPLETED")
@@ -330,9 +326,10 @@ def run_on_dask(address, jobs, root, on_progress, on_done):
             except Exception as error:  # noqa: BLE001 - e.g. futures cancelled: the end
                 reasons = sorted(set(re.findall(r"for reason: ([^.\n]+)", str(error))))
                 why = ", ".join(reasons) or type(error).__name__
-                problem = (f"lost the scheduler at {address}" if _worker_count(client) is None
-                           else f"the cluster at {address} cancelled the runs left (a "
-                                "worker holding their FMUs died)")
+                problem: str | None = (
+                    f"lost the scheduler at {address}" if _worker_count(client) is None
+                    else f"the cluster at {address} cancelled the runs left (a worker "
+                         "holding their FMUs died)")
                 raise ClusterError(f"--dask: {problem} ({why}); {len(pending)} run(s) did "
                                    "not finish") from None
             done = [f for f in futures if f in pending and f.done()]
@@ -346,13 +343,13 @@ def run_on_dask(address, jobs, root, on_progress, on_done):
                     raise ClusterError(f"--dask: run {job.label} could not run on the "
                                        f"cluster: {_one_line(error)}") from None
                 except Exception as error:  # noqa: BLE001 - this run's task failed
-                    results[index] = _not_run(job, "failed")
-                    results[index]["error"] = (f"its Dask task failed: "
-                                               f"{type(error).__name__}: {_one_line(error)}")
+                    results[index] = run_result(
+                        job, "failed", error=f"its Dask task failed: "
+                                             f"{type(error).__name__}: {_one_line(error)}")
                     on_done()
                     continue
                 results[index] = _write_back(job, result, files, root)
-                on_progress(int(round((job.plan.stop - job.plan.start) / job.plan.step)))
+                on_progress(job.plan.steps)
                 on_done()
             if not pending:
                 break
@@ -369,15 +366,17 @@ def run_on_dask(address, jobs, root, on_progress, on_done):
             elif time.monotonic() - lost_since > LOST_TIMEOUT:
                 raise ClusterError(f"--dask: {problem} (for {LOST_TIMEOUT:g} s); "
                                    f"{len(pending)} run(s) did not finish")
-        return results
+        done_results = [r for r in results if r is not None]
+        assert len(done_results) == len(results), "a run ended without a result"
+        return done_results
     except BaseException as stop:
         if isinstance(stop, (KeyboardInterrupt, Interrupted)):
-            stop.restore = ignore_termination()
+            setattr(stop, "restore", ignore_termination())  # noqa: B010 - for the caller
         if isinstance(stop, (KeyboardInterrupt, Interrupted, ClusterError)) and futures:
-            stop.results = [r if r is not None else _not_run(jobs[i])
-                            for i, r in enumerate(results)]
+            setattr(stop, "results", [r if r is not None else not_run(jobs[i])  # noqa: B010
+                                      for i, r in enumerate(results)])
             if isinstance(stop, ClusterError):
-                stop.reason = str(stop).removeprefix("--dask: ")
+                setattr(stop, "reason", str(stop).removeprefix("--dask: "))  # noqa: B010
         raise
     finally:
         try:

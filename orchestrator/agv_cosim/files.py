@@ -1,48 +1,51 @@
-"""Writing and reading results: streamed CSV time series, JSON files, the summary.
-
-Floats are written with ``repr`` (shortest text that round-trips exactly), so a CSV read
-back gives the bit-identical doubles. Output folders are assembled under a temporary name
-and renamed into place at the end (:class:`AtomicDir`): an interrupted run never leaves a
-folder that looks complete.
+"""Files and folders this tool writes, and how safely: every file created new, never
+through a symbolic link; names from manifests checked as one path component; output
+folders assembled under a temporary name and renamed into place at the end
+(:class:`AtomicDir`), so an interrupted run never leaves a folder that looks complete.
+JSON, text and summary files are written through here too.
 """
 
 import csv
 import errno
 import io
-import itertools
 import json
 import os
 import re
 import shutil
 import stat
 import tempfile
+from collections.abc import Iterable
 from pathlib import Path
+from types import TracebackType
+from typing import IO, Any, BinaryIO
 
 import numpy as np
 
+from .errors import FolderLost, OutputError
+from .lifetime import CREATE_FLAGS, signals_blocked
+from .version import __version__
 
-def create_file(path, binary=False):
+
+def create_file(path: str | Path, binary: bool = False) -> IO[Any]:
     """A new file at ``path``, opened for writing (text: UTF-8, ``\\n`` line ends).
 
     Never an existing file and never through a symbolic link (``O_CREAT | O_EXCL |
     O_NOFOLLOW``): every file we write is one we created, in a folder of ours.
     """
-    from .lifetime import CREATE_FLAGS
-
     fd = os.open(path, CREATE_FLAGS, 0o666)
     if binary:
         return os.fdopen(fd, "wb")
     return os.fdopen(fd, "w", encoding="utf-8", newline="")
 
 
-def open_output(path):
+def open_output(path: str | Path) -> BinaryIO:
     """``path`` opened for writing bytes, created or truncated, never through a
     symbolic link (``O_NOFOLLOW``): for files a library call may write again (figures)."""
     flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW | os.O_CLOEXEC
     return os.fdopen(os.open(path, flags, 0o666), "wb")
 
 
-def csv_line(fields):
+def csv_line(fields: Iterable[Any]) -> str:
     """One CSV record of ``fields`` as the csv module writes it (quoted where a field
     holds a comma, a quote or a line break), ending in ``\\n``."""
     buffer = io.StringIO()
@@ -50,195 +53,7 @@ def csv_line(fields):
     return buffer.getvalue()
 
 
-class CsvSink:
-    """Stream rows of values to ``path`` (header: ``time`` then the column names).
-
-    The header is written by the csv module, so any FMI variable name (commas, quotes,
-    line breaks) reads back exactly (:func:`timeseries_columns`). Each row goes to the
-    file in one ``write`` call, unbuffered: a run whose process dies keeps every row it
-    recorded (the kernel holds what was written). ``bytes`` counts what was written.
-
-    Parameters
-    ----------
-    path : Path
-    columns : list of str
-        Names after ``time``.
-    formats : list of callable, optional
-        One per column (value -> text, :func:`agv_cosim.fmitypes.record_format`); None
-        when every column is a float (written with ``repr``).
-    """
-
-    def __init__(self, path, columns, formats=None):
-        from .lifetime import CREATE_FLAGS
-
-        self.path = Path(path)
-        self.fd = os.open(self.path, CREATE_FLAGS, 0o666)
-        self.bytes = 0
-        # formats: one callable per column (value -> text, fmitypes.record_format);
-        # None (every column a float) keeps the plain repr path
-        self.formats = None if formats is None else [repr] + list(formats)
-        self._write(csv_line(["time"] + list(columns)).encode("utf-8"))
-
-    def _write(self, data):
-        view = memoryview(data)
-        while view:
-            done = os.write(self.fd, view)
-            view = view[done:]
-            self.bytes += done
-
-    def write(self, row):
-        """Append one row (time, then the column values)."""
-        if self.formats is None:
-            text = ",".join(map(repr, map(float, row)))
-        else:
-            text = ",".join([f(v) for f, v in zip(self.formats, row)])
-        self._write((text + "\n").encode("utf-8"))
-
-    def close(self):
-        if self.fd is not None:
-            fd, self.fd = self.fd, None
-            os.close(fd)
-
-
-def read_timeseries(path, columns=None):
-    """Read a ``timeseries.csv`` back (whole; :func:`iter_timeseries` reads in pieces).
-
-    Returns
-    -------
-    (numpy.ndarray, dict of str -> numpy.ndarray)
-        Time [s] and the requested (default: all) columns.
-    """
-    wanted = timeseries_columns(path) if columns is None else list(columns)
-    times, data = [], {c: [] for c in wanted}
-    for t, chunk in iter_timeseries(path, wanted):
-        times.append(t)
-        for c in wanted:
-            data[c].append(chunk[c])
-    if not times:
-        return np.zeros(0), {c: np.zeros(0) for c in wanted}
-    return np.concatenate(times), {c: np.concatenate(data[c]) for c in wanted}
-
-
-#: Rows per chunk when a ``timeseries.csv`` is read in pieces (:func:`iter_timeseries`).
-#: Parsing a chunk of 10 000 rows of 10 columns peaked 6-10 MiB above one of 2 000 (as
-#: fast), which showed in the peak of a long run against a short one.
-CHUNK_ROWS = 2_000
-
-
-def _header(stream):
-    """The header record of a ``timeseries.csv`` opened as text (csv module: a quoted
-    name may hold commas, quotes and line breaks); the stream is left after it."""
-    try:
-        return next(csv.reader(stream))
-    except StopIteration:
-        return []
-
-
-def timeseries_columns(path):
-    """Column names of a ``timeseries.csv`` after ``time`` (its header)."""
-    with open(path, encoding="utf-8", newline="") as stream:
-        return _header(stream)[1:]
-
-
-def _records(stream, count):
-    """Up to ``count`` CSV records of ``stream`` as lines (a quoted field with a line
-    break keeps its record whole: a record ends where its quotes are balanced)."""
-    lines = list(itertools.islice(stream, count))
-    quoted = any('"' in line for line in lines)
-    if not quoted:
-        return lines, False
-    records, current = [], ""
-    pending = iter(lines)
-    while True:
-        line = next(pending, None)
-        if line is None:
-            if current:  # the last record goes on past this chunk
-                line = stream.readline()
-                if not line:
-                    records.append(current)
-                    break
-            else:
-                break
-        current += line
-        if current.count('"') % 2 == 0:
-            records.append(current)
-            current = ""
-    return records, True
-
-
-def iter_timeseries(path, columns=None, chunk_rows=CHUNK_ROWS):
-    """Read a ``timeseries.csv`` in pieces of at most ``chunk_rows`` rows.
-
-    Memory is bounded by the chunk, whatever the length of the file. The values are the
-    doubles :func:`read_timeseries` gives (same parser); concatenating the chunks gives its
-    arrays. The header is read with the csv module; rows holding quoted text (String
-    columns) are split by it too.
-
-    Yields
-    ------
-    (numpy.ndarray, dict of str -> numpy.ndarray)
-        Time [s] and the requested (default: all) columns of the next rows.
-
-    Raises
-    ------
-    ValueError
-        If a requested column is not in the file (the message names it).
-    """
-    if chunk_rows < 1:
-        raise ValueError(f"chunk_rows must be >= 1, got {chunk_rows!r}")
-    with open(path, encoding="utf-8", newline="") as stream:
-        header = _header(stream)
-        wanted = header[1:] if columns is None else list(columns)
-        position = {name: i for i, name in reversed(list(enumerate(header)))}
-        for name in wanted:
-            if position.get(name, 0) == 0:
-                raise ValueError(f"{path}: no column {name!r}")
-        index = [0] + [position[c] for c in wanted]
-        while True:
-            lines, quoted = _records(stream, chunk_rows)
-            if not lines:
-                return
-            if quoted:
-                rows = list(csv.reader(lines))
-                data = np.array([[float(row[i]) for i in index] for row in rows],
-                                dtype=float).reshape(len(rows), len(index))
-            else:
-                data = np.loadtxt(lines, delimiter=",", usecols=index, ndmin=2)
-            yield data[:, 0].copy(), {c: data[:, i + 1].copy() for i, c in enumerate(wanted)}
-
-
-def _header_end(stream):
-    """Bytes of the header record at the start of a binary stream (quotes respected)."""
-    quoted, size = False, 0
-    while block := stream.read(1 << 16):
-        for i, byte in enumerate(block):
-            if byte == 0x22:
-                quoted = not quoted
-            elif byte == 0x0A and not quoted:
-                return size + i + 1
-        size += len(block)
-    return size
-
-
-def count_rows(path):
-    """Rows of a ``timeseries.csv`` after its header (a last line without its newline
-    counts too). Counted in fixed-size blocks; rows with quoted text (String columns,
-    which may hold line breaks) are counted by the csv module."""
-    with open(path, "rb") as stream:
-        stream.seek(_header_end(stream))
-        lines, last, quoted = 0, b"\n", False
-        while block := stream.read(1 << 20):
-            lines += block.count(b"\n")
-            last = block[-1:]
-            quoted = quoted or b'"' in block
-        if not quoted:
-            return lines + (last != b"\n")
-    with open(path, encoding="utf-8", newline="") as stream:
-        _header(stream)
-        return sum(1 for _ in csv.reader(stream))
-
-
-def write_json(path, data, replace=False):
+def write_json(path: str | Path, data: Any, replace: bool = False) -> None:
     """Write ``data`` as indented, key-sorted JSON (NaN/inf written as null) into a new
     file (:func:`create_file`); ``replace`` first removes a file of ours already there."""
     if replace:
@@ -247,7 +62,7 @@ def write_json(path, data, replace=False):
         stream.write(json.dumps(_json_safe(data), indent=1, sort_keys=True) + "\n")
 
 
-def write_text(path, text):
+def write_text(path: str | Path, text: str) -> None:
     """Write ``text`` into a new file (:func:`create_file`)."""
     with create_file(path) as stream:
         stream.write(text)
@@ -268,7 +83,7 @@ def _json_safe(value):
     return value
 
 
-def write_summary(path, rows):
+def write_summary(path: str | Path, rows: list[dict[str, Any]]) -> None:
     """Write ``summary.csv``: one row per run (dicts; columns = union in first-seen order)."""
     columns = {}
     for row in rows:
@@ -285,7 +100,7 @@ def write_summary(path, rows):
 _BIDI = set(range(0x202A, 0x202F)) | set(range(0x2066, 0x206A)) | {0x200E, 0x200F, 0x061C}
 
 
-def printable(text):
+def printable(text: object) -> str:
     """``text`` safe to print on a terminal as one line: control characters (C0, DEL,
     C1: escape sequences, line breaks, bells) and bidi controls are written as escapes
     (``\\x1b``, ``\\n``, ``\\u202e``); everything else is unchanged."""
@@ -304,10 +119,6 @@ def printable(text):
     return "".join(out)
 
 
-class OutputError(Exception):
-    """An output folder we must not (or cannot) write; the text names the path."""
-
-
 #: File that marks a folder as a result folder this tool wrote (JSON: tool, version).
 MARKER = ".agv-cosim"
 #: What a result folder written before the marker existed holds (besides run folders
@@ -319,7 +130,7 @@ _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 MAX_NAME = 128
 
 
-def check_name(name, what="name"):
+def check_name(name: object, what: str = "name") -> str:
     """Return ``name`` if it is one safe path component, else raise ValueError.
 
     Safe: letters, digits, ``-``, ``_``, ``.``; not ``.`` or ``..``; not starting with
@@ -337,7 +148,7 @@ def check_name(name, what="name"):
     return name
 
 
-def user_mode(directory=True):
+def user_mode(directory: bool = True) -> int:
     """Permission bits a new folder (file) gets under the process's umask."""
     mask = os.umask(0)
     os.umask(mask)
@@ -361,7 +172,7 @@ def _marker_data(folder):
     return data if isinstance(data, dict) and data.get("tool") == "agv-cosim" else None
 
 
-def is_result_folder(path):
+def is_result_folder(path: str | Path) -> bool:
     """True when ``path`` is a folder this tool wrote (marker, or the legacy layout)."""
     path = Path(path)
     if _marker_data(path) is not None:
@@ -379,9 +190,7 @@ def is_result_folder(path):
     return True
 
 
-def _write_marker(folder, **extra):
-    from . import __version__
-
+def _write_marker(folder: str | Path, **extra: Any) -> None:
     write_json(Path(folder) / MARKER, {"tool": "agv-cosim", "version": __version__,
                                        **extra}, replace=True)
 
@@ -393,7 +202,7 @@ class _Lock:
     file: a link or anything else at its place is refused, never written through.
     """
 
-    def __init__(self, path, target):
+    def __init__(self, path: Path, target: Path) -> None:
         import fcntl
 
         self.path = Path(path)
@@ -426,7 +235,7 @@ class _Lock:
             os.close(fd)
         os.ftruncate(fd, 0)
         os.write(fd, str(os.getpid()).encode())
-        self.fd = fd
+        self.fd: int | None = fd
 
     def _same(self, fd):
         """True when ``path`` is still the file open as ``fd`` (not a link)."""
@@ -437,16 +246,12 @@ class _Lock:
         mine = os.fstat(fd)
         return (here.st_dev, here.st_ino) == (mine.st_dev, mine.st_ino)
 
-    def release(self):
+    def release(self) -> None:
         if self.fd is not None:
             if self._same(self.fd):
                 self.path.unlink(missing_ok=True)
             os.close(self.fd)
             self.fd = None
-
-
-class FolderLost(Exception):
-    """The folder a run was writing was removed or replaced during the run."""
 
 
 class AtomicDir:
@@ -470,12 +275,12 @@ class AtomicDir:
     context manager it discards on an exception and always releases the lock.
     """
 
-    def __init__(self, target, overwrite=False):
+    def __init__(self, target: str | Path, overwrite: bool = False) -> None:
         self.target = Path(os.path.abspath(target))
         self.overwrite = overwrite
-        self.lock = None
-        self.path = None
-        self.identity = None
+        self.lock: _Lock | None = None
+        self.path: Path | None = None
+        self.identity: tuple[int, int] | None = None
         parent, name = self.target.parent, self.target.name
         if not name:
             raise OutputError(f"{target}: not a folder name")
@@ -521,7 +326,7 @@ class AtomicDir:
                           "refusing to replace it (choose another --out, or pass "
                           "--overwrite to replace it)")
 
-    def _clean_stale(self):
+    def _clean_stale(self) -> None:
         name = self.target.name
         for pattern in (f".{name}.incomplete-*", f".{name}.old-*"):
             for stale in self.target.parent.glob(pattern):
@@ -532,7 +337,7 @@ class AtomicDir:
                 if stat.S_ISDIR(info.st_mode) and _marker_data(stale) is not None:
                     shutil.rmtree(stale, ignore_errors=True)
 
-    def intact(self):
+    def intact(self) -> bool:
         """True while the temporary folder is the one we created (same inode, marked)."""
         if self.path is None or self.identity is None:
             return False
@@ -543,25 +348,24 @@ class AtomicDir:
         return ((info.st_dev, info.st_ino) == self.identity and stat.S_ISDIR(info.st_mode)
                 and _marker_data(self.path) is not None)
 
-    def check_intact(self):
+    def check_intact(self) -> None:
         """Raise :class:`FolderLost` (naming the folder) unless :meth:`intact`."""
         if not self.intact():
             raise FolderLost(f"{self.target}: the folder being written ({self.path}) was "
                              "removed or replaced during the run; no result folder was "
                              "written")
 
-    def mark_partial(self, reason, complete, total):
+    def mark_partial(self, reason: str, complete: int, total: int) -> None:
         """Mark the folder as holding only part of the runs: the marker says so
         (``complete: false`` and ``reason``) and ``partial.txt`` says it in words."""
+        assert self.path is not None, "the folder was committed or discarded"
         _write_marker(self.path, complete=False, reason=reason,
                       runs_complete=complete, runs=total)
         write_text(self.path / "partial.txt",
                    f"partial result: {reason}; {complete} of {total} run(s) complete "
                    "(status of each run: summary.csv)\n")
 
-    def commit(self):
-        from .lifetime import signals_blocked
-
+    def commit(self) -> Path:
         with signals_blocked():  # the renames are not cut half-way by a Ctrl-C/SIGTERM
             return self._commit()
 
@@ -580,6 +384,7 @@ class AtomicDir:
                     _write_marker(old)  # so that a run killed now still cleans it
                 except OSError:
                     pass
+        assert self.path is not None, "the folder was committed or discarded"
         self.path.rename(self.target)
         self.path = None
         if old is not None:
@@ -587,23 +392,23 @@ class AtomicDir:
         self._release()
         return self.target
 
-    def discard(self):
+    def discard(self) -> None:
         if self.path is not None:
             if self.intact():
                 shutil.rmtree(self.path, ignore_errors=True)
             self.path = None
         self._release()
 
-    def _release(self):
+    def _release(self) -> None:
         if self.lock is not None:
             self.lock.release()
             self.lock = None
 
-    def __enter__(self):
+    def __enter__(self) -> "AtomicDir":
         return self
 
-    def __exit__(self, kind, value, traceback):
+    def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
+                 traceback: TracebackType | None) -> None:
         if kind is not None:
             self.discard()
         self._release()
-        return False

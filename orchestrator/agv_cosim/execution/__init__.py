@@ -1,0 +1,19 @@
+"""Stage 4, execution: one run of a checked :class:`~agv_cosim.system.System`, composed
+of parts as in libcosim.
+
+- :mod:`.instance`: an FMU instantiated in a private extraction folder;
+- :mod:`.units`: its value buffers, grouped by C getter / setter;
+- :mod:`.algorithm`: Gauss-Seidel or Jacobi, which moves the values; the stepper,
+  which steps every FMU and collects stop requests;
+- :mod:`.scenario`: the events, applied at their communication points;
+- :mod:`.observers`: what takes each recorded row and the progress (CSV, callbacks);
+- :mod:`.fastpath`: the opt-in generated per-step functions (the same calls);
+- :mod:`.simulation`: :func:`simulate`, the composition.
+"""
+
+from .observers import CsvObserver, Observer, ProgressObserver, RowObserver
+from .simulation import Outcome, simulate
+from .track import PHASES, describe_track
+
+__all__ = ["PHASES", "CsvObserver", "Observer", "Outcome", "ProgressObserver",
+           "RowObserver", "describe_track", "simulate"]

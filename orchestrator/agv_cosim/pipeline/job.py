@@ -1,0 +1,71 @@
+"""One job run into its folder: the simulation with its CSV recorded, then its metrics,
+``metrics.json`` and ``run.json``."""
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from .. import fmitypes
+from ..errors import SimulationError
+from ..execution import CsvObserver, Observer, ProgressObserver, simulate
+from ..execution.track import Track
+from ..report import metrics
+from ..report.records import RunResult, write_run_files
+from ..system import Job
+from ..timeseries import CsvSink
+
+__all__ = ["run_job"]
+
+
+def run_job(job: Job, run_dir: str | Path, progress: Callable[[int], None] | None = None,
+            track: Track | None = None,
+            on_message: Callable[[str, int, str], None] | None = None,
+            fast: bool = True) -> RunResult:
+    """Run one job into ``run_dir`` (created; its parent must exist); return its result.
+
+    Never raises for a simulation failure: the status is ``complete``, ``partial`` (some
+    rows recorded, then a failure) or ``failed`` (nothing recorded). ``track``,
+    ``on_message`` and ``fast`` are passed to :func:`~agv_cosim.execution.simulate`
+    (``fast``: its generated per-step functions). ``csv_bytes`` in the result is the
+    size of the ``timeseries.csv`` written.
+    """
+    run_dir = Path(run_dir)
+    run_dir.mkdir(exist_ok=True)  # never its parents: a removed result folder stays gone
+    types = job.plan.record_types()
+    sink = CsvSink(run_dir / "timeseries.csv", job.plan.record,
+                   None if all(t.is_float for t in types) else
+                   [fmitypes.record_format(t) for t in types])
+    observers: list[Observer] = [CsvObserver(sink)]
+    if progress is not None:
+        observers.append(ProgressObserver(progress))
+    error, ended_by = None, None
+    begin = time.perf_counter()
+    try:
+        outcome = simulate(job.plan, observers, track=track, on_message=on_message,
+                           fast=fast)
+        ended_by = outcome.ended_by
+    except SimulationError as failure:
+        error = str(failure)
+    except OSError as failure:  # writing the results failed (disk full, ...)
+        error = f"cannot write {failure.filename or sink.path}: {failure.strerror or failure}"
+    finally:
+        try:
+            sink.close()
+        except OSError as failure:
+            error = error or f"cannot write {sink.path}: {failure.strerror or failure}"
+    rows = sink.rows
+    wall = time.perf_counter() - begin
+    status = "complete" if error is None else ("partial" if rows else "failed")
+    values, metrics_error = {}, None
+    if job.metrics_spec and rows:
+        try:
+            # streamed from the file in chunks: memory does not grow with the run's length
+            values = dict(metrics.compute_metrics_csv(run_dir / "timeseries.csv",
+                                                      job.metrics_spec,
+                                                      base_dir=job.manifest_dir))
+        except Exception as failure:  # noqa: BLE001 - reported in run.json
+            metrics_error = f"{type(failure).__name__}: {failure}"
+    result = write_run_files(job, run_dir, rows, status, error, wall, values,
+                             metrics_error, ended_by)
+    result["csv_bytes"] = sink.bytes
+    return result

@@ -1,0 +1,294 @@
+"""The local worker pool: every job run in a worker process, a worker reused only after a
+run that ended complete.
+
+Why worker processes: an FMU runs inside the process that loads it, and a failing
+pythonfmu 0.7 FMU can damage its host's heap (see agv_core/fmi/pythonfmu_workarounds.py).
+A worker runs the next job only after a run that ended ``complete``; after any other
+ending it exits and a fresh worker takes the next job, so the damage ends with the run.
+A worker that dies is reported as its run's failure (partial if it had recorded rows),
+and the other runs go on. Reusing a worker after clean runs spares each later run the
+process start and the import of the FMUs' bundled cores. Each worker leads a process
+group of its own, so a run that exceeds its limit is ended with every process its FMUs
+started.
+"""
+
+import os
+import shutil
+import tempfile
+import time
+from collections.abc import Callable
+from multiprocessing import get_context
+from multiprocessing.connection import Connection, wait
+from pathlib import Path
+from typing import Any
+
+from ..errors import Interrupted
+from ..execution.instance import keep_extractions
+from ..execution.track import Track, describe_track
+from ..lifetime import ignore_termination, kill_group, scratch_dir
+from ..report import metrics
+from ..report.records import RunResult, run_result, write_run_files
+from ..system import Job
+from ..timeseries import count_rows
+from .channels import Frames, OutputLog, child_setup, flush_c_stdio, send_frame
+from .job import run_job
+
+__all__ = ["FORKSERVER_PRELOAD", "not_run", "run_isolated"]
+
+#: Modules the fork server imports once, so that each run's child starts with them
+#: instead of importing them again: this module (and with it fmpy's wrapper, numpy,
+#: matplotlib) and the third-party modules the component cores import at instantiation
+#: (scipy.signal alone took ~1 s a run on a 2-core machine). Third-party only: the cores
+#: (agv_core) must still come from each FMU's own resources, as the FMU was built. A
+#: module missing here is skipped by the fork server.
+FORKSERVER_PRELOAD = (__name__, "fmpy.fmi2", "numpy", "scipy.signal", "scipy.linalg",
+                      "scipy.optimize", "scipy.special", "scipy.integrate")
+
+
+def _worker(jobs: Connection, channel: Connection, output: Connection, life: Connection,
+            scratch: str, track: Track) -> None:
+    """Body of a worker process: run the jobs the parent sends, one at a time.
+
+    ``jobs`` is the reading end of a pipe that brings ``(job, run_dir)`` or None (stop);
+    ``channel`` (frames, see above) carries progress, FMU messages and each result back;
+    ``output`` receives the process's stdout and stderr; ``life`` closes when the
+    command's process ends (see :func:`child_setup`). A worker runs the next job
+    only after a run that ended ``complete``: any other ending (a failed or partial
+    run, an FMU error) may have left the process damaged (pythonfmu, see
+    agv_core/fmi/pythonfmu_workarounds.py), so the worker then exits and the parent
+    starts a fresh one. Reusing a worker spares each later run the process start and the
+    import of the FMUs' bundled cores (benchmarks/bench_runs.py).
+
+    FMUs are extracted under ``scratch``, which the parent deletes however the worker
+    ends (a process that dies cannot clean up after itself). See :func:`child_setup`
+    for how the worker lives and ends.
+    """
+    child_setup(output, life)
+    tempfile.tempdir = scratch
+    keep_extractions(scratch)  # each FMU unpacked once per worker (the parent deletes it)
+    fd = channel.fileno()
+
+    def send(message: tuple[str, Any]) -> None:
+        try:
+            send_frame(fd, message)
+        except OSError:  # the parent is gone (BrokenPipeError): nobody to report to
+            os._exit(1)
+
+    def progress(steps: int) -> None:
+        send(("progress", steps))
+
+    while True:
+        try:
+            task = jobs.recv()
+        except (EOFError, OSError):  # the parent is gone
+            os._exit(1)
+        if task is None:
+            break
+        job, run_dir = task
+        track[:] = [0.0] * len(track)
+        warnings = [0]
+
+        def message(component: str, status: int, text: str,
+                    warnings: list[int] = warnings) -> None:
+            # errors (and the first 100 warnings) reach the parent before a crash loses them
+            if status >= 3 or (status >= 1 and warnings[0] < 100):
+                warnings[0] += status < 3
+                send(("message", f"{component}: {' '.join(text.split())}"))
+
+        try:
+            result = run_job(job, run_dir, progress, track, message)
+        except Exception as failure:  # noqa: BLE001 - e.g. a full disk: report, no traceback
+            result = run_result(job, "failed", error=f"{type(failure).__name__}: {failure}")
+        flush_c_stdio()  # the run's output is in the pipe before its result
+        send(("done", result))
+        if result["status"] != "complete":
+            break
+    channel.close()
+
+
+def _ended(job: Job, run_dir: str | Path, status: str | None, how: str, track: Track,
+           last_message: str | None) -> RunResult:
+    """The summary of a run whose process ended before it reported: ``how`` says what
+    happened; ``track`` (shared with the process) names the component, call and time;
+    ``last_message`` is the last message an FMU of the run logged (or None). ``status``
+    None means ``partial`` with rows recorded, else ``failed``."""
+    run_dir = Path(run_dir)
+    csv_file = run_dir / "timeseries.csv"
+    rows = count_rows(csv_file) if csv_file.is_file() else 0
+    if status is None:
+        status = "partial" if rows else "failed"
+    error = (f"{how} in {describe_track(track, list(job.plan.models))} after {rows} "
+             "recorded rows" + (f"; last FMU message: {last_message}" if last_message else ""))
+    values, metrics_error = {}, None
+    if job.metrics_spec and rows and status != "interrupted":  # as for any partial run
+        try:
+            values = dict(metrics.compute_metrics_csv(
+                csv_file, job.metrics_spec, base_dir=job.manifest_dir))
+        except Exception as failure:  # noqa: BLE001 - reported in run.json
+            metrics_error = f"{type(failure).__name__}: {failure}"
+    try:
+        run_dir.mkdir(exist_ok=True)  # not its parents: a removed result folder stays gone
+        return write_run_files(job, run_dir, rows, status, error, None, values,
+                               metrics_error)
+    except OSError:  # the result folder is gone: the result only
+        return run_result(job, status, rows=rows, error=error)
+
+
+def not_run(job: Job, why: str = "not run") -> RunResult:
+    """The summary of a run that never started."""
+    return run_result(job, why)
+
+
+def _process_end(exitcode: int | None) -> str:
+    if exitcode is None:
+        return "the run's process ended"
+    how = f"signal {-exitcode}" if exitcode < 0 else f"exit code {exitcode}"
+    return f"the run's process died ({how})"
+
+
+def run_isolated(jobs: list[Job], root: Path, workers: int,
+                 on_progress: Callable[[int], None],
+                 on_done: Callable[[], None]) -> list[RunResult]:
+    """Run every job in a worker process, ``workers`` processes at a time.
+
+    A worker runs one job at a time and gets the next one only if its last run ended
+    ``complete`` (see :func:`_worker`); otherwise it exits and a fresh worker takes the
+    next job, so a failing or crashing FMU affects its own run only. Each worker reports
+    through a pipe of its own, read without blocking (one that dies mid-message, or
+    whose FMU writes into the pipe, cannot block the others), and its end is seen from
+    the process itself (not from the pipe, which a process the FMU forked may hold).
+
+    A run longer than its ``job.timeout`` [s] is stopped (its process group killed) and
+    reported ``timed out``; the other runs go on. On SIGINT, SIGTERM or SIGHUP the
+    workers are stopped, the runs under way reported ``interrupted`` and the waiting
+    ones ``not run``; the exception is re-raised with those results (``.results``) and
+    the termination signals ignored until ``.restore()`` is called, so that the caller
+    can keep what was done.
+    """
+    context = get_context("forkserver")
+    context.set_forkserver_preload(list(FORKSERVER_PRELOAD))
+    results: list[RunResult | None] = [None] * len(jobs)
+    last_message = [None] * len(jobs)
+    waiting = list(range(len(jobs)))
+    #: each: dict(process, send, frames, output, scratch, track, index, deadline)
+    pool: list[dict[str, Any]] = []
+    # closes when this process ends, however: each worker's guard then ends its group
+    life_reader, life_writer = context.Pipe(duplex=False)
+
+    def start_worker() -> dict[str, Any]:
+        job_reader, job_writer = context.Pipe(duplex=False)
+        reader, writer = context.Pipe(duplex=False)
+        out_reader, out_writer = context.Pipe(duplex=False)
+        scratch = scratch_dir("run")
+        track = context.RawArray("d", 3)  # where the worker is (master.simulate)
+        track[0] = -1.0  # no component yet
+        process = context.Process(target=_worker, name="agv-cosim worker",
+                                  args=(job_reader, writer, out_writer, life_reader, scratch,
+                                        track))
+        process.start()
+        for end in (job_reader, writer, out_writer):
+            end.close()
+        worker = {"process": process, "send": job_writer, "frames": Frames(reader),
+                  "output": OutputLog(out_reader), "scratch": scratch, "track": track,
+                  "index": None, "deadline": None}
+        pool.append(worker)
+        return worker
+
+    def give(worker: dict[str, Any]) -> None:
+        index = waiting.pop(0)
+        worker["index"] = index
+        job = jobs[index]
+        worker["deadline"] = time.monotonic() + job.timeout if job.timeout else None
+        worker["output"].attach(root / job.label)
+        try:
+            worker["send"].send((job, root / job.label))
+        except OSError:  # the worker is already gone: its end is seen below
+            pass
+
+    def end(worker: dict[str, Any], status: str | None = None, how: str | None = None) -> None:
+        """Stop a worker (its whole process group) and clean up after it; a run it was
+        doing gets ``how`` as its reason (default: how its process ended)."""
+        process = worker["process"]
+        kill_group(process)
+        process.join()
+        worker["output"].read()
+        index = worker["index"]
+        if index is not None and results[index] is None:
+            job = jobs[index]
+            results[index] = _ended(job, root / job.label, status,
+                                    how or _process_end(process.exitcode),
+                                    worker["track"], last_message[index])
+            on_done()
+        worker["output"].close()
+        worker["send"].close()
+        worker["frames"].close()
+        shutil.rmtree(worker["scratch"], ignore_errors=True)
+        if worker in pool:  # (an interruption may have come in the middle of an end)
+            pool.remove(worker)
+
+    def handle(worker: dict[str, Any], kind: str, payload: Any) -> None:
+        index = worker["index"]
+        if kind == "progress":
+            on_progress(payload)
+        elif kind == "message" and index is not None:
+            last_message[index] = payload
+        elif kind == "done" and index is not None:
+            worker["output"].read()  # the run's output was written before its result
+            results[index] = payload
+            worker["index"] = worker["deadline"] = None
+            on_done()
+            if payload["status"] != "complete":
+                return  # the worker exits by itself: its end retires it
+            if waiting:
+                give(worker)
+            else:  # nothing left for it: let it exit
+                try:
+                    worker["send"].send(None)
+                except OSError:
+                    pass
+
+    try:
+        while waiting or pool:
+            while waiting and len(pool) < workers:
+                give(start_worker())
+            now = time.monotonic()
+            deadlines = [w["deadline"] for w in pool if w["deadline"] is not None]
+            pause = min([1.0] + [max(0.0, d - now) for d in deadlines])
+            handles = [w["process"].sentinel for w in pool]
+            handles += [w["frames"].fd for w in pool if not w["frames"].closed]
+            handles += [w["output"].fd for w in pool if not w["output"].closed]
+            wait(handles, timeout=pause)
+            now = time.monotonic()
+            for worker in list(pool):
+                worker["output"].read()
+                for kind, payload in worker["frames"].read():
+                    handle(worker, kind, payload)
+                if worker["frames"].broken:
+                    end(worker, how="the run's process wrote data that is no message of "
+                                    "agv-cosim into its result channel (an FMU writing into "
+                                    "a file descriptor it does not own) and was stopped")
+                elif not worker["process"].is_alive():
+                    for kind, payload in worker["frames"].read():  # its last words
+                        handle(worker, kind, payload)
+                    end(worker)
+                elif worker["deadline"] is not None and now >= worker["deadline"]:
+                    job = jobs[worker["index"]]
+                    end(worker, "timed out", f"the run exceeded its wall-clock limit of "
+                                             f"{job.timeout!r} s and was stopped")
+    except BaseException as stop:
+        if isinstance(stop, (KeyboardInterrupt, Interrupted)):
+            setattr(stop, "restore", ignore_termination())  # noqa: B010 - for the caller
+            name = getattr(stop, "name", "SIGINT")
+            for worker in list(pool):
+                end(worker, "interrupted", f"interrupted by {name}")
+            setattr(stop, "results", [r if r is not None else not_run(jobs[i])  # noqa: B010
+                                      for i, r in enumerate(results)])
+        raise
+    finally:
+        for worker in list(pool):
+            end(worker)
+        life_reader.close()
+        life_writer.close()
+    done = [r for r in results if r is not None]
+    assert len(done) == len(results), "a run ended without a result"
+    return done

@@ -1,0 +1,236 @@
+"""Runs, variants, sweeps and parallel workers: a manifest's jobs run and its output
+folder written.
+
+:func:`execute` runs the jobs (:func:`agv_cosim.pipeline.prepare.prepare`) in worker
+processes (:mod:`.pool`; up to ``workers`` at once) or on a Dask cluster
+(:mod:`.distributed`), and writes the output folder::
+
+    DIR/<run label>/timeseries.csv   time, then component.variable (csv module; repr floats)
+    DIR/<run label>/metrics.json     metrics of the run (agv_cosim.report.metrics)
+    DIR/<run label>/run.json         hashes, parameters, versions, wall time, status, and
+                                     the run's inputs with their SHA-256
+    DIR/<run label>/output.txt       what the run's process printed (only if it did)
+    DIR/summary.csv                  one row per run: label, status, sweep values, metrics
+    DIR/*.png                        the runs overlaid (agv_cosim.report.plots)
+    DIR/montecarlo.json, .png        with [montecarlo] (agv_cosim.report.montecarlo)
+    DIR/partial.txt                  only in a folder kept after an interruption
+
+A run's status is ``complete``, ``partial`` (rows recorded, then a failure), ``failed``,
+``timed out`` (stopped at its wall-clock limit), ``interrupted`` (under way when a
+signal came) or ``not run``.
+
+Each run is independent and deterministic, so the parallel and the serial results are
+byte-identical. ``DIR`` is assembled under a temporary name and renamed into place; on
+SIGINT, SIGTERM or SIGHUP it is renamed into place marked partial when any run has rows.
+"""
+
+import os
+import sys
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from ..errors import FolderLost
+from ..files import AtomicDir, printable, write_summary, write_text
+from ..manifest import Manifest
+from ..report import montecarlo, plots
+from ..report.records import RunResult, summary_rows
+from ..system import Job
+from .distributed import run_on_dask
+from .pool import run_isolated
+from .prepare import prepare
+
+__all__ = ["default_out_dir", "execute", "progress_bar", "run_manifest"]
+
+
+def default_out_dir(manifest: Manifest) -> Path:
+    """``results/<manifest name>`` relative to the current folder."""
+    return Path("results") / manifest.name
+
+
+def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = None,
+            workers: int | None = None, quiet: bool = False, overwrite: bool = False,
+            dask: str | None = None) -> tuple[Path, list[RunResult]]:
+    """Run ``jobs`` and write the output folder (see the module docstring).
+
+    Parameters
+    ----------
+    manifest : Manifest
+    jobs : list of Job
+    out_dir : path, optional
+        Default :func:`default_out_dir`.
+    workers : int, optional
+        Runs at once, each in its own process (default: one per core).
+    quiet : bool
+        No progress bars.
+    overwrite : bool
+        Replace ``out_dir`` even when it is not a result folder of ours (see
+        :class:`~agv_cosim.report.AtomicDir`; without it such a folder is refused).
+    dask : str, optional
+        Address of a Dask scheduler (``tcp://HOST:PORT``): run the jobs on that cluster
+        (see :mod:`agv_cosim.distributed`) instead of local processes; ``workers`` is
+        then unused. Raises :class:`~agv_cosim.distributed.ClusterError`.
+
+    Returns
+    -------
+    (Path, list of dict)
+        The output folder and one result dict per job (in job order).
+    """
+    out_dir = Path(out_dir) if out_dir else default_out_dir(manifest)
+    workers = workers or os.cpu_count() or 1
+    workers = max(1, min(workers, len(jobs)))
+    with AtomicDir(out_dir, overwrite=overwrite) as folder:
+        written = folder.path
+        assert written is not None
+        total = sum(job.plan.steps for job in jobs)
+        bar = progress_bar()(total=total, desc=manifest.name, unit="step", delay=2.0, disable=quiet,
+                   file=sys.stderr, mininterval=0.5, postfix={"runs": f"0/{len(jobs)}"})
+        finished = 0
+
+        def run_done() -> None:
+            nonlocal finished
+            finished += 1
+            bar.set_postfix(runs=f"{finished}/{len(jobs)}")
+
+        try:
+            if dask:
+                results = run_on_dask(dask, jobs, written, bar.update, run_done)
+            else:
+                results = run_isolated(jobs, written, workers, bar.update, run_done)
+        except BaseException as stop:
+            bar.close()  # before any message: the error is the last line on stderr
+            _keep_partial(manifest, jobs, folder, stop)
+            raise
+        bar.close()
+        folder.check_intact()
+        results = [_checked_files(job, result, written)
+                   for job, result in zip(jobs, results)]
+        _write_summary(folder, results)
+        if manifest.montecarlo is not None:
+            figure_error = montecarlo.write_outputs(manifest.montecarlo, jobs, results,
+                                                    written, manifest.name)
+            if figure_error:
+                write_text(written / "montecarlo_error.txt", figure_error + "\n")
+                print(printable(f"agv-cosim: warning: {manifest.path}: montecarlo figure: "
+                                f"{figure_error}"), file=sys.stderr)
+        plot_error = _plots(manifest, jobs, results, written)
+        if plot_error:
+            write_text(written / "plots_error.txt", plot_error + "\n")
+            print(printable(f"agv-cosim: warning: {manifest.path}: plots: {plot_error}"),
+                  file=sys.stderr)
+        target = folder.commit()
+    return target, results
+
+
+def progress_bar() -> type:
+    """tqdm whose ``close`` ends the bar's line whenever the bar was drawn.
+
+    tqdm's ``close`` leaves the line open when no ``update`` drew the bar after its
+    ``delay``, although ``set_postfix`` and tqdm's monitor thread draw it through
+    ``refresh``; a message printed after ``close`` would then land on the bar's line."""
+    from tqdm import tqdm
+
+    class Bar(tqdm):
+        drawn = False
+
+        def display(self, *args: Any, **kwargs: Any) -> Any:
+            self.drawn = True
+            return super().display(*args, **kwargs)
+
+        def close(self) -> None:
+            state: dict[str, Any] = self.__dict__
+            if self.drawn and not self.disable and "last_print_t" in state:
+                state["last_print_t"] = max(state["last_print_t"], self.start_t + self.delay)
+            super().close()
+
+    return Bar
+
+
+def _write_summary(folder: AtomicDir, results: list[RunResult]) -> None:
+    assert folder.path is not None
+    write_summary(folder.path / "summary.csv", summary_rows(results))
+
+
+def _checked_files(job: Job, result: RunResult, root: str | Path) -> RunResult:
+    """``result``, unless the run's files are not what its process wrote (its folder
+    removed or changed during the sweep): then the run is ``failed`` and says why."""
+    if result["status"] not in ("complete", "partial"):
+        return result
+    run_dir = Path(root) / job.label
+    problem = None
+    try:
+        size = (run_dir / "timeseries.csv").stat().st_size
+        if not (run_dir / "run.json").is_file():
+            problem = "its run.json is missing"
+        elif result.get("csv_bytes") is not None and size != result["csv_bytes"]:
+            problem = (f"its timeseries.csv has {size} bytes, {result['csv_bytes']} were "
+                       "written")
+    except OSError:
+        problem = "its timeseries.csv is missing"
+    if problem is None:
+        return result
+    return RunResult(**{**result, "status": "failed", "metrics": {},
+                        "error": f"its folder was removed or changed during the sweep "
+                                 f"({problem}); its results are lost"})
+
+
+def _keep_partial(manifest: Manifest, jobs: list[Job], folder: AtomicDir,
+                  stop: BaseException) -> None:
+    """After an interruption (or a cluster that went away), commit the folder marked
+    partial when a run has results (``stop.results``, one per job); ``stop.kept`` is
+    then the folder. Termination signals stay ignored meanwhile (``stop.restore``)."""
+    restore = getattr(stop, "restore", None)
+    try:
+        results = getattr(stop, "results", None)
+        if results is None or not any(r["rows"] for r in results):
+            return
+        if not folder.intact():
+            return
+        results = [_checked_files(job, result, str(folder.path))
+                   for job, result in zip(jobs, results)]
+        complete = sum(r["status"] == "complete" for r in results)
+        reason = getattr(stop, "reason", None) or (
+            f"interrupted by {getattr(stop, 'name', 'SIGINT')}")
+        try:
+            _write_summary(folder, results)
+            folder.mark_partial(reason, complete, len(results))
+            setattr(stop, "kept", folder.commit())  # noqa: B010 - read by the CLI
+        except (OSError, FolderLost):  # nothing to keep: the first error is the story
+            return
+        setattr(stop, "results", results)  # noqa: B010 - read by the CLI
+    finally:
+        if restore is not None:
+            restore()
+
+
+def _plots(manifest: Manifest, jobs: list[Job], results: list[RunResult],
+           out_dir: Path) -> str | None:
+    if not manifest.plots:
+        return None
+    try:
+        runs = []
+        for job, result in zip(jobs, results):
+            if not result["rows"]:
+                continue
+            # read in chunks and decimated: the parent never holds a run's time series
+            run = plots.read_run(out_dir / job.label / "timeseries.csv", manifest.plots,
+                                 job.label, rows=result["rows"],
+                                 partial=result["status"] != "complete")
+            run.events = [(event.at, event.name) for event in job.plan.events]
+            runs.append(run)
+        if runs:
+            plots.plot_runs(runs, manifest.plots, out_dir,
+                            base_dir=Path(manifest.path).parent)
+    except Exception as failure:  # noqa: BLE001 - a plot must not lose the results
+        return f"{type(failure).__name__}: {failure}"
+    return None
+
+
+def run_manifest(manifest_path: str | Path, out_dir: str | Path | None = None,
+                 variants: list[str] | None = None, sets: Iterable[str] = (),
+                 workers: int | None = None, quiet: bool = False
+                 ) -> tuple[Path, list[RunResult], list[str]]:
+    """Validate and run a manifest; return (out folder, results, warnings)."""
+    manifest, jobs, warnings = prepare(manifest_path, variants, sets)
+    target, results = execute(manifest, jobs, out_dir, workers, quiet)
+    return target, results, warnings

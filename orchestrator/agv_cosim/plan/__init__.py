@@ -1,0 +1,12 @@
+"""Stage 2, the plan: a manifest's runs, one :class:`RunSpec` per variant x sweep point
+(x Monte Carlo sample).
+
+:mod:`.runs` expands variants, sweep points and ``--set`` overrides, :mod:`.sampling`
+draws the ``[montecarlo]`` samples, :mod:`.spec` holds the run and its label. Nothing
+here opens an FMU.
+"""
+
+from .runs import parse_set, plan_runs
+from .spec import MAX_LABEL, MAX_RUNS, RunSpec, run_label
+
+__all__ = ["MAX_LABEL", "MAX_RUNS", "RunSpec", "parse_set", "plan_runs", "run_label"]

@@ -1,0 +1,131 @@
+"""The records of a run and of a sweep: ``run.json``, ``metrics.json``, ``summary.csv``,
+and the result of a run as the pipeline passes it on (:class:`RunResult`)."""
+
+import hashlib
+import importlib
+import json
+import math
+import platform
+from pathlib import Path
+from typing import Any, NotRequired, TypedDict
+
+from ..files import write_json, write_summary
+from ..system import Job
+from ..version import __version__
+
+__all__ = ["RunResult", "inputs_sha256", "run_inputs", "run_result", "summary_rows",
+           "versions", "write_run_files", "write_summary"]
+
+
+class RunResult(TypedDict):
+    """The result of one run (what a worker sends back; one row of summary.csv)."""
+
+    label: str
+    #: complete, partial, failed, timed out, interrupted or not run
+    status: str
+    error: str | None
+    rows: int
+    metrics: dict[str, Any]
+    metrics_error: str | None
+    point: dict[str, Any]
+    variant: str | None
+    #: bytes of the timeseries.csv written (a run that wrote one)
+    csv_bytes: NotRequired[int]
+
+
+def run_result(job: Job, status: str, *, rows: int = 0, error: str | None = None,
+               metrics: dict[str, Any] | None = None,
+               metrics_error: str | None = None) -> RunResult:
+    """The :class:`RunResult` of ``job``."""
+    return RunResult(label=job.label, status=status, error=error, rows=rows,
+                     metrics={} if metrics is None else metrics,
+                     metrics_error=metrics_error, point=job.point, variant=job.variant)
+
+
+def summary_rows(results: list[RunResult]) -> list[dict[str, Any]]:
+    """summary.csv's rows: run, variant, status, the sweep point, the metrics."""
+    rows = []
+    for result in results:
+        row: dict[str, Any] = {"run": result["label"], "variant": result["variant"] or "",
+                               "status": result["status"]}
+        row.update(result["point"])
+        row.update(result["metrics"])
+        rows.append(row)
+    return rows
+
+
+def versions() -> dict[str, str | None]:
+    """Versions of the packages a result depends on."""
+    found: dict[str, str | None] = {"python": platform.python_version(), "agv_cosim": __version__}
+    for name in ("fmpy", "pythonfmu", "numpy", "scipy"):
+        try:
+            found[name] = importlib.import_module(name).__version__
+        except Exception:  # noqa: BLE001
+            found[name] = None
+    return found
+
+
+def run_inputs(job: Job) -> dict[str, Any]:
+    """Everything a run's result depends on, as plain data (``run.json``'s ``inputs``):
+    the manifest's hash, the run's variant, sweep point (and Monte Carlo sample),
+    parameters (seeds included), FMU hashes, simulation settings, connections, events
+    and package versions. Equal inputs (:func:`inputs_sha256`) give an equal result."""
+    plan = job.plan
+    return {
+        "manifest_sha256": job.manifest_sha256, "label": job.label,
+        "variant": job.variant, "point": job.point, "parameters": job.parameters,
+        "fmu_sha256": job.fmu_sha256,
+        "simulation": {"start": plan.start, "stop": plan.stop, "step": plan.step,
+                       "algorithm": plan.algorithm, "record_every": plan.record_every,
+                       "record": list(plan.record), "order": list(plan.order)},
+        "connections": [str(c) for c in plan.connections],
+        "events": [{"name": event.name, "at": event.at,
+                    "set": {f"{c}.{v}": value for c, v, value in event.sets}}
+                   for event in plan.events],
+        "versions": versions(),
+    }
+
+
+def inputs_sha256(inputs: dict[str, Any]) -> str:
+    """SHA-256 of :func:`run_inputs` in a canonical JSON form (keys sorted; NaN and inf
+    kept apart from null)."""
+    text = json.dumps(inputs, sort_keys=True, separators=(",", ":"), allow_nan=True,
+                      default=repr)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def _exact(value: Any) -> Any:
+    """``value`` with its non-finite floats as text ("nan", "inf", "-inf"): a value an
+    FMU declares legal is recorded as given, not as JSON's null."""
+    if isinstance(value, dict):
+        return {k: _exact(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_exact(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return repr(value)
+    return value
+
+
+def write_run_files(job: Job, run_dir: Path, rows: int, status: str, error: str | None,
+                    wall: float | None, values: dict[str, Any], metrics_error: str | None,
+                    ended_by: str | None = None) -> RunResult:
+    """Write metrics.json and run.json of a run (replacing ours); return its result."""
+    write_json(run_dir / "metrics.json", values, replace=True)
+    inputs = run_inputs(job)
+    digest = inputs_sha256(inputs)
+    inputs = _exact(inputs)
+    write_json(run_dir / "run.json", {
+        "label": job.label, "variant": job.variant, "sweep_point": _exact(job.point),
+        "manifest": job.manifest_path, "manifest_sha256": job.manifest_sha256,
+        "fmu_sha256": job.fmu_sha256,
+        "fmus": job.fmu_paths or {c: str(info.path) for c, info in job.plan.models.items()},
+        "parameters": _exact(job.parameters), "algorithm": job.plan.algorithm,
+        "start": job.plan.start, "stop": job.plan.stop, "step": job.plan.step,
+        "record_every": job.plan.record_every, "rows": rows,
+        "versions": inputs["versions"], "wall_time_s": wall, "status": status,
+        "error": error, "metrics_error": metrics_error, "partial": status != "complete",
+        "ended_by": ended_by or ("stop time" if status == "complete" else None),
+        "timeout_s": job.timeout, "inputs": inputs, "inputs_sha256": digest,
+        "events": inputs["events"]}, replace=True)
+    return run_result(job, status, rows=rows, error=error, metrics=values,
+                      metrics_error=metrics_error)
