@@ -20,7 +20,7 @@ Derived, not listed by hand:
   pinned to the version installed at build time (``name==version``): the FMU's shipped
   reference result was computed with exactly these, and ``pip install --no-deps -r
   requirements.txt`` into an empty venv gives a Python that runs the FMU
-  (tests/test_fmu_requirements.py does that for every FMU).
+  (tests/packaging/test_fmu_requirements.py does that for every FMU).
 
 The bundle's tag (``agv_core_bundle/BUILD_ID``, the module name ``agv_core_<tag>`` the boot
 loader gives it) is a hash of the bundled files as staged and of the requirement list.

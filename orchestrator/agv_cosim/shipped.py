@@ -12,7 +12,7 @@ from pathlib import Path
 __all__ = ["SHIPPED", "shipped_dir"]
 
 #: kind -> (folder in the repository, file patterns shipped). setup.py holds the same
-#: table (it runs before this package can be imported); tests/test_wheel.py checks that
+#: table (it runs before this package can be imported); tests/packaging/test_wheel.py checks that
 #: an installed wheel has every file.
 SHIPPED = {
     "experiments": ("experiments", ("*.toml",)),
