@@ -161,9 +161,6 @@ def loop_child(manifest):
 
     import osqp
 
-    from agv_cosim.master import simulate
-    from agv_cosim.runner import prepare
-
     solves = [0]
     solve = osqp.OSQP.solve
 
@@ -172,10 +169,25 @@ def loop_child(manifest):
         return solve(self, *args, **kwargs)
 
     osqp.OSQP.solve = counted
-    _, jobs, _ = prepare(manifest, variants=[LOOP_VARIANT])
     rows = []
-    c0, w0 = time.process_time(), time.perf_counter()
-    simulate(jobs[0].plan, lambda row: rows.append(tuple(row)))
+
+    def record(row):
+        rows.append(tuple(row))
+
+    try:
+        from agv_cosim.execution import RowObserver, simulate
+        from agv_cosim.pipeline import prepare
+
+        _, jobs, _ = prepare(manifest, variants=[LOOP_VARIANT])
+        c0, w0 = time.process_time(), time.perf_counter()
+        simulate(jobs[0].plan, [RowObserver(record)], fast=True)
+    except ImportError:  # a tree before agv_cosim.pipeline (its runner and master modules)
+        from agv_cosim.master import simulate
+        from agv_cosim.runner import prepare
+
+        _, jobs, _ = prepare(manifest, variants=[LOOP_VARIANT])
+        c0, w0 = time.process_time(), time.perf_counter()
+        simulate(jobs[0].plan, record)
     cpu, wall = time.process_time() - c0, time.perf_counter() - w0
     digest = hashlib.sha256()
     for row in rows:

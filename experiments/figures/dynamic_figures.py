@@ -18,7 +18,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from agv_cosim.results import read_timeseries
+from agv_cosim.timeseries import read_timeseries
 
 FIG = Path("experiments/figures")
 RESULTS = Path("results")

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agv_cosim.plots import RunData, plot_runs
+from agv_cosim.report.plots import RunData, plot_runs
 
 out = Path("results/seed000_speed")
 labels = [row["run"] for row in csv.DictReader(open(out / "summary.csv", newline=""))]

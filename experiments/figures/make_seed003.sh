@@ -25,7 +25,7 @@ from matplotlib.figure import Figure
 from agv_core.axle_pd.fuzzy_pd import FuzzySchedule
 from agv_core.axle_pd.track_path import parse_track_path
 from agv_core.train.train import TrainGeometry, steady_offsets
-from agv_cosim.results import read_timeseries
+from agv_cosim.timeseries import read_timeseries
 
 FIG = Path("experiments/figures")
 G = TrainGeometry(5.0, 3.0, 2.1, 9.0)

@@ -29,7 +29,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from agv_core.ref_trajectory.ref_trajectory import RefTrajectory  # noqa: E402
-from agv_cosim.results import read_timeseries  # noqa: E402
+from agv_cosim.timeseries import read_timeseries  # noqa: E402
 
 T = 0.2
 V_R = 0.4

@@ -284,7 +284,7 @@ def manifest_from_data(data: dict[str, Any], path: str | Path, sha256: str,
     """Check a manifest given as data (the dict TOML gives) and build the Manifest.
 
     The one schema check for every source: a TOML file (:func:`load_manifest`) or an SSP
-    package (:mod:`agv_cosim.ssp_import`, whose SSD is mapped to this data directly).
+    package (:mod:`agv_cosim.ssp.importer`, whose SSD is mapped to this data directly).
 
     Parameters
     ----------

@@ -478,7 +478,7 @@ def load_ssp(path: str | Path, workdir: str | Path) -> Manifest:
     -------
     Manifest
         Named by ``path`` (messages and run.json name the package) with the package's
-        SHA-256; ready for :func:`agv_cosim.runner.prepare`.
+        SHA-256; ready for :func:`agv_cosim.pipeline.prepare`.
 
     Raises
     ------
