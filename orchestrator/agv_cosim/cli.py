@@ -128,9 +128,25 @@ def _cmd_run(args):
     for result in unmeasured:
         _say(f"agv-cosim: run {result['label']}: metrics: {result['metrics_error']}")
     if not args.quiet:
+        import shutil
+
+        from .report import terminal_summary
+
+        columns = shutil.get_terminal_size((120, 24)).columns  # 120 when not a terminal
+        table = terminal_summary(target, width=columns)
+        if table:
+            print(table)
         print(printable(f"{target}: {len(results) - len(bad)}/{len(results)} run(s) "
                         "complete"))
     return 1 if bad or unmeasured else 0
+
+
+def _cmd_report(args):
+    from .report import write_report
+
+    page = write_report(args.folder)
+    print(printable(str(page)))
+    return 0
 
 
 def _cmd_list(args):
@@ -242,6 +258,16 @@ def make_parser() -> argparse.ArgumentParser:
                        help="limit of each FMU's instantiation and initialisation (default: "
                             "the manifest's [simulation] timeout, else 60 s)")
     check.set_defaults(func=_cmd_validate)
+
+    report = sub.add_parser(
+        "report", help="(re)build a result folder's index.html", parents=[debug],
+        description="Write DIR/index.html (and the comparison figures sweep_metrics.png "
+                    "or montecarlo_scatter.png) from the files of a result folder of "
+                    "'agv-cosim run': runs, metrics, figures, provenance, links to the raw "
+                    "files; a static page that opens from disk. Only files the report "
+                    "wrote before are replaced (exit 2, nothing written, otherwise).")
+    report.add_argument("folder", metavar="DIR", help="a result folder of agv-cosim run")
+    report.set_defaults(func=_cmd_report)
 
     listing = sub.add_parser("list", help="list FMUs and their variables", parents=[debug])
     listing.add_argument("path", nargs="?", default="fmus",

@@ -155,7 +155,7 @@ def user_mode(directory: bool = True) -> int:
     return (0o777 if directory else 0o666) & ~mask
 
 
-def _marker_data(folder):
+def marker_data(folder: str | Path) -> dict[str, Any] | None:
     """Our marker's JSON in ``folder`` (a regular file, not a link), or None."""
     try:
         fd = os.open(Path(folder) / MARKER, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
@@ -175,7 +175,7 @@ def _marker_data(folder):
 def is_result_folder(path: str | Path) -> bool:
     """True when ``path`` is a folder this tool wrote (marker, or the legacy layout)."""
     path = Path(path)
-    if _marker_data(path) is not None:
+    if marker_data(path) is not None:
         return True
     if not (path / "summary.csv").is_file():
         return False
@@ -195,7 +195,7 @@ def _write_marker(folder: str | Path, **extra: Any) -> None:
                                        **extra}, replace=True)
 
 
-class _Lock:
+class FolderLock:
     """An exclusive lock on ``path`` (a lock file removed on release), or OutputError.
 
     The lock file is opened without following a symbolic link and must be a regular
@@ -278,7 +278,7 @@ class AtomicDir:
     def __init__(self, target: str | Path, overwrite: bool = False) -> None:
         self.target = Path(os.path.abspath(target))
         self.overwrite = overwrite
-        self.lock: _Lock | None = None
+        self.lock: FolderLock | None = None
         self.path: Path | None = None
         self.identity: tuple[int, int] | None = None
         parent, name = self.target.parent, self.target.name
@@ -292,7 +292,7 @@ class AtomicDir:
             raise OutputError(f"{target}: cannot create '{error.filename or parent}': "
                               f"{error.strerror}") from None
         self._check_target()
-        self.lock = _Lock(parent / f".{name}.lock", self.target)
+        self.lock = FolderLock(parent / f".{name}.lock", self.target)
         try:
             self._check_target()  # again, now that no other run can change it
             self._clean_stale()
@@ -334,7 +334,7 @@ class AtomicDir:
                     info = stale.lstat()
                 except OSError:
                     continue
-                if stat.S_ISDIR(info.st_mode) and _marker_data(stale) is not None:
+                if stat.S_ISDIR(info.st_mode) and marker_data(stale) is not None:
                     shutil.rmtree(stale, ignore_errors=True)
 
     def intact(self) -> bool:
@@ -346,7 +346,7 @@ class AtomicDir:
         except OSError:
             return False
         return ((info.st_dev, info.st_ino) == self.identity and stat.S_ISDIR(info.st_mode)
-                and _marker_data(self.path) is not None)
+                and marker_data(self.path) is not None)
 
     def check_intact(self) -> None:
         """Raise :class:`FolderLost` (naming the folder) unless :meth:`intact`."""
@@ -379,7 +379,7 @@ class AtomicDir:
             old = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.old-",
                                         dir=self.target.parent))
             self.target.rename(old)
-            if _marker_data(old) is None:
+            if marker_data(old) is None:
                 try:
                     _write_marker(old)  # so that a run killed now still cleans it
                 except OSError:

@@ -148,7 +148,8 @@ def test_a_dask_run_gives_the_local_results_and_isolates_a_crash(cluster, fmus, 
     assert main(["run", str(path), "--out", str(local), "--quiet"]) == 1
     assert main(["run", str(path), "--out", str(remote), "--quiet", "--dask", cluster]) == 1
     mine, theirs = _files(local), _files(remote)
-    assert len(mine) == 1 + 4 * 3  # summary.csv + (timeseries, metrics, run) x 4 runs
+    # summary.csv + (timeseries, metrics, run) x 4 runs + the report's record of its files
+    assert len(mine) == 1 + 4 * 3 + 1 and ".agv-cosim-report.json" in mine
     assert mine == theirs
     crashed = json.loads((remote / "crashing__src.slope=1.0" / "run.json").read_text())
     assert crashed["status"] == "partial"  # every row before the crash is kept

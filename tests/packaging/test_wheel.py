@@ -114,6 +114,8 @@ def test_a_shipped_example_runs_as_in_the_repository(user, built, component_fmus
     assert ours == sorted(p.relative_to(tmp_path / "res")
                           for p in (tmp_path / "res").rglob("*.csv"))
     assert len(ours) == 4  # a, b, c and the summary
+    # the report page: its template travels in the wheel
+    assert "<h1>seed000_models_abc</h1>" in (work / "res" / "index.html").read_text()
     for relative in ours:
         assert (work / "res" / relative).read_bytes() == \
             (tmp_path / "res" / relative).read_bytes(), relative

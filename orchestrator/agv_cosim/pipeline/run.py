@@ -34,6 +34,7 @@ from ..errors import FolderLost
 from ..files import AtomicDir, printable, write_summary, write_text
 from ..manifest import Manifest
 from ..report import montecarlo, plots
+from ..report.page import write_report_quietly
 from ..report.records import RunResult, summary_rows
 from ..system import Job
 from .distributed import run_on_dask
@@ -117,6 +118,10 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         if plot_error:
             write_text(written / "plots_error.txt", plot_error + "\n")
             print(printable(f"agv-cosim: warning: {manifest.path}: plots: {plot_error}"),
+                  file=sys.stderr)
+        # index.html and the comparison figures, read from the folder's files
+        if report_error := write_report_quietly(written):
+            print(printable(f"agv-cosim: warning: {manifest.path}: report: {report_error}"),
                   file=sys.stderr)
         target = folder.commit()
     return target, results

@@ -17,18 +17,33 @@ Every key is optional; a figure is written only when its key is present.
     The x axis of ``signals.png``: ``"time"`` [s] or a signal, e.g. ``"vehicle.distance"``
     to plot against the distance travelled.
 ``units`` : table of str to str
-    Unit shown in brackets after a signal's name on its axis label, by signal name.
+    Unit shown in brackets after a signal's name on its axis label, by signal name. By
+    default each signal gets the unit its FMU declares (:func:`fmu_units`, from the FMU
+    paths in the runs' ``run.json``); this table overrides it.
 ``title`` : str
     Title of every figure (the trajectory figure gets it too).
 ``trajectory`` : table
     ``{x = "<signal>", y = "<signal>", path = "<path string, optional>"}``: an x-y plot
     ``trajectory.png`` of every run, with equal axis scales, over the reference path
     drawn from ``agv_core.numerics.paths.parse_path(path).polyline`` (the whole path when it is
-    bounded, otherwise the stretch the runs cover).
+    bounded, otherwise the stretch the runs cover); with a path, a second panel shows
+    each run's signed offset from it against the arc length (equal axes hide a 0.3 m
+    offset over 45 m; this panel does not).
 ``dpi`` : int, default 120
     Resolution of the PNG files.
 
-Runs marked ``partial`` (stopped early) are drawn dashed and labelled ``"<label> (partial)"``.
+Telling runs apart (:func:`run_styles`): a sweep with a numeric swept value of 3 or more
+values colours each run by that value on a colour map with a colour bar, the line style
+telling the variants (and other swept values) apart; otherwise up to :data:`LEGEND_CAP`
+runs each get a colour and a legend entry (a run marked ``partial``, stopped early, drawn
+dashed and labelled ``"<label> (partial)"``); more runs (Monte Carlo samples) are drawn
+thin and translucent in one colour per variant, with one legend entry per variant. A
+legend never lists more than :data:`LEGEND_CAP` entries. The runs' variants and sweep
+points come from their ``run.json`` in the output folder.
+
+The comparison figures of a result folder (a metric against the swept value; Monte Carlo
+box plots and scatters with Spearman's rank correlation) are drawn here from the runs'
+metrics by :mod:`agv_cosim.report.page`.
 
 Long runs
 ---------
@@ -67,7 +82,7 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 from matplotlib import rc_context
@@ -127,6 +142,10 @@ class RunData:
     decimated: bool = False
     #: scenario events (time [s], name): drawn as vertical dotted lines on time axes
     events: list = field(default_factory=list)
+    #: the run's variant and sweep point (run.json's ``variant`` and ``sweep_point``);
+    #: None: not known (:func:`plot_runs` reads them from ``<out_dir>/<label>/run.json``)
+    variant: str | None = None
+    point: dict | None = None
 
 
 # --------------------------------------------------------------------------- validation
@@ -348,20 +367,240 @@ def _label(name, units):
     return f"{name} [{unit}]" if unit else name
 
 
-def _style(run):
-    return {"label": f"{run.label} (partial)" if run.partial else run.label,
-            "linestyle": "--" if run.partial else "-", "linewidth": 1.2}
+# --------------------------------------------------------------------------- units
+
+#: Key of a run's sweep point that holds its Monte Carlo sample index.
+SAMPLE_KEY = "montecarlo.sample"
 
 
-def _legend(figure: Any, ax: Any) -> None:
-    # outside the axes, below them: never hides data, and no costly 'best' placement
-    handles, labels = ax.get_legend_handles_labels()
-    if handles:
-        # at most 4 columns, and no more than fit the figure's width: a 'small' character
-        # is about 4.6 pt wide and each entry adds about 6 characters of line and padding
-        fit = int(figure.get_figwidth() * 72.0 / 4.6) // (max(map(len, labels)) + 6)
-        figure.legend(handles, labels, loc="outside lower center", fontsize="small",
-                      ncols=max(1, min(len(handles), 4, fit)), frameon=False)
+def _variable_unit(variable):
+    unit = getattr(variable, "unit", None)
+    if not unit and getattr(variable, "declaredType", None) is not None:
+        unit = getattr(variable.declaredType, "unit", None)
+    return unit or None
+
+
+def _model_description(path):
+    """fmpy's model description of the FMU at ``path`` (``<package>!/<entry>``: an FMU
+    inside an SSP package), or None when it cannot be read."""
+    from fmpy import read_model_description
+
+    text = str(path)
+    try:
+        if "!/" in text:
+            import io
+            import zipfile
+
+            package, entry = text.split("!/", 1)
+            with zipfile.ZipFile(package) as archive:
+                data = io.BytesIO(archive.read(entry))
+            return read_model_description(data, validate=False)
+        return read_model_description(text, validate=False)
+    except Exception:  # noqa: BLE001 - a unit is a label: no FMU, no unit
+        return None
+
+
+def fmu_units(fmus: dict, base_dir: str | Path | None = None) -> dict:
+    """Units of the FMUs' variables as their model descriptions declare them.
+
+    Parameters
+    ----------
+    fmus : dict of str to str
+        Component name -> FMU path (run.json's ``fmus``; ``<package>!/<entry>`` for an FMU
+        inside an SSP package); a relative path is taken relative to ``base_dir`` when
+        the file is not found relative to the working directory.
+    base_dir : str or pathlib.Path, optional
+
+    Returns
+    -------
+    dict of str to str
+        ``"component.variable"`` -> unit, for every variable that declares one (an FMU
+        that cannot be read contributes nothing).
+    """
+    units, read = {}, {}
+    for component, path in fmus.items():
+        path = str(path)
+        if not Path(path.split("!/", 1)[0]).exists() and base_dir is not None:
+            candidate = Path(base_dir) / path
+            if Path(str(candidate).split("!/", 1)[0]).exists():
+                path = str(candidate)
+        if path not in read:
+            read[path] = _model_description(path)
+        md = read[path]
+        if md is None:
+            continue
+        for variable in md.modelVariables:
+            unit = _variable_unit(variable)
+            if unit:
+                units[f"{component}.{variable.name}"] = unit
+    return units
+
+
+# --------------------------------------------------------------------------- styles
+
+#: Most entries a legend lists; beyond, a colour bar or one entry per group says it.
+LEGEND_CAP = 10
+#: Line styles of the groups (variants) when colour carries the sweep value.
+_LINESTYLES: tuple[Any, ...] = ("-", "--", ":", "-.")
+#: Colour map of sweep values.
+COLORMAP = "viridis"
+
+
+def is_number(value: object) -> TypeGuard[float]:
+    """True for an int or float (not a bool) that is finite."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and \
+        math.isfinite(value)
+
+
+def sweep_keys(points: list[dict[str, Any]], sampled: Iterable[str] = ()) -> list[str]:
+    """The keys of the sweep points whose values differ between the runs, in first-seen
+    order, without the Monte Carlo sample index and the ``sampled`` names."""
+    sampled = set(sampled)
+    keys: list[str] = []
+    for point in points:
+        for key in point or {}:
+            if key not in keys and key != SAMPLE_KEY and key not in sampled:
+                keys.append(key)
+    return [key for key in keys
+            if len({repr((point or {}).get(key)) for point in points}) > 1]
+
+
+def colour_key(points: list[dict[str, Any]], sampled: Iterable[str] = ()) -> str | None:
+    """The swept key that colours the runs: the first one whose values are all numbers
+    and take at least 3 values; None when there is none."""
+    for key in sweep_keys(points, sampled):
+        values = [(point or {}).get(key) for point in points]
+        if all(is_number(v) for v in values) and len(set(values)) >= 3:
+            return key
+    return None
+
+
+def colour_norm(values: list[float]) -> Any:
+    """A matplotlib norm over ``values``: logarithmic when they are positive and span a
+    factor of 20 or more, else linear."""
+    from matplotlib.colors import LogNorm, Normalize
+
+    low, high = min(values), max(values)
+    if low > 0 and high / low >= 20:
+        return LogNorm(low, high)
+    if low == high:
+        return Normalize(low - 1, high + 1)
+    return Normalize(low, high)
+
+
+def _group_label(variant, point, keys):
+    parts = [variant] if variant else []
+    parts += [f"{key}={(point or {}).get(key)!r}" for key in keys]
+    return ", ".join(parts) or "runs"
+
+
+@dataclass
+class Styles:
+    """How each run is drawn: ``lines`` (matplotlib keyword arguments per run, its
+    ``label`` None when the run has no legend entry of its own), ``legend`` (handles and
+    labels of the groups, when the runs are grouped), and the colour bar: ``mappable``
+    and ``bar_label`` (None without one)."""
+
+    lines: list
+    legend: list = field(default_factory=list)
+    mappable: object = None
+    bar_label: str | None = None
+    bar_ticks: list | None = None
+
+
+def run_styles(runs: Iterable["RunData"], units: dict[str, str] | None = None,
+               sampled: Iterable[str] = ()) -> Styles:
+    """The colour, line style and legend label of every run.
+
+    - A sweep with a numeric key of 3 or more values: colour by that value on
+      :data:`COLORMAP` with a colour bar; line style by group (variant and the other
+      swept values), the legend lists the groups; a partial run is thinner and faded.
+    - Otherwise, at most :data:`LEGEND_CAP` runs: a colour and a legend entry per run
+      (a partial run dashed and labelled ``(partial)``).
+    - Otherwise (many runs, e.g. Monte Carlo samples): one colour per group, thin
+      translucent lines, one legend entry per group with its number of runs.
+    """
+    from matplotlib import colormaps
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.lines import Line2D
+
+    units = units or {}
+    runs = list(runs)
+    points = [run.point or {} for run in runs]
+    key = colour_key(points, sampled)
+    others = [k for k in sweep_keys(points, sampled) if k != key]
+    groups: dict[str, list[RunData]] = {}
+    for run, point in zip(runs, points):
+        groups.setdefault(_group_label(run.variant, point, others), []).append(run)
+    if key is not None:
+        values = [point[key] for point in points]
+        norm = colour_norm(values)
+        cmap = colormaps[COLORMAP]
+        lines, legend = [], []
+        styles = {name: _LINESTYLES[i % len(_LINESTYLES)] for i, name in enumerate(groups)}
+        for run, point in zip(runs, points):
+            group = _group_label(run.variant, point, others)
+            lines.append({"color": cmap(norm(point[key])), "linestyle": styles[group],
+                          "linewidth": 0.8 if run.partial else 1.3,
+                          "alpha": 0.5 if run.partial else 1.0, "label": None})
+        if len(groups) > 1:
+            legend = [(Line2D([], [], color="0.2", linestyle=styles[name]), name)
+                      for name in groups]
+        if any(run.partial for run in runs):
+            legend.append((Line2D([], [], color="0.2", linewidth=0.8, alpha=0.5),
+                           "partial run (thin, faded)"))
+        distinct = sorted(set(values))
+        return Styles(lines, legend, ScalarMappable(norm=norm, cmap=cmap),
+                      _label(key, units), distinct if len(distinct) <= 12 else None)
+    if len(runs) <= LEGEND_CAP:
+        return Styles([{"color": f"C{i % 10}",
+                        "label": f"{run.label} (partial)" if run.partial else run.label,
+                        "linestyle": "--" if run.partial else "-", "linewidth": 1.2}
+                       for i, run in enumerate(runs)])
+    colours = {name: f"C{i % 10}" for i, name in enumerate(groups)}
+    lines = []
+    for run, point in zip(runs, points):
+        group = _group_label(run.variant, point, others)
+        lines.append({"color": colours[group], "linewidth": 0.7,
+                      "alpha": max(0.15, min(0.8, 8.0 / len(groups[group]))),
+                      "linestyle": "--" if run.partial else "-", "label": None})
+    legend = [(Line2D([], [], color=colours[name], linewidth=1.5),
+               f"{name} ({len(members)} runs)") for name, members in groups.items()]
+    return Styles(lines, legend)
+
+
+def _legend(figure, ax, entries=None):
+    """The legend below the axes (never over data): the runs' labelled lines of ``ax``,
+    or ``entries`` (handle, label); at most :data:`LEGEND_CAP` entries, the rest counted
+    in a last entry."""
+    if entries is None:
+        handles, labels = ax.get_legend_handles_labels()
+    else:
+        handles, labels = [h for h, _ in entries], [t for _, t in entries]
+    if not handles:
+        return
+    if len(handles) > LEGEND_CAP:
+        from matplotlib.lines import Line2D
+
+        more = len(handles) - (LEGEND_CAP - 1)
+        handles = handles[:LEGEND_CAP - 1] + [Line2D([], [], linestyle="none")]
+        labels = labels[:LEGEND_CAP - 1] + [f"... and {more} more"]
+    # at most 4 columns, and no more than fit the figure's width: a 'small' character
+    # is about 4.6 pt wide and each entry adds about 6 characters of line and padding
+    fit = int(figure.get_figwidth() * 72.0 / 4.6) // (max(map(len, labels)) + 6)
+    figure.legend(handles, labels, loc="outside lower center", fontsize="small",
+                  ncols=max(1, min(len(handles), 4, fit)), frameon=False)
+
+
+def _colour_bar(figure, axes, styles):
+    if styles.mappable is None:
+        return
+    bar = figure.colorbar(styles.mappable, ax=list(axes), location="right", shrink=0.9,
+                          pad=0.01, aspect=40)
+    bar.set_label(styles.bar_label)
+    if styles.bar_ticks is not None:
+        bar.set_ticks(styles.bar_ticks)
+        bar.minorticks_off()
 
 
 def _save(figure, path, dpi):
@@ -380,7 +619,9 @@ def _save(figure, path, dpi):
 
 
 def signals_figure(runs: Iterable["RunData"],
-                   spec: "schema.PlotsTable | dict[str, Any] | None") -> Figure:
+                   spec: "schema.PlotsTable | dict[str, Any] | None",
+                   units: dict[str, str] | None = None,
+                   sampled: Iterable[str] = ()) -> Figure:
     """The figure of ``signals.png``: one subplot per signal, every run overlaid.
 
     Parameters
@@ -389,25 +630,31 @@ def signals_figure(runs: Iterable["RunData"],
         The runs to draw, in legend order.
     spec : dict
         The ``[plots]`` table; it must have ``signals``.
+    units : dict of str to str, optional
+        Units by signal name (the FMUs' declared units, :func:`fmu_units`); the table's
+        ``units`` override them.
+    sampled : collection of str
+        Names of the sweep point that are Monte Carlo samples (not a sweep value).
 
     Returns
     -------
     matplotlib.figure.Figure
-        The figure, on an Agg canvas.
+        The figure, on an Agg canvas. How the runs are told apart: :func:`run_styles`.
     """
     spec = _validate(spec)
     if "signals" not in spec:
         raise ValueError("plots.signals: missing")
     names = spec["signals"]
-    units = dict(spec["units"])
+    units = {**(units or {}), **spec["units"]}
     units.setdefault("time", "s")
     figure = Figure(figsize=(_WIDTH, 1.0 + 2.0 * len(names)), layout="constrained")
     axes = figure.subplots(len(names), 1, sharex=True, squeeze=False)[:, 0]
     buckets = _buckets(spec)
-    for run in runs:
+    styles = run_styles(runs, units, sampled)
+    for run, style in zip(runs, styles.lines):
         for i, (ax, name) in enumerate(zip(axes, names)):
             x, y = _line(run, spec["x"], name, "x", f"signals[{i}]", buckets, figure=figure)
-            line, = ax.plot(x, y, **_style(run))
+            line, = ax.plot(x, y, **style)
             if spec["x"] == "time":
                 for when, _ in run.events:
                     ax.axvline(when, color=line.get_color(), linestyle=":", linewidth=1.0)
@@ -417,7 +664,8 @@ def signals_figure(runs: Iterable["RunData"],
     axes[-1].set_xlabel(_label(spec["x"], units))
     if spec["title"]:
         figure.suptitle(spec["title"])
-    _legend(figure, axes[0])
+    _colour_bar(figure, axes, styles)
+    _legend(figure, axes[0], styles.legend if styles.legend or styles.mappable else None)
     FigureCanvasAgg(figure)
     return figure
 
@@ -451,10 +699,31 @@ def _reference_polyline(path, runs, traj, buckets):
     return path.polyline(s0, s1, (s1 - s0) / _PATH_POINTS)
 
 
+#: Most points per run projected onto the path for the lateral-offset panel.
+_OFFSET_POINTS = 1500
+
+
+def _offsets_along(geometry, x, y):
+    """Arc length [m] and signed offset [m] from ``geometry`` of up to
+    :data:`_OFFSET_POINTS` of the points (x, y) (evenly strided, in order)."""
+    from agv_core.numerics.paths import project_trajectory
+
+    keep = np.isfinite(x) & np.isfinite(y)
+    x, y = x[keep], y[keep]
+    step = max(1, -(-len(x) // _OFFSET_POINTS))
+    xs, ys = x[::step], y[::step]
+    if len(x) and (len(x) - 1) % step:
+        xs, ys = np.append(xs, x[-1]), np.append(ys, y[-1])
+    offsets, arcs = project_trajectory(geometry, xs, ys)
+    return arcs, offsets
+
+
 def trajectory_figure(runs: Iterable["RunData"],
                       spec: "schema.PlotsTable | dict[str, Any] | None",
-                      geometry: Any = None) -> Figure:
-    """The figure of ``trajectory.png``: x-y of every run over the reference path.
+                      geometry: Any = None, units: dict[str, str] | None = None,
+                      sampled: Iterable[str] = ()) -> Figure:
+    """The figure of ``trajectory.png``: x-y of every run over the reference path and,
+    with a path, each run's lateral offset from it along the path.
 
     Parameters
     ----------
@@ -464,6 +733,13 @@ def trajectory_figure(runs: Iterable["RunData"],
         The ``[plots]`` table; it must have ``trajectory``.
     geometry : agv_core.numerics.paths.ReferencePath, optional
         The reference path to draw (parsed from ``trajectory.path`` by :func:`plot_runs`).
+        With it a second panel shows the signed offset [m] (positive left of the path)
+        against the arc length [m] of each run's point projected onto the path: equal
+        axes hide a 0.3 m offset over 45 m of path, this panel does not.
+    units : dict of str to str, optional
+        Units by signal name (see :func:`signals_figure`).
+    sampled : collection of str
+        Names of the sweep point that are Monte Carlo samples.
 
     Returns
     -------
@@ -474,27 +750,87 @@ def trajectory_figure(runs: Iterable["RunData"],
     if "trajectory" not in spec:
         raise ValueError("plots.trajectory: missing")
     traj = spec["trajectory"]
-    units = spec["units"]
+    units = {**(units or {}), **spec["units"]}
     buckets = _buckets(spec, trajectory=True)
-    figure = Figure(figsize=(_WIDTH, 6.0), layout="constrained")
-    ax = figure.add_subplot()
-    if geometry is not None:
+    styles = run_styles(runs, units, sampled)
+    if geometry is None:
+        figure = Figure(figsize=(_WIDTH, 6.0), layout="constrained")
+        ax = figure.add_subplot()
+        axes = [ax]
+    else:
+        figure = Figure(figsize=(_WIDTH, 8.5), layout="constrained")
+        ax, offset_ax = figure.subplots(2, 1, height_ratios=(3.0, 1.6))
+        axes = [ax, offset_ax]
         polyline = _reference_polyline(geometry, runs, traj, buckets)
         if polyline is not None:
             ax.plot(polyline[0], polyline[1], color="0.55", linewidth=2.5, alpha=0.7,
                     label="reference path", zorder=1)
-    for run in runs:
+        offset_ax.axhline(0.0, color="0.55", linewidth=2.0, alpha=0.7, zorder=1)
+    for run, style in zip(runs, styles.lines):
         x, y = _trajectory(run, traj, buckets, figure)
-        ax.plot(x, y, zorder=2, **_style(run))
+        ax.plot(x, y, zorder=2, **style)
+        if geometry is not None:
+            arcs, offsets = _offsets_along(geometry, np.asarray(x, float),
+                                           np.asarray(y, float))
+            offset_ax.plot(arcs, offsets, zorder=2, **dict(style, label=None))
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(_label(traj["x"], units))
     ax.set_ylabel(_label(traj["y"], units))
     ax.grid(True, linewidth=0.4, alpha=0.6)
+    if geometry is not None:
+        offset_ax.set_xlabel("arc length along the reference path [m]")
+        offset_ax.set_ylabel("offset from path [m]\n(+ left)")
+        offset_ax.grid(True, linewidth=0.4, alpha=0.6)
     if spec["title"]:
         figure.suptitle(spec["title"])
-    _legend(figure, ax)
+    _colour_bar(figure, axes, styles)
+    if styles.legend or styles.mappable:
+        entries = list(styles.legend)
+        if geometry is not None:
+            from matplotlib.lines import Line2D
+
+            entries.insert(0, (Line2D([], [], color="0.55", linewidth=2.5, alpha=0.7),
+                               "reference path"))
+        _legend(figure, ax, entries)
+    else:
+        _legend(figure, ax)
     FigureCanvasAgg(figure)
     return figure
+
+
+def _read_json(path):
+    import json
+
+    try:
+        with open(path, encoding="utf-8") as stream:
+            data = json.load(stream)
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def sampled_names(folder: str | Path) -> list:
+    """Names a Monte Carlo result in ``folder`` samples (its ``montecarlo.json``:
+    ``parameters`` and ``seeds``); empty without one."""
+    data = _read_json(Path(folder) / "montecarlo.json") or {}
+    return list(data.get("parameters") or {}) + list(data.get("seeds") or [])
+
+
+def describe_runs(runs: list, folder: str | Path) -> dict:
+    """Fill each run's ``variant`` and ``point`` that are None from its
+    ``<folder>/<label>/run.json``; return the FMU paths the runs name (component ->
+    path, run.json's ``fmus``)."""
+    fmus: dict[str, str] = {}
+    for run in runs:
+        info = _read_json(Path(folder) / run.label / "run.json") or {}
+        if run.variant is None:
+            run.variant = info.get("variant")
+        if run.point is None:
+            point = info.get("sweep_point")
+            run.point = point if isinstance(point, dict) else {}
+        for component, path in (info.get("fmus") or {}).items():
+            fmus.setdefault(component, path)
+    return fmus
 
 
 def plot_runs(runs: Iterable["RunData"], spec: "schema.PlotsTable | dict[str, Any] | None",
@@ -546,13 +882,185 @@ def plot_runs(runs: Iterable["RunData"], spec: "schema.PlotsTable | dict[str, An
 
         geometry = load_path(spec["trajectory"]["path"], "plots.trajectory.path", base_dir)
     out_dir = Path(out_dir)
-    written = []
-    if "signals" in spec or "trajectory" in spec:
-        out_dir.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    if "signals" not in spec and "trajectory" not in spec:
+        return written
+    # the runs' variants, sweep points and FMUs: from their run.json (when written)
+    units = fmu_units(describe_runs(runs, out_dir), base_dir)
+    sampled = sampled_names(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
     if "signals" in spec:
-        written.append(_save(signals_figure(runs, raw), out_dir / SIGNALS_FILE,
-                             spec["dpi"]))
+        written.append(_save(signals_figure(runs, raw, units, sampled),
+                             out_dir / SIGNALS_FILE, spec["dpi"]))
     if "trajectory" in spec:
-        written.append(_save(trajectory_figure(runs, raw, geometry),
+        written.append(_save(trajectory_figure(runs, raw, geometry, units, sampled),
                              out_dir / TRAJECTORY_FILE, spec["dpi"]))
     return written
+
+
+# --------------------------------------------------------------------------- comparisons
+#
+# Figures drawn from the runs' metrics (run.json and metrics.json of a result folder,
+# read by agv_cosim.report.page), not from their time series.
+
+#: File names of the comparison figures.
+SWEEP_FILE = "sweep_metrics.png"
+MONTECARLO_SCATTER_FILE = "montecarlo_scatter.png"
+
+
+def _finite(value):
+    return is_number(value)
+
+
+def sweep_metrics_figure(rows: list, key: str, metrics: list, units: dict,
+                         title: str | None = None) -> Figure:
+    """Each metric against the swept value ``key``, one line (with markers) per group:
+    the variant and the other swept values.
+
+    Parameters
+    ----------
+    rows : list of dict
+        One per run: ``variant`` (str or None), ``point`` (sweep point), ``status``,
+        ``metrics`` (name -> value). Only complete runs with a finite value are drawn.
+    key : str
+        The swept key on the x axis (its values numbers).
+    metrics : list of str
+        The metrics drawn, one panel each.
+    units : dict of str to str
+        Units of the swept key and of the metrics, by name.
+    title : str, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    points = [row["point"] for row in rows]
+    others = [k for k in sweep_keys(points) if k != key]
+    cols = 2 if len(metrics) > 3 else 1
+    nrows = -(-len(metrics) // cols)
+    figure = Figure(figsize=(_WIDTH, 0.8 + 2.4 * nrows), layout="constrained")
+    axes = figure.subplots(nrows, cols, squeeze=False).ravel()
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for row in rows:
+        groups.setdefault(_group_label(row["variant"], row["point"], others), []).append(row)
+    for ax, metric in zip(axes, metrics):
+        for i, (name, members) in enumerate(groups.items()):
+            pairs = sorted((row["point"][key], row["metrics"].get(metric))
+                           for row in members if row["status"] == "complete"
+                           and is_number(row["point"].get(key))
+                           and _finite(row["metrics"].get(metric)))
+            if pairs:
+                ax.plot([p[0] for p in pairs], [p[1] for p in pairs], marker="o",
+                        markersize=4, linewidth=1.2, color=f"C{i % 10}",
+                        linestyle=_LINESTYLES[(i // 10) % len(_LINESTYLES)], label=name)
+        ax.set_ylabel(_label(metric, units), fontsize="small")
+        ax.set_xlabel(_label(key, units), fontsize="small")
+        ax.grid(True, linewidth=0.4, alpha=0.6)
+    for ax in axes[len(metrics):]:
+        ax.set_visible(False)
+    figure.suptitle((title + ": " if title else "") + f"metrics against {key}",
+                    fontsize="medium")
+    _legend(figure, axes[0])
+    FigureCanvasAgg(figure)
+    return figure
+
+
+def spearman(x: Any, y: Any) -> float | None:
+    """Spearman's rank correlation of ``x`` and ``y`` (``scipy.stats.spearmanr``); None
+    with fewer than 3 pairs or a constant side."""
+    from scipy.stats import spearmanr
+
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    if x.size < 3 or np.all(x == x[0]) or np.all(y == y[0]):
+        return None
+    rho = float(spearmanr(x, y).statistic)
+    return rho if math.isfinite(rho) else None
+
+
+def montecarlo_figure(rows: list, parameters: list, metrics: list, units: dict,
+                      title: str | None = None) -> Figure:
+    """Monte Carlo results: per metric (one row of panels), box plots per group in the
+    metric's unit, then a scatter of the metric against each sampled parameter with
+    Spearman's rank correlation rho per group.
+
+    Parameters
+    ----------
+    rows : list of dict
+        One per run: ``group`` (variant and sweep point), ``point`` (with the sampled
+        values), ``status``, ``metrics``. Only complete runs with finite values count.
+    parameters : list of str
+        The sampled parameters (x of the scatters).
+    metrics : list of str
+        The metrics, one row each.
+    units : dict of str to str
+        Units of the parameters and metrics, by name.
+    title : str, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    groups = list(dict.fromkeys(row["group"] for row in rows))
+    cols = 1 + len(parameters)
+    figure = Figure(figsize=(max(_WIDTH, 2.9 * cols), 0.9 + 2.7 * len(metrics)),
+                    layout="constrained")
+    axes = figure.subplots(len(metrics), cols, squeeze=False)
+    for r, metric in enumerate(metrics):
+        good = [row for row in rows if row["status"] == "complete"
+                and _finite(row["metrics"].get(metric))]
+        box = axes[r, 0]
+        data = [[row["metrics"][metric] for row in good if row["group"] == g]
+                for g in groups]
+        shown = [(i, g, d) for i, (g, d) in enumerate(zip(groups, data)) if d]
+        if shown:
+            parts = box.boxplot([d for _, _, d in shown], whis=(5, 95),
+                                patch_artist=True, widths=0.6)
+            for patch, (i, _, _) in zip(parts["boxes"], shown):
+                patch.set_facecolor(f"C{i % 10}")
+                patch.set_alpha(0.45)
+            box.set_xticks(range(1, len(shown) + 1),
+                           [g if len(g) <= 18 else g[:17] + "…" for _, g, _ in shown],
+                           rotation=20 if len(shown) > 2 else 0, fontsize="x-small")
+        box.set_ylabel(_label(metric, units), fontsize="small")
+        box.grid(True, axis="y", linewidth=0.4, alpha=0.6)
+        for c, parameter in enumerate(parameters, start=1):
+            ax = axes[r, c]
+            notes = []
+            for i, g in enumerate(groups):
+                pairs = [(row["point"].get(parameter), row["metrics"][metric])
+                         for row in good if row["group"] == g
+                         and _finite(row["point"].get(parameter))]
+                if not pairs:
+                    continue
+                x, y = zip(*pairs)
+                ax.scatter(x, y, s=10, color=f"C{i % 10}", alpha=0.7, linewidths=0,
+                           label=g)
+                rho = spearman(x, y)
+                notes.append((f"C{i % 10}", "rho n/a" if rho is None else
+                              f"rho = {rho:+.2f}"))
+            for k, (colour, text) in enumerate(notes):
+                ax.text(0.02, 0.97 - 0.11 * k, text, transform=ax.transAxes,
+                        color=colour, fontsize="x-small", va="top",
+                        bbox={"facecolor": "white", "alpha": 0.7, "linewidth": 0,
+                              "pad": 1.0})
+            ax.set_xlabel(_label(parameter, units), fontsize="small")
+            ax.tick_params(labelsize="x-small")
+            ax.grid(True, linewidth=0.4, alpha=0.6)
+    n = max((sum(1 for row in rows if row["group"] == g) for g in groups), default=0)
+    figure.suptitle((title + ": " if title else "") + f"Monte Carlo, {n} samples per group "
+                    "(box: p25-p75, whiskers p5-p95; rho: Spearman rank correlation)",
+                    fontsize="medium")
+    if len(groups) > 1:
+        from matplotlib.lines import Line2D
+
+        _legend(figure, axes[0, 0], [(Line2D([], [], marker="o", linestyle="none",
+                                             color=f"C{i % 10}"), g)
+                                     for i, g in enumerate(groups)])
+    FigureCanvasAgg(figure)
+    return figure
+
+
+def save_figure(figure: Figure, path: str | Path, dpi: int = DEFAULT_DPI) -> Path:
+    """Write ``figure`` as a PNG at ``path`` (fixed metadata: same figure, same bytes;
+    never through a symbolic link)."""
+    return _save(figure, Path(path), dpi)

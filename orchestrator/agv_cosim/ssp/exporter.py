@@ -16,11 +16,14 @@ one file shorter and is what it reads first), every connected variable declared 
 ``ssd:Enumerations``; FMI 3.0 array variables and their elements get no connector), and the
 step as ``osp:FixedStepAlgorithm baseStepSize`` in a ``com.opensimulationplatform``
 annotation of ``ssd:DefaultExperiment``. A second annotation, ``org.agv-cosim``, keeps
-what SSP has no place for: our master algorithm, the recorded variables and the record
-interval. Other tools ignore it.
+what SSP has no place for: our master algorithm, the recorded variables, the record
+interval and the manifest's ``[metrics]`` and ``[plots]`` tables (``agv:Metrics``,
+``agv:Plots``: each table as JSON text; a path string is carried as written, a file it
+names is not packed). Other tools ignore it.
 """
 
 import argparse
+import json
 import os
 import tempfile
 import zipfile
@@ -78,11 +81,18 @@ def _fmu_file_names(models):
     return names
 
 
+def _as_written(table: Any) -> dict[str, Any] | None:
+    """A ``[metrics]`` / ``[plots]`` table as the manifest wrote it (keys it left out stay
+    out), or None."""
+    return None if table is None else table.model_dump(exclude_unset=True)
+
+
 def build_ssd(name: str, models: dict[str, Any], parameters: dict[str, dict[str, Any]],
               connections: list[Any], start: float, stop: float, step: float,
               algorithm: str, record: list[str] | None = None,
               record_interval: float | None = None,
-              description: str = "") -> ElementTree.Element:
+              description: str = "", metrics: dict[str, Any] | None = None,
+              plots: dict[str, Any] | None = None) -> ElementTree.Element:
     """The ``SystemStructure.ssd`` of one run, as an ElementTree element.
 
     Parameters
@@ -194,6 +204,10 @@ def build_ssd(name: str, models: dict[str, Any], parameters: dict[str, dict[str,
         exp.set("recordInterval", number_text(record_interval))
     for item in record or ():
         ElementTree.SubElement(exp, q("agv", "Record"), {"variable": item})
+    for tag, table in (("Metrics", metrics), ("Plots", plots)):
+        if table:  # the manifest's [metrics] / [plots] table as JSON text
+            ElementTree.SubElement(exp, q("agv", tag)).text = json.dumps(
+                table, sort_keys=True)
     ElementTree.indent(root)
     return root
 
@@ -245,7 +259,8 @@ def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
     name = manifest.name + (f"_{run.variant}" if run.variant else "")
     root = build_ssd(name, models, params, manifest.connections, manifest.start,
                      manifest.stop, manifest.step, manifest.algorithm, checked.record,
-                     manifest.record_interval, manifest.description)
+                     manifest.record_interval, manifest.description,
+                     _as_written(manifest.metrics), _as_written(manifest.plots))
     out_path = Path(out_path)
     if out_path.is_dir():
         raise OutputError(f"{out_path}: is a folder; give the name of the .ssp file to "

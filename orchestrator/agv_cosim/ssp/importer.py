@@ -22,10 +22,14 @@ parameters of the system itself, Enumeration/Binary values, connectors that are 
 FMU's variable of that kind, type and unit (connector units are never converted). A
 package without the ``org.agv-cosim`` annotation runs with the Jacobi
 algorithm (the semantics of libcosim, the master SSP packages of this kind come from) and
-records every Real output.
+records every Real output. Metrics and plots come from the annotation's ``agv:Metrics``
+and ``agv:Plots`` (the exported manifest's tables); without ``agv:Plots`` the first
+:data:`PLOTTED` recorded signals (every Real output when the package names none) are
+drawn in ``signals.png``.
 """
 
 import contextlib
+import json
 import math
 import re
 import shutil
@@ -418,7 +422,7 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
     if experiment.get("stopTime") is None:
         raise SspError(package, "DefaultExperiment", "no stopTime")
     stop = _float_attr(package, "DefaultExperiment", experiment, "stopTime")
-    step, algorithm, record, interval = None, "jacobi", None, None
+    step, algorithm, record, interval, tables = None, "jacobi", None, None, {}
     for note in experiment.iterfind("ssd:Annotations/ssc:Annotation", NS):
         if note.get("type") == OSP_ANNOTATION and step is None:
             fixed = note.find("osp:Algorithm/osp:FixedStepAlgorithm", NS)
@@ -433,6 +437,17 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
                 if ours.get("recordInterval"):
                     interval = _float_attr(package, "agv:Experiment", ours, "recordInterval")
                 record = [r.get("variable") for r in ours.iterfind("agv:Record", NS)] or None
+                for tag in ("Metrics", "Plots"):
+                    text = ours.findtext(f"agv:{tag}", None, NS)
+                    if text is None:
+                        continue
+                    try:
+                        table = json.loads(text)
+                    except ValueError as error:
+                        raise SspError(package, f"agv:{tag}", f"not JSON: {error}") from None
+                    if not isinstance(table, dict):
+                        raise SspError(package, f"agv:{tag}", "not a JSON object")
+                    tables[tag.lower()] = table
     if step is None:
         raise SspError(package, "DefaultExperiment", "no step size (an "
                        "osp:FixedStepAlgorithm annotation with baseStepSize is needed)")
@@ -448,6 +463,9 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
     data: dict[str, Any] = {"name": name,
             "description": system.get("description", ""),
             "simulation": simulation, "components": components, "connections": connections}
+    data.update(tables)
+    if "plots" not in data:  # a package without our [plots]: its recorded outputs
+        data["plots"] = {"signals": (record or _real_outputs(components))[:PLOTTED]}
     if record or interval is not None:
         data["record"] = {}
         if record:
@@ -455,6 +473,21 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
         if interval is not None:
             data["record"]["interval"] = interval
     return data
+
+
+#: Most signals plotted from a package that names no ``[plots]`` table.
+PLOTTED = 8
+
+
+def _real_outputs(components):
+    """``component.variable`` of every scalar Real (float) output, in component order."""
+    names = []
+    for cname, spec in components.items():
+        info = read_model(spec["fmu"])
+        names += [f"{cname}.{v.name}" for v in info.variables.values()
+                  if v.causality == "output" and not v.dims
+                  and not v.unsupported("record") and v.ftype.is_float]
+    return names
 
 
 def _source_sha256(source):

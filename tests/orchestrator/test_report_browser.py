@@ -1,0 +1,128 @@
+"""The report page in a real browser: Chromium (Debian's ``chromium`` and
+``chromium-driver``, installed by ``make test-deps``) driven by Selenium.
+
+The page is opened from disk (file://) with every host name unresolvable, so anything it
+fetched from the network would fail and show as a console error. Checked: no console
+message of level SEVERE or WARNING, every image loaded (``complete`` and
+``naturalWidth > 0``), a click on a header sorts the runs table; a full-page screenshot
+is written (into ``$AGV_REPORT_SHOTS`` when set, to be looked at).
+"""
+
+import base64
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+from test_report import MC, SWEEP12
+
+from agv_cosim import cli
+
+pytestmark = pytest.mark.slow
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+DRIVER = shutil.which("chromedriver")
+
+
+def _browser():
+    try:
+        from selenium import webdriver
+        from selenium.webdriver.chrome.service import Service
+    except ImportError:
+        webdriver = None
+    missing = [name for name, found in (("chromium", CHROMIUM), ("chromedriver", DRIVER),
+                                        ("selenium", webdriver)) if not found]
+    if missing:
+        reason = f"missing {', '.join(missing)} (make test-deps; pip install -e .[test])"
+        if os.environ.get("CI"):
+            pytest.fail(reason + ": CI must run the browser test")
+        pytest.skip(reason)
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for argument in ("--headless=new", "--no-sandbox", "--disable-gpu",
+                     "--disable-dev-shm-usage", "--window-size=1280,900",
+                     "--host-resolver-rules=MAP * ~NOTFOUND", "--allow-file-access-from-files"):
+        options.add_argument(argument)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    return webdriver.Chrome(options=options, service=Service(executable_path=DRIVER))
+
+
+def _screenshot(driver, path):
+    """A PNG of the whole page (not only the window) at ``path``."""
+    metrics = driver.execute_cdp_cmd("Page.getLayoutMetrics", {})
+    size = metrics.get("cssContentSize") or metrics["contentSize"]
+    shot = driver.execute_cdp_cmd("Page.captureScreenshot", {
+        "format": "png", "captureBeyondViewport": True,
+        "clip": {"x": 0, "y": 0, "width": size["width"], "height": size["height"],
+                 "scale": 1}})
+    Path(path).write_bytes(base64.b64decode(shot["data"]))
+    return path
+
+
+def _check_page(driver, page, shot):
+    driver.get(page.as_uri())
+    state = driver.execute_script("return document.readyState")
+    assert state == "complete"
+    images = driver.execute_script(
+        "return Array.from(document.images).map(function (i) {"
+        " return [i.getAttribute('src'), i.complete, i.naturalWidth]; });")
+    assert images, "the page shows no figure"
+    for src, complete, width in images:
+        assert complete and width > 0, f"image {src} did not load"
+    logs = driver.get_log("browser")
+    problems = [entry for entry in logs if entry["level"] in ("SEVERE", "WARNING")]
+    assert problems == [], problems
+    _screenshot(driver, shot)
+    assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    return images
+
+
+def _shots_dir(tmp_path):
+    folder = os.environ.get("AGV_REPORT_SHOTS")
+    if folder:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        return Path(folder)
+    return tmp_path
+
+
+def test_sweep_report_in_chromium(chain, tmp_path):
+    path = chain(extra=SWEEP12)
+    out = tmp_path / "sweep"
+    assert cli.main(["run", str(path), "--out", str(out), "--quiet"]) == 0
+    driver = _browser()
+    try:
+        images = _check_page(driver, out / "index.html",
+                             _shots_dir(tmp_path) / "report_sweep_test.png")
+        assert [src for src, _, _ in images] == ["signals.png", "sweep_metrics.png"]
+        # sorting: a click on lateral_error_max orders the runs by it (twice: descending)
+        column = driver.execute_script(
+            "var h = document.querySelector('table.runs thead tr').cells;"
+            "for (var i = 0; i < h.length; i++) {"
+            " if (h[i].textContent.indexOf('lateral_error_max') === 0) return i; }"
+            "return -1;")
+        assert column > 0
+        read = ("return Array.from(document.querySelectorAll('table.runs tbody tr'))"
+                f".map(function (r) {{ return parseFloat(r.cells[{column}].dataset.v); }});")
+        header = driver.find_elements("css selector", "table.runs thead th")[column]
+        header.click()
+        ascending = driver.execute_script(read)
+        assert ascending == sorted(ascending) and len(ascending) == 12
+        header.click()
+        assert driver.execute_script(read) == sorted(ascending, reverse=True)
+        assert [e for e in driver.get_log("browser") if e["level"] == "SEVERE"] == []
+    finally:
+        driver.quit()
+
+
+def test_montecarlo_report_in_chromium(chain, tmp_path):
+    path = chain(extra=MC)
+    out = tmp_path / "mc"
+    assert cli.main(["run", str(path), "--out", str(out), "--quiet"]) == 0
+    driver = _browser()
+    try:
+        images = _check_page(driver, out / "index.html",
+                             _shots_dir(tmp_path) / "report_montecarlo_test.png")
+        assert [src for src, _, _ in images] == ["signals.png", "montecarlo.png",
+                                                "montecarlo_scatter.png"]
+    finally:
+        driver.quit()
