@@ -17,6 +17,7 @@ import numpy as np
 from ..files import open_output, write_json
 from ..manifest.montecarlo import MonteCarlo
 from ..plan.sampling import group_name
+from .page import metric_unit
 
 __all__ = ["aggregate", "figure", "statistics", "write_outputs"]
 
@@ -118,7 +119,8 @@ def figure(mc: MonteCarlo, jobs: list[Any], results: list[Any], folder: str | Pa
         if shown:
             ax.boxplot([d for _, d in shown], whis=(5, 95), orientation="horizontal")
             ax.set_yticks(range(1, len(shown) + 1), [label for label, _ in shown])
-        ax.set_xlabel(metric)
+        unit = metric_unit(metric, {}, {})
+        ax.set_xlabel(f"{metric} [{unit}]" if unit else metric)
         ax.grid(True, axis="x", alpha=0.3)
     if mc.band:
         ax = axes[-1]
