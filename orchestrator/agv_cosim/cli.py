@@ -293,7 +293,12 @@ def main(argv: list[str] | None = None) -> int:
                 clean_stale_scratch()
             return _dispatch(args)
     except (ManifestError, OutputError) as error:
-        return _report(args, f"error: {error}", 2)
+        # every problem found in the manifest, one line each (capped)
+        lines = error.lines() if isinstance(error, ManifestError) else [str(error)]
+        code = _report(args, f"error: {lines[0]}", 2)
+        for more in lines[1:]:
+            _say(f"agv-cosim: error: {more}")
+        return code
     except FolderLost as error:
         return _report(args, f"error: {error}", 1)
     except BrokenPipeError:

@@ -52,7 +52,8 @@ def test_validate_catches_a_refused_value(fmus, tmp_path, capsys):
     err = [line for line in capsys.readouterr().err.strip().splitlines()
            if "warning" not in line]
     assert len(err) == 1
-    assert err[0].startswith(f"agv-cosim: error: {path}: components.first: the FMU "
+    number = path.read_text().splitlines().index("[components.first]") + 1
+    assert err[0].startswith(f"agv-cosim: error: {path}:{number}: components.first: the FMU "
                              "refuses to initialise (run base): fmi2ExitInitializationMode")
     assert "parameter 'fail_time': must be >= 0" in err[0]
     assert cli.main(["validate", str(path), "--set", "first.fail_time=-2.0",

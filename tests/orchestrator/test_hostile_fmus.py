@@ -120,7 +120,8 @@ def test_validate_stops_an_fmu_that_hangs_in_initialisation(fmus, tmp_path, caps
     path = _hang(fmus, tmp_path, hang_time=-1.0)
     assert cli.main(["validate", str(path), "--timeout", "1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"agv-cosim: error: {path}: components.h: run base: the FMU did not "
+    number = path.read_text().splitlines().index("[components.h]") + 1
+    assert err == [f"agv-cosim: error: {path}:{number}: components.h: run base: the FMU did not "
                    "finish instantiating and initialising within 1.0 s and was stopped "
                    "(--timeout sets the limit)"]
     timed = _hang(fmus, tmp_path, hang_time=-1.0, timeout="timeout = 1.0",
@@ -274,7 +275,9 @@ def test_a_model_identifier_that_is_a_path_is_refused(chain, fmus, tmp_path, cap
     path.write_text(path.read_text().replace(str(fmus["agv_test_gain"]), str(fmu)))
     assert cli.main(["validate", str(path), "--no-init"]) == 2
     [line] = capsys.readouterr().err.strip().splitlines()
-    assert line.startswith(f"agv-cosim: error: {path}: components.gain.fmu: broken FMU "
+    number = next(i for i, text in enumerate(path.read_text().splitlines(), 1)
+                  if str(fmu) in text)
+    assert line.startswith(f"agv-cosim: error: {path}:{number}: components.gain.fmu: broken FMU "
                            f"(modelIdentifier {identifier!r} is not a name")
 
 
