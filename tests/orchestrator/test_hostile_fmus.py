@@ -291,7 +291,11 @@ def test_an_fmu_without_its_binary_is_named(chain, fmus, tmp_path, capsys):
     line = capsys.readouterr().err.strip().splitlines()[-1]
     assert "the FMU has no binary for this platform (binaries/linux64/AgvTestGain.so)" \
         in line and "components.gain" in line
-    assert cli.main(["run", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 1
+    assert cli.main(["run", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert not (tmp_path / "o").exists()  # refused by the check before any run
+    capsys.readouterr()
+    assert cli.main(["run", str(path), "--out", str(tmp_path / "o"), "--quiet",
+                     "--no-init"]) == 1
     info = json.loads((tmp_path / "o" / "base" / "run.json").read_text())
     assert info["status"] == "failed"
     assert "no binary for this platform" in info["error"]

@@ -92,6 +92,8 @@ def check_initialisation(manifest: Manifest, jobs: list[Job],
     checks, where, seen = [], [], set()
     for job in jobs:
         for cname, info in job.plan.models.items():
+            if info.table is not None:  # a time table: checked when it was read
+                continue
             values = job.plan.parameters.get(cname, {})
             key = (info.sha256, repr(sorted(values.items())))
             if key in seen:
