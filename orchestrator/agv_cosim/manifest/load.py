@@ -319,25 +319,29 @@ def key_lines(text: str) -> dict[str, int]:
                 counts[name] = index + 1
                 name = f"{name}[{index}]"
             table = [name]
-            found.setdefault(name, number)
+            _add(found, name, number)
             continue
         assign = _ASSIGN.match(line)
         if assign:
-            found.setdefault(".".join(table + _key_parts(assign.group(1))), number)
+            _add(found, ".".join(table + _key_parts(assign.group(1))), number)
     return found
+
+
+def _add(found: dict[str, int], key: str, number: int) -> None:
+    """``key`` and each enclosing key not yet seen, at line ``number`` (the first line
+    of anything under a key is where it begins)."""
+    while key and key not in found:
+        found[key] = number
+        key = key[:max(key.rfind("."), key.rfind("["), 0)]
 
 
 def line_of(lines: dict[str, int], key: str) -> int | None:
     """The line of ``key`` in :func:`key_lines`' map, else of its closest enclosing key
-    found (a missing key: its table's header), else None."""
+    found (a missing key: its table's header), else None. O(depth of the key)."""
     while key:
         if key in lines:
             return lines[key]
-        under = [n for k, n in lines.items() if k.startswith((f"{key}.", f"{key}["))]
-        if under:
-            return min(under)
-        cut = max(key.rfind("."), key.rfind("["))
-        key = key[:cut] if cut > 0 else ""
+        key = key[:max(key.rfind("."), key.rfind("["), 0)]
     return None
 
 
