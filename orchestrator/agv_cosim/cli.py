@@ -112,6 +112,13 @@ def _cmd_run(args):
     manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set,
                                        timeout=args.timeout)
     _warn(warnings)
+    if not args.no_init and args.dask is None:  # what validate checks, before any run
+        from .pipeline import INIT_TIMEOUT, check_initialisation
+
+        # the runs' wall-clock limit bounds a run, not this check (whose child process
+        # also starts up in it): at least validate's default
+        limit = max(args.timeout or manifest.timeout or 0.0, INIT_TIMEOUT)
+        check_initialisation(manifest, jobs, limit)
     from .errors import ClusterError
 
     try:
@@ -243,6 +250,11 @@ def make_parser() -> argparse.ArgumentParser:
                      help="wall-clock limit of each run: a run still going then is stopped "
                           "and reported 'timed out', the others go on (default: the "
                           "manifest's [simulation] timeout, else no limit)")
+    run.add_argument("--no-init", action="store_true",
+                     help="skip the check made before any run is written: each FMU "
+                          "instantiated and initialised once with each run's parameters, "
+                          "as validate does (skipped with --dask: the FMUs run on the "
+                          "cluster's machines)")
     run.set_defaults(func=_cmd_run)
 
     check = sub.add_parser("validate", help="check a manifest against its FMUs, run nothing",
@@ -319,7 +331,12 @@ def main(argv: list[str] | None = None) -> int:
                 clean_stale_scratch()
             return _dispatch(args)
     except (ManifestError, OutputError) as error:
-        return _report(args, f"error: {error}", 2)
+        # every problem found in the manifest, one line each (capped)
+        lines = error.lines() if isinstance(error, ManifestError) else [str(error)]
+        code = _report(args, f"error: {lines[0]}", 2)
+        for more in lines[1:]:
+            _say(f"agv-cosim: error: {more}")
+        return code
     except FolderLost as error:
         return _report(args, f"error: {error}", 1)
     except BrokenPipeError:

@@ -5,30 +5,66 @@ mistake, 1 for a failed run). The text of every error names its culprit: the man
 key, the FMU, the file, or the component, call and time.
 """
 
+import difflib
 import signal
+from collections.abc import Iterable
 
 __all__ = [
-    "BuildError", "BundleError", "ClusterError", "ExamplesError", "FolderLost",
-    "Interrupted", "ManifestError", "ModelError", "OutputError", "SamplingError",
-    "SchemaError", "SimulationError", "SspError", "StandaloneError", "TableError",
-    "WorkerUnfit",
+    "MAX_REPORTED", "BuildError", "BundleError", "ClusterError", "ExamplesError",
+    "FolderLost", "Interrupted", "ManifestError", "ModelError", "OutputError",
+    "SamplingError", "SchemaError", "SimulationError", "SspError", "StandaloneError",
+    "TableError", "WorkerUnfit", "closest", "did_you_mean",
 ]
+
+#: Most problems of one manifest reported at once (one line each).
+MAX_REPORTED = 20
+
+
+def closest(name: str, known: Iterable[str]) -> str | None:
+    """The name of ``known`` closest to ``name`` (difflib's ratio >= 0.6), or None."""
+    found = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
+    return found[0] if found else None
+
+
+def did_you_mean(name: str, known: Iterable[str]) -> str:
+    """``" (did you mean 'x'?)"`` for the name of ``known`` closest to ``name``, else ``""``."""
+    match = closest(name, known)
+    return f" (did you mean '{match}'?)" if match is not None else ""
 
 
 class ManifestError(Exception):
-    """A problem in a manifest, named by the manifest, the key and the culprit."""
+    """A problem in a manifest, named by the manifest (and the line of the key, when
+    known), the key and the culprit: ``<manifest>[:<line>]: <key>: <problem>``.
 
-    def __init__(self, manifest: object, key: str, problem: str) -> None:
-        super().__init__(f"{manifest}: {key}: {problem}")
-        self.manifest, self.key, self.problem = str(manifest), key, problem
+    ``others`` holds further problems of the same manifest found in the same check.
+    """
+
+    def __init__(self, manifest: object, key: str, problem: str,
+                 line: int | None = None) -> None:
+        where = f"{manifest}:{line}" if line is not None else f"{manifest}"
+        super().__init__(f"{where}: {key}: {problem}")
+        self.manifest, self.key, self.problem, self.line = str(manifest), key, problem, line
+        self.others: list[ManifestError] = []
+
+    def lines(self, limit: int = MAX_REPORTED) -> list[str]:
+        """This problem and the others, one line each, at most ``limit`` lines (the last
+        says how many more were found)."""
+        texts = [str(self)] + [str(other) for other in self.others]
+        if len(texts) > limit:
+            hidden = len(texts) - limit + 1
+            texts = texts[:limit - 1] + [f"{self.manifest}: {hidden} more problem(s) not "
+                                         "shown"]
+        return texts
 
 
 class SchemaError(ValueError):
-    """A value that does not fit the schema: ``key`` (dotted) and ``problem``."""
+    """A value that does not fit the schema: ``key`` (dotted) and ``problem``;
+    ``others`` holds the further problems found in the same data."""
 
     def __init__(self, key: str, problem: str) -> None:
         super().__init__(f"{key}: {problem}")
         self.key, self.problem = key, problem
+        self.others: list[SchemaError] = []
 
 
 class SspError(ManifestError):

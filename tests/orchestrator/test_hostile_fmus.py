@@ -120,7 +120,8 @@ def test_validate_stops_an_fmu_that_hangs_in_initialisation(fmus, tmp_path, caps
     path = _hang(fmus, tmp_path, hang_time=-1.0)
     assert cli.main(["validate", str(path), "--timeout", "1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"agv-cosim: error: {path}: components.h: run base: the FMU did not "
+    number = path.read_text().splitlines().index("[components.h]") + 1
+    assert err == [f"agv-cosim: error: {path}:{number}: components.h: run base: the FMU did not "
                    "finish instantiating and initialising within 1.0 s and was stopped "
                    "(--timeout sets the limit)"]
     timed = _hang(fmus, tmp_path, hang_time=-1.0, timeout="timeout = 1.0",
@@ -274,7 +275,9 @@ def test_a_model_identifier_that_is_a_path_is_refused(chain, fmus, tmp_path, cap
     path.write_text(path.read_text().replace(str(fmus["agv_test_gain"]), str(fmu)))
     assert cli.main(["validate", str(path), "--no-init"]) == 2
     [line] = capsys.readouterr().err.strip().splitlines()
-    assert line.startswith(f"agv-cosim: error: {path}: components.gain.fmu: broken FMU "
+    number = next(i for i, text in enumerate(path.read_text().splitlines(), 1)
+                  if str(fmu) in text)
+    assert line.startswith(f"agv-cosim: error: {path}:{number}: components.gain.fmu: broken FMU "
                            f"(modelIdentifier {identifier!r} is not a name")
 
 
@@ -288,7 +291,11 @@ def test_an_fmu_without_its_binary_is_named(chain, fmus, tmp_path, capsys):
     line = capsys.readouterr().err.strip().splitlines()[-1]
     assert "the FMU has no binary for this platform (binaries/linux64/AgvTestGain.so)" \
         in line and "components.gain" in line
-    assert cli.main(["run", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 1
+    assert cli.main(["run", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert not (tmp_path / "o").exists()  # refused by the check before any run
+    capsys.readouterr()
+    assert cli.main(["run", str(path), "--out", str(tmp_path / "o"), "--quiet",
+                     "--no-init"]) == 1
     info = json.loads((tmp_path / "o" / "base" / "run.json").read_text())
     assert info["status"] == "failed"
     assert "no binary for this platform" in info["error"]

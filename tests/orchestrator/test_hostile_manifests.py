@@ -100,5 +100,6 @@ def test_a_fifo_as_ssp_package_or_time_table_is_refused(chain, tmp_path, capsys)
     path.write_text(path.read_text().replace(
         "[components.src]\n", f'[components.tab]\ntable = "{table}"\n[components.src]\n'))
     line = _fail(capsys, ["validate", str(path), "--no-init"])
-    assert line == (f"agv-cosim: error: {path}: components.tab.table: '{table}' is not a "
-                    "regular file")
+    number = path.read_text().splitlines().index(f'table = "{table}"') + 1
+    assert line == (f"agv-cosim: error: {path}:{number}: components.tab.table: '{table}' "
+                    "is not a regular file")

@@ -117,9 +117,10 @@ def test_nan_names_component_variable_time(fmus, tmp_path):
 
 
 def test_bad_parameter_value_fails_run(fmus, tmp_path):
-    """A ParameterError at initialisation: nothing recorded, status failed, exit 1."""
+    """A ParameterError at initialisation: nothing recorded, status failed, exit 1 (the
+    check before the runs skipped: it refuses such a value, test_one_line_errors)."""
     path = _fail_manifest(fmus, tmp_path, "agv_test_fail", "fail_time", -1.0)
-    assert _run(path, tmp_path / "out") == 1
+    assert _run(path, tmp_path / "out", "--no-init") == 1
     info = json.loads((tmp_path / "out" / "base" / "run.json").read_text())
     assert info["status"] == "failed"
     assert "fail_time" in info["error"] and "initialisation" in info["error"]

@@ -145,7 +145,8 @@ def test_bad_reference_path_is_refused_before_running(chain, capsys):
     path = chain(extra='[metrics]\nreference = { path = "sine:amplitude=oops", '
                        'x = "int.y", y = "int.y" }\n')
     line = _fail(capsys, ["run", str(path), "--quiet", "--out", str(path.parent / "o")])
-    assert f"{path}: metrics.reference.path: " in line
+    number = path.read_text().splitlines().index("[metrics]") + 2
+    assert f"{path}:{number}: metrics.reference.path: " in line
     assert not (path.parent / "o").exists()
 
 

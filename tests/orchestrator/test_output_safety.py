@@ -86,7 +86,7 @@ def test_manifest_name_is_one_path_component(chain, tmp_path, capsys, monkeypatc
     monkeypatch.chdir(tmp_path)  # the default --out is results/<name>
     assert cli.main(["run", str(path), "--quiet"]) == 2
     line = _one_error(capsys)
-    assert f"{path}: name: " in line
+    assert f"{path}:2: name: " in line  # name = ... on line 2 of the chain manifest
     assert (tmp_path / "precious").read_text() == "data"
     assert not (tmp_path / "results").exists()
 

@@ -59,6 +59,20 @@ def test_list(fmus, capsys):
     out = capsys.readouterr().out
     assert "output    Real    y [1]  k * u  (feedthrough from u)" in out
     assert "parameter Real    k = 1.0 [1]  Gain" in out or "parameter Real    k = 1 [1]" in out
+    assert "tunable" not in out  # AgvTestGain's k is a fixed parameter
+
+
+def test_list_marks_tunable_parameters(tmp_path, capsys):
+    from agv_cosim.build import build_one, default_components_dir
+
+    # AgvTotalStation's 'available' is its one tunable parameter (a dropout event sets it)
+    source = next(default_components_dir().rglob("agv_total_station.py"))
+    fmu = build_one(source, tmp_path).fmu
+    assert cli.main(["list", str(fmu)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    tunable = [line.split()[2] for line in lines if "(tunable" in line]
+    assert tunable == ["available"]
+    assert all(line.split()[0] == "parameter" for line in lines if "(tunable" in line)
 
 
 def test_a_worker_is_reused_only_after_complete_runs(fmus, tmp_path, monkeypatch):

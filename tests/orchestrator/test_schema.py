@@ -17,7 +17,7 @@ def _error(**tables):
 
 
 @pytest.mark.parametrize("tables, message", [
-    ({"zzz": 1}, "zzz: unknown key (allowed: name, description, simulation, components, "
+    ({"zzz": 1}, "zzz: unknown key 'zzz' (allowed: name, description, simulation, components, "
                  "connections, variants, sweep, record, events, metrics, plots, montecarlo)"),
     ({"simulation": {"stop": "1", "step": 0.1}}, "simulation.stop: '1' is not a number"),
     ({"simulation": {"stop": True, "step": 0.1}}, "simulation.stop: True is not a number"),
@@ -26,7 +26,7 @@ def _error(**tables):
     ({"simulation": {"stop": 1.0, "step": 0.1, "algorithm": "rk4"}},
      "simulation.algorithm: 'rk4' is not one of gauss-seidel, jacobi"),
     ({"components": {"a": {"fmu": "a.fmu", "p": 1}}},
-     "components.a.p: unknown key (allowed: fmu, parameters, table, interpolation, units)"),
+     "components.a.p: unknown key 'p' (allowed: fmu, parameters, table, interpolation, units)"),
     ({"connections": [{"from": "a.x", "to": "a.y"}, {"from": "ax", "to": "a.y"}]},
      "connections[1].from: 'ax' is not of the form 'component.variable'"),
     ({"events": {"e": {"at": 0.1, "set": {"ax": 1}}}},
@@ -37,7 +37,7 @@ def _error(**tables):
     ({"montecarlo": {"samples": 1, "seed": 1,
                      "parameters": {"a.p": {"distribution": "normal", "mean": 0, "std": 1,
                                             "s": 1}}}},
-     "montecarlo.parameters.a.p.s: unknown key (allowed: distribution, mean, std)"),
+     "montecarlo.parameters.a.p.s: unknown key 's' (allowed: distribution, mean, std)"),
     ({"montecarlo": {"samples": 1, "seed": 1,
                      "parameters": {"a.p": {"distribution": "cauchy"}}}},
      "montecarlo.parameters.a.p.distribution: 'cauchy' is not one of normal, uniform, "
@@ -48,6 +48,59 @@ def _error(**tables):
 ])
 def test_errors_name_the_dotted_key(tables, message):
     assert _error(**tables) == message
+
+
+def _errors(data):
+    """Every problem of ``data`` as a manifest, ``<key>: <problem>`` each."""
+    with pytest.raises(ManifestError) as info:
+        manifest_from_data(data, "m.toml", "0")
+    return [line.removeprefix("m.toml: ") for line in info.value.lines()]
+
+
+@pytest.mark.parametrize("data, message", [
+    # a misspelt section or key is named as unknown, with the closest valid name; the
+    # "missing" it causes is not reported
+    ({"simulaton": {"stop": 1.0, "step": 0.1}, "components": {"a": {"fmu": "a.fmu"}}},
+     "simulaton: unknown section 'simulaton' (did you mean 'simulation'?)"),
+    ({**BASE, "simulation": {"stp": 1.0, "step": 0.1}},
+     "simulation.stp: unknown key 'stp' (did you mean 'stop'?)"),
+    ({**BASE, "conections": [{"from": "a.x", "to": "a.y"}]},
+     "conections: unknown section 'conections' (did you mean 'connections'?)"),
+    ({**BASE, "components": {"a": {"fmuu": "a.fmu"}}},
+     "components.a.fmuu: unknown key 'fmuu' (did you mean 'fmu'?)"),
+    ({**BASE, "connections": [{"frm": "a.x", "to": "a.y"}]},
+     "connections[0].frm: unknown key 'frm' (did you mean 'from'?)"),
+    ({**BASE, "simulation": {"stop": 1.0, "step": 0.1, "algorithm": "gauss-siedel"}},
+     "simulation.algorithm: 'gauss-siedel' is not one of gauss-seidel, jacobi (did you "
+     "mean 'gauss-seidel'?)"),
+])
+def test_misspellings_say_did_you_mean(data, message):
+    assert _errors(data) == [message]
+
+
+def test_every_schema_problem_is_reported_once():
+    data = {"simulation": {"stp": 1.0, "step": -0.1, "algorithm": "fast"},
+            "components": {"a": {"fmu": 1}}, "zzz": 1}
+    # in the schema's order (a manifest file's problems are sorted by line)
+    assert _errors(data) == [
+        "simulation.step: -0.1 must be > 0",
+        "simulation.algorithm: 'fast' is not one of gauss-seidel, jacobi",
+        "simulation.stp: unknown key 'stp' (did you mean 'stop'?)",
+        "components.a.fmu: 1 is not a string",
+        "zzz: unknown key 'zzz' (allowed: name, description, simulation, components, "
+        "connections, variants, sweep, record, events, metrics, plots, montecarlo)",
+    ]
+    # a missing key with no misspelt neighbour is still reported as missing
+    assert _errors({"simulation": {"step": 0.1}, "components": {"a": {"fmu": "a"}},
+                    "zzz": 1})[0] == "simulation.stop: missing"
+
+
+def test_problems_are_capped():
+    components = {f"c{i}": {"fmu": i} for i in range(30)}
+    lines = _errors({"simulation": {"stop": 1.0, "step": 0.1}, "components": components})
+    assert len(lines) == 20
+    assert lines[:19] == [f"components.c{i}.fmu: {i} is not a string" for i in range(19)]
+    assert lines[19] == "11 more problem(s) not shown"
 
 
 def test_ints_are_numbers_and_defaults_fill_in():

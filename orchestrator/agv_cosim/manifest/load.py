@@ -1,6 +1,7 @@
 """A manifest file read and checked into a :class:`Manifest`.
 
-The format is documented, key by key, in ``experiments/example.toml``.
+The format is documented, key by key, in ``docs/manifest.md`` (checked against the
+schema by tests/orchestrator/test_manifest_doc.py) and ``experiments/example.toml``.
 :func:`load_manifest` checks the syntax, the shape (the schema of
 :mod:`agv_cosim.manifest.schema`: unknown keys, types) and the numbers (no FMU is
 opened). Every problem is a :class:`~agv_cosim.errors.ManifestError` whose text is
@@ -16,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..errors import ManifestError, SchemaError
+from ..errors import ManifestError, SchemaError, did_you_mean
 from ..files import check_name
 from . import schema
 from .montecarlo import MonteCarlo
@@ -98,9 +99,12 @@ class Manifest:
     montecarlo: MonteCarlo | None = None
     #: wall-clock limit of each run [s] (``[simulation] timeout``), None: no limit
     timeout: float | None = None
+    #: dotted key -> its line in the manifest file (:func:`key_lines`); empty for an SSP
+    lines: dict[str, int] = field(default_factory=dict)
 
     def error(self, key: str, problem: str) -> ManifestError:
-        return ManifestError(self.path, key, problem)
+        """A :class:`ManifestError` of ``key``, with its line when known."""
+        return ManifestError(self.path, key, problem, line_of(self.lines, key))
 
     def step_index(self, at: float) -> int:
         """k of the communication point ``at`` = start + k step [s] (``at`` checked to
@@ -183,7 +187,8 @@ def event_key(manifest: object, key: str, name: str, events: dict[str, Any]) -> 
                             "can be swept or set ('events.<name>.at' or "
                             "'events.<name>.set.<component>.<variable>')")
     if parts[1] not in events:
-        raise ManifestError(manifest, key, f"unknown event '{parts[1]}' in '{name}'")
+        raise ManifestError(manifest, key, f"unknown event '{parts[1]}' in '{name}'"
+                            f"{did_you_mean(parts[1], events)}")
     return parts[1]
 
 
@@ -273,10 +278,83 @@ def load_manifest(path: str | Path) -> Manifest:
     except ValueError as error:
         raise ManifestError(path, "file", str(error)) from None
     try:
-        data = parse_toml(raw.decode("utf-8"))
+        text = raw.decode("utf-8")
+        data = parse_toml(text)
     except (tomllib.TOMLDecodeError, UnicodeDecodeError, ValueError) as error:
         raise ManifestError(path, "toml", str(error)) from None
-    return manifest_from_data(data, path, hashlib.sha256(raw).hexdigest())
+    lines = key_lines(text)
+    try:
+        manifest = manifest_from_data(data, path, hashlib.sha256(raw).hexdigest())
+    except ManifestError as error:
+        raise placed(error, lines) from None
+    manifest.lines = lines
+    return manifest
+
+
+_BARE = r"[A-Za-z0-9_-]+|\"(?:[^\"\\]|\\.)*\"|'[^']*'"
+_HEADER = re.compile(rf"^\s*(\[\[?)\s*((?:{_BARE})(?:\s*\.\s*(?:{_BARE}))*)\s*\]\]?\s*(?:#.*)?$")
+_ASSIGN = re.compile(rf"^\s*((?:{_BARE})(?:\s*\.\s*(?:{_BARE}))*)\s*=")
+_PART = re.compile(_BARE)
+
+
+def _key_parts(text: str) -> list[str]:
+    return [part[1:-1] if part[0] in "\"'" else part for part in _PART.findall(text)]
+
+
+def key_lines(text: str) -> dict[str, int]:
+    """The line (from 1) of each table header and key assignment of a TOML text, by
+    dotted key as the manifest's errors name it (``simulation.stop``,
+    ``connections[2].to``; the n-th ``[[name]]`` is ``name[n]``, from 0). A plain scan of
+    the lines: keys inside multi-line arrays and inline tables are not found (their
+    enclosing key is)."""
+    found: dict[str, int] = {}
+    table: list[str] = []
+    counts: dict[str, int] = {}
+    for number, line in enumerate(text.splitlines(), 1):
+        header = _HEADER.match(line)
+        if header:
+            name = ".".join(_key_parts(header.group(2)))
+            if header.group(1) == "[[":
+                index = counts.get(name, 0)
+                counts[name] = index + 1
+                name = f"{name}[{index}]"
+            table = [name]
+            _add(found, name, number)
+            continue
+        assign = _ASSIGN.match(line)
+        if assign:
+            _add(found, ".".join(table + _key_parts(assign.group(1))), number)
+    return found
+
+
+def _add(found: dict[str, int], key: str, number: int) -> None:
+    """``key`` and each enclosing key not yet seen, at line ``number`` (the first line
+    of anything under a key is where it begins)."""
+    while key and key not in found:
+        found[key] = number
+        key = key[:max(key.rfind("."), key.rfind("["), 0)]
+
+
+def line_of(lines: dict[str, int], key: str) -> int | None:
+    """The line of ``key`` in :func:`key_lines`' map, else of its closest enclosing key
+    found (a missing key: its table's header), else None. O(depth of the key)."""
+    while key:
+        if key in lines:
+            return lines[key]
+        key = key[:max(key.rfind("."), key.rfind("["), 0)]
+    return None
+
+
+def placed(error: ManifestError, lines: dict[str, int]) -> ManifestError:
+    """``error`` and its others with the line of each key (:func:`line_of`), sorted by
+    line (a problem without one last)."""
+    every = [error, *error.others]
+    out = [ManifestError(e.manifest, e.key, e.problem,
+                         e.line if e.line is not None else line_of(lines, e.key))
+           for e in every]
+    out.sort(key=lambda e: (e.line is None, e.line or 0))
+    out[0].others = out[1:]
+    return out[0]
 
 
 def manifest_from_data(data: dict[str, Any], path: str | Path, sha256: str,
@@ -301,7 +379,10 @@ def manifest_from_data(data: dict[str, Any], path: str | Path, sha256: str,
     try:
         table = schema.check(schema.ManifestTable, data)
     except SchemaError as error:
-        raise ManifestError(path, error.key, error.problem) from None
+        first = ManifestError(path, error.key, error.problem)
+        first.others = [ManifestError(path, other.key, other.problem)
+                        for other in error.others]
+        raise first from None
     base_dir = path.resolve().parent if base_dir is None else Path(base_dir)
     sim = table.simulation
     start, stop, step = sim.start, sim.stop, sim.step
@@ -344,7 +425,8 @@ def manifest_from_data(data: dict[str, Any], path: str | Path, sha256: str,
         for cname, ctable in vtable.components.items():
             ckey = f"{key}.components.{cname}"
             if cname not in components:
-                raise ManifestError(path, ckey, f"unknown component '{cname}'")
+                raise ManifestError(path, ckey, f"unknown component '{cname}'"
+                                    f"{did_you_mean(cname, components)}")
             comps[cname] = _component(path, base_dir, cname, ctable, ckey)
         # an event of the base is changed field by field; a new one needs both
         variant_events = {ename: _event(path, f"{key}.events.{ename}", etable,

@@ -7,7 +7,7 @@ figure over the runs are :mod:`agv_cosim.report.montecarlo`.
 from collections.abc import Collection
 from typing import Any
 
-from ..errors import ManifestError, SchemaError
+from ..errors import ManifestError, SchemaError, did_you_mean
 from . import schema
 
 __all__ = ["DESIGNS", "DISTRIBUTIONS", "MonteCarlo", "parse"]
@@ -68,7 +68,8 @@ def parse(path: object, table: Any, components: Collection[str] = (),
         if not cname or not rest:
             raise _error(path, key, f"{name!r} is not of the form 'component.parameter'")
         if components and cname not in components:
-            raise _error(path, key, f"unknown component '{cname}'")
+            raise _error(path, key, f"unknown component '{cname}'"
+                         f"{did_you_mean(cname, components)}")
         if name in swept:
             raise _error(path, key, f"'{name}' is also swept in [sweep]")
         kind = spec.distribution  # keys in the documented order (montecarlo.json)
@@ -79,7 +80,8 @@ def parse(path: object, table: Any, components: Collection[str] = (),
     for name in seeds:
         cname = name.partition(".")[0]
         if components and cname not in components:
-            raise _error(path, "seeds", f"unknown component '{cname}' in '{name}'")
+            raise _error(path, "seeds", f"unknown component '{cname}' in '{name}'"
+                         f"{did_you_mean(cname, components)}")
         if name in parameters or name in swept or seeds.count(name) > 1:
             raise _error(path, "seeds", f"'{name}' is listed twice (seeds, parameters or "
                          "sweep)")

@@ -29,7 +29,7 @@ from pydantic import (
     model_validator,
 )
 
-from ..errors import SchemaError
+from ..errors import SchemaError, closest, did_you_mean
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -287,31 +287,68 @@ class ManifestTable(_Table):
 # --------------------------------------------------------------------------- errors
 
 def check(model: type[M], data: Any, prefix: str = "") -> M:
-    """``model`` validated from ``data``; else a :class:`SchemaError` for the first problem,
-    its key prefixed by ``prefix`` (e.g. ``"metrics"`` for a ``[metrics]`` table alone)."""
+    """``model`` validated from ``data``; else a :class:`SchemaError` for the first problem
+    (the further ones in its ``others``), its key prefixed by ``prefix`` (e.g.
+    ``"metrics"`` for a ``[metrics]`` table alone)."""
     try:
         return model.model_validate(data)
     except ValidationError as error:
-        raise schema_error(model, error, prefix) from None
+        problems = schema_errors(model, error, prefix)
+        first = problems[0]
+        first.others = problems[1:]
+        raise first from None
 
 
 def schema_error(model: type[BaseModel], error: ValidationError,
                  prefix: str = "") -> SchemaError:
     """The first error of a pydantic ``ValidationError`` as a :class:`SchemaError`."""
-    first = error.errors()[0]
-    parts, parent = _walk(model, first["loc"])
-    if first["type"] in ("union_tag_invalid", "union_tag_not_found"):
-        parts.append(first["ctx"]["discriminator"].strip("'"))
-    key = prefix
-    for part in parts:
-        key += f"[{part}]" if isinstance(part, int) else (f".{part}" if key else str(part))
-    return SchemaError(key or "(top level)", _problem(first, parent))
+    return schema_errors(model, error, prefix)[0]
+
+
+def schema_errors(model: type[BaseModel], error: ValidationError,
+                  prefix: str = "") -> list[SchemaError]:
+    """Every error of a pydantic ``ValidationError`` as a :class:`SchemaError`, in
+    pydantic's order. An unknown key close to a known one of the same table is named with
+    it ("did you mean"), and that key's "missing" (the symptom of the misspelling) is
+    dropped."""
+    errors = error.errors()
+    misspelt = set()
+    found = []
+    for one in errors:
+        parts, parent = _walk(model, one["loc"])
+        problem = _problem(one, parent)
+        if one["type"] == "extra_forbidden" and parent is not None:
+            name = str(parts[-1])
+            allowed = _allowed(parent)
+            match = closest(name, allowed)
+            what = "section" if isinstance(one.get("input"), (dict, list)) else "key"
+            if match is not None:
+                misspelt.add(tuple(one["loc"][:-1]) + (match,))
+                problem = f"unknown {what} '{name}' (did you mean '{match}'?)"
+            else:
+                problem = f"unknown {what} '{name}' (allowed: {', '.join(allowed)})"
+        if one["type"] in ("union_tag_invalid", "union_tag_not_found"):
+            parts.append(one["ctx"]["discriminator"].strip("'"))
+        found.append((one, parts, problem))
+    out = []
+    for one, parts, problem in found:
+        if one["type"] == "missing" and tuple(one["loc"]) in misspelt:
+            continue
+        key = prefix
+        for part in parts:
+            key += f"[{part}]" if isinstance(part, int) else (f".{part}" if key else str(part))
+        out.append(SchemaError(key or "(top level)", problem))
+    return out
+
+
+def _allowed(parent):
+    return [f.alias or n for n, f in parent.model_fields.items()]
 
 
 def _problem(error, parent):
     kind, value, ctx = error["type"], error.get("input"), error.get("ctx", {})
     if kind == "extra_forbidden":
-        allowed = [f.alias or n for n, f in parent.model_fields.items()] if parent else []
+        allowed = _allowed(parent) if parent else []
         return "unknown key" + (f" (allowed: {', '.join(allowed)})" if allowed else "")
     if kind == "missing":
         return "missing"
@@ -327,7 +364,8 @@ def _problem(error, parent):
         "model_attributes_type": f"must be a table, not {type(value).__name__}",
         "list_type": f"must be an array, not {type(value).__name__}",
         "too_short": "must not be empty",
-        "literal_error": f"{value!r} is not one of {_names(ctx.get('expected'))}",
+        "literal_error": f"{value!r} is not one of {_names(ctx.get('expected'))}"
+                         f"{_suggest(value, ctx.get('expected'))}",
         "union_tag_invalid": f"{ctx.get('tag')!r} is not one of "
                              f"{_names(ctx.get('expected_tags'))}",
         "union_tag_not_found": "missing",
@@ -339,6 +377,13 @@ def _problem(error, parent):
                 limit = int(limit)
             return f"{value!r} must be {relation} {limit}"
     return texts.get(kind, f"{value!r}: {error['msg']}")
+
+
+def _suggest(value, expected):
+    """" (did you mean 'x'?)" for a string close to one of pydantic's expected values."""
+    if not isinstance(value, str) or not expected:
+        return ""
+    return did_you_mean(value, _names(expected).split(", "))
 
 
 def _names(expected):

@@ -5,10 +5,10 @@ check), :mod:`.run` (the jobs run and the output folder written), :mod:`.channel
 a worker reports to its parent).
 """
 
-from .initcheck import check_initialisation
+from .initcheck import INIT_TIMEOUT, check_initialisation
 from .job import run_job
 from .prepare import prepare
 from .run import default_out_dir, execute, run_manifest
 
-__all__ = ["check_initialisation", "default_out_dir", "execute", "prepare", "run_job",
-           "run_manifest"]
+__all__ = ["INIT_TIMEOUT", "check_initialisation", "default_out_dir", "execute", "prepare",
+           "run_job", "run_manifest"]

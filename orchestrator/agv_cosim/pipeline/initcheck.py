@@ -9,7 +9,6 @@ from multiprocessing import get_context
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
-from ..errors import ManifestError
 from ..execution.instance import FmuInstance, keep_extractions
 from ..execution.units import set_value
 from ..lifetime import kill_group, scratch_dir
@@ -93,6 +92,8 @@ def check_initialisation(manifest: Manifest, jobs: list[Job],
     checks, where, seen = [], [], set()
     for job in jobs:
         for cname, info in job.plan.models.items():
+            if info.table is not None:  # a time table: checked when it was read
+                continue
             values = job.plan.parameters.get(cname, {})
             key = (info.sha256, repr(sorted(values.items())))
             if key in seen:
@@ -162,6 +163,6 @@ def check_initialisation(manifest: Manifest, jobs: list[Job],
     if failure is not None:
         index, text, refused = failure
         cname, label = where[index]
-        raise ManifestError(manifest.path, f"components.{cname}",
+        raise manifest.error(f"components.{cname}",
                             f"the FMU refuses to initialise (run {label}): {text}"
                             if refused else f"run {label}: {text}")

@@ -6,7 +6,6 @@ from pathlib import Path
 from typing import Any
 
 from .. import fmitypes
-from ..errors import ManifestError
 from ..manifest import Manifest, load_manifest
 from ..plan import plan_runs
 from ..report import metrics, plots
@@ -32,7 +31,7 @@ def _signal_sources(manifest: Manifest) -> list[tuple[str, list[str]]]:
             try:
                 sources.append((name, list(module.referenced_signals(spec))))
             except Exception as error:  # noqa: BLE001 - a bad spec is a manifest error
-                raise ManifestError(manifest.path, name, str(error)) from None
+                raise manifest.error(name, str(error)) from None
     # a path string is checked now, not after the runs (it would leave metrics empty)
     base_dir = Path(manifest.path).parent
     reference = manifest.metrics.reference if manifest.metrics else None
@@ -44,7 +43,7 @@ def _signal_sources(manifest: Manifest) -> list[tuple[str, list[str]]]:
                 metrics.load_path(text, key, base_dir)
             except Exception as error:  # noqa: BLE001 - a bad path is a manifest error
                 problem = str(error).removeprefix(f"{key}: ")
-                raise ManifestError(manifest.path, key, problem) from None
+                raise manifest.error(key, problem) from None
     return sources
 
 

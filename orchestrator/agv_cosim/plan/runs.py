@@ -15,7 +15,7 @@ import tomllib
 from collections.abc import Iterable
 from typing import Any
 
-from ..errors import ManifestError
+from ..errors import ManifestError, did_you_mean
 from ..manifest import Manifest, dotted_name, event_key, event_parts, parse_toml, split_name
 from .sampling import expand_runs
 from .spec import MAX_RUNS, RunSpec, run_label
@@ -34,7 +34,7 @@ def _apply_event_key(events: dict[str, dict[str, Any]], name: str, value: Any) -
 def parse_set(manifest: Manifest, text: str) -> tuple[str, Any]:
     """Parse one ``--set comp.param=VALUE`` (VALUE as a TOML value, else a string)."""
     if "=" not in text:
-        raise ManifestError(manifest.path, "--set", f"{text!r} is not comp.param=VALUE")
+        raise manifest.error("--set", f"{text!r} is not comp.param=VALUE")
     name, value = text.split("=", 1)
     if name.strip().startswith("events."):
         event_key(manifest.path, "--set", name.strip(), manifest.events)
@@ -45,7 +45,7 @@ def parse_set(manifest: Manifest, text: str) -> tuple[str, Any]:
     except tomllib.TOMLDecodeError:
         parsed = value
     except ValueError as error:  # nested too deeply
-        raise ManifestError(manifest.path, "--set", f"{name.strip()}: {error}") from None
+        raise manifest.error("--set", f"{name.strip()}: {error}") from None
     return name.strip(), parsed
 
 
@@ -65,21 +65,23 @@ def plan_runs(manifest: Manifest, variants: list[str] | None = None,
     overrides = dict(parse_set(manifest, s) for s in sets)
     for name in overrides:
         if name in manifest.sweep:
-            raise ManifestError(manifest.path, "--set", f"'{name}' is also swept in [sweep]")
+            raise manifest.error("--set", f"'{name}' is also swept in [sweep]")
         comp = name.split(".")[0]
         if comp != "events" and comp not in manifest.components:
-            raise ManifestError(manifest.path, "--set", f"unknown component '{comp}' in "
-                                f"'{name}'")
+            raise manifest.error("--set", f"unknown component '{comp}' in "
+                                f"'{name}'{did_you_mean(comp, manifest.components)}")
     for name in manifest.sweep:
         if name.split(".")[0] not in manifest.components and not name.startswith("events."):
-            raise ManifestError(manifest.path, f"sweep.{name}",
-                                f"unknown component '{name.split('.')[0]}'")
+            comp = name.split(".")[0]
+            raise manifest.error(f"sweep.{name}", f"unknown component '{comp}'"
+                                 f"{did_you_mean(comp, manifest.components)}")
     if variants:
         for name in variants:
             if name not in manifest.variants:
                 known = ", ".join(manifest.variants) or "none declared"
                 raise ManifestError(manifest.path, "variants",
-                                    f"unknown variant '{name}' (known: {known})")
+                                    f"unknown variant '{name}'"
+                                    f"{did_you_mean(name, manifest.variants)} (known: {known})")
         chosen: list[str | None] = list(dict.fromkeys(variants))
     else:
         chosen = list(manifest.variants) or [None]
@@ -88,7 +90,7 @@ def plan_runs(manifest: Manifest, variants: list[str] | None = None,
     samples = manifest.montecarlo.samples if manifest.montecarlo is not None else 1
     if count * samples > MAX_RUNS:
         key = "montecarlo.samples" if samples > 1 and count <= MAX_RUNS else "sweep"
-        raise ManifestError(manifest.path, key, f"{count * samples} runs (variants x sweep "
+        raise manifest.error(key, f"{count * samples} runs (variants x sweep "
                             f"points x samples); at most {MAX_RUNS}")
     points = [dict(zip(names, combo)) for combo in
               itertools.product(*(manifest.sweep[n] for n in names))]
@@ -124,6 +126,6 @@ def plan_runs(manifest: Manifest, variants: list[str] | None = None,
         runs = expand_runs(manifest, runs)
     labels = [r.label for r in runs]
     if len(set(labels)) != len(labels):
-        raise ManifestError(manifest.path, "sweep", "two sweep points give the same run "
+        raise manifest.error("sweep", "two sweep points give the same run "
                             "label (a value is repeated)")
     return runs

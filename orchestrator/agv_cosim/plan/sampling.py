@@ -60,7 +60,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ManifestError, SamplingError
+from ..errors import SamplingError
 from ..manifest import Manifest
 from ..manifest.montecarlo import MonteCarlo
 from .spec import RunSpec, run_label
@@ -200,13 +200,13 @@ def expand_runs(manifest: Manifest, runs: list[RunSpec]) -> list[RunSpec]:
         values = draw(mc)
     except SamplingError as error:
         key, _, problem = str(error).partition(": ")
-        raise ManifestError(manifest.path, f"montecarlo.{key}", problem) from None
+        raise manifest.error(f"montecarlo.{key}", problem) from None
     width = max(4, len(str(mc.samples - 1)))
     expanded = []
     for run in runs:
         for name in run.overrides:
             if name in mc.names:
-                raise ManifestError(manifest.path, "--set", f"'{name}' is also sampled in "
+                raise manifest.error("--set", f"'{name}' is also sampled in "
                                     "[montecarlo]")
         base = [run.variant or "base"] + [f"{k}={v!r}" for k, v in run.point.items()]
         for index, sample in enumerate(values):

@@ -33,7 +33,7 @@ from typing import Any
 from xml.etree import ElementTree
 
 from .. import fmitypes
-from ..errors import ManifestError, OutputError
+from ..errors import OutputError
 from ..files import user_mode
 from ..manifest import Manifest, load_manifest
 from ..plan import plan_runs
@@ -243,7 +243,7 @@ def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
     runs = plan_runs(manifest, [variant] if variant else None, sets)
     if len(runs) != 1:
         key = "sweep" if manifest.sweep else "variants"
-        raise ManifestError(manifest.path, key, f"expands to {len(runs)} runs; an SSP "
+        raise manifest.error(key, f"expands to {len(runs)} runs; an SSP "
                             "package holds one (choose --variant, remove the sweep or fix "
                             "it with --set)")
     checked = validate(manifest, runs)
@@ -253,7 +253,7 @@ def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
     for cname, values in params.items():
         for pname, value in values.items():
             if isinstance(value, tuple):
-                raise ManifestError(manifest.path, f"components.{cname}.parameters.{pname}",
+                raise manifest.error(f"components.{cname}.parameters.{pname}",
                                     "an FMI 3.0 array parameter cannot be written to an "
                                     "SSP package (SSP parameters are scalars)")
     name = manifest.name + (f"_{run.variant}" if run.variant else "")

@@ -12,7 +12,7 @@ from collections.abc import Iterable
 from typing import Any
 
 from .. import fmitypes
-from ..errors import ModelError, TableError
+from ..errors import ManifestError, ModelError, TableError, did_you_mean
 from ..manifest import Component, Connection, Manifest, split_name, whole_multiple
 from ..plan import RunSpec
 from .checked import Checked, CheckedRun, Event
@@ -75,10 +75,11 @@ def check_events(manifest: Manifest, run: RunSpec, models: dict[str, ModelInfo],
             cname, vname = split_name(target)
             vkey = f"{key}.set.{target}"
             if cname not in models:
-                raise err(vkey, f"unknown component '{cname}'")
+                raise err(vkey, f"unknown component '{cname}'{did_you_mean(cname, models)}")
             var = models[cname].variables.get(vname)
             if var is None:
-                raise err(vkey, f"unknown variable '{target}'")
+                raise err(vkey, f"unknown variable '{target}'"
+                          f"{did_you_mean(vname, models[cname].variables)}")
             if var.causality == "parameter":
                 if var.variability != "tunable":
                     raise err(vkey, f"'{target}' is a {var.variability} parameter (an "
@@ -137,9 +138,10 @@ def check_parameters(manifest: Manifest, run: RunSpec,
             key = _parameter_key(manifest, run, cname, pname)
             var = info.variables.get(pname)
             if var is None:
-                known = ", ".join(v.name for v in info.parameters)
-                raise err(key, f"unknown parameter '{pname}' of {cname} "
-                          f"({info.model_name}; parameters: {known})")
+                names = [v.name for v in info.parameters]
+                match = did_you_mean(pname, names)
+                raise err(key, f"unknown parameter '{pname}' of {cname} ({info.model_name}"
+                          + (f"){match}" if match else f"; parameters: {', '.join(names)})"))
             if var.causality != "parameter":
                 raise err(key, f"'{cname}.{pname}' is {_article(var.causality)}, "
                           "not a parameter")
@@ -172,12 +174,14 @@ def check_connections(manifest: Manifest,
                                           ("to", conn.target, "input")):
             key = f"{conn.key}.{side}"
             if cname not in models:
-                raise err(key, f"unknown component '{cname}'")
+                raise err(key, f"unknown component '{cname}'{did_you_mean(cname, models)}")
             var = models[cname].variables.get(vname)
             if var is None:
-                known = ", ".join(v.name for v in models[cname].of_causality(want))
+                names = [v.name for v in models[cname].of_causality(want)]
+                match = did_you_mean(vname, names)
                 raise err(key, f"unknown variable '{cname}.{vname}' of "
-                          f"{models[cname].model_name} ({want}s: {known})")
+                          f"{models[cname].model_name}"
+                          + (match or f" ({want}s: {', '.join(names)})"))
             if var.causality != want:
                 raise err(key, f"wrong causality: '{cname}.{vname}' is "
                           f"{_article(var.causality)}, a connection goes output -> input")
@@ -208,7 +212,8 @@ def _check_sweep(manifest: Manifest, models: dict[str, ModelInfo]) -> None:
             continue
         cname, _ = split_name(name)
         if cname not in models:
-            raise manifest.error(f"sweep.{name}", f"unknown component '{cname}'")
+            raise manifest.error(f"sweep.{name}", f"unknown component '{cname}'"
+                                 f"{did_you_mean(cname, models)}")
 
 
 def check_run(manifest: Manifest, run: RunSpec) -> tuple[CheckedRun, list[str]]:
@@ -218,8 +223,11 @@ def check_run(manifest: Manifest, run: RunSpec) -> tuple[CheckedRun, list[str]]:
     _check_sweep(manifest, models)
     targets = check_connections(manifest, models)
     events = check_events(manifest, run, models, targets)
-    order = feedthrough_order(models, manifest.connections, manifest.path,
-                              manifest.algorithm)
+    try:
+        order = feedthrough_order(models, manifest.connections, manifest.path,
+                                  manifest.algorithm)
+    except ManifestError as error:  # placed at the line of its key
+        raise manifest.error(error.key, error.problem) from None
     unconnected = [f"{c}.{v.name}" for c, info in models.items() for v in info.inputs
                    if (c, v.name) not in targets]
     return CheckedRun(run=run, models=models, parameters=parameters, order=order,
@@ -290,10 +298,13 @@ def _record_list(manifest: Manifest, models: dict[str, ModelInfo]) -> list[str]:
         cname, vname = split_name(name)
         key = f"record.variables[{i}]"
         if cname not in models:
-            raise manifest.error(key, f"unknown component '{cname}'")
+            raise manifest.error(key, f"unknown component '{cname}'"
+                                 f"{did_you_mean(cname, models)}")
         var = models[cname].variables.get(vname)
         if var is None:
-            raise manifest.error(key, f"unknown variable '{name}'")
+            outputs = [v.name for v in models[cname].outputs]
+            raise manifest.error(key, f"unknown variable '{name}'"
+                                 f"{did_you_mean(vname, outputs)}")
         if var.causality != "output":
             raise manifest.error(key, f"'{name}' is not an output (it is "
                                  f"{_article(var.causality)} {var.type})")

@@ -321,7 +321,8 @@ def find_fmus(path: str | Path) -> list[Path]:
 
 
 def describe(info: ModelInfo) -> str:
-    """Human-readable listing of an FMU's variables (``agv-cosim list``)."""
+    """Human-readable listing of an FMU's variables (``agv-cosim list``); a tunable
+    parameter is marked as such."""
     lines = [f"{info.path.name}  ({info.model_name}): {info.description}"]
     order = {"parameter": 0, "input": 1, "output": 2}
     variables = sorted((v for v in info.variables.values() if v.element is None),
@@ -329,6 +330,8 @@ def describe(info: ModelInfo) -> str:
     for v in variables:
         unit = f"[{v.unit}]" if v.unit else ""
         extra = ""
+        if v.causality == "parameter" and v.variability == "tunable":
+            extra = "  (tunable: an event may change it during a run)"
         if v.causality == "output":
             deps = info.dependencies.get(v.name, [])
             extra = f"  (feedthrough from {', '.join(deps)})" if deps else ""
