@@ -85,9 +85,15 @@ def _mc_manifest(folder, samples, stop):
 
 class Cluster:
     """A scheduler and stock workers, each started through a ``python -c`` wrapper that
-    waits for it (so that the cluster's processes are never this process's orphans)."""
+    waits for it (so that the cluster's processes are never this process's orphans).
+    The wrapper and its process get SIGTERM when their parent ends (prctl
+    PR_SET_PDEATHSIG), so a benchmark killed midway leaves no cluster running."""
 
-    WRAP = "import subprocess, sys; sys.exit(subprocess.call(sys.argv[1:]))"
+    WRAP = ("import ctypes, signal, subprocess, sys\n"
+            "libc = ctypes.CDLL(None)\n"
+            "def guard(): libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)\n"
+            "guard()\n"
+            "sys.exit(subprocess.call(sys.argv[1:], preexec_fn=guard))")
 
     def __init__(self, folder, workers, daemon=True):
         self.folder = Path(folder)
