@@ -50,13 +50,16 @@ def _stop(process):
 
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
-    """The address of a scheduler with two one-thread workers (each under a nanny)."""
+    """The address of a scheduler with two stock one-thread workers (no DASK_* setting):
+    one under a nanny (a daemonic process), one without (``--no-nanny``)."""
     from distributed import Client
 
     folder = tmp_path_factory.mktemp("dask")
     scheduler_file = folder / "scheduler.json"
     # TMPDIR: the workers' FMU cache and run folders stay in this test's folder
-    env = dict(os.environ, DASK_DISTRIBUTED__WORKER__DAEMON="False", TMPDIR=str(folder))
+    env = {name: value for name, value in os.environ.items()
+           if not name.startswith("DASK_")}
+    env["TMPDIR"] = str(folder)
     processes = []
     log = open(folder / "cluster.log", "w")
 
@@ -77,10 +80,10 @@ def cluster(tmp_path_factory):
             assert time.monotonic() < deadline, "the scheduler did not start"
             assert processes[0].poll() is None, "the scheduler ended"
             time.sleep(0.2)
-        for _ in range(2):
+        for nanny in (["--nanny"], ["--no-nanny"]):
             start("worker", "--scheduler-file", str(scheduler_file), "--nthreads", "1",
                   "--no-dashboard", "--local-directory", str(folder),
-                  "--death-timeout", "60")
+                  "--death-timeout", "60", *nanny)
         with Client(scheduler_file=str(scheduler_file), timeout=30) as client:
             client.wait_for_workers(2, timeout=90)
             address = client.scheduler.address
@@ -157,6 +160,39 @@ def test_a_dask_run_gives_the_local_results_and_isolates_a_crash(cluster, fmus, 
     assert "process died (signal 6)" in crashed["error"]
     ok = json.loads((remote / "one__src.slope=1.0" / "metrics.json").read_text())
     assert ok["lateral_error_max"] > 0.0  # metrics computed (on the client)
+
+
+def test_stock_workers_run_every_run_isolated(cluster, fmus, tmp_path):
+    """Both stock workers (the daemonic one under a nanny, and the one without) run
+    runs in processes of their own: each is given a complete run and a run whose FMU
+    aborts its process, which ends partial while the worker goes on."""
+    from distributed import Client
+
+    from agv_cosim.pipeline import prepare
+    from agv_cosim.pipeline.distributed import run_remote
+
+    with Client(cluster, timeout=30) as client:
+        daemonic = client.run(  # a lambda: sent by value (this module is not on workers)
+            lambda: __import__("multiprocessing").current_process().daemon)
+        assert sorted(daemonic.values()) == [False, True], daemonic
+        path = tmp_path / "daskcmp.toml"
+        path.write_text(MANIFEST.format(src=fmus["agv_test_source"],
+                                        gain=fmus["agv_test_gain"],
+                                        integ=fmus["agv_test_integrator"],
+                                        crash=fmus["agv_test_crash"]))
+        _, jobs, _ = prepare(path)
+        jobs = [job for job in jobs if job.label.endswith("slope=1.0")]
+        assert len(jobs) == 2
+        for worker in daemonic:
+            for job in jobs:
+                blobs = {info.sha256: Path(info.path).read_bytes()
+                         for info in job.plan.models.values() if info.table is None}
+                result, files = client.submit(run_remote, job, blobs, pure=False,
+                                              workers=[worker]).result(timeout=120)
+                crashing = "crashing" in job.label
+                assert result["status"] == ("partial" if crashing else "complete"), result
+                assert ("process died (signal 6)" in (result["error"] or "")) == crashing
+                assert "timeseries.csv" in files and "run.json" in files
 
 
 def test_an_unreachable_scheduler_is_one_line_and_nonzero(chain, capsys):

@@ -36,7 +36,7 @@ def _mini_cluster(folder):
     """A scheduler and one worker without a nanny (so killing it leaves none); returns
     (address, scheduler process, worker process)."""
     scheduler_file = folder / "scheduler.json"
-    env = dict(os.environ, DASK_DISTRIBUTED__WORKER__DAEMON="False", TMPDIR=str(folder))
+    env = dict(os.environ, TMPDIR=str(folder))
     log = open(folder / "cluster.log", "w")
 
     def start(*args):

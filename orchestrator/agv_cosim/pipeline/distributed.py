@@ -16,10 +16,13 @@ What a task does on a worker (:func:`run_remote`):
    Chosen over a shared path because the cluster then needs no shared file system and a
    worker can never run an FMU other than the one the client validated: the hash in
    ``run.json`` is the hash of the bytes that ran.
-2. **The same crash isolation as locally.** The run goes through
-   :func:`agv_cosim.pipeline.pool.run_isolated`: a child process of its own (``forkserver``),
-   so an FMU that aborts its process fails only its run, reported ``partial`` or
-   ``failed`` with the same text as locally; the worker goes on.
+2. **The same crash isolation as locally.** The run goes to a run host of the worker
+   (:mod:`agv_cosim.pipeline.host`: an ordinary subprocess, kept for the worker's later
+   tasks), which runs it through :func:`agv_cosim.pipeline.pool.run_isolated`: a child
+   process of its own (``forkserver``), so an FMU that aborts its process fails only its
+   run, reported ``partial`` or ``failed`` with the same text as locally; the worker
+   goes on. A subprocess works in a daemonic worker (the default under a nanny), where
+   :mod:`multiprocessing` cannot start children, so stock workers need no setting.
 3. The run's folder (``timeseries.csv``, ``run.json``, ``metrics.json``) goes back to the
    client as bytes; the client writes it, then computes the run's metrics from the
    ``timeseries.csv`` it wrote (the manifest's files, e.g. a waypoint file of a
@@ -28,11 +31,9 @@ What a task does on a worker (:func:`run_remote`):
 Results are byte-identical to a local run (timeseries.csv, metrics.json, summary.csv);
 ``run.json`` differs only where it records the machine (wall time, versions).
 
-Workers need: the project installed in the same Python environment as the client (same
-versions of agv-cosim, numpy, scipy, pythonfmu), and permission to start child processes:
-a Dask worker under a nanny is a daemonic process, which Python forbids to have
-children, so start workers with ``DASK_DISTRIBUTED__WORKER__DAEMON=False`` (or
-``--no-nanny``). See docs/dask.md.
+Workers need the project installed in the same Python environment as the client (same
+versions of agv-cosim, numpy, scipy, pythonfmu); stock ``dask worker ADDRESS`` processes
+(with a nanny or not) run the jobs. See docs/dask.md.
 """
 
 import dataclasses
@@ -56,7 +57,8 @@ from ..lifetime import ignore_termination, scratch_dir
 from ..report import metrics
 from ..report.records import RunResult, run_result
 from ..system import Job
-from .pool import not_run, run_isolated
+from .host import run_hosted
+from .pool import not_run
 
 __all__ = ["CONNECT_TIMEOUT", "LOST_TIMEOUT", "cached_fmu", "connect", "run_on_dask",
            "run_remote"]
@@ -178,24 +180,14 @@ def cached_fmu(sha256: str, blob: bytes, cache: str | Path | None = None) -> Pat
     return path
 
 
-def _allow_children():
-    """Refuse clearly in a daemonic worker (multiprocessing would assert)."""
-    import multiprocessing
-
-    if multiprocessing.current_process().daemon:
-        raise WorkerUnfit("this Dask worker is a daemonic process and cannot start a run's "
-                          "child process: start the workers with "
-                          "DASK_DISTRIBUTED__WORKER__DAEMON=False (or --no-nanny)")
-
-
 def run_remote(job: Job, blobs: dict[str, bytes]) -> tuple[RunResult, dict[str, bytes]]:
-    """Body of a Dask task: run ``job`` isolated on this worker; return its folder.
+    """Body of a Dask task: run ``job`` isolated on this worker (in a run host, see
+    :mod:`agv_cosim.pipeline.host`); return its folder.
 
     ``blobs``: SHA-256 -> FMU bytes of the job's FMUs. Returns ``(result dict, files)``,
     ``files`` mapping each file of the run's folder (relative POSIX path) to its bytes.
     Metrics are left to the client (``metrics_spec`` is dropped here).
     """
-    _allow_children()
     models = {}
     for cname, info in job.plan.models.items():
         if info.table is not None:  # a time table travels in the job itself
@@ -207,7 +199,7 @@ def run_remote(job: Job, blobs: dict[str, bytes]) -> tuple[RunResult, dict[str, 
                                 metrics_spec=None)
     root = Path(scratch_dir("dask"))
     try:
-        [result] = run_isolated([local], root, 1, lambda steps: None, lambda: None)
+        result = run_hosted(local, root)
         run_dir = root / job.label
         files = {p.relative_to(run_dir).as_posix(): p.read_bytes()
                  for p in sorted(run_dir.rglob("*")) if p.is_file()}
