@@ -41,19 +41,25 @@ def _check_child(checks: list[tuple[str, ModelInfo, dict[str, Any], float, float
             # instances one after the other: the FMU's one extraction serves them all
             instance = FmuInstance(info, cname, shared=True)
             slave = instance.slave
-            call = "fmi2SetupExperiment"
-            slave.setupExperiment(startTime=start, stopTime=stop)
+            fmi = "fmi3" if info.fmi_version == "3.0" else "fmi2"
+            if fmi == "fmi2":  # FMI 3.0 has no setupExperiment: its times come below
+                call = "fmi2SetupExperiment"
+                slave.setupExperiment(startTime=start, stopTime=stop)
             for pname, value in values.items():
                 call = f"setting parameter '{pname}'"
                 set_value(slave, info.variables[pname], value)
-            call = "fmi2EnterInitializationMode"
-            slave.enterInitializationMode()
-            call = "fmi2ExitInitializationMode"
+            call = f"{fmi}EnterInitializationMode"
+            if fmi == "fmi3":
+                slave.enterInitializationMode(startTime=start, stopTime=stop)
+            else:
+                slave.enterInitializationMode()
+            call = f"{fmi}ExitInitializationMode"
             slave.exitInitializationMode()
         except Exception as error:  # noqa: BLE001 - the FMU's refusal is the result
             detail = instance.last_error() if instance is not None else ""
-            call = getattr(error, "function", None) or (call if instance else
-                                                         "fmi2Instantiate")
+            call = getattr(error, "function", None) or (
+                call if instance else
+                "fmi3InstantiateCoSimulation" if info.fmi_version == "3.0" else "fmi2Instantiate")
             failure = f"{call} failed" + (f": {detail}" if detail else f" ({error})")
         finally:
             if instance is not None:
