@@ -26,7 +26,7 @@ from .instance import FmuInstance
 from .observers import Observer
 from .scenario import Scenario
 from .track import INITIALISATION, INSTANTIATION, PHASES, PROPAGATION, Track
-from .units import Unit, build_units, set_value
+from .units import Unit, build_units, enter_initialisation
 
 __all__ = ["Outcome", "simulate"]
 
@@ -76,17 +76,8 @@ def _initialise(system: System, instances: dict[str, FmuInstance],
     track[1] = INITIALISATION
     for cname, instance in instances.items():
         track[0] = index[cname]
-        slave = instance.slave
-        info = models[cname]
-        if info.fmi_version == "3.0":
-            for pname, value in system.parameters.get(cname, {}).items():
-                set_value(slave, info.variables[pname], value)
-            slave.enterInitializationMode(startTime=system.start, stopTime=system.stop)
-        else:
-            slave.setupExperiment(startTime=system.start, stopTime=system.stop)
-            for pname, value in system.parameters.get(cname, {}).items():
-                set_value(slave, info.variables[pname], value)
-            slave.enterInitializationMode()
+        enter_initialisation(instance.slave, models[cname], system.parameters.get(cname, {}),
+                             system.start, system.stop)
     algorithm.initialise()
     track[1] = INITIALISATION
     for cname, instance in instances.items():

@@ -12,6 +12,7 @@ here (above Warning: the :class:`fmpy.fmi1.FMICallException` fmpy's own wrapper 
 With an fmpy call logger set, fmpy's wrapper is called instead (it logs and raises).
 """
 
+from collections.abc import Callable
 from ctypes import byref, c_bool, c_double, c_int
 from math import isfinite
 from typing import Any
@@ -23,7 +24,7 @@ from ..system.table import Table
 from .instance import FmuInstance
 
 __all__ = ["FmuUnit", "Group", "InputGroup", "TableUnit", "Unit", "c_function",
-           "check_finite", "failed", "set_value"]
+           "check_finite", "enter_initialisation", "failed", "set_value"]
 
 #: An output group: (function, args, buffer, is_float, C function name, names per position)
 Group = tuple[Any, tuple[Any, ...], Any, bool, str, list[str]]
@@ -61,6 +62,30 @@ def set_value(slave: Any, var: Variable, value: Any) -> None:
     """Set one variable (a parameter, or an event's value) with fmpy's setters."""
     fmitypes.set_parameter(slave, var.ftype, var.vr, value)
 
+
+
+def enter_initialisation(slave: Any, info: ModelInfo, parameters: dict[str, Any],
+                         start: float, stop: float,
+                         note: Callable[[str], None] | None = None) -> None:
+    """Set up the experiment, set ``parameters`` and enter initialisation mode, in the
+    order the FMU's FMI version asks for (FMI 3.0 has no setupExperiment: its start and
+    stop times come with enterInitializationMode). ``note`` is told the name of each FMI
+    call (or parameter setting) before it is made, for error messages."""
+    fmi = "fmi3" if info.fmi_version == "3.0" else "fmi2"
+    if fmi == "fmi2":
+        if note:
+            note("fmi2SetupExperiment")
+        slave.setupExperiment(startTime=start, stopTime=stop)
+    for pname, value in parameters.items():
+        if note:
+            note(f"setting parameter '{pname}'")
+        set_value(slave, info.variables[pname], value)
+    if note:
+        note(f"{fmi}EnterInitializationMode")
+    if fmi == "fmi3":
+        slave.enterInitializationMode(startTime=start, stopTime=stop)
+    else:
+        slave.enterInitializationMode()
 
 def _vr_type(fmi3: bool) -> Any:
     if fmi3:

@@ -10,7 +10,7 @@ from multiprocessing.connection import Connection, wait
 from typing import Any
 
 from ..execution.instance import FmuInstance, keep_extractions
-from ..execution.units import set_value
+from ..execution.units import enter_initialisation
 from ..lifetime import kill_group, scratch_dir
 from ..manifest import Manifest
 from ..system import Job, ModelInfo
@@ -37,28 +37,18 @@ def _check_child(checks: list[tuple[str, ModelInfo, dict[str, Any], float, float
     for index, (cname, info, values, start, stop) in enumerate(checks):
         send(("checking", index))
         instance, failure = None, None
+        calls: list[str] = []  # FMI calls after instantiation; the last is the one under way
         try:
             # instances one after the other: the FMU's one extraction serves them all
             instance = FmuInstance(info, cname, shared=True)
-            slave = instance.slave
-            fmi = "fmi3" if info.fmi_version == "3.0" else "fmi2"
-            if fmi == "fmi2":  # FMI 3.0 has no setupExperiment: its times come below
-                call = "fmi2SetupExperiment"
-                slave.setupExperiment(startTime=start, stopTime=stop)
-            for pname, value in values.items():
-                call = f"setting parameter '{pname}'"
-                set_value(slave, info.variables[pname], value)
-            call = f"{fmi}EnterInitializationMode"
-            if fmi == "fmi3":
-                slave.enterInitializationMode(startTime=start, stopTime=stop)
-            else:
-                slave.enterInitializationMode()
-            call = f"{fmi}ExitInitializationMode"
-            slave.exitInitializationMode()
+            enter_initialisation(instance.slave, info, values, start, stop, calls.append)
+            calls.append("fmi3ExitInitializationMode" if info.fmi_version == "3.0"
+                         else "fmi2ExitInitializationMode")
+            instance.slave.exitInitializationMode()
         except Exception as error:  # noqa: BLE001 - the FMU's refusal is the result
             detail = instance.last_error() if instance is not None else ""
             call = getattr(error, "function", None) or (
-                call if instance else
+                calls[-1] if calls else
                 "fmi3InstantiateCoSimulation" if info.fmi_version == "3.0" else "fmi2Instantiate")
             failure = f"{call} failed" + (f": {detail}" if detail else f" ({error})")
         finally:
