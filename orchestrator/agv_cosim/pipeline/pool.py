@@ -30,7 +30,14 @@ from ..report import metrics
 from ..report.records import RunResult, run_result, write_run_files
 from ..system import Job
 from ..timeseries import count_rows
-from .channels import Frames, OutputLog, child_setup, flush_c_stdio, send_frame
+from .channels import (
+    Frames,
+    OutputLog,
+    child_setup,
+    flush_c_stdio,
+    send_frame,
+    start_process,
+)
 from .job import run_job
 
 __all__ = ["FORKSERVER_PRELOAD", "not_run", "run_isolated"]
@@ -185,7 +192,7 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         process = context.Process(target=_worker, name="agv-cosim worker",
                                   args=(job_reader, writer, out_writer, life_reader, scratch,
                                         track))
-        process.start()
+        start_process(process)
         for end in (job_reader, writer, out_writer):
             end.close()
         worker = {"process": process, "send": job_writer, "frames": Frames(reader),
