@@ -125,12 +125,13 @@ class Results:
 
     @property
     def summary(self) -> "pandas.DataFrame":
-        """summary.csv as a DataFrame: one row per run (``run``, ``variant``, ``status``,
-        the sweep values, the metrics), plus ``message``: why a run is not complete."""
+        """summary.csv as a DataFrame (its floats read back exactly): one row per run
+        (``run``, ``variant``, ``status``, the sweep values, the metrics), plus
+        ``message``: why a run is not complete."""
         import pandas
 
-        frame = pandas.read_csv(self.folder / _SUMMARY, float_precision="round_trip",
-                                keep_default_na=False, na_values=[""])
+        frame = pandas.read_csv(self.folder / _SUMMARY, keep_default_na=False,
+                                na_values=[""])
         messages = {r.label: r.message for r in self.runs}
         frame["message"] = [messages.get(label) for label in frame["run"]]
         return frame
@@ -146,7 +147,7 @@ class Results:
         path = one.folder / "timeseries.csv"
         if not path.is_file():
             raise AgvCosimError(f"{path}: not found (run {label} is {one.status})")
-        frame = pandas.read_csv(path, float_precision="round_trip", index_col="time")
+        frame = pandas.read_csv(path, index_col="time")
         frame.attrs["units"] = self._units(one, ["time", *frame.columns])
         return frame
 
