@@ -3,15 +3,20 @@ command's message, and calls from a script without a ``__main__`` guard, from
 ``python -c``, from stdin and from a Jupyter kernel."""
 
 import json
+import re
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import pytest
+from manifests import localise
 
 import agv_cosim
 from agv_cosim import cli
 from agv_cosim.timeseries import read_timeseries
+
+EXPERIMENTS = Path(__file__).resolve().parents[2] / "experiments"
 
 
 def _python(*args, stdin=None, cwd=None, timeout=300):
@@ -237,3 +242,38 @@ def _has(name):
     import importlib.util
 
     return importlib.util.find_spec(name) is not None
+
+
+DOC = Path(__file__).resolve().parents[2] / "docs" / "api.md"
+NUMBER = re.compile(r"[-+]?(?:\d+\.\d*|\.\d+|\d+)(?:e[-+]?\d+)?")
+
+
+def _block(text, language):
+    """The first fenced code block of ``language`` in ``text``."""
+    found = re.search(rf"^```{language}\n(.*?)^```$", text, flags=re.M | re.S)
+    assert found, f"no ```{language} block"
+    return found.group(1)
+
+
+def _shape(line):
+    """A line with its numbers taken out: (the text around them, the numbers)."""
+    return NUMBER.sub("#", line), [float(n) for n in NUMBER.findall(line)]
+
+
+def test_doc_example(component_fmus, tmp_path):
+    """docs/api.md's example, run on the shipped manifest (its FMUs the session's),
+    prints what the page shows: the same lines, the same text, the same numbers to the
+    digits shown."""
+    text = DOC.read_text()
+    code, shown = _block(text, "python"), _block(text, "text")
+    manifest = re.search(r'agv_cosim\.run\("(experiments/[\w.]+\.toml)"', code).group(1)
+    (tmp_path / "experiments").mkdir()
+    localise(EXPERIMENTS / Path(manifest).name, tmp_path / "experiments", component_fmus)
+    done = _python("-c", code, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    printed, expected = done.stdout.splitlines(), shown.splitlines()
+    assert len(printed) == len(expected), done.stdout
+    for got, want in zip(printed, expected):
+        (got_text, got_numbers), (want_text, want_numbers) = _shape(got), _shape(want)
+        assert got_text == want_text, (got, want)
+        assert got_numbers == pytest.approx(want_numbers, rel=1e-5, abs=1e-12), (got, want)
