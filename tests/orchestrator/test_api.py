@@ -208,6 +208,10 @@ NOTEBOOK_CELLS = [
     "results = agv_cosim.run({manifest!r}, out={out!r})\nresults",
     "print(results.summary[['run', 'status']].to_string(index=False))",
     "from agv_cosim.pipeline.run import progress_bar\nprint(progress_bar().__module__)",
+    # the bar as execute makes it, drawn at once
+    "import sys\nbar = progress_bar()(total=10, desc='sweep', unit='step', delay=0.0, "
+    "file=sys.stderr, mininterval=0.5, postfix={{'runs': '0/1'}})\n"
+    "bar.update(10)\nbar.set_postfix(runs='1/1')\nbar.close()",
 ]
 
 
@@ -233,9 +237,14 @@ def test_jupyter_kernel(chain, tmp_path):
     assert text.count("complete") == 3, outputs
     errors = [o for cell in outputs for o in cell if o["output_type"] == "error"]
     assert not errors
-    widgets = _has("ipywidgets")
     module = "".join(o.get("text", "") for o in outputs[3]).strip()
-    assert module == ("tqdm.notebook" if widgets else "agv_cosim.pipeline.run")
+    assert module == ("tqdm.notebook" if _has("ipywidgets") else "agv_cosim.pipeline.run")
+    drawn = outputs[4]
+    if _has("ipywidgets"):  # a widget the notebook renders
+        assert any("application/vnd.jupyter.widget-view+json" in o.get("data", {})
+                   for o in drawn), drawn
+    else:  # the text bar on the cell's stderr
+        assert "10/10" in "".join(o.get("text", "") for o in drawn), drawn
 
 
 def _has(name):
