@@ -143,6 +143,30 @@ def test_sets_and_check(chain, tmp_path, fmus):
     assert raised.value.exit_code == 1
 
 
+class _Bomb:
+    """Unpickled (in the worker, with its job), it prints a line and ends the process."""
+
+    def __reduce__(self):
+        return (exec, ("import os, sys\nprint('the bomb went off', file=sys.stderr, "
+                       "flush=True)\nos._exit(3)",))
+
+
+def test_process_dies_before_the_run(chain, tmp_path):
+    """A worker that dies before it starts its run: the run is failed with what its
+    process said last, and the results show it (not a normal complete return)."""
+    from agv_cosim.pipeline import execute, prepare
+
+    manifest, jobs, _ = prepare(chain())
+    jobs[0].bomb = _Bomb()  # travels with the job to the worker
+    _, [result] = execute(manifest, jobs, tmp_path / "out", quiet=True)
+    expected = ("the run's process died (exit code 3) before the run started; its last "
+                "output: the bomb went off")
+    assert (result["status"], result["error"]) == ("failed", expected)
+    results = agv_cosim.open_results(tmp_path / "out")
+    assert not results.complete
+    assert [(r.status, r.message) for r in results.runs] == [("failed", expected)]
+
+
 def _cli_error(capsys, argv):
     code = cli.main(argv)
     lines = capsys.readouterr().err.strip().splitlines()
