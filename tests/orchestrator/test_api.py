@@ -42,8 +42,8 @@ def _sweep(chain):
     return chain(extra='[sweep]\n"gain.k" = [1.0, 2.0, 3.0]\n')
 
 
-@pytest.mark.parametrize("how", ["file", "-c", "stdin"])
-@pytest.mark.parametrize("call", ["run", "run_manifest"])
+@pytest.mark.parametrize("call, how", [("run", "file"), ("run", "-c"), ("run", "stdin"),
+                                       ("run_manifest", "file")])
 def test_no_main_guard(chain, tmp_path, how, call):
     """The workers do not import the caller's main module: a script that calls the API at
     its top level (no guard) runs its runs once, each complete."""
@@ -239,6 +239,7 @@ NOTEBOOK_CELLS = [
 ]
 
 
+@pytest.mark.slow  # a kernel's start (about 10 s)
 def test_jupyter_kernel(chain, tmp_path):
     """A notebook that calls agv_cosim.run, executed in an IPython kernel (nbclient):
     every run complete, the results shown as a table, the progress bar class the
@@ -310,3 +311,24 @@ def test_doc_example(component_fmus, tmp_path):
         (got_text, got_numbers), (want_text, want_numbers) = _shape(got), _shape(want)
         assert got_text == want_text, (got, want)
         assert got_numbers == pytest.approx(want_numbers, rel=1e-5, abs=1e-12), (got, want)
+
+
+@pytest.mark.parametrize("kernel, widgets, expected", [
+    (False, True, "agv_cosim.pipeline.run"),   # a terminal: the text bar
+    (True, False, "agv_cosim.pipeline.run"),   # a kernel without ipywidgets: the text bar
+    (True, True, "tqdm.notebook"),             # a kernel with ipywidgets: the widget
+])
+def test_progress_bar_choice(monkeypatch, kernel, widgets, expected):
+    import importlib.util
+    import types
+
+    from agv_cosim.pipeline.run import progress_bar
+
+    shell = types.SimpleNamespace(config={"IPKernelApp": {}} if kernel else {})
+    monkeypatch.setitem(sys.modules, "IPython",
+                        types.SimpleNamespace(get_ipython=lambda: shell))
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *args: (
+        (find_spec(name, *args) if widgets else None) if name == "ipywidgets"
+        else find_spec(name, *args)))
+    assert progress_bar().__module__ == expected
