@@ -132,6 +132,12 @@ class Results:
 
         frame = pandas.read_csv(self.folder / _SUMMARY, keep_default_na=False,
                                 na_values=[""])
+        for name in frame.columns[3:]:  # a column of numbers with "nan" or "inf" among them
+            if pandas.api.types.is_string_dtype(frame[name]):
+                try:
+                    frame[name] = [float(value) for value in frame[name]]
+                except (TypeError, ValueError):  # text (a string parameter swept)
+                    pass
         messages = {r.label: r.message for r in self.runs}
         frame["message"] = [messages.get(label) for label in frame["run"]]
         return frame

@@ -332,3 +332,22 @@ def test_progress_bar_choice(monkeypatch, kernel, widgets, expected):
         (find_spec(name, *args) if widgets else None) if name == "ipywidgets"
         else find_spec(name, *args)))
     assert progress_bar().__module__ == expected
+
+
+def test_summary_types(tmp_path):
+    """summary.csv's numbers read back as floats (also "nan" and "inf", as written for
+    non-finite metrics), text as text (a variant named "NA" stays "NA"), an empty cell
+    as missing."""
+    (tmp_path / "summary.csv").write_text(
+        "run,variant,status,vehicle.reference_point,max_error,k\n"
+        "a,NA,complete,rear,nan,1\nb,,failed,front,inf,2\nc,x,complete,rear,0.1,3\n")
+    summary = agv_cosim.open_results(tmp_path).summary
+    assert list(summary["variant"][[0, 2]]) == ["NA", "x"] and summary["variant"].isna()[1]
+    assert list(summary["vehicle.reference_point"]) == ["rear", "front", "rear"]
+    assert summary["max_error"].dtype == float
+    assert summary["max_error"][0] != summary["max_error"][0]  # nan
+    assert list(summary["max_error"][1:]) == [float("inf"), 0.1]
+    assert list(summary["k"]) == [1, 2, 3]
+    # no run.json (a run that never started): its status is the message
+    assert list(summary["message"].isna()) == [True, False, True]
+    assert summary["message"][1] == "failed"
