@@ -21,8 +21,9 @@ stages before it and from the foundation modules (``errors``, ``fmitypes``,
 
 :mod:`agv_cosim.pipeline` runs the stages end to end (local worker processes or a Dask
 cluster); :mod:`agv_cosim.ssp` reads and writes SSP packages; :mod:`agv_cosim.cli` is the
-``agv-cosim`` command; :mod:`agv_cosim.build` (with ``bundle``, ``standalone``,
-``shipped``, ``examples``) builds the component FMUs.
+``agv-cosim`` command and :mod:`agv_cosim.api` its Python API (:func:`run`,
+:func:`open_results`: results as pandas DataFrames); :mod:`agv_cosim.build` (with
+``bundle``, ``standalone``, ``shipped``, ``examples``) builds the component FMUs.
 
 Every error of stages 1-3 is one line, ``<manifest>: <key>: <problem>``; every error type
 is in :mod:`agv_cosim.errors`.
@@ -37,6 +38,7 @@ from .version import __version__
 #: that importing one part (e.g. ``agv_cosim.build`` for ``agv-cosim build``) does not
 #: import every stage and its libraries (matplotlib, fmpy).
 _API = {
+    "AgvCosimError": "agv_cosim.errors",
     "ManifestError": "agv_cosim.errors", "ModelError": "agv_cosim.errors",
     "OutputError": "agv_cosim.errors", "SimulationError": "agv_cosim.errors",
     "SspError": "agv_cosim.errors", "TableError": "agv_cosim.errors",
@@ -48,6 +50,8 @@ _API = {
     "check_initialisation": "agv_cosim.pipeline", "execute": "agv_cosim.pipeline",
     "prepare": "agv_cosim.pipeline", "run_job": "agv_cosim.pipeline",
     "run_manifest": "agv_cosim.pipeline",
+    "Results": "agv_cosim.api", "Run": "agv_cosim.api", "open_results": "agv_cosim.api",
+    "run": "agv_cosim.api",
 }
 
 __all__ = ["__version__", *sorted(_API)]

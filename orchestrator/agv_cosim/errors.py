@@ -10,7 +10,7 @@ import signal
 from collections.abc import Iterable
 
 __all__ = [
-    "MAX_REPORTED", "BuildError", "BundleError", "ClusterError", "ExamplesError",
+    "MAX_REPORTED", "AgvCosimError", "BuildError", "BundleError", "ClusterError", "ExamplesError",
     "FolderLost", "Interrupted", "ManifestError", "ModelError", "OutputError",
     "SamplingError", "SchemaError", "SimulationError", "SspError", "StandaloneError",
     "TableError", "WorkerUnfit", "closest", "did_you_mean",
@@ -117,6 +117,21 @@ class StandaloneError(RuntimeError):
 
 class ExamplesError(Exception):
     """The examples cannot be copied (a user's file in the way, a bad shipped manifest)."""
+
+
+class AgvCosimError(Exception):
+    """What the Python API (:mod:`agv_cosim.api`) raises for every mistake and failure
+    the command line reports as an error: ``str()`` is the line ``agv-cosim`` prints
+    after ``agv-cosim: error:``; ``lines`` holds every line (a manifest's problems, one
+    each); ``exit_code`` is the command's (2 bad input, 1 a failure); ``kept`` is the
+    result folder kept marked partial (or None)."""
+
+    def __init__(self, message: str, lines: list[str] | None = None, exit_code: int = 2,
+                 kept: object = None) -> None:
+        super().__init__(message)
+        self.lines = list(lines) if lines else [message]
+        self.exit_code = exit_code
+        self.kept = kept
 
 
 class Interrupted(BaseException):

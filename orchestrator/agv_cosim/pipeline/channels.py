@@ -1,13 +1,17 @@
 """How a worker process talks to the parent: frames on a pipe of its own, its stdout and
 stderr on another, and the set-up every process that runs FMUs starts with."""
 
+import contextlib
 import os
 import pickle
 import signal
 import struct
 import sys
+import threading
 from collections.abc import Iterator
+from multiprocessing import spawn
 from multiprocessing.connection import Connection
+from multiprocessing.process import BaseProcess
 from pathlib import Path
 from typing import IO, Any
 
@@ -15,7 +19,7 @@ from ..files import create_file
 from ..lifetime import die_with_parent, drop_helper_channels, own_process_group
 
 __all__ = ["MAX_FRAME", "MAX_OUTPUT", "OUTPUT_FILE", "Frames", "OutputLog", "child_setup",
-           "flush_c_stdio", "send_frame"]
+           "flush_c_stdio", "send_frame", "start_process"]
 
 # --------------------------------------------------------------------------- channels
 #
@@ -202,3 +206,42 @@ def child_setup(output: Connection | None, life: Connection) -> None:
         os.close(target)
     else:
         output.close()
+
+
+_starting = threading.Lock()
+
+
+@contextlib.contextmanager
+def _main_left_alone() -> Iterator[None]:
+    """Context in which the processes this thread starts do not import ``__main__``.
+
+    multiprocessing's start data (``spawn.get_preparation_data``) tells a forkserver or
+    spawn child to import the parent's main module (``init_main_from_path`` for a
+    script, ``init_main_from_name`` for ``python -m``) before it runs its target. A
+    script without an ``if __name__ == "__main__":`` guard would then run again in every
+    child, and fail there. Our children's targets live in agv_cosim and need nothing
+    from ``__main__``, so those two entries are left out of what this thread sends;
+    other threads' processes get multiprocessing's data unchanged."""
+    with _starting:
+        original = spawn.get_preparation_data
+        caller = threading.get_ident()
+
+        def preparation_data(name: str) -> dict[str, Any]:
+            data: dict[str, Any] = original(name)
+            if threading.get_ident() == caller:
+                data.pop("init_main_from_path", None)
+                data.pop("init_main_from_name", None)
+            return data
+
+        spawn.get_preparation_data = preparation_data
+        try:
+            yield
+        finally:
+            spawn.get_preparation_data = original
+
+
+def start_process(process: BaseProcess) -> None:
+    """``process.start()``, the child not importing the caller's ``__main__`` (a script
+    or notebook calling agv_cosim needs no ``if __name__ == "__main__":`` guard)."""
+    with _main_left_alone():
+        process.start()

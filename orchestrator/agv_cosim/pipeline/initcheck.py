@@ -14,7 +14,7 @@ from ..execution.units import enter_initialisation
 from ..lifetime import kill_group, scratch_dir
 from ..manifest import Manifest
 from ..system import Job, ModelInfo
-from .channels import Frames, child_setup, send_frame
+from .channels import Frames, child_setup, send_frame, start_process
 from .pool import FORKSERVER_PRELOAD
 
 __all__ = ["INIT_TIMEOUT", "check_initialisation"]
@@ -110,7 +110,7 @@ def check_initialisation(manifest: Manifest, jobs: list[Job],
     current, failure, finished = None, None, False
     deadline = time.monotonic() + limit
     try:
-        process.start()
+        start_process(process)
         writer.close()
         while failure is None and not finished:
             now = time.monotonic()

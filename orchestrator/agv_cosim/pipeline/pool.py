@@ -30,7 +30,15 @@ from ..report import metrics
 from ..report.records import RunResult, run_result, write_run_files
 from ..system import Job
 from ..timeseries import count_rows
-from .channels import Frames, OutputLog, child_setup, flush_c_stdio, send_frame
+from .channels import (
+    OUTPUT_FILE,
+    Frames,
+    OutputLog,
+    child_setup,
+    flush_c_stdio,
+    send_frame,
+    start_process,
+)
 from .job import run_job
 
 __all__ = ["FORKSERVER_PRELOAD", "not_run", "run_isolated"]
@@ -117,8 +125,14 @@ def _ended(job: Job, run_dir: str | Path, status: str | None, how: str, track: T
     rows = count_rows(csv_file) if csv_file.is_file() else 0
     if status is None:
         status = "partial" if rows else "failed"
-    error = (f"{how} in {describe_track(track, list(job.plan.models))} after {rows} "
-             "recorded rows" + (f"; last FMU message: {last_message}" if last_message else ""))
+    if track[0] < 0:  # no FMU call yet: the process ended in its own start
+        last_output = _last_output(run_dir)
+        error = f"{how} before the run started" + (
+            f"; its last output: {last_output}" if last_output else "")
+    else:
+        error = (f"{how} in {describe_track(track, list(job.plan.models))} after {rows} "
+                 "recorded rows" + (f"; last FMU message: {last_message}" if last_message
+                                    else ""))
     values, metrics_error = {}, None
     if job.metrics_spec and rows and status != "interrupted":  # as for any partial run
         try:
@@ -132,6 +146,19 @@ def _ended(job: Job, run_dir: str | Path, status: str | None, how: str, track: T
                                metrics_error)
     except OSError:  # the result folder is gone: the result only
         return run_result(job, status, rows=rows, error=error)
+
+
+def _last_output(run_dir: Path) -> str | None:
+    """The last line the run's process wrote (its output.txt), or None."""
+    try:
+        with open(run_dir / OUTPUT_FILE, "rb") as stream:
+            stream.seek(0, os.SEEK_END)
+            stream.seek(max(0, stream.tell() - 4096))
+            tail = stream.read().decode("utf-8", "replace")
+    except OSError:
+        return None
+    lines = [line.strip() for line in tail.splitlines() if line.strip()]
+    return lines[-1] if lines else None
 
 
 def not_run(job: Job, why: str = "not run") -> RunResult:
@@ -185,7 +212,7 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         process = context.Process(target=_worker, name="agv-cosim worker",
                                   args=(job_reader, writer, out_writer, life_reader, scratch,
                                         track))
-        process.start()
+        start_process(process)
         for end in (job_reader, writer, out_writer):
             end.close()
         worker = {"process": process, "send": job_writer, "frames": Frames(reader),
@@ -212,6 +239,7 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         kill_group(process)
         process.join()
         worker["output"].read()
+        worker["output"].detach()  # output.txt whole on disk: _ended reads its last line
         index = worker["index"]
         if index is not None and results[index] is None:
             job = jobs[index]

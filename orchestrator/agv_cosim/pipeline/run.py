@@ -128,11 +128,18 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
 
 
 def progress_bar() -> type:
-    """tqdm whose ``close`` ends the bar's line whenever the bar was drawn.
+    """tqdm whose ``close`` ends the bar's line whenever the bar was drawn; in a Jupyter
+    kernel with ipywidgets installed, tqdm's notebook bar (a widget) instead.
 
     tqdm's ``close`` leaves the line open when no ``update`` drew the bar after its
     ``delay``, although ``set_postfix`` and tqdm's monitor thread draw it through
-    ``refresh``; a message printed after ``close`` would then land on the bar's line."""
+    ``refresh``; a message printed after ``close`` would then land on the bar's line.
+    In a kernel without ipywidgets the text bar goes to the cell's stderr, which
+    Jupyter redraws in place."""
+    if _in_kernel():
+        from tqdm.notebook import tqdm as notebook_bar
+
+        return notebook_bar
     from tqdm import tqdm
 
     class Bar(tqdm):
@@ -149,6 +156,18 @@ def progress_bar() -> type:
             super().close()
 
     return Bar
+
+
+def _in_kernel() -> bool:
+    """Whether this is a Jupyter (IPython) kernel that can show tqdm's widget bar."""
+    import importlib.util
+
+    ipython = sys.modules.get("IPython")
+    get_ipython = getattr(ipython, "get_ipython", None)
+    shell = get_ipython() if callable(get_ipython) else None
+    if shell is None or "IPKernelApp" not in getattr(shell, "config", {}):
+        return False
+    return importlib.util.find_spec("ipywidgets") is not None
 
 
 def _write_summary(folder: AtomicDir, results: list[RunResult]) -> None:

@@ -13,8 +13,8 @@ from ..files import write_json, write_summary
 from ..system import Job
 from ..version import __version__
 
-__all__ = ["RunResult", "inputs_sha256", "run_inputs", "run_result", "summary_rows",
-           "versions", "write_run_files", "write_summary"]
+__all__ = ["RunResult", "inputs_sha256", "record_units", "run_inputs", "run_result",
+           "summary_rows", "versions", "write_run_files", "write_summary"]
 
 
 class RunResult(TypedDict):
@@ -86,6 +86,17 @@ def run_inputs(job: Job) -> dict[str, Any]:
     }
 
 
+def record_units(job: Job) -> dict[str, str | None]:
+    """The unit of each column of the run's timeseries.csv (``time``: s), from the model
+    descriptions (None: the variable declares none)."""
+    units: dict[str, str | None] = {"time": "s"}
+    for name in job.plan.record:
+        cname, _, vname = name.partition(".")
+        variable = job.plan.models[cname].variables.get(vname)
+        units[name] = variable.unit if variable is not None else None
+    return units
+
+
 def inputs_sha256(inputs: dict[str, Any]) -> str:
     """SHA-256 of :func:`run_inputs` in a canonical JSON form (keys sorted; NaN and inf
     kept apart from null)."""
@@ -126,6 +137,6 @@ def write_run_files(job: Job, run_dir: Path, rows: int, status: str, error: str 
         "error": error, "metrics_error": metrics_error, "partial": status != "complete",
         "ended_by": ended_by or ("stop time" if status == "complete" else None),
         "timeout_s": job.timeout, "inputs": inputs, "inputs_sha256": digest,
-        "events": inputs["events"]}, replace=True)
+        "events": inputs["events"], "units": record_units(job)}, replace=True)
     return run_result(job, status, rows=rows, error=error, metrics=values,
                       metrics_error=metrics_error)

@@ -1,0 +1,354 @@
+"""The Python API: run a manifest from a script or a notebook and read its results as
+pandas DataFrames (docs/api.md).
+
+:func:`run` does what ``agv-cosim run`` does (the same checks, the same result folder)
+and returns :class:`Results`; :func:`open_results` reads a result folder written
+before. Every mistake and failure that the command reports as an error raises
+:class:`~agv_cosim.errors.AgvCosimError`, whose text is the command's line. A script
+needs no ``if __name__ == "__main__":`` guard: the worker processes do not import the
+caller's main module. pandas is imported here only, when a DataFrame is asked for.
+"""
+
+import json
+import math
+import sys
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from .errors import (
+    AgvCosimError,
+    ClusterError,
+    FolderLost,
+    Interrupted,
+    ManifestError,
+    ModelError,
+    OutputError,
+)
+from .files import printable
+
+if TYPE_CHECKING:
+    import pandas
+
+__all__ = ["Results", "Run", "open_results", "run"]
+
+_SUMMARY = "summary.csv"
+_PARTIAL = "partial.txt"
+
+
+@dataclass(frozen=True)
+class Run:
+    """One run of a result folder, as its ``run.json`` records it."""
+
+    #: the run's label (its folder's name; summary.csv's ``run``)
+    label: str
+    #: complete, partial, failed, timed out, interrupted or not run
+    status: str
+    #: the run's folder (it may not exist for a run that never started)
+    folder: Path
+    #: why the run is not complete (None when it is)
+    message: str | None
+    variant: str | None = None
+    #: the run's sweep values ("component.parameter" -> value)
+    point: dict[str, Any] = field(default_factory=dict)
+    #: rows of its timeseries.csv
+    rows: int = 0
+    #: why its metrics could not be computed (None: they were, or it has none)
+    metrics_error: str | None = None
+
+
+class Results:
+    """A result folder of ``agv-cosim run`` (or :func:`run`), read on demand.
+
+    ``warnings`` are the manifest's validation warnings when the folder was just written.
+    """
+
+    def __init__(self, folder: str | Path, warnings: Iterable[str] = ()) -> None:
+        self.folder = Path(folder)
+        self.warnings = list(warnings)
+        summary = self.folder / _SUMMARY
+        if not summary.is_file():
+            what = "not found" if not self.folder.exists() else (
+                f"not a result folder of agv-cosim run (no {_SUMMARY})")
+            raise AgvCosimError(f"{self.folder}: {what}")
+        self._runs: list[Run] | None = None
+
+    def __repr__(self) -> str:
+        runs = self.runs
+        done = sum(r.status == "complete" for r in runs)
+        mark = ", partial" if self.partial else ""
+        return f"<Results {self.folder}: {done}/{len(runs)} run(s) complete{mark}>"
+
+    @property
+    def partial(self) -> bool:
+        """Whether the folder was kept after an interruption (``partial.txt``)."""
+        return (self.folder / _PARTIAL).is_file()
+
+    @property
+    def complete(self) -> bool:
+        """Whether every run is complete (and the folder not partial)."""
+        return not self.partial and all(r.status == "complete" for r in self.runs)
+
+    @property
+    def runs(self) -> list[Run]:
+        """Every run, in the order of summary.csv."""
+        if self._runs is None:
+            import csv
+
+            with open(self.folder / _SUMMARY, newline="", encoding="utf-8") as stream:
+                rows = list(csv.DictReader(stream))
+            self._runs = [self._read_run(row) for row in rows]
+        return self._runs
+
+    def _read_run(self, row: dict[str, str]) -> Run:
+        label = row.get("run", "")
+        folder = self.folder / label
+        try:
+            info = json.loads((folder / "run.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):  # a run that never started has no run.json
+            return Run(label=label, status=row.get("status", ""), folder=folder,
+                       message=None if row.get("status") == "complete" else
+                       row.get("status"), variant=row.get("variant") or None)
+        return Run(label=label, status=info.get("status", row.get("status", "")),
+                   folder=folder, message=info.get("error"), variant=info.get("variant"),
+                   point=dict(info.get("sweep_point") or {}), rows=int(info.get("rows") or 0),
+                   metrics_error=info.get("metrics_error"))
+
+    def run(self, label: str) -> Run:
+        """The run labelled ``label``."""
+        for one in self.runs:
+            if one.label == label:
+                return one
+        raise AgvCosimError(f"{self.folder}: no run '{label}' (runs: "
+                            f"{', '.join(r.label for r in self.runs) or 'none'})")
+
+    @property
+    def summary(self) -> "pandas.DataFrame":
+        """summary.csv as a DataFrame (its floats read back exactly): one row per run
+        (``run``, ``variant``, ``status``, the sweep values, the metrics), plus
+        ``message``: why a run is not complete."""
+        import pandas
+
+        frame = pandas.read_csv(self.folder / _SUMMARY, keep_default_na=False,
+                                na_values=[""])
+        for name in frame.columns[3:]:  # a column of numbers with "nan" or "inf" among them
+            if pandas.api.types.is_string_dtype(frame[name]):
+                try:
+                    frame[name] = [float(value) for value in frame[name]]
+                except (TypeError, ValueError):  # text (a string parameter swept)
+                    pass
+        messages = {r.label: r.message for r in self.runs}
+        frame["message"] = [messages.get(label) for label in frame["run"]]
+        return frame
+
+    def timeseries(self, label: str) -> "pandas.DataFrame":
+        """The run's timeseries.csv as a DataFrame indexed by ``time`` [s], one column
+        per recorded variable (``component.variable``; the values bit-identical to the
+        file's); ``attrs['units']`` maps each column (and ``time``) to its unit from the
+        model descriptions (None: none declared)."""
+        import pandas
+
+        one = self.run(label)
+        path = one.folder / "timeseries.csv"
+        if not path.is_file():
+            raise AgvCosimError(f"{path}: not found (run {label} is {one.status})")
+        frame = pandas.read_csv(path, index_col="time")
+        frame.attrs["units"] = self._units(one, ["time", *frame.columns])
+        return frame
+
+    def _units(self, one: Run, columns: list[str]) -> dict[str, str | None]:
+        try:
+            info = json.loads((one.folder / "run.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            info = {}
+        known = info.get("units")
+        if not isinstance(known, dict):
+            known = _units_from_models(info)
+        return {name: known.get(name) for name in columns}
+
+    def _repr_html_(self) -> str:
+        return f"<p>{_escape(repr(self))}</p>" + self.summary._repr_html_()
+
+
+def _escape(text: str) -> str:
+    import html
+
+    return html.escape(text)
+
+
+def _units_from_models(info: dict[str, Any]) -> dict[str, str | None]:
+    """Units of a run.json without ``units`` (written by an older agv-cosim): read from
+    its FMUs when they are still there, unchanged (same SHA-256)."""
+    from .system.model import read_model
+
+    units: dict[str, str | None] = {"time": "s"}
+    hashes = info.get("fmu_sha256") or {}
+    for cname, path in (info.get("fmus") or {}).items():
+        try:
+            model = read_model(path)
+        except (ModelError, OSError, ValueError):
+            continue
+        if model.sha256 != hashes.get(cname):
+            continue
+        for vname, variable in model.variables.items():
+            units[f"{cname}.{vname}"] = variable.unit
+    return units
+
+
+def open_results(folder: str | Path) -> Results:
+    """The result folder ``folder`` (written by ``agv-cosim run`` or :func:`run`)."""
+    return Results(folder)
+
+
+def _toml_value(value: Any) -> str:
+    """A Python value as the TOML text ``--set`` takes."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise AgvCosimError(f"set: {value!r}: not a number, boolean, string or list")
+
+
+def _set_items(sets: Mapping[str, Any] | Iterable[str]) -> list[str]:
+    if isinstance(sets, str):
+        return [sets]
+    if isinstance(sets, Mapping):
+        return [f"{name}={_toml_value(value)}" for name, value in sets.items()]
+    return list(sets)
+
+
+def _kept(error: BaseException) -> str | None:
+    """What a stopped run kept, as the command says it."""
+    kept, results = getattr(error, "kept", None), getattr(error, "results", None)
+    if kept is None or results is None:
+        return None
+    complete = sum(r["status"] == "complete" for r in results)
+    return (f"{complete} of {len(results)} run(s) complete kept in {kept} (marked partial: "
+            "partial.txt, summary.csv)")
+
+
+def _say(text: str) -> None:
+    print(printable(text), file=sys.stderr)
+
+
+def run(manifest: str | Path, *, out: str | Path | None = None,
+        variants: Iterable[str] | None = None,
+        sets: Mapping[str, Any] | Iterable[str] = (), jobs: int | None = None,
+        quiet: bool = False, overwrite: bool = False, dask: str | None = None,
+        timeout: float | None = None, init_check: bool = True,
+        check: bool = False) -> Results:
+    """Run a manifest as ``agv-cosim run`` does and return its :class:`Results`.
+
+    Parameters
+    ----------
+    manifest : path
+        An experiment manifest (TOML) or an SSP package.
+    out : path, optional
+        The result folder (``--out``; default ``results/<manifest name>``).
+    variants : names, optional
+        Run only these variants (``--variant``; default all).
+    sets : mapping or strings
+        Parameter overrides in every run (``--set``): ``{"vehicle.wheelbase": 1.2}`` or
+        ``["vehicle.wheelbase=1.2"]`` (the value as TOML text).
+    jobs : int, optional
+        Runs at once (``--jobs``; default one per core).
+    quiet : bool
+        No progress bar and no messages on stderr (``--quiet``; warnings are kept in
+        ``Results.warnings`` either way).
+    overwrite : bool
+        Replace ``out`` even if it is not a result folder of agv-cosim (``--overwrite``).
+    dask : str, optional
+        The Dask scheduler to run on (``--dask tcp://HOST:PORT``).
+    timeout : float, optional
+        Wall-clock limit of each run [s] (``--timeout``).
+    init_check : bool
+        Instantiate and initialise each FMU once with each run's parameters before any
+        run is written (``--no-init`` is ``init_check=False``; skipped with ``dask``).
+    check : bool
+        Raise :class:`~agv_cosim.errors.AgvCosimError` when a run is not complete (its
+        message is the command's line about the first such run); by default such runs
+        are in the results with their status and message.
+
+    Raises
+    ------
+    AgvCosimError
+        For everything ``agv-cosim run`` reports as an error; ``str()`` is its line.
+    KeyboardInterrupt, Interrupted
+        When interrupted; ``.kept`` is then the result folder kept marked partial (or
+        None).
+    """
+    from .lifetime import (
+        clean_stale_scratch,
+        termination_signals,
+        use_own_scratch_for_multiprocessing,
+    )
+
+    if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
+        raise AgvCosimError(f"jobs: must be an integer >= 1, not {jobs!r}")
+    if timeout is not None and not (isinstance(timeout, (int, float))
+                                    and math.isfinite(timeout) and timeout > 0):
+        raise AgvCosimError(f"timeout: {timeout!r} must be a positive, finite number of "
+                            "seconds")
+    overrides = _set_items(sets)
+    chosen = [variants] if isinstance(variants, str) else (
+        list(variants) if variants is not None else None)
+    try:
+        with termination_signals():
+            use_own_scratch_for_multiprocessing()
+            clean_stale_scratch()
+            target, results, warnings = _run(manifest, out, chosen, overrides, jobs, quiet,
+                                             overwrite, dask, timeout, init_check)
+    except ManifestError as error:
+        lines = error.lines()
+        raise AgvCosimError(lines[0], lines, 2) from error
+    except OutputError as error:
+        raise AgvCosimError(str(error), exit_code=2) from error
+    except FolderLost as error:
+        raise AgvCosimError(str(error), exit_code=1) from error
+    except ClusterError as error:
+        kept = _kept(error)
+        raise AgvCosimError(f"{error}" + (f"; {kept}" if kept else ""), exit_code=1,
+                            kept=getattr(error, "kept", None)) from error
+    except (KeyboardInterrupt, Interrupted):
+        raise
+    except OSError as error:  # the system refused (disk full, permissions, ...)
+        where = f"{error.filename}: " if error.filename else ""
+        text = error.strerror or str(error) or type(error).__name__
+        raise AgvCosimError(f"{where}{text}", exit_code=1) from error
+    bad = [r for r in results if r["status"] != "complete"]
+    lines = [f"run {r['label']} {r['status']}: {r['error']}" for r in bad]
+    lines += [f"run {r['label']}: metrics: {r['metrics_error']}"
+              for r in results if r.get("metrics_error")]
+    if not quiet:
+        for line in lines:
+            _say(f"agv-cosim: {line}")
+    if check and lines:
+        raise AgvCosimError(lines[0], lines, 1)
+    return Results(target, warnings)
+
+
+def _run(manifest: str | Path, out: str | Path | None, variants: list[str] | None,
+         sets: list[str], jobs: int | None, quiet: bool, overwrite: bool, dask: str | None,
+         timeout: float | None, init_check: bool) -> tuple[Path, list[Any], list[str]]:
+    """``agv-cosim run``'s steps: prepare, the initialisation check, execute."""
+    from .pipeline import INIT_TIMEOUT, check_initialisation, execute, prepare
+    from .ssp.importer import opened
+
+    with opened(manifest) as source:
+        loaded, planned, warnings = prepare(source, variants, sets, timeout=timeout)
+        if not quiet:
+            for warning in warnings:
+                _say(f"agv-cosim: warning: {warning}")
+        if init_check and dask is None:
+            limit = max(timeout or loaded.timeout or 0.0, INIT_TIMEOUT)
+            check_initialisation(loaded, planned, limit)
+        target, results = execute(loaded, planned, out, jobs, quiet, overwrite=overwrite,
+                                  dask=dask)
+    return target, list(results), warnings
