@@ -1,7 +1,9 @@
 """SSP 1.0 export: one run of a manifest, as a package libcosim (and others) can run.
 
 Export (:func:`export_ssp`, ``agv-cosim export-ssp MANIFEST [--variant NAME] -o FILE.ssp``)
-writes one run of a manifest (one variant, no sweep) as a self-contained SSP 1.0 archive::
+writes one run of a manifest (one variant, no sweep) as a self-contained SSP 1.0 archive,
+with that run's components and wiring (a variant that adds, removes or rewires components
+is exported as the system it runs: one package per variant)::
 
     SystemStructure.ssd     components, connectors (type, unit), connections, units,
                             inline parameter values, DefaultExperiment
@@ -243,8 +245,10 @@ def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
     runs = plan_runs(manifest, [variant] if variant else None, sets)
     if len(runs) != 1:
         key = "sweep" if manifest.sweep else "variants"
+        choose = (f"choose --variant ({', '.join(manifest.variants)})"
+                  if len(manifest.variants) > 1 and not variant else "choose --variant")
         raise manifest.error(key, f"expands to {len(runs)} runs; an SSP "
-                            "package holds one (choose --variant, remove the sweep or fix "
+                            f"package holds one ({choose}, remove the sweep or fix "
                             "it with --set)")
     checked = validate(manifest, runs)
     one = checked.runs[0]
@@ -257,8 +261,8 @@ def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
                                     "an FMI 3.0 array parameter cannot be written to an "
                                     "SSP package (SSP parameters are scalars)")
     name = manifest.name + (f"_{run.variant}" if run.variant else "")
-    root = build_ssd(name, models, params, manifest.connections, manifest.start,
-                     manifest.stop, manifest.step, manifest.algorithm, checked.record,
+    root = build_ssd(name, models, params, run.connections, manifest.start,
+                     manifest.stop, manifest.step, manifest.algorithm, one.record,
                      manifest.record_interval, manifest.description,
                      _as_written(manifest.metrics), _as_written(manifest.plots))
     out_path = Path(out_path)
