@@ -225,8 +225,8 @@ def _variant(path: Path, base_dir: Path, name: str, vtable: Any,
         if comp.fmu is None and comp.table is None:
             problem = (f"'{cname}' is removed: a component of that name is a new one and "
                        "needs 'fmu' or 'table'" if cname in removed else
-                       f"unknown component '{cname}'{did_you_mean(cname, components)} (a "
-                       "new component needs 'fmu' or 'table')")
+                       f"unknown component '{cname}'{did_you_mean(cname, components)}; a "
+                       "new component needs 'fmu' or 'table'")
             raise ManifestError(path, ckey, problem)
         comps[cname] = comp
         new.append(cname)

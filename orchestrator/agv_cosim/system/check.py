@@ -264,17 +264,24 @@ def _in_variant(manifest: Manifest, run: RunSpec, error: ManifestError) -> Manif
     own = f"variants.{variant}"
     if error.key == own or error.key.startswith((f"{own}.", f"{own}[")):
         return error
+    changes = manifest.variants[variant]["components"]
+    replaced = {c for c, sub in changes.items() if c not in manifest.variants[variant]["new"]
+                and (sub.fmu is not None or sub.table is not None)}
     hint = ""
     index = error.key.removeprefix("connections[").partition("]")[0]
     if error.key.startswith("connections[") and index.isdigit() and \
             int(index) < len(manifest.connections):
         conn = manifest.connections[int(index)]
-        changes = manifest.variants[variant]["components"]
-        touched = [c for c in (conn.source[0], conn.target[0]) if c in changes and (
-            changes[c].fmu is not None or changes[c].table is not None)]
+        touched = [c for c in (conn.source[0], conn.target[0]) if c in replaced]
         if touched:
-            hint = (f" (variants.{variant} replaces '{touched[0]}': disconnect = "
-                    f"[\"{'.'.join(conn.target)}\"] there drops this connection)")
+            hint = (f"; variants.{variant} replaces '{touched[0]}': disconnect = "
+                    f"[\"{'.'.join(conn.target)}\"] there drops this connection")
+    parts = error.key.split(".")
+    if len(parts) > 3 and parts[0] == "components" and parts[2] == "parameters" and \
+            parts[1] in replaced:
+        hint = (f"; variants.{variant} replaces '{parts[1]}' but keeps the base's "
+                f"parameters (remove = [\"{parts[1]}\"] and add a new '{parts[1]}' to "
+                "start without them)")
     out = ManifestError(error.manifest, error.key, f"variant '{variant}': "
                         f"{error.problem}{hint}", error.line)
     out.others = error.others
