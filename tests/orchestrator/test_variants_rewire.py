@@ -336,3 +336,48 @@ def test_controllers_rewired_experiment_runs(component_fmus, tmp_path):
     assert all(m["saturated_fraction"] == 0.0 for m in metrics.values())
     assert (out / "index.html").is_file() and (out / "trajectory.png").is_file()
     assert len(warnings) == 3 and all("in variant(s)" in w for w in warnings)
+
+
+def test_ssp_export_refuses_a_variants_event_or_table(chain, fmus, tmp_path):
+    body = """
+[variants.kick]
+disconnect = ["int.u"]
+[variants.kick.events.push]
+at = 0.5
+set = {{ "int.u" = 1.0 }}
+
+[variants.tabled]
+disconnect = ["int.u"]
+[variants.tabled.components.tab]
+table = "in.csv"
+[[variants.tabled.connections]]
+from = "tab.a"
+to = "int.u"
+"""
+    path = _paired(chain, fmus, body=body)
+    (path.parent / "in.csv").write_text("time,a\n0,1\n1,2\n")
+    for variant, key, problem in (
+            ("kick", "variants.kick.events.push",
+             "a scenario event cannot be written to an SSP package (SSP 1.0 has no events)"),
+            ("tabled", "variants.tabled.components.tab.table",
+             "a time table cannot be written to an SSP package (SSP components are FMUs)")):
+        with pytest.raises(ManifestError) as caught:
+            ssp_export.export_ssp(path, tmp_path / f"{variant}.ssp", variant=variant)
+        assert (caught.value.key, caught.value.problem) == (key, problem)
+        assert not (tmp_path / f"{variant}.ssp").exists()
+    # both run (the refusal is the export's alone)
+    _, jobs, _ = prepare(path)
+    assert [len(job.plan.events) for job in jobs] == [1, 0]
+
+
+def test_a_sampled_parameter_every_run_must_have(chain, fmus):
+    sampled = ('[montecarlo]\nsamples = 2\nseed = 1\n[montecarlo.parameters."p.n"]\n'
+               'distribution = "choice"\nvalues = [1, 2]\n')
+    assert _error(_paired(chain, fmus, sampled)).endswith(
+        "montecarlo.parameters.p.n: variant 'unit' has no component 'p' (it removes it or "
+        "the base has none)")
+    _, jobs, _ = prepare(_paired(chain, fmus, sampled), ["paired"])
+    assert [job.label for job in jobs] == ["paired__mc0000", "paired__mc0001"]
+    with pytest.raises(ManifestError, match=r"montecarlo\.parameters\.q\.n: unknown "
+                                            r"component 'q'$"):
+        load_manifest(_paired(chain, fmus, sampled.replace('"p.n"', '"q.n"')))
