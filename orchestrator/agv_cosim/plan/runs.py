@@ -1,8 +1,10 @@
 """Stage 2 of the pipeline, the plan: a manifest's runs (variants x sweep points).
 
 :func:`plan_runs` expands a :class:`~agv_cosim.manifest.Manifest` into one
-:class:`RunSpec` per (chosen variant, or the base) x sweep point, applying ``--set``
-overrides (:func:`parse_set`). Parameter precedence for one run: FMU default <
+:class:`RunSpec` per (chosen variant, or the base) x sweep point, each with its variant's
+components (:func:`run_components`) and wiring, applying ``--set`` overrides
+(:func:`parse_set`). A sweep, ``--set`` or Monte Carlo name must name a component of
+every run. Parameter precedence for one run: FMU default <
 ``[components.X.parameters]`` < the variant's parameters < ``--set`` < the sweep point (a
 ``--set`` on a swept parameter is an error). Nothing here opens an FMU: the runs are
 checked against the FMUs by :func:`agv_cosim.system.validate`.

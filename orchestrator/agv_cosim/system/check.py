@@ -2,9 +2,11 @@
 
 :func:`validate` reads each component's model description (or time table) and checks,
 for every planned run, the parameter values against the variables (name, causality, type,
-range), the connections (output -> input, same type, same unit, one driver per input),
-the events, and the recorded signals; :func:`~agv_cosim.system.order.feedthrough_order`
-finds the Gauss-Seidel schedule. The result is a :class:`~agv_cosim.system.checked.Checked`.
+range), the run's connections (output -> input, same type, same unit, one driver per
+input), the events, and the recorded signals;
+:func:`~agv_cosim.system.order.feedthrough_order` finds the Gauss-Seidel schedule. A
+problem in a variant's run names the variant. The result is a
+:class:`~agv_cosim.system.checked.Checked`.
 """
 
 import math
