@@ -81,7 +81,10 @@ class Manifest:
     algorithm: str
     components: dict[str, Component]
     connections: list[Connection]
-    #: name -> {"description": str, "components": {name: Component}, "events": {...}}
+    #: name -> {"description": str, "components": {name: Component} (changed or new),
+    #: "events": {...}, "remove": [component], "new": [component] (the names of
+    #: "components" that are new components, not changes), "connections": [Connection]
+    #: (the variant's whole wiring: the base's not disconnected, then its own)}
     variants: dict[str, dict[str, Any]]
     sweep: dict[str, list[Any]]
     record: list[str] | None
@@ -151,6 +154,92 @@ def _component(manifest: object, base_dir: Path, name: str, table: Any,
             raise ManifestError(manifest, f"{key}.interpolation", "only for a table component")
     fmu = table.fmu
     return Component(name, (base_dir / fmu).resolve() if fmu else None, dict(table.parameters))
+
+
+def _variant(path: Path, base_dir: Path, name: str, vtable: Any,
+             components: dict[str, Component], connections: list[Connection],
+             events: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """One checked ``[variants.<name>]`` table (see :attr:`Manifest.variants`).
+
+    Checked here, by name: removed components and disconnected inputs exist in the base,
+    a removed component keeps no connection of the base, a new component names an FMU or
+    a table. What needs the FMUs (variables, causality, types, units, an input driven
+    twice, loops) is checked on the variant's resulting system by
+    :func:`agv_cosim.system.validate`.
+    """
+    key = f"variants.{name}"
+    try:
+        check_name(name, "variant name")
+    except ValueError as error:
+        raise ManifestError(path, key, f"{error} (it names the run's folder)") from None
+    removed: list[str] = []
+    for i, cname in enumerate(vtable.remove):
+        if cname not in components:
+            raise ManifestError(path, f"{key}.remove[{i}]", f"unknown component '{cname}'"
+                                f"{did_you_mean(cname, components)}")
+        if cname in removed:
+            raise ManifestError(path, f"{key}.remove[{i}]", f"'{cname}' is listed twice")
+        removed.append(cname)
+    dropped: set[int] = set()
+    seen: set[str] = set()
+    for i, text in enumerate(vtable.disconnect):
+        dkey = f"{key}.disconnect[{i}]"
+        if text in seen:
+            raise ManifestError(path, dkey, f"'{text}' is listed twice")
+        seen.add(text)
+        if "." in text:  # an input: the one connection of the base driving it
+            target = split_name(text)
+            found = [j for j, conn in enumerate(connections) if conn.target == target]
+            if not found:
+                driven = [".".join(conn.target) for conn in connections]
+                raise ManifestError(path, dkey, f"no connection of the base drives '{text}'"
+                                    f"{did_you_mean(text, driven)}")
+        else:  # a component: every connection of the base to or from it
+            if text not in components:
+                raise ManifestError(path, dkey, f"unknown component '{text}'"
+                                    f"{did_you_mean(text, components)} (give "
+                                    "'component.input' or a component of the base)")
+            found = [j for j, conn in enumerate(connections)
+                     if text in (conn.source[0], conn.target[0])]
+            if not found:
+                raise ManifestError(path, dkey, f"no connection of the base touches '{text}'")
+        dropped.update(found)
+    for i, cname in enumerate(removed):
+        kept = [conn for j, conn in enumerate(connections) if j not in dropped
+                and cname in (conn.source[0], conn.target[0])]
+        if kept:
+            listed = ", ".join(f"{conn.key} ({conn})" for conn in kept)
+            raise ManifestError(path, f"{key}.remove[{i}]", f"'{cname}' is removed but "
+                                f"{listed} still connect it; disconnect them (disconnect = "
+                                f'["{cname}"])')
+    comps, new = {}, []
+    for cname, ctable in vtable.components.items():
+        ckey = f"{key}.components.{cname}"
+        comp = _component(path, base_dir, cname, ctable, ckey)
+        if cname in components and cname not in removed:
+            comps[cname] = comp  # a change of the base's component
+            continue
+        if not _NAME.match(cname):
+            raise ManifestError(path, ckey,
+                                "instance names are identifiers ([A-Za-z_][A-Za-z0-9_]*)")
+        if comp.fmu is None and comp.table is None:
+            problem = (f"'{cname}' is removed: a component of that name is a new one and "
+                       "needs 'fmu' or 'table'" if cname in removed else
+                       f"unknown component '{cname}'{did_you_mean(cname, components)}; a "
+                       "new component needs 'fmu' or 'table'")
+            raise ManifestError(path, ckey, problem)
+        comps[cname] = comp
+        new.append(cname)
+    # an event of the base is changed field by field; a new one needs both
+    variant_events = {ename: _event(path, f"{key}.events.{ename}", etable,
+                                    partial=ename in events)
+                      for ename, etable in vtable.events.items()}
+    wiring = [conn for j, conn in enumerate(connections) if j not in dropped]
+    wiring += [Connection(split_name(c.source), split_name(c.target),
+                          f"{key}.connections[{i}]") for i, c in enumerate(vtable.connections)]
+    return {"description": vtable.description, "components": comps,
+            "events": variant_events, "remove": removed, "new": new,
+            "connections": wiring}
 
 
 def _event(manifest: object, key: str, table: Any, partial: bool = False) -> dict[str, Any]:
@@ -414,26 +503,8 @@ def manifest_from_data(data: dict[str, Any], path: str | Path, sha256: str,
     events = {name: _event(path, f"events.{name}", etable)
               for name, etable in table.events.items()}
 
-    variants = {}
-    for name, vtable in table.variants.items():
-        key = f"variants.{name}"
-        try:
-            check_name(name, "variant name")
-        except ValueError as error:
-            raise ManifestError(path, key, f"{error} (it names the run's folder)") from None
-        comps = {}
-        for cname, ctable in vtable.components.items():
-            ckey = f"{key}.components.{cname}"
-            if cname not in components:
-                raise ManifestError(path, ckey, f"unknown component '{cname}'"
-                                    f"{did_you_mean(cname, components)}")
-            comps[cname] = _component(path, base_dir, cname, ctable, ckey)
-        # an event of the base is changed field by field; a new one needs both
-        variant_events = {ename: _event(path, f"{key}.events.{ename}", etable,
-                                        partial=ename in events)
-                          for ename, etable in vtable.events.items()}
-        variants[name] = {"description": vtable.description, "components": comps,
-                          "events": variant_events}
+    variants = {name: _variant(path, base_dir, name, vtable, components, connections,
+                               events) for name, vtable in table.variants.items()}
 
     sweep = {}
     for name, values in table.sweep.items():
@@ -457,7 +528,10 @@ def manifest_from_data(data: dict[str, Any], path: str | Path, sha256: str,
     except ValueError as error:
         raise ManifestError(path, "name", f"{error} (it names the default output folder "
                             "results/<name>)") from None
-    sampling = parse_montecarlo(path, data.get("montecarlo"), components, sweep)
+    # a sampled component is the base's or a variant's (each run must have it: plan)
+    known = list(components) + [c for v in variants.values() for c in v["new"]
+                                if c not in components]
+    sampling = parse_montecarlo(path, data.get("montecarlo"), known, sweep)
     return Manifest(path=path, sha256=sha256, name=name,
                     description=table.description, start=start, stop=stop,
                     step=step, algorithm=sim.algorithm, components=components,

@@ -108,8 +108,18 @@ class EventTable(_Table):
 
 
 class VariantTable(_Table):
+    """Changes to the base experiment: ``components`` changed or added (a name the base
+    has not, or one the variant removes), base components removed (``remove``), base
+    connections removed (``disconnect``: ``"component.input"`` the one driving that
+    input, ``"component"`` every one to or from it), ``connections`` added, ``events``
+    changed or added. Names are checked in :mod:`agv_cosim.manifest`, the resulting
+    system like a base one in :mod:`agv_cosim.system`."""
+
     description: StrictStr = ""
     components: dict[str, ComponentTable] = {}
+    remove: list[StrictStr] = []
+    disconnect: list[StrictStr] = []
+    connections: list[ConnectionTable] = []
     events: dict[str, EventTable] = {}
 
 

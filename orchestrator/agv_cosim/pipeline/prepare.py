@@ -77,8 +77,8 @@ def prepare(manifest: str | Path | Manifest, variants: list[str] | None = None,
         effective = {c: {v.name: one.parameters[c].get(v.name, _start_value(v))
                          for v in info.parameters} for c, info in models.items()}
         system = System(models=models, parameters=one.parameters,
-                        connections=manifest.connections, order=one.order,
-                        record=checked.record, start=manifest.start, stop=manifest.stop,
+                        connections=run.connections, order=one.order,
+                        record=one.record, start=manifest.start, stop=manifest.stop,
                         step=manifest.step, algorithm=manifest.algorithm,
                         record_every=manifest.record_every, steps=manifest.steps,
                         events=one.events)

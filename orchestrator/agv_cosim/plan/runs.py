@@ -1,8 +1,10 @@
 """Stage 2 of the pipeline, the plan: a manifest's runs (variants x sweep points).
 
 :func:`plan_runs` expands a :class:`~agv_cosim.manifest.Manifest` into one
-:class:`RunSpec` per (chosen variant, or the base) x sweep point, applying ``--set``
-overrides (:func:`parse_set`). Parameter precedence for one run: FMU default <
+:class:`RunSpec` per (chosen variant, or the base) x sweep point, each with its variant's
+components (:func:`run_components`) and wiring, applying ``--set`` overrides
+(:func:`parse_set`). A sweep, ``--set`` or Monte Carlo name must name a component of
+every run. Parameter precedence for one run: FMU default <
 ``[components.X.parameters]`` < the variant's parameters < ``--set`` < the sweep point (a
 ``--set`` on a swept parameter is an error). Nothing here opens an FMU: the runs are
 checked against the FMUs by :func:`agv_cosim.system.validate`.
@@ -16,7 +18,15 @@ from collections.abc import Iterable
 from typing import Any
 
 from ..errors import ManifestError, did_you_mean
-from ..manifest import Manifest, dotted_name, event_key, event_parts, parse_toml, split_name
+from ..manifest import (
+    Component,
+    Manifest,
+    dotted_name,
+    event_key,
+    event_parts,
+    parse_toml,
+    split_name,
+)
 from .sampling import expand_runs
 from .spec import MAX_RUNS, RunSpec, run_label
 
@@ -29,6 +39,35 @@ def _apply_event_key(events: dict[str, dict[str, Any]], name: str, value: Any) -
         events[parts[1]]["at"] = value
     else:
         events[parts[1]]["set"][f"{parts[3]}.{parts[4]}"] = value
+
+
+def run_components(manifest: Manifest, variant: str | None) -> dict[str, Component]:
+    """The components of a run of ``variant`` (None: the base), copies in the base's
+    order: a removed one left out (or, added again under its name, in its place), a
+    changed one with the variant's FMU or table and its parameters over the base's, a
+    new one after the base's."""
+    if variant is None:
+        return copy.deepcopy(manifest.components)
+    changes = manifest.variants[variant]
+    subs, new = changes["components"], changes["new"]
+    comps = {}
+    for cname, comp in manifest.components.items():
+        if cname in new:
+            comps[cname] = copy.deepcopy(subs[cname])
+        elif cname not in changes["remove"]:
+            comps[cname] = copy.deepcopy(comp)
+    for cname, sub in subs.items():
+        if cname in new:
+            comps.setdefault(cname, copy.deepcopy(sub))
+            continue
+        if sub.fmu is not None:
+            comps[cname].fmu, comps[cname].table = sub.fmu, None
+        if sub.table is not None:
+            comps[cname].fmu, comps[cname].table = None, sub.table
+            comps[cname].interpolation = dict(sub.interpolation)
+            comps[cname].units = dict(sub.units)
+        comps[cname].parameters.update(copy.deepcopy(sub.parameters))
+    return comps
 
 
 def parse_set(manifest: Manifest, text: str) -> tuple[str, Any]:
@@ -63,18 +102,21 @@ def plan_runs(manifest: Manifest, variants: list[str] | None = None,
         ``comp.param=VALUE`` overrides applied to every run.
     """
     overrides = dict(parse_set(manifest, s) for s in sets)
+    # the base's components and those variants add; each run must have the ones named
+    comps_known = list(manifest.components) + [
+        c for v in manifest.variants.values() for c in v["new"] if c not in manifest.components]
     for name in overrides:
         if name in manifest.sweep:
             raise manifest.error("--set", f"'{name}' is also swept in [sweep]")
         comp = name.split(".")[0]
-        if comp != "events" and comp not in manifest.components:
+        if comp != "events" and comp not in comps_known:
             raise manifest.error("--set", f"unknown component '{comp}' in "
-                                f"'{name}'{did_you_mean(comp, manifest.components)}")
+                                f"'{name}'{did_you_mean(comp, comps_known)}")
     for name in manifest.sweep:
-        if name.split(".")[0] not in manifest.components and not name.startswith("events."):
+        if name.split(".")[0] not in comps_known and not name.startswith("events."):
             comp = name.split(".")[0]
             raise manifest.error(f"sweep.{name}", f"unknown component '{comp}'"
-                                 f"{did_you_mean(comp, manifest.components)}")
+                                 f"{did_you_mean(comp, comps_known)}")
     if variants:
         for name in variants:
             if name not in manifest.variants:
@@ -96,32 +138,30 @@ def plan_runs(manifest: Manifest, variants: list[str] | None = None,
               itertools.product(*(manifest.sweep[n] for n in names))]
     runs = []
     for variant in chosen:
+        wiring = (manifest.variants[variant]["connections"] if variant is not None
+                  else manifest.connections)
         for point in points:
-            comps = copy.deepcopy(manifest.components)
+            comps = run_components(manifest, variant)
             events = copy.deepcopy(manifest.events)
             if variant is not None:
-                for cname, sub in manifest.variants[variant]["components"].items():
-                    if sub.fmu is not None:
-                        comps[cname].fmu, comps[cname].table = sub.fmu, None
-                    if sub.table is not None:
-                        comps[cname].fmu, comps[cname].table = None, sub.table
-                        comps[cname].interpolation = sub.interpolation
-                        comps[cname].units = sub.units
-                    comps[cname].parameters.update(sub.parameters)
                 for ename, sub in manifest.variants[variant].get("events", {}).items():
                     event = events.setdefault(ename, {"at": None, "set": {}})
                     event["at"] = sub.get("at", event["at"])
                     event["set"].update(sub.get("set", {}))
-            for name, value in list(overrides.items()) + list(point.items()):
+            for key, name, value in ([("--set", n, v) for n, v in overrides.items()]
+                                     + [(f"sweep.{n}", n, v) for n, v in point.items()]):
                 if name.startswith("events."):
                     _apply_event_key(events, name, value)
                     continue
                 cname, pname = split_name(name)
+                if cname not in comps:
+                    raise manifest.error(key, f"variant '{variant}' has no component "
+                                         f"'{cname}' (it removes it or the base has none)")
                 comps[cname].parameters[pname] = value
             parts = [variant or "base"] + [f"{k}={v!r}" for k, v in point.items()]
             runs.append(RunSpec(label=run_label(parts), variant=variant,
                                 point=point, components=comps, overrides=overrides,
-                                events=events))
+                                connections=list(wiring), events=events))
     if manifest.montecarlo is not None:  # each run x the Monte Carlo samples
         runs = expand_runs(manifest, runs)
     labels = [r.label for r in runs]

@@ -213,13 +213,19 @@ def expand_runs(manifest: Manifest, runs: list[RunSpec]) -> list[RunSpec]:
             comps = {cname: _copy_component(comp) for cname, comp in run.components.items()}
             for name, value in sample.items():
                 cname, _, pname = name.partition(".")
+                if cname not in comps:
+                    key = "parameters." + name if name in mc.parameters else "seeds"
+                    raise manifest.error(f"montecarlo.{key}", f"variant '{run.variant}' "
+                                         f"has no component '{cname}' (it removes it or "
+                                         "the base has none)")
                 comps[cname].parameters[pname] = value
             point = dict(run.point)
             point[SAMPLE] = index
             point.update(sample)
             expanded.append(type(run)(label=run_label(base + [f"mc{index:0{width}d}"]),
                                       variant=run.variant, point=point, components=comps,
-                                      overrides=run.overrides, events=run.events))
+                                      overrides=run.overrides,
+                                      connections=run.connections, events=run.events))
     return expanded
 
 

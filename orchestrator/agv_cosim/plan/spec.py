@@ -6,20 +6,24 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..manifest import Component
+from ..manifest import Component, Connection
 
 __all__ = ["MAX_LABEL", "MAX_RUNS", "RunSpec", "run_label"]
 
 
 @dataclass
 class RunSpec:
-    """One run: the resolved components of a variant at one sweep point."""
+    """One run: the resolved components and connections of a variant at one sweep
+    point."""
 
     label: str
     variant: str | None
     point: dict[str, Any]
     components: dict[str, Component]
     overrides: dict[str, Any]
+    #: the run's wiring: the base's connections, or the variant's (see
+    #: :attr:`agv_cosim.manifest.Manifest.variants`)
+    connections: list[Connection]
     events: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 

@@ -1,7 +1,10 @@
 """SSP 1.0 export: one run of a manifest, as a package libcosim (and others) can run.
 
 Export (:func:`export_ssp`, ``agv-cosim export-ssp MANIFEST [--variant NAME] -o FILE.ssp``)
-writes one run of a manifest (one variant, no sweep) as a self-contained SSP 1.0 archive::
+writes one run of a manifest (one variant, no sweep) as a self-contained SSP 1.0 archive,
+with that run's components and wiring (a variant that adds, removes or rewires components
+is exported as the system it runs: one package per variant; a time-table component or a
+scenario event, which SSP 1.0 cannot hold, is refused, naming the variant)::
 
     SystemStructure.ssd     components, connectors (type, unit), connections, units,
                             inline parameter values, DefaultExperiment
@@ -33,7 +36,7 @@ from typing import Any
 from xml.etree import ElementTree
 
 from .. import fmitypes
-from ..errors import OutputError
+from ..errors import ManifestError, OutputError
 from ..files import user_mode
 from ..manifest import Manifest, load_manifest
 from ..plan import plan_runs
@@ -243,12 +246,15 @@ def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
     runs = plan_runs(manifest, [variant] if variant else None, sets)
     if len(runs) != 1:
         key = "sweep" if manifest.sweep else "variants"
+        choose = (f"choose --variant ({', '.join(manifest.variants)})"
+                  if len(manifest.variants) > 1 and not variant else "choose --variant")
         raise manifest.error(key, f"expands to {len(runs)} runs; an SSP "
-                            "package holds one (choose --variant, remove the sweep or fix "
+                            f"package holds one ({choose}, remove the sweep or fix "
                             "it with --set)")
     checked = validate(manifest, runs)
     one = checked.runs[0]
     run, models = one.run, one.models
+    _refuse_what_ssp_cannot_hold(manifest, one)
     params = {c: dict(values) for c, values in one.parameters.items()}
     for cname, values in params.items():
         for pname, value in values.items():
@@ -257,8 +263,8 @@ def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
                                     "an FMI 3.0 array parameter cannot be written to an "
                                     "SSP package (SSP parameters are scalars)")
     name = manifest.name + (f"_{run.variant}" if run.variant else "")
-    root = build_ssd(name, models, params, manifest.connections, manifest.start,
-                     manifest.stop, manifest.step, manifest.algorithm, checked.record,
+    root = build_ssd(name, models, params, run.connections, manifest.start,
+                     manifest.stop, manifest.step, manifest.algorithm, one.record,
                      manifest.record_interval, manifest.description,
                      _as_written(manifest.metrics), _as_written(manifest.plots))
     out_path = Path(out_path)
@@ -289,6 +295,31 @@ def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
     finally:
         partial.unlink(missing_ok=True)
     return out_path
+
+
+def _refuse_what_ssp_cannot_hold(manifest: Manifest, one: Any) -> None:
+    """A time-table component (an SSP component is an FMU) or a scenario event (SSP 1.0
+    has none) is refused, named by the variant's key when the variant gives it."""
+    variant = one.run.variant
+    changes = manifest.variants[variant] if variant else None
+
+    def refuse(own: str | None, base: str, problem: str) -> ManifestError:
+        if own is not None:
+            return manifest.error(own, problem)
+        return manifest.error(base, (f"variant '{variant}': " if variant else "") + problem)
+
+    for cname, info in one.models.items():
+        if info.table is not None:
+            sub = changes["components"].get(cname) if changes else None
+            own = f"variants.{variant}.components.{cname}.table" \
+                if sub is not None and sub.table is not None else None
+            raise refuse(own, f"components.{cname}.table", "a time table cannot be written "
+                         "to an SSP package (SSP components are FMUs)")
+    for event in one.events:
+        own = f"variants.{variant}.events.{event.name}" \
+            if changes and event.name in changes["events"] else None
+        raise refuse(own, f"events.{event.name}", "a scenario event cannot be written to "
+                     "an SSP package (SSP 1.0 has no events)")
 
 
 def _cmd_export_ssp(args: argparse.Namespace) -> int:

@@ -2,7 +2,7 @@
 descriptions (:mod:`.model`) or time tables (:mod:`.table`) and checked as one system
 (:mod:`.check`): parameters, connections (causality, type, unit), events, recorded
 signals, and the Gauss-Seidel schedule (:mod:`.order`). Checked per run because a
-variant may swap an FMU. :mod:`.checked` holds what it hands on.
+variant may swap an FMU or rewire the system. :mod:`.checked` holds what it hands on.
 """
 
 from .check import validate

@@ -2,9 +2,11 @@
 
 :func:`validate` reads each component's model description (or time table) and checks,
 for every planned run, the parameter values against the variables (name, causality, type,
-range), the connections (output -> input, same type, same unit, one driver per input),
-the events, and the recorded signals; :func:`~agv_cosim.system.order.feedthrough_order`
-finds the Gauss-Seidel schedule. The result is a :class:`~agv_cosim.system.checked.Checked`.
+range), the run's connections (output -> input, same type, same unit, one driver per
+input), the events, and the recorded signals;
+:func:`~agv_cosim.system.order.feedthrough_order` finds the Gauss-Seidel schedule. A
+problem in a variant's run names the variant. The result is a
+:class:`~agv_cosim.system.checked.Checked`.
 """
 
 import math
@@ -37,12 +39,13 @@ def _parameter_key(manifest: Manifest, run: RunSpec, cname: str, pname: str) -> 
     return f"components.{cname}.parameters.{pname}"
 
 
-def _fmu_key(manifest: Manifest, run: RunSpec, cname: str) -> str:
+def _fmu_key(manifest: Manifest, run: RunSpec, cname: str, what: str = "fmu") -> str:
+    """The key of a component's ``fmu`` (or ``table``): the variant's when it gives one."""
     if run.variant:
         sub = manifest.variants[run.variant]["components"].get(cname)
-        if sub is not None and sub.fmu is not None:
-            return f"variants.{run.variant}.components.{cname}.fmu"
-    return f"components.{cname}.fmu"
+        if sub is not None and getattr(sub, what) is not None:
+            return f"variants.{run.variant}.components.{cname}.{what}"
+    return f"components.{cname}.{what}"
 
 
 def check_events(manifest: Manifest, run: RunSpec, models: dict[str, ModelInfo],
@@ -114,7 +117,7 @@ def read_models(manifest: Manifest, run: RunSpec) -> dict[str, ModelInfo]:
             try:
                 models[cname] = read_table(comp.table, comp.interpolation, comp.units)
             except TableError as error:
-                raise err(f"components.{cname}.table", str(error)) from None
+                raise err(_fmu_key(manifest, run, cname, "table"), str(error)) from None
             continue
         if comp.fmu is None:  # the manifest gives an FMU or a table (checked there)
             raise err(f"components.{cname}.fmu", "missing")
@@ -162,13 +165,15 @@ def check_parameters(manifest: Manifest, run: RunSpec,
     return parsed
 
 
-def check_connections(manifest: Manifest,
-                      models: dict[str, ModelInfo]) -> dict[tuple[str, str], Connection]:
-    """Every connection checked (output -> input, same type, same unit, one driver per
-    input); returns the connected inputs, ``(component, variable)`` -> connection."""
+def check_connections(manifest: Manifest, models: dict[str, ModelInfo],
+                      connections: Iterable[Connection] | None = None
+                      ) -> dict[tuple[str, str], Connection]:
+    """Every connection (of ``connections``, default the manifest's) checked (output ->
+    input, same type, same unit, one driver per input); returns the connected inputs,
+    ``(component, variable)`` -> connection."""
     err = manifest.error
     targets: dict[tuple[str, str], Connection] = {}
-    for conn in manifest.connections:
+    for conn in manifest.connections if connections is None else connections:
         ends = []
         for side, (cname, vname), want in (("from", conn.source, "output"),
                                           ("to", conn.target, "input")):
@@ -200,8 +205,14 @@ def check_connections(manifest: Manifest,
             raise err(conn.key, f"unit mismatch: {conn.source[0]}.{src.name} is "
                       f"[{src.unit}], {conn.target[0]}.{dst.name} is [{dst.unit}]")
         if conn.target in targets:
-            raise err(f"{conn.key}.to", f"input '{'.'.join(conn.target)}' is already "
-                      f"connected by {targets[conn.target].key}")
+            driven, first = ".".join(conn.target), targets[conn.target].key
+            hint = ""
+            if conn.key.startswith("variants.") and not first.startswith("variants."):
+                variant = conn.key.split(".")[1]
+                hint = (f" (to replace it, list '{driven}' in variants.{variant}."
+                        "disconnect)")
+            raise err(f"{conn.key}.to", f"input '{driven}' is already connected by "
+                      f"{first}{hint}")
         targets[conn.target] = conn
     return targets
 
@@ -217,36 +228,81 @@ def _check_sweep(manifest: Manifest, models: dict[str, ModelInfo]) -> None:
 
 
 def check_run(manifest: Manifest, run: RunSpec) -> tuple[CheckedRun, list[str]]:
-    """One run checked as a system; with the names of its unconnected inputs."""
+    """One run checked as a system; with the names of its unconnected inputs.
+
+    A problem of a variant's run names the variant: its own keys
+    (``variants.<name>...``) do, and a problem at a key of the base gets
+    ``variant '<name>': `` before it (the base's line kept)."""
+    try:
+        return _check_run(manifest, run)
+    except ManifestError as error:
+        raise _in_variant(manifest, run, error) from None
+
+
+def _check_run(manifest: Manifest, run: RunSpec) -> tuple[CheckedRun, list[str]]:
     models = read_models(manifest, run)
     parameters = check_parameters(manifest, run, models)
     _check_sweep(manifest, models)
-    targets = check_connections(manifest, models)
+    targets = check_connections(manifest, models, run.connections)
     events = check_events(manifest, run, models, targets)
     try:
-        order = feedthrough_order(models, manifest.connections, manifest.path,
+        order = feedthrough_order(models, run.connections, manifest.path,
                                   manifest.algorithm)
     except ManifestError as error:  # placed at the line of its key
         raise manifest.error(error.key, error.problem) from None
+    record = _record_list(manifest, models)
     unconnected = [f"{c}.{v.name}" for c, info in models.items() for v in info.inputs
                    if (c, v.name) not in targets]
     return CheckedRun(run=run, models=models, parameters=parameters, order=order,
-                      events=events), unconnected
+                      events=events, record=record), unconnected
+
+
+def _in_variant(manifest: Manifest, run: RunSpec, error: ManifestError) -> ManifestError:
+    """``error`` of ``run`` naming the run's variant (unchanged for a base run or a key
+    of the variant's own)."""
+    variant = run.variant
+    if variant is None:
+        return error
+    own = f"variants.{variant}"
+    if error.key == own or error.key.startswith((f"{own}.", f"{own}[")):
+        return error
+    changes = manifest.variants[variant]["components"]
+    replaced = {c for c, sub in changes.items() if c not in manifest.variants[variant]["new"]
+                and (sub.fmu is not None or sub.table is not None)}
+    hint = ""
+    index = error.key.removeprefix("connections[").partition("]")[0]
+    if error.key.startswith("connections[") and index.isdigit() and \
+            int(index) < len(manifest.connections):
+        conn = manifest.connections[int(index)]
+        touched = [c for c in (conn.source[0], conn.target[0]) if c in replaced]
+        if touched:
+            hint = (f"; variants.{variant} replaces '{touched[0]}': disconnect = "
+                    f"[\"{'.'.join(conn.target)}\"] there drops this connection")
+    parts = error.key.split(".")
+    if len(parts) > 3 and parts[0] == "components" and parts[2] == "parameters" and \
+            parts[1] in replaced:
+        hint = (f"; variants.{variant} replaces '{parts[1]}' but keeps the base's "
+                f"parameters (remove = [\"{parts[1]}\"] and add a new '{parts[1]}' to "
+                "start without them)")
+    out = ManifestError(error.manifest, error.key, f"variant '{variant}': "
+                        f"{error.problem}{hint}", error.line)
+    out.others = error.others
+    return out
 
 
 def validate(manifest: Manifest, runs: list[RunSpec],
              extra_signals: Iterable[tuple[str, Iterable[str]]] = ()) -> Checked:
     """Check every run against the FMUs' model descriptions.
 
-    ``extra_signals``: ``(key, signal names)`` that must be recorded (the ``[metrics]``
-    and ``[plots]`` signals, named by ``key`` in a message).
+    ``extra_signals``: ``(key, signal names)`` that every run must record (the
+    ``[metrics]`` and ``[plots]`` signals, named by ``key`` in a message).
 
     Returns
     -------
     Checked
-        Per run its models, parsed parameters, Gauss-Seidel order and events; the
-        recorded variables (the same for every run) and the warnings (unconnected
-        inputs).
+        Per run its models, parsed parameters, Gauss-Seidel order, events and recorded
+        variables (``[record] variables``, else every numeric output of the run's
+        components); the warnings (unconnected inputs).
 
     Raises
     ------
@@ -254,36 +310,34 @@ def validate(manifest: Manifest, runs: list[RunSpec],
         Missing or broken FMU, unknown component / variable / parameter, wrong
         causality, type or unit mismatch, an input connected twice, a sweep over a
         non-parameter, an algebraic loop, a record or metrics/plots signal that is not
-        recorded.
+        recorded; in a variant's run, naming the variant.
     """
     checked: list[CheckedRun] = []
-    warnings: list[str] = []
-    record: list[str] | None = None
+    #: unconnected inputs -> the variants (None: the base) whose runs leave them so
+    unconnected_by: dict[tuple[str, ...], list[str | None]] = {}
+    sources = [(source, list(names)) for source, names in extra_signals]
     for run in runs:
         one, unconnected = check_run(manifest, run)
         if unconnected:
-            message = (f"{manifest.path}: connections: unconnected inputs (held at their "
-                       f"start values): {', '.join(unconnected)}")
-            if message not in warnings:
-                warnings.append(message)
-        this_record = _record_list(manifest, one.models)
-        if record is None:
-            record = this_record
-        elif this_record != record:
-            raise manifest.error(_first_fmu_key(manifest, run), "this variant records "
-                                 "other variables than the base (an FMU with other "
-                                 "outputs); list record.variables")
+            found = unconnected_by.setdefault(tuple(unconnected), [])
+            if run.variant not in found:
+                found.append(run.variant)
+        recorded = set(one.record)
+        for source, names in sources:
+            for name in names:
+                if name not in recorded:
+                    where = f"variant '{run.variant}': " if run.variant else ""
+                    raise manifest.error(source, f"{where}signal '{name}' is not recorded "
+                                         "(see [record])")
         checked.append(one)
-    recorded = set(record or ())
-    for source, names in extra_signals:
-        for name in names:
-            if name not in recorded:
-                raise manifest.error(source, f"signal '{name}' is not recorded (see [record])")
-    return Checked(runs=checked, record=record or [], warnings=warnings)
-
-
-def _first_fmu_key(manifest: Manifest, run: RunSpec) -> str:
-    return f"variants.{run.variant}" if run.variant else "components"
+    every = list(dict.fromkeys(run.variant for run in runs))
+    warnings = []
+    for inputs, variants in unconnected_by.items():
+        where = "" if variants == every or variants == [None] else \
+            " in variant(s) " + ", ".join(str(v) for v in variants)
+        warnings.append(f"{manifest.path}: connections: unconnected inputs{where} (held at "
+                        f"their start values): {', '.join(inputs)}")
+    return Checked(runs=checked, warnings=warnings)
 
 
 def _article(causality: str) -> str:

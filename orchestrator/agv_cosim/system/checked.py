@@ -38,6 +38,9 @@ class CheckedRun:
     order: list[str]
     #: sorted by step, then by the manifest's order
     events: list[Event]
+    #: "component.variable" recorded (``[record] variables``, else every numeric output
+    #: of the run's components: runs of variants with other components record others)
+    record: list[str]
 
 
 @dataclass
@@ -45,8 +48,6 @@ class Checked:
     """The result of :func:`agv_cosim.system.validate`."""
 
     runs: list[CheckedRun]
-    #: "component.variable" recorded, the same for every run
-    record: list[str]
     #: one line each (unconnected inputs)
     warnings: list[str]
 
