@@ -67,6 +67,19 @@ def _warn(warnings: list[str], quiet: bool = False) -> None:
         _say(f"agv-cosim: warning: {warning}")
 
 
+def _factor(text):
+    """``--real-time``: a positive, finite factor."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive, finite factor")
+    return value
+
+
 def _timeout(text):
     """``--timeout``: a positive, finite number of seconds."""
     import math
@@ -105,25 +118,30 @@ def _kept(error):
 
 
 def _cmd_run(args):
-    from .pipeline import execute, prepare
+    from .pipeline import check_options, default_out_dir, execute, prepare, reusable
 
     if args.jobs is not None and args.jobs < 1:
         return _error("--jobs: must be >= 1")
     manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set,
                                        timeout=args.timeout)
     _warn(warnings)
+    check_options(jobs, args.overwrite, args.dask, args.resume, args.real_time)
     if not args.no_init and args.dask is None:  # what validate checks, before any run
         from .pipeline import INIT_TIMEOUT, check_initialisation
 
         # the runs' wall-clock limit bounds a run, not this check (whose child process
         # also starts up in it): at least validate's default
         limit = max(args.timeout or manifest.timeout or 0.0, INIT_TIMEOUT)
-        check_initialisation(manifest, jobs, limit)
+        kept = set(reusable(args.out or default_out_dir(manifest), manifest, jobs)
+                   if args.resume else ())
+        check_initialisation(manifest, [j for i, j in enumerate(jobs) if i not in kept],
+                             limit)
     from .errors import ClusterError
 
     try:
         target, results = execute(manifest, jobs, args.out, args.jobs, args.quiet,
-                                  overwrite=args.overwrite, dask=args.dask)
+                                  overwrite=args.overwrite, dask=args.dask,
+                                  resume=args.resume, real_time=args.real_time)
     except ClusterError as error:
         kept = _kept(error)
         _say(f"agv-cosim: error: {error}" + (f"; {kept}" if kept else ""))
@@ -145,7 +163,19 @@ def _cmd_run(args):
             print(table)
         print(printable(f"{target}: {len(results) - len(bad)}/{len(results)} run(s) "
                         "complete"))
+    for result in results:
+        if "real_time" in result:
+            print(_paced(result["real_time"]))
     return 1 if bad or unmeasured else 0
+
+
+def _paced(report):
+    """One line on a paced run: target and achieved factor, overruns, max lateness."""
+    achieved = report["achieved"]
+    return (f"real time: target x{report['target']:g}, achieved "
+            + ("-" if achieved is None else f"x{achieved:.4g}")
+            + f" over {report['steps']} step(s); {report['overruns']} overrun(s), max "
+              f"lateness {report['max_lateness_s'] * 1000:.3g} ms")
 
 
 def _cmd_report(args):
@@ -255,6 +285,17 @@ def make_parser() -> argparse.ArgumentParser:
                           "instantiated and initialised once with each run's parameters, "
                           "as validate does (skipped with --dask: the FMUs run on the "
                           "cluster's machines)")
+    run.add_argument("--resume", action="store_true",
+                     help="DIR is a result folder of an earlier run of this manifest "
+                          "(complete, interrupted or with failed runs): keep each of its "
+                          "complete runs whose inputs are unchanged, run the others "
+                          "(the same folder as a run from scratch, but for the reused "
+                          "runs' wall times)")
+    run.add_argument("--real-time", type=_factor, metavar="FACTOR",
+                     help="pace the run so that simulated time advances at FACTOR x "
+                          "wall-clock time (1: real time; one run only, not with --dask); "
+                          "overruns and the achieved factor go to run.json and the "
+                          "terminal; results are the same as unpaced")
     run.set_defaults(func=_cmd_run)
 
     check = sub.add_parser("validate", help="check a manifest against its FMUs, run nothing",

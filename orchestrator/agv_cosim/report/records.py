@@ -9,12 +9,12 @@ import platform
 from pathlib import Path
 from typing import Any, NotRequired, TypedDict
 
-from ..files import write_json, write_summary
+from ..files import json_text, write_json, write_summary
 from ..system import Job
 from ..version import __version__
 
-__all__ = ["RunResult", "inputs_sha256", "run_inputs", "run_result", "summary_rows",
-           "versions", "write_run_files", "write_summary"]
+__all__ = ["RunResult", "inputs_sha256", "recorded_inputs", "run_inputs", "run_result",
+           "summary_rows", "versions", "write_run_files", "write_summary"]
 
 
 class RunResult(TypedDict):
@@ -31,6 +31,10 @@ class RunResult(TypedDict):
     variant: str | None
     #: bytes of the timeseries.csv written (a run that wrote one)
     csv_bytes: NotRequired[int]
+    #: a paced run's target and achieved real-time factor, overruns, max lateness
+    real_time: NotRequired[dict[str, Any]]
+    #: true for a run kept from an earlier result folder (``--resume``)
+    reused: NotRequired[bool]
 
 
 def run_result(job: Job, status: str, *, rows: int = 0, error: str | None = None,
@@ -86,6 +90,12 @@ def run_inputs(job: Job) -> dict[str, Any]:
     }
 
 
+def recorded_inputs(job: Job) -> dict[str, Any]:
+    """:func:`run_inputs` of ``job`` as run.json records them (``inputs``, read back):
+    what compares equal to the ``inputs`` of an earlier run's run.json."""
+    return json.loads(json_text(_exact(run_inputs(job))))
+
+
 def inputs_sha256(inputs: dict[str, Any]) -> str:
     """SHA-256 of :func:`run_inputs` in a canonical JSON form (keys sorted; NaN and inf
     kept apart from null)."""
@@ -108,13 +118,16 @@ def _exact(value: Any) -> Any:
 
 def write_run_files(job: Job, run_dir: Path, rows: int, status: str, error: str | None,
                     wall: float | None, values: dict[str, Any], metrics_error: str | None,
-                    ended_by: str | None = None) -> RunResult:
-    """Write metrics.json and run.json of a run (replacing ours); return its result."""
+                    ended_by: str | None = None,
+                    real_time: dict[str, Any] | None = None) -> RunResult:
+    """Write metrics.json and run.json of a run (replacing ours); return its result.
+    ``real_time``: a paced run's pacing report (run.json's ``real_time``; an unpaced
+    run's run.json has no such key)."""
     write_json(run_dir / "metrics.json", values, replace=True)
     inputs = run_inputs(job)
     digest = inputs_sha256(inputs)
     inputs = _exact(inputs)
-    write_json(run_dir / "run.json", {
+    record: dict[str, Any] = {
         "label": job.label, "variant": job.variant, "sweep_point": _exact(job.point),
         "manifest": job.manifest_path, "manifest_sha256": job.manifest_sha256,
         "fmu_sha256": job.fmu_sha256,
@@ -126,6 +139,12 @@ def write_run_files(job: Job, run_dir: Path, rows: int, status: str, error: str 
         "error": error, "metrics_error": metrics_error, "partial": status != "complete",
         "ended_by": ended_by or ("stop time" if status == "complete" else None),
         "timeout_s": job.timeout, "inputs": inputs, "inputs_sha256": digest,
-        "events": inputs["events"]}, replace=True)
-    return run_result(job, status, rows=rows, error=error, metrics=values,
-                      metrics_error=metrics_error)
+        "events": inputs["events"]}
+    if real_time is not None:
+        record["real_time"] = real_time
+    write_json(run_dir / "run.json", record, replace=True)
+    result = run_result(job, status, rows=rows, error=error, metrics=values,
+                        metrics_error=metrics_error)
+    if real_time is not None:
+        result["real_time"] = real_time
+    return result
