@@ -173,7 +173,7 @@ def _paced(report):
     """One line on a paced run: target and achieved factor, overruns, max lateness."""
     achieved = report["achieved"]
     return (f"real time: target x{report['target']:g}, achieved "
-            + ("-" if achieved is None else f"x{achieved:.4g}")
+            + ("-" if achieved is None else f"x{achieved:.5g}")
             + f" over {report['steps']} step(s); {report['overruns']} overrun(s), max "
               f"lateness {report['max_lateness_s'] * 1000:.3g} ms")
 

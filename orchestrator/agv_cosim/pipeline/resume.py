@@ -32,7 +32,7 @@ from ..report.records import RunResult, recorded_inputs, write_run_files
 from ..system import Job
 from ..timeseries import count_rows
 
-__all__ = ["reusable", "reuse_runs"]
+__all__ = ["check_resumable", "reusable", "reuse_runs"]
 
 #: Files of a run folder a reused run keeps as they are (the others are written again).
 KEPT_FILES = ("timeseries.csv", "output.txt")
@@ -63,6 +63,12 @@ def _previous(target: Path, manifest: Manifest) -> Path | None:
                           f"'{manifest.name}'; refusing to resume from it (choose "
                           "another --out)")
     return target
+
+
+def check_resumable(target: str | Path, manifest: Manifest) -> None:
+    """Raise :class:`OutputError` (one line) unless ``target`` is missing or a result
+    folder of ours written for a manifest named as ``manifest``."""
+    _previous(Path(os.path.abspath(target)), manifest)
 
 
 def _complete_run(run_dir: Path, job: Job) -> dict[str, Any] | None:

@@ -41,7 +41,7 @@ from ..system import Job
 from .distributed import run_on_dask
 from .pool import run_isolated
 from .prepare import prepare
-from .resume import reuse_runs
+from .resume import check_resumable, reuse_runs
 
 __all__ = ["check_options", "default_out_dir", "execute", "progress_bar", "run_manifest"]
 
@@ -95,6 +95,8 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
     check_options(jobs, overwrite, dask, resume, real_time)
     if real_time is not None:
         jobs = [replace(job, real_time=real_time) for job in jobs]
+    if resume:  # before AtomicDir, whose refusal of a folder not ours speaks of replacing
+        check_resumable(out_dir, manifest)
     about = {"manifest": manifest.name, "manifest_sha256": manifest.sha256}
     with AtomicDir(out_dir, overwrite=overwrite, about=about) as folder:
         written = folder.path
