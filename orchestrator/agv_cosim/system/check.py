@@ -21,7 +21,7 @@ from .order import feedthrough_order
 from .table import read_table
 
 __all__ = ["check_connections", "check_events", "check_parameters", "check_run",
-           "read_models", "validate"]
+           "raise_all", "read_models", "validate"]
 
 
 def _parameter_key(manifest: Manifest, run: RunSpec, cname: str, pname: str) -> str:
@@ -128,8 +128,10 @@ def read_models(manifest: Manifest, run: RunSpec) -> dict[str, ModelInfo]:
 def check_parameters(manifest: Manifest, run: RunSpec,
                      models: dict[str, ModelInfo]) -> dict[str, dict[str, Any]]:
     """The run's parameter values parsed against their variables (name, causality, type,
-    range), per component; ``run`` is left as it is."""
+    range), per component; ``run`` is left as it is. Raises the first problem found,
+    the others in its ``others``."""
     err = manifest.error
+    problems: list[ManifestError] = []
     parsed: dict[str, dict[str, Any]] = {}
     for cname, comp in run.components.items():
         info = models[cname]
@@ -140,14 +142,18 @@ def check_parameters(manifest: Manifest, run: RunSpec,
             if var is None:
                 names = [v.name for v in info.parameters]
                 match = did_you_mean(pname, names)
-                raise err(key, f"unknown parameter '{pname}' of {cname} ({info.model_name}"
-                          + (f"){match}" if match else f"; parameters: {', '.join(names)})"))
+                problems.append(err(key, f"unknown parameter '{pname}' of {cname} "
+                                    f"({info.model_name}" + (f"){match}" if match else
+                                    f"; parameters: {', '.join(names)})")))
+                continue
             if var.causality != "parameter":
-                raise err(key, f"'{cname}.{pname}' is {_article(var.causality)}, "
-                          "not a parameter")
+                problems.append(err(key, f"'{cname}.{pname}' is "
+                                    f"{_article(var.causality)}, not a parameter"))
+                continue
             why = var.unsupported("parameter")
             if why:
-                raise err(key, f"'{cname}.{pname}' is {why}")
+                problems.append(err(key, f"'{cname}.{pname}' is {why}"))
+                continue
             try:
                 values[pname] = (fmitypes.parse_array(var.ftype, value, var.size or 0, var)
                                  if var.dims else fmitypes.parse(var.ftype, value, var))
@@ -157,9 +163,26 @@ def check_parameters(manifest: Manifest, run: RunSpec,
                     problem = f"type mismatch: '{cname}.{pname}' {problem}"
                 else:
                     problem = f"'{cname}.{pname}' {problem}"
-                raise err(key, problem) from None
+                problems.append(err(key, problem))
         parsed[cname] = values
+    raise_all(problems)
     return parsed
+
+
+def raise_all(problems: list[ManifestError]) -> None:
+    """Raise the first of ``problems`` (if any) with the others, each once, in its
+    ``others`` (the others of each flattened in): every problem reported at once."""
+    found: list[ManifestError] = []
+    seen: set[str] = set()
+    for problem in problems:
+        for one in [problem, *problem.others]:
+            if str(one) not in seen:
+                seen.add(str(one))
+                found.append(one)
+    if found:
+        first = found[0]
+        first.others = found[1:]
+        raise first
 
 
 def check_connections(manifest: Manifest,
@@ -217,12 +240,31 @@ def _check_sweep(manifest: Manifest, models: dict[str, ModelInfo]) -> None:
 
 
 def check_run(manifest: Manifest, run: RunSpec) -> tuple[CheckedRun, list[str]]:
-    """One run checked as a system; with the names of its unconnected inputs."""
+    """One run checked as a system; with the names of its unconnected inputs. Raises
+    the first problem found, the others (of the parameters, the sweep, the
+    connections, then the events) in its ``others``."""
     models = read_models(manifest, run)
-    parameters = check_parameters(manifest, run, models)
-    _check_sweep(manifest, models)
-    targets = check_connections(manifest, models)
-    events = check_events(manifest, run, models, targets)
+    problems: list[ManifestError] = []
+    parameters: dict[str, dict[str, Any]] = {}
+    targets: dict[tuple[str, str], Connection] | None = None
+    for stage in ("parameters", "sweep", "connections"):
+        try:
+            if stage == "parameters":
+                parameters = check_parameters(manifest, run, models)
+            elif stage == "sweep":
+                _check_sweep(manifest, models)
+            else:
+                targets = check_connections(manifest, models)
+        except ManifestError as problem:
+            problems.append(problem)
+    if targets is None:  # the events need the connected inputs
+        raise_all(problems)
+    assert targets is not None
+    try:
+        events = check_events(manifest, run, models, targets)
+    except ManifestError as problem:
+        problems.append(problem)
+    raise_all(problems)
     try:
         order = feedthrough_order(models, manifest.connections, manifest.path,
                                   manifest.algorithm)
@@ -259,8 +301,13 @@ def validate(manifest: Manifest, runs: list[RunSpec],
     checked: list[CheckedRun] = []
     warnings: list[str] = []
     record: list[str] | None = None
+    problems: list[ManifestError] = []
     for run in runs:
-        one, unconnected = check_run(manifest, run)
+        try:
+            one, unconnected = check_run(manifest, run)
+        except ManifestError as problem:  # the others runs' problems are reported too
+            problems.append(problem)
+            continue
         if unconnected:
             message = (f"{manifest.path}: connections: unconnected inputs (held at their "
                        f"start values): {', '.join(unconnected)}")
@@ -274,11 +321,14 @@ def validate(manifest: Manifest, runs: list[RunSpec],
                                  "other variables than the base (an FMU with other "
                                  "outputs); list record.variables")
         checked.append(one)
+    raise_all(problems)
     recorded = set(record or ())
     for source, names in extra_signals:
         for name in names:
             if name not in recorded:
-                raise manifest.error(source, f"signal '{name}' is not recorded (see [record])")
+                problems.append(manifest.error(source, f"signal '{name}' is not recorded "
+                                               "(see [record])"))
+    raise_all(problems)
     return Checked(runs=checked, record=record or [], warnings=warnings)
 
 
