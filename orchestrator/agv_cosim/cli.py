@@ -263,7 +263,14 @@ def make_parser() -> argparse.ArgumentParser:
                                      "write DIR/<run>/{timeseries.csv,metrics.json,run.json}, "
                                      "DIR/summary.csv and plots. Exit 0 if all runs are "
                                      "complete, 1 if any failed or is partial, 2 on bad "
-                                     "input.")
+                                     "input.",
+                         epilog="Monte Carlo: with a [montecarlo] table (samples, seed, "
+                                "design random/sobol/lhs, parameters drawn from normal, "
+                                "uniform, truncnormal or choice distributions, derived "
+                                "seeds) each variant runs once per sample, and "
+                                "DIR/montecarlo.json and its figures summarise the "
+                                "metrics over the samples. Every key of a manifest: "
+                                "docs/manifest.md.")
     run.add_argument("--out", metavar="DIR",
                      help="output folder (default: results/<manifest name>)")
     run.add_argument("--quiet", action="store_true", help="no progress bars or summary")
