@@ -278,7 +278,7 @@ class AtomicDir:
     ``commit()`` replaces ``target``; ``mark_partial()`` before it marks the folder as
     holding only part of the runs; ``discard()`` deletes the temporary folder. ``about``
     goes into the folder's marker (:func:`marker_data`; the pipeline records the
-    manifest's name and hash there, which ``--resume`` checks). Used as a
+    manifest's name, which ``--resume`` checks, and its hash there). Used as a
     context manager it discards on an exception and always releases the lock.
     """
 

@@ -214,3 +214,34 @@ def test_sweep_killed_by_sigterm_then_resumed_equals_a_clean_run(chain, fmus, tm
     # and its record .agv-cosim-report.json, the figures
     assert count == 4 * 3 + 4 + figures
     shutil.rmtree(tmp, ignore_errors=True)
+
+
+def test_an_interrupted_resume_keeps_the_reused_runs(chain, tmp_path, monkeypatch):
+    """A resumed sweep interrupted before its own runs end commits the folder marked
+    partial with the reused runs complete in it; resuming again reuses them."""
+    from agv_cosim.errors import Interrupted
+    from agv_cosim.pipeline import pool, run
+
+    path = chain(extra='[sweep]\n"gain.k" = [1.0, 2.0]\n')
+    out = tmp_path / "out"
+    assert not any(_run(path, out, resume=False).values())
+    path.write_text(path.read_text().replace("[1.0, 2.0]", "[1.0, 3.0]"))
+
+    def interrupted(jobs, *args):
+        stop = Interrupted(signal.SIGTERM)
+        stop.results = [pool.not_run(job) for job in jobs]
+        raise stop
+
+    monkeypatch.setattr(run, "run_isolated", interrupted)
+    manifest, jobs, _ = prepare(path)
+    with pytest.raises(Interrupted):
+        execute(manifest, jobs, out, quiet=True, resume=True)
+    assert (out / "partial.txt").read_text().startswith(
+        "partial result: interrupted by SIGTERM; 1 of 2 run(s) complete")
+    statuses = [line.split(",")[:3] for line in
+                (out / "summary.csv").read_text().splitlines()[1:]]
+    assert [s[2] for s in statuses] == ["complete", "not run"]
+    assert (out / statuses[0][0] / "timeseries.csv").is_file()
+    monkeypatch.undo()
+    assert _run(path, out) == {statuses[0][0]: True, statuses[1][0]: False}
+    assert_same_folder(out, _clean(path, tmp_path / "clean"))

@@ -20,8 +20,12 @@ A run's status is ``complete``, ``partial`` (rows recorded, then a failure), ``f
 signal came) or ``not run``.
 
 Each run is independent and deterministic, so the parallel and the serial results are
-byte-identical. ``DIR`` is assembled under a temporary name and renamed into place; on
-SIGINT, SIGTERM or SIGHUP it is renamed into place marked partial when any run has rows.
+byte-identical. With ``resume`` the complete runs of an earlier ``DIR`` whose inputs are
+unchanged are kept instead of run again (:mod:`.resume`); with ``real_time`` the one run
+is paced to the wall clock (:class:`~agv_cosim.execution.Pacer`; run.json's
+``real_time`` says how it went). ``DIR`` is assembled under a temporary name and
+renamed into place; on SIGINT, SIGTERM or SIGHUP it is renamed into place marked partial
+when any run has rows.
 """
 
 import os
