@@ -164,7 +164,7 @@ def _cmd_run(args):
         print(printable(f"{target}: {len(results) - len(bad)}/{len(results)} run(s) "
                         "complete"))
     for result in results:
-        if "real_time" in result:
+        if "real_time" in result and not result.get("reused"):
             print(_paced(result["real_time"]))
     return 1 if bad or unmeasured else 0
 
@@ -296,12 +296,12 @@ def make_parser() -> argparse.ArgumentParser:
                      help="DIR is a result folder of an earlier run of this manifest "
                           "(complete, interrupted or with failed runs): keep each of its "
                           "complete runs whose inputs are unchanged, run the others "
-                          "(the same folder as a run from scratch, but for the reused "
-                          "runs' wall times)")
+                          "(the same folder as a run from scratch, byte for byte, but "
+                          "for timings.csv, the one file of measured times)")
     run.add_argument("--real-time", type=_factor, metavar="FACTOR",
                      help="pace the run so that simulated time advances at FACTOR x "
                           "wall-clock time (1: real time; one run only, not with --dask); "
-                          "overruns and the achieved factor go to run.json and the "
+                          "overruns and the achieved factor go to timings.csv and the "
                           "terminal; results are the same as unpaced")
     run.set_defaults(func=_cmd_run)
 

@@ -1,6 +1,7 @@
 """``agv-cosim run --real-time FACTOR``: one run paced at FACTOR x wall time, with the
-same results as unpaced; the target and achieved factor, the overruns and the worst
-lateness recorded in run.json and printed.
+same results as unpaced (the same folder, byte for byte, but timings.csv); the target
+and achieved factor, the overruns and the worst lateness recorded in timings.csv and
+printed.
 
 The timing assertions cannot flake: a paced run never ends before its last deadline
 (so its stepping lasts at least stop / factor and its achieved factor is at most the
@@ -12,10 +13,12 @@ import json
 import time
 
 import pytest
+from test_resume import folder_contents
 
 from agv_cosim import cli
 from agv_cosim.execution import Pacer
 from agv_cosim.pipeline import execute, prepare
+from agv_cosim.report.records import REAL_TIME_FIELDS, TIMINGS, read_timings
 
 SWEEP = '[sweep]\n"gain.k" = [1.0, 2.0]\n'
 
@@ -30,7 +33,9 @@ def test_paced_run_keeps_its_factor_and_its_results(chain, tmp_path, capsys):
     assert time.monotonic() - begin >= 2.0 / 4
     printed = capsys.readouterr().out.splitlines()[-1]
     (run,) = (tmp_path / "paced").glob("*/run.json")
-    paced = json.loads(run.read_text())["real_time"]
+    (timing,) = read_timings(tmp_path / "paced" / TIMINGS).values()
+    paced = timing["real_time"]
+    assert timing["wall_time_s"] >= paced["wall_s"] > 0
     assert paced["target"] == 4.0 and paced["steps"] == 200
     assert paced["wall_s"] >= 2.0 / 4
     assert paced["achieved"] <= 4.0 * 1.05
@@ -38,12 +43,11 @@ def test_paced_run_keeps_its_factor_and_its_results(chain, tmp_path, capsys):
     assert paced["overruns"] == 0 or paced["max_lateness_s"] > 0
     assert printed.startswith(f"real time: target x4, achieved x{paced['achieved']:.5g} "
                               f"over 200 step(s); {paced['overruns']} overrun(s)")
-    # the pacing changes no result, and an unpaced run records none
-    label = run.parent.name
-    assert ((tmp_path / "paced" / label / "timeseries.csv").read_bytes()
-            == (tmp_path / "plain" / label / "timeseries.csv").read_bytes())
-    assert "real_time" not in json.loads(
-        (tmp_path / "plain" / label / "run.json").read_text())
+    # the pacing changes no file but timings.csv, and an unpaced run records none
+    assert folder_contents(tmp_path / "paced") == folder_contents(tmp_path / "plain")
+    assert "real_time" not in json.loads(run.read_text())
+    (plain,) = read_timings(tmp_path / "plain" / TIMINGS).values()
+    assert "real_time" not in plain and plain["wall_time_s"] > 0
 
 
 def test_pacer_deadlines_are_absolute():
@@ -61,6 +65,7 @@ def test_pacer_deadlines_are_absolute():
     for k in range(10):
         paced(k * 0.05)
     report = pacer.report()
+    assert tuple(report) == REAL_TIME_FIELDS  # timings.csv's columns
     assert done == [k * 0.05 for k in range(10)]
     assert report["steps"] == 10 and report["overruns"] >= 1
     assert report["max_lateness_s"] >= 0.15

@@ -2,15 +2,14 @@
 are unchanged are kept, the others run again, and the folder is the one a run from
 scratch writes.
 
-"The same folder" is checked file by file (every file, same names, same bytes) except
-the wall times, which differ between any two runs: ``wall_time_s`` of each run.json
-(a reused run keeps the one it was measured with) and the wall-time column of
-index.html's run table.
+"The same folder" is checked file by file: every file, same names, same bytes, but for
+timings.csv, the one file of measured times (a reused run keeps its row of it).
 """
 
+import csv
 import json
+import math
 import os
-import re
 import shutil
 import signal
 import subprocess
@@ -24,6 +23,7 @@ from processes import GUARD, Collected, wait_until
 
 from agv_cosim import cli
 from agv_cosim.pipeline import execute, prepare
+from agv_cosim.report.records import TIMING_COLUMNS, TIMINGS, read_timings, write_timings
 
 #: two variants (the second with its own copy of the gain FMU) x two sweep points
 VARIANTS = """
@@ -38,27 +38,14 @@ parameters = {{ k = 5.0 }}
 signals = ["int.y", "gain.y"]
 """
 
-#: index.html's wall-time cell (the one before the run's links)
-WALL_CELL = re.compile(r"<td[^>]*>[^<]*</td>(?=<td class=files>)")
-
 
 def folder_contents(root):
-    """Relative path -> content of every file under ``root``, wall times left out."""
+    """Relative path -> bytes of every file under ``root`` but timings.csv (which must
+    be there)."""
     root = Path(root)
-    found = {}
-    for path in sorted(root.rglob("*")):
-        if path.is_dir():
-            continue
-        data = path.read_bytes()
-        if path.name == "run.json":
-            record = json.loads(data)
-            assert isinstance(record.pop("wall_time_s"), (float, type(None)))
-            data = json.dumps(record, sort_keys=True).encode()
-        elif path.name == "index.html":
-            data, cells = WALL_CELL.subn("", data.decode())
-            assert cells == sum(1 for p in root.iterdir() if (p / "run.json").is_file())
-        found[str(path.relative_to(root))] = data
-    return found
+    assert (root / TIMINGS).is_file()
+    return {str(path.relative_to(root)): path.read_bytes()
+            for path in sorted(root.rglob("*")) if path.is_file() and path.name != TIMINGS}
 
 
 def assert_same_folder(resumed, clean):
@@ -67,6 +54,61 @@ def assert_same_folder(resumed, clean):
     for name in theirs:
         assert mine[name] == theirs[name], name
     return len(theirs)
+
+
+#: a sweep of three runs with metrics, the figures and a Monte Carlo-free summary
+CLEAN = """
+[sweep]
+"gain.k" = [1.0, 2.0, 4.0]
+[metrics]
+lateral_error = "int.y"
+[plots]
+signals = ["int.y", "gain.y"]
+"""
+
+
+def test_two_clean_runs_differ_only_in_timings_csv(chain, tmp_path, capsys):
+    """No file of a result folder but timings.csv holds a time: two runs of the same
+    manifest write the same bytes; timings.csv has one row per run, its wall time."""
+    path = chain(extra=CLEAN, step=0.01)
+    first, second = tmp_path / "first", tmp_path / "second"
+    for out in (first, second):
+        assert cli.main(["run", str(path), "--out", str(out), "--quiet", "--jobs", "2",
+                         "--no-init"]) == 0
+    count = assert_same_folder(first, second)
+    runs = sorted(p.parent.name for p in first.glob("*/run.json"))
+    assert len(runs) == 3
+    # 3 x (timeseries, metrics, run) + summary.csv, .agv-cosim, index.html, its record
+    assert count == 3 * 3 + 4 + len(list(first.glob("*.png")))
+    page = (first / "index.html").read_text()
+    assert f'href="{TIMINGS}"' in page and "<th>wall time" not in page
+    for out in (first, second):
+        with open(out / TIMINGS, newline="") as stream:
+            rows = list(csv.DictReader(stream))
+        assert tuple(rows[0]) == TIMING_COLUMNS
+        assert sorted(row["run"] for row in rows) == runs
+        for row in rows:
+            wall = float(row["wall_time_s"])
+            assert math.isfinite(wall) and wall >= 0, row
+            assert not any(row[k] for k in TIMING_COLUMNS[2:]), row  # not paced
+        assert "wall_time_s" not in (out / runs[0] / "run.json").read_text()
+
+
+def test_timings_csv_reads_back_as_written(tmp_path):
+    """A reused run's row of timings.csv is written again as it was read."""
+    paced = {"target": 2.0, "achieved": 1.9993, "overruns": 3, "max_lateness_s": 0.0125,
+             "steps": 200, "wall_s": 1.0003}
+    results = [{"label": "a", "wall_time_s": 0.1 + 0.2},
+               {"label": "b,\"c", "wall_time_s": 1.5, "real_time": paced},
+               {"label": "d"}]
+    write_timings(tmp_path / "one.csv", results)
+    read = read_timings(tmp_path / "one.csv")
+    assert read == {"a": {"wall_time_s": 0.1 + 0.2},
+                    "b,\"c": {"wall_time_s": 1.5, "real_time": paced},
+                    "d": {"wall_time_s": None}}
+    write_timings(tmp_path / "two.csv", [{"label": k, **v} for k, v in read.items()])
+    assert (tmp_path / "two.csv").read_bytes() == (tmp_path / "one.csv").read_bytes()
+    assert read_timings(tmp_path / "missing.csv") == {}
 
 
 def _run(path, out, resume=True):
@@ -89,8 +131,7 @@ def test_resume_reruns_only_the_runs_a_change_affects(variants, tmp_path):
     out = tmp_path / "out"
     first = _run(path, out, resume=False)
     assert len(first) == 4 and not any(first.values())
-    # nothing changed: every run kept, the folder as it was (but for index.html's
-    # wall times, now the same as before, and run.json: the same bytes)
+    # nothing changed: every run kept, the folder as it was, timings.csv included
     before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
     assert all(_run(path, out).values())
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
@@ -193,7 +234,13 @@ def test_sweep_killed_by_sigterm_then_resumed_equals_a_clean_run(chain, fmus, tm
     assert 1 <= complete < 4 and "interrupted" in statuses, statuses
     kept = next(p.parent for p in out.glob("*/run.json")
                 if json.loads(p.read_text())["status"] == "complete")
-    kept_json = (kept / "run.json").read_bytes()
+    partial_timings = read_timings(out / TIMINGS)
+    kept_timing = partial_timings[kept.name]
+    assert kept_timing["wall_time_s"] >= 0
+    # the run under way has the time until it was stopped; a run not started, none
+    walls = [partial_timings[line.split(",")[0]]["wall_time_s"]
+             for line in (out / "summary.csv").read_text().splitlines()[1:]]
+    assert [w is not None for w in walls] == [s != "not run" for s in statuses], walls
 
     resumed = subprocess.run(command + ["--resume"], env=env, capture_output=True,
                              text=True, timeout=GUARD)
@@ -201,7 +248,9 @@ def test_sweep_killed_by_sigterm_then_resumed_equals_a_clean_run(chain, fmus, tm
     assert (f"agv-cosim: resume: reused {complete} of 4 run(s) of {out}; running "
             f"{4 - complete}") in resumed.stderr
     assert not (out / "partial.txt").exists()
-    assert (kept / "run.json").read_bytes() == kept_json  # its wall time too
+    timings = read_timings(out / TIMINGS)
+    assert timings[kept.name] == kept_timing  # the time it was measured with
+    assert sorted(timings) == sorted(p.parent.name for p in out.glob("*/run.json"))
 
     clean = tmp_path / "clean"
     finished = subprocess.run([*command[:6], str(clean), *command[7:]], env=env,

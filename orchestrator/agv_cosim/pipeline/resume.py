@@ -9,8 +9,9 @@ hash (so that a change to one run's parameters reruns that run only), and its
 ``timeseries.csv`` (and ``output.txt``) is hard-linked (copied across file systems) into
 the new folder, its metrics are computed again from that file as a run computes them
 (so a changed ``[metrics]`` table applies), and its run.json is written again from the
-job, keeping the wall time it was measured with: the folder is then the one an
-uninterrupted run writes, but for the wall times of the reused runs.
+job. Its row of the earlier ``timings.csv`` (wall time, pacing) is kept in the new one.
+The folder is then the one an uninterrupted run writes, byte for byte, but for
+``timings.csv``, the one file that holds measured times.
 
 The earlier folder must be ours (its marker, :func:`agv_cosim.files.marker_data`) and
 written for a manifest of the same name; it is read, never changed: the new folder
@@ -28,7 +29,7 @@ from ..errors import OutputError
 from ..files import marker_data
 from ..manifest import Manifest
 from ..report import metrics
-from ..report.records import RunResult, recorded_inputs, write_run_files
+from ..report.records import TIMINGS, RunResult, read_timings, recorded_inputs, write_run_files
 from ..system import Job
 from ..timeseries import count_rows
 
@@ -117,11 +118,13 @@ def reuse_runs(target: str | Path, manifest: Manifest, jobs: list[Job],
                root: Path) -> dict[int, RunResult]:
     """Put every reusable run of the result folder ``target`` into the new folder
     ``root`` (see the module docstring); return their results by job index (each with
-    ``reused`` true)."""
+    ``reused`` true, and the ``wall_time_s`` and ``real_time`` of its earlier row of
+    timings.csv)."""
     previous = _previous(Path(os.path.abspath(target)), manifest)
     found: dict[int, RunResult] = {}
     if previous is None:
         return found
+    timings = read_timings(previous / TIMINGS)
     for index, job in enumerate(jobs):
         old = previous / job.label
         record = _complete_run(old, job)
@@ -141,11 +144,13 @@ def reuse_runs(target: str | Path, manifest: Manifest, jobs: list[Job],
                                                           base_dir=job.manifest_dir))
             except Exception as failure:  # noqa: BLE001 - reported in run.json
                 metrics_error = f"{type(failure).__name__}: {failure}"
-        wall = record.get("wall_time_s")
-        result = write_run_files(job, run_dir, rows, "complete", None,
-                                 wall if isinstance(wall, (int, float)) else None,
-                                 values, metrics_error, record.get("ended_by"))
+        result = write_run_files(job, run_dir, rows, "complete", None, values,
+                                 metrics_error, record.get("ended_by"))
         result["csv_bytes"] = (run_dir / "timeseries.csv").stat().st_size
         result["reused"] = True
+        timing = timings.get(job.label, {})
+        result["wall_time_s"] = timing.get("wall_time_s")
+        if "real_time" in timing:
+            result["real_time"] = timing["real_time"]
         found[index] = result
     return found

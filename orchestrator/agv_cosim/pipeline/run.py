@@ -7,23 +7,28 @@ processes (:mod:`.pool`; up to ``workers`` at once) or on a Dask cluster
 
     DIR/<run label>/timeseries.csv   time, then component.variable (csv module; repr floats)
     DIR/<run label>/metrics.json     metrics of the run (agv_cosim.report.metrics)
-    DIR/<run label>/run.json         hashes, parameters, versions, wall time, status, and
-                                     the run's inputs with their SHA-256
+    DIR/<run label>/run.json         hashes, parameters, versions, status, and the run's
+                                     inputs with their SHA-256
     DIR/<run label>/output.txt       what the run's process printed (only if it did)
     DIR/summary.csv                  one row per run: label, status, sweep values, metrics
+    DIR/timings.csv                  one row per run: label, wall time, real-time pacing
+                                     (agv_cosim.report.records.TIMING_COLUMNS)
     DIR/*.png                        the runs overlaid (agv_cosim.report.plots)
     DIR/montecarlo.json, .png        with [montecarlo] (agv_cosim.report.montecarlo)
+    DIR/index.html                   the report (agv_cosim.report.page)
     DIR/partial.txt                  only in a folder kept after an interruption
 
 A run's status is ``complete``, ``partial`` (rows recorded, then a failure), ``failed``,
 ``timed out`` (stopped at its wall-clock limit), ``interrupted`` (under way when a
 signal came) or ``not run``.
 
-Each run is independent and deterministic, so the parallel and the serial results are
-byte-identical. With ``resume`` the complete runs of an earlier ``DIR`` whose inputs are
+Each run is independent and deterministic, and no file but ``timings.csv`` holds a
+measurement of time, a date or anything else of the machine's timing: every other file
+is byte-identical between two runs of the same manifest, FMUs and seeds, parallel or
+serial. With ``resume`` the complete runs of an earlier ``DIR`` whose inputs are
 unchanged are kept instead of run again (:mod:`.resume`); with ``real_time`` the one run
-is paced to the wall clock (:class:`~agv_cosim.execution.Pacer`; run.json's
-``real_time`` says how it went). ``DIR`` is assembled under a temporary name and
+is paced to the wall clock (:class:`~agv_cosim.execution.Pacer`; its row of timings.csv
+says how it went). ``DIR`` is assembled under a temporary name and
 renamed into place; on SIGINT, SIGTERM or SIGHUP it is renamed into place marked partial
 when any run has rows.
 """
@@ -40,7 +45,7 @@ from ..files import AtomicDir, printable, write_summary, write_text
 from ..manifest import Manifest
 from ..report import montecarlo, plots
 from ..report.page import write_report_quietly
-from ..report.records import RunResult, summary_rows
+from ..report.records import TIMINGS, RunResult, summary_rows, write_timings
 from ..system import Job
 from .distributed import run_on_dask
 from .pool import run_isolated
@@ -81,12 +86,14 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
     resume : bool
         Keep every complete run of the result folder ``out_dir`` whose inputs are
         unchanged, run the others (:mod:`.resume`); the folder written is the one a
-        run without ``resume`` writes, but for the reused runs' wall times. Raises
+        run without ``resume`` writes but for timings.csv (whose rows of the reused runs
+        are the earlier ones). Raises
         :class:`~agv_cosim.errors.OutputError` when ``out_dir`` is not ours or of
         another manifest, or with ``overwrite``.
     real_time : float, optional
         Pace the one run at this real-time factor (:class:`~agv_cosim.execution.Pacer`;
-        1 is the wall clock); its result's and run.json's ``real_time`` say how it went.
+        1 is the wall clock); its result's ``real_time`` and its row of timings.csv
+        say how it went.
         Refused (:func:`check_options`) for more than one run, or with ``dask`` or
         ``resume``.
 
@@ -218,8 +225,10 @@ def progress_bar() -> type:
 
 
 def _write_summary(folder: AtomicDir, results: list[RunResult]) -> None:
+    """summary.csv and timings.csv of ``results``."""
     assert folder.path is not None
     write_summary(folder.path / "summary.csv", summary_rows(results))
+    write_timings(folder.path / TIMINGS, results)
 
 
 def _checked_files(job: Job, result: RunResult, root: str | Path) -> RunResult:
