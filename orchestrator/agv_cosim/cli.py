@@ -261,7 +261,10 @@ def make_parser() -> argparse.ArgumentParser:
                          parents=[selection, debug],
                          description="Run every variant x sweep point of a manifest and "
                                      "write DIR/<run>/{timeseries.csv,metrics.json,run.json}, "
-                                     "DIR/summary.csv and plots. Exit 0 if all runs are "
+                                     "DIR/summary.csv, plots, index.html and "
+                                     "DIR/timings.csv (the wall times: the only file "
+                                     "that differs between two runs of a manifest). "
+                                     "Exit 0 if all runs are "
                                      "complete, 1 if any failed or is partial, 2 on bad "
                                      "input.",
                          epilog="Monte Carlo: with a [montecarlo] table (samples, seed, "
