@@ -3,7 +3,7 @@
 Two measurements, both in one invocation, each comparing the same manifest run locally
 and on a local Dask cluster (a scheduler and ``--workers`` stock ``dask worker``
 processes, one thread each, under a nanny, no ``DASK_*`` setting), the result folders
-compared file by file (``run.json`` without its wall time):
+compared file by file (but ``timings.csv``, the wall times):
 
 sweep
     ``experiments/seed000_models_abc.toml`` variant ``a`` (5 FMUs), ``stop`` = one step
@@ -195,14 +195,17 @@ def _command(args, cluster, on_cluster=False):
 
 
 def _files(root):
+    """The CSV and JSON files of a result folder but timings.csv (the wall times); a
+    run.json without ``wall_time_s`` (which code before timings.csv wrote, ``--code``)."""
     out = {}
     for path in sorted(Path(root).rglob("*")):
-        if path.is_file() and path.suffix in (".csv", ".json"):
+        if path.is_file() and path.suffix in (".csv", ".json") and path.name != "timings.csv":
             data = path.read_bytes()
-            if path.name == "run.json":  # the machine's own: wall time
+            if path.name == "run.json":
                 info = json.loads(data)
-                info.pop("wall_time_s")
-                data = json.dumps(info, sort_keys=True).encode()
+                if "wall_time_s" in info:
+                    info.pop("wall_time_s")
+                    data = json.dumps(info, sort_keys=True).encode()
             out[path.relative_to(root).as_posix()] = data
     return out
 

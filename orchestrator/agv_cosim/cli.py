@@ -67,6 +67,19 @@ def _warn(warnings: list[str], quiet: bool = False) -> None:
         _say(f"agv-cosim: warning: {warning}")
 
 
+def _factor(text):
+    """``--real-time``: a positive, finite factor."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive, finite factor")
+    return value
+
+
 def _timeout(text):
     """``--timeout``: a positive, finite number of seconds."""
     import math
@@ -105,25 +118,30 @@ def _kept(error):
 
 
 def _cmd_run(args):
-    from .pipeline import execute, prepare
+    from .pipeline import check_options, default_out_dir, execute, prepare, reusable
 
     if args.jobs is not None and args.jobs < 1:
         return _error("--jobs: must be >= 1")
     manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set,
                                        timeout=args.timeout)
     _warn(warnings)
+    check_options(jobs, args.overwrite, args.dask, args.resume, args.real_time)
     if not args.no_init and args.dask is None:  # what validate checks, before any run
         from .pipeline import INIT_TIMEOUT, check_initialisation
 
         # the runs' wall-clock limit bounds a run, not this check (whose child process
         # also starts up in it): at least validate's default
         limit = max(args.timeout or manifest.timeout or 0.0, INIT_TIMEOUT)
-        check_initialisation(manifest, jobs, limit)
+        kept = set(reusable(args.out or default_out_dir(manifest), manifest, jobs)
+                   if args.resume else ())
+        check_initialisation(manifest, [j for i, j in enumerate(jobs) if i not in kept],
+                             limit)
     from .errors import ClusterError
 
     try:
         target, results = execute(manifest, jobs, args.out, args.jobs, args.quiet,
-                                  overwrite=args.overwrite, dask=args.dask)
+                                  overwrite=args.overwrite, dask=args.dask,
+                                  resume=args.resume, real_time=args.real_time)
     except ClusterError as error:
         kept = _kept(error)
         _say(f"agv-cosim: error: {error}" + (f"; {kept}" if kept else ""))
@@ -145,7 +163,19 @@ def _cmd_run(args):
             print(table)
         print(printable(f"{target}: {len(results) - len(bad)}/{len(results)} run(s) "
                         "complete"))
+    for result in results:
+        if "real_time" in result and not result.get("reused"):
+            print(_paced(result["real_time"]))
     return 1 if bad or unmeasured else 0
+
+
+def _paced(report):
+    """One line on a paced run: target and achieved factor, overruns, max lateness."""
+    achieved = report["achieved"]
+    return (f"real time: target x{report['target']:g}, achieved "
+            + ("-" if achieved is None else f"x{achieved:.5g}")
+            + f" over {report['steps']} step(s); {report['overruns']} overrun(s), max "
+              f"lateness {report['max_lateness_s'] * 1000:.3g} ms")
 
 
 def _cmd_report(args):
@@ -231,9 +261,19 @@ def make_parser() -> argparse.ArgumentParser:
                          parents=[selection, debug],
                          description="Run every variant x sweep point of a manifest and "
                                      "write DIR/<run>/{timeseries.csv,metrics.json,run.json}, "
-                                     "DIR/summary.csv and plots. Exit 0 if all runs are "
+                                     "DIR/summary.csv, plots, index.html and "
+                                     "DIR/timings.csv (the wall times: the only file "
+                                     "that differs between two runs of a manifest). "
+                                     "Exit 0 if all runs are "
                                      "complete, 1 if any failed or is partial, 2 on bad "
-                                     "input.")
+                                     "input.",
+                         epilog="Monte Carlo: with a [montecarlo] table (samples, seed, "
+                                "design random/sobol/lhs, parameters drawn from normal, "
+                                "uniform, truncnormal or choice distributions, derived "
+                                "seeds) each variant runs once per sample, and "
+                                "DIR/montecarlo.json and its figures summarise the "
+                                "metrics over the samples. Every key of a manifest: "
+                                "docs/manifest.md.")
     run.add_argument("--out", metavar="DIR",
                      help="output folder (default: results/<manifest name>)")
     run.add_argument("--quiet", action="store_true", help="no progress bars or summary")
@@ -255,6 +295,17 @@ def make_parser() -> argparse.ArgumentParser:
                           "instantiated and initialised once with each run's parameters, "
                           "as validate does (skipped with --dask: the FMUs run on the "
                           "cluster's machines)")
+    run.add_argument("--resume", action="store_true",
+                     help="DIR is a result folder of an earlier run of this manifest "
+                          "(complete, interrupted or with failed runs): keep each of its "
+                          "complete runs whose inputs are unchanged, run the others "
+                          "(the same folder as a run from scratch, byte for byte, but "
+                          "for timings.csv, the one file of measured times)")
+    run.add_argument("--real-time", type=_factor, metavar="FACTOR",
+                     help="pace the run so that simulated time advances at FACTOR x "
+                          "wall-clock time (1: real time; one run only, not with --dask); "
+                          "overruns and the achieved factor go to timings.csv and the "
+                          "terminal; results are the same as unpaced")
     run.set_defaults(func=_cmd_run)
 
     check = sub.add_parser("validate", help="check a manifest against its FMUs, run nothing",

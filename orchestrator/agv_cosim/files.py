@@ -59,7 +59,12 @@ def write_json(path: str | Path, data: Any, replace: bool = False) -> None:
     if replace:
         Path(path).unlink(missing_ok=True)
     with create_file(path) as stream:
-        stream.write(json.dumps(_json_safe(data), indent=1, sort_keys=True) + "\n")
+        stream.write(json_text(data))
+
+
+def json_text(data: Any) -> str:
+    """``data`` as :func:`write_json` writes it (indented, keys sorted, NaN/inf as null)."""
+    return json.dumps(_json_safe(data), indent=1, sort_keys=True) + "\n"
 
 
 def write_text(path: str | Path, text: str) -> None:
@@ -271,13 +276,18 @@ class AtomicDir:
       (:meth:`intact`) and raises :class:`FolderLost` when it was removed or replaced.
 
     ``commit()`` replaces ``target``; ``mark_partial()`` before it marks the folder as
-    holding only part of the runs; ``discard()`` deletes the temporary folder. Used as a
+    holding only part of the runs; ``discard()`` deletes the temporary folder. ``about``
+    goes into the folder's marker (:func:`marker_data`; the pipeline records the
+    manifest's name, which ``--resume`` checks, and its hash there). Used as a
     context manager it discards on an exception and always releases the lock.
     """
 
-    def __init__(self, target: str | Path, overwrite: bool = False) -> None:
+    def __init__(self, target: str | Path, overwrite: bool = False,
+                 about: dict[str, Any] | None = None) -> None:
         self.target = Path(os.path.abspath(target))
         self.overwrite = overwrite
+        #: written into the folder's marker besides tool and version (e.g. the manifest)
+        self.about = dict(about or {})
         self.lock: FolderLock | None = None
         self.path: Path | None = None
         self.identity: tuple[int, int] | None = None
@@ -301,7 +311,7 @@ class AtomicDir:
                                                   dir=parent))
                 info = os.lstat(self.path)
                 self.identity = (info.st_dev, info.st_ino)
-                _write_marker(self.path)
+                _write_marker(self.path, **self.about)
             except OSError as error:
                 raise OutputError(f"{target}: cannot write here: {error.strerror}") from None
             os.chmod(self.path, user_mode())
@@ -359,7 +369,7 @@ class AtomicDir:
         """Mark the folder as holding only part of the runs: the marker says so
         (``complete: false`` and ``reason``) and ``partial.txt`` says it in words."""
         assert self.path is not None, "the folder was committed or discarded"
-        _write_marker(self.path, complete=False, reason=reason,
+        _write_marker(self.path, **self.about, complete=False, reason=reason,
                       runs_complete=complete, runs=total)
         write_text(self.path / "partial.txt",
                    f"partial result: {reason}; {complete} of {total} run(s) complete "

@@ -8,12 +8,14 @@ of parts as in libcosim.
 - :mod:`.scenario`: the events, applied at their communication points;
 - :mod:`.observers`: what takes each recorded row and the progress (CSV, callbacks);
 - :mod:`.fastpath`: the opt-in generated per-step functions (the same calls);
+- :mod:`.pacing`: the opt-in real-time pacing of the steps (the same results);
 - :mod:`.simulation`: :func:`simulate`, the composition.
 """
 
 from .observers import CsvObserver, Observer, ProgressObserver, RowObserver
+from .pacing import Pacer
 from .simulation import Outcome, simulate
 from .track import PHASES, describe_track
 
-__all__ = ["PHASES", "CsvObserver", "Observer", "Outcome", "ProgressObserver",
+__all__ = ["PHASES", "CsvObserver", "Observer", "Outcome", "Pacer", "ProgressObserver",
            "RowObserver", "describe_track", "simulate"]

@@ -24,6 +24,7 @@ from ..system.model import ModelInfo
 from .algorithm import Algorithm, Stepper, StopRequest, algorithm_for
 from .instance import FmuInstance
 from .observers import Observer
+from .pacing import Pacer
 from .scenario import Scenario
 from .track import INITIALISATION, INSTANTIATION, PHASES, PROPAGATION, Track
 from .units import Unit, build_units, enter_initialisation
@@ -102,11 +103,11 @@ def _reached(request: StopRequest, t: float) -> bool:
 
 def _loop(system: System, algorithm: Algorithm, stepper: Stepper, scenario: Scenario,
           record: Callable[[float], None], progress: list[Callable[[int], None]],
-          track: Track) -> Outcome:
+          track: Track, pace: Pacer | None = None) -> Outcome:
     """The communication points after the first: step, events, exchange, record."""
     h, start, steps, every = system.step, system.start, system.steps, system.record_every
     requests = stepper.requests
-    step = stepper.step
+    step = stepper.step if pace is None else pace.wrap(stepper.step, h)
     done = 0
     outcome = Outcome(rows=0)
     for k in range(steps):
@@ -142,7 +143,7 @@ def _loop(system: System, algorithm: Algorithm, stepper: Stepper, scenario: Scen
 def simulate(system: System, observers: Iterable[Observer] = (), *,
              track: Track | None = None,
              on_message: Callable[[str, int, str], None] | None = None,
-             fast: bool = False) -> Outcome:
+             fast: bool = False, pace: Pacer | None = None) -> Outcome:
     """Run one co-simulation.
 
     Parameters
@@ -160,6 +161,9 @@ def simulate(system: System, observers: Iterable[Observer] = (), *,
     fast : bool
         Step with the generated functions of :mod:`agv_cosim.execution.fastpath`
         instead of the reference loops (the same calls; bit-identical results).
+    pace : Pacer, optional
+        Hold the macro steps to a real-time factor (:mod:`.pacing`; the results are
+        unchanged); its :meth:`~.pacing.Pacer.report` then says how it went.
 
     Returns
     -------
@@ -199,7 +203,7 @@ def simulate(system: System, observers: Iterable[Observer] = (), *,
             scenario.apply(0)
         algorithm.start(system.start, recorder.record)
         outcome = _loop(system, algorithm, stepper, scenario, recorder.record, progress,
-                        track)
+                        track, pace)
         outcome.rows = recorder.rows
         return outcome
     except FMICallException as error:

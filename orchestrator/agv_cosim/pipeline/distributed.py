@@ -29,7 +29,8 @@ What a task does on a worker (:func:`run_remote`):
    reference path, are on the client), with the same function as a local run.
 
 Results are byte-identical to a local run (timeseries.csv, metrics.json, summary.csv);
-``run.json`` differs only where it records the machine (wall time, versions).
+``run.json`` differs only where it records the machine (package versions), and
+timings.csv holds the wall times measured on the workers.
 
 Workers need the project installed in the same Python environment as the client (same
 versions of agv-cosim, numpy, scipy, pythonfmu); stock ``dask worker ADDRESS`` processes

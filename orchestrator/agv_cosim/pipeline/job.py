@@ -7,7 +7,7 @@ from pathlib import Path
 
 from .. import fmitypes
 from ..errors import SimulationError
-from ..execution import CsvObserver, Observer, ProgressObserver, simulate
+from ..execution import CsvObserver, Observer, Pacer, ProgressObserver, simulate
 from ..execution.track import Track
 from ..report import metrics
 from ..report.records import RunResult, write_run_files
@@ -27,7 +27,10 @@ def run_job(job: Job, run_dir: str | Path, progress: Callable[[int], None] | Non
     rows recorded, then a failure) or ``failed`` (nothing recorded). ``track``,
     ``on_message`` and ``fast`` are passed to :func:`~agv_cosim.execution.simulate`
     (``fast``: its generated per-step functions). ``csv_bytes`` in the result is the
-    size of the ``timeseries.csv`` written.
+    size of the ``timeseries.csv`` written, ``wall_time_s`` the run's wall time (of the
+    simulation with its time series written). A job with ``real_time`` is paced at
+    that factor (:class:`~agv_cosim.execution.Pacer`); ``real_time`` in the result is then
+    the pacer's report. The timings are in the result only, never in the run's files.
     """
     run_dir = Path(run_dir)
     run_dir.mkdir(exist_ok=True)  # never its parents: a removed result folder stays gone
@@ -39,10 +42,11 @@ def run_job(job: Job, run_dir: str | Path, progress: Callable[[int], None] | Non
     if progress is not None:
         observers.append(ProgressObserver(progress))
     error, ended_by = None, None
+    pace = None if job.real_time is None else Pacer(job.real_time, job.plan.start)
     begin = time.perf_counter()
     try:
         outcome = simulate(job.plan, observers, track=track, on_message=on_message,
-                           fast=fast)
+                           fast=fast, pace=pace)
         ended_by = outcome.ended_by
     except SimulationError as failure:
         error = str(failure)
@@ -65,7 +69,10 @@ def run_job(job: Job, run_dir: str | Path, progress: Callable[[int], None] | Non
                                                       base_dir=job.manifest_dir))
         except Exception as failure:  # noqa: BLE001 - reported in run.json
             metrics_error = f"{type(failure).__name__}: {failure}"
-    result = write_run_files(job, run_dir, rows, status, error, wall, values,
-                             metrics_error, ended_by)
+    result = write_run_files(job, run_dir, rows, status, error, values, metrics_error,
+                             ended_by)
     result["csv_bytes"] = sink.bytes
+    result["wall_time_s"] = wall
+    if pace is not None:
+        result["real_time"] = pace.report()
     return result

@@ -142,8 +142,7 @@ def _ended(job: Job, run_dir: str | Path, status: str | None, how: str, track: T
             metrics_error = f"{type(failure).__name__}: {failure}"
     try:
         run_dir.mkdir(exist_ok=True)  # not its parents: a removed result folder stays gone
-        return write_run_files(job, run_dir, rows, status, error, None, values,
-                               metrics_error)
+        return write_run_files(job, run_dir, rows, status, error, values, metrics_error)
     except OSError:  # the result folder is gone: the result only
         return run_result(job, status, rows=rows, error=error)
 
@@ -190,14 +189,16 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
     workers are stopped, the runs under way reported ``interrupted`` and the waiting
     ones ``not run``; the exception is re-raised with those results (``.results``) and
     the termination signals ignored until ``.restore()`` is called, so that the caller
-    can keep what was done.
+    can keep what was done. A run whose process ended before it reported has the time
+    from handing it out to its end as its ``wall_time_s``.
     """
     context = get_context("forkserver")
     context.set_forkserver_preload(list(FORKSERVER_PRELOAD))
     results: list[RunResult | None] = [None] * len(jobs)
     last_message = [None] * len(jobs)
     waiting = list(range(len(jobs)))
-    #: each: dict(process, send, frames, output, scratch, track, index, deadline)
+    #: each: dict(process, send, frames, output, scratch, track, index, deadline,
+    #: started: when its run was handed out, the wall time of a run it does not report)
     pool: list[dict[str, Any]] = []
     # closes when this process ends, however: each worker's guard then ends its group
     life_reader, life_writer = context.Pipe(duplex=False)
@@ -217,7 +218,7 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
             end.close()
         worker = {"process": process, "send": job_writer, "frames": Frames(reader),
                   "output": OutputLog(out_reader), "scratch": scratch, "track": track,
-                  "index": None, "deadline": None}
+                  "index": None, "deadline": None, "started": None}
         pool.append(worker)
         return worker
 
@@ -225,7 +226,8 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         index = waiting.pop(0)
         worker["index"] = index
         job = jobs[index]
-        worker["deadline"] = time.monotonic() + job.timeout if job.timeout else None
+        worker["started"] = time.monotonic()
+        worker["deadline"] = worker["started"] + job.timeout if job.timeout else None
         worker["output"].attach(root / job.label)
         try:
             worker["send"].send((job, root / job.label))
@@ -246,6 +248,7 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
             results[index] = _ended(job, root / job.label, status,
                                     how or _process_end(process.exitcode),
                                     worker["track"], last_message[index])
+            results[index]["wall_time_s"] = time.monotonic() - worker["started"]
             on_done()
         worker["output"].close()
         worker["send"].close()

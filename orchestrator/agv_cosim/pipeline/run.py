@@ -7,41 +7,52 @@ processes (:mod:`.pool`; up to ``workers`` at once) or on a Dask cluster
 
     DIR/<run label>/timeseries.csv   time, then component.variable (csv module; repr floats)
     DIR/<run label>/metrics.json     metrics of the run (agv_cosim.report.metrics)
-    DIR/<run label>/run.json         hashes, parameters, versions, wall time, status, and
-                                     the run's inputs with their SHA-256
+    DIR/<run label>/run.json         hashes, parameters, versions, status, and the run's
+                                     inputs with their SHA-256
     DIR/<run label>/output.txt       what the run's process printed (only if it did)
     DIR/summary.csv                  one row per run: label, status, sweep values, metrics
+    DIR/timings.csv                  one row per run: label, wall time, real-time pacing
+                                     (agv_cosim.report.records.TIMING_COLUMNS)
     DIR/*.png                        the runs overlaid (agv_cosim.report.plots)
     DIR/montecarlo.json, .png        with [montecarlo] (agv_cosim.report.montecarlo)
+    DIR/index.html                   the report (agv_cosim.report.page)
     DIR/partial.txt                  only in a folder kept after an interruption
 
 A run's status is ``complete``, ``partial`` (rows recorded, then a failure), ``failed``,
 ``timed out`` (stopped at its wall-clock limit), ``interrupted`` (under way when a
 signal came) or ``not run``.
 
-Each run is independent and deterministic, so the parallel and the serial results are
-byte-identical. ``DIR`` is assembled under a temporary name and renamed into place; on
-SIGINT, SIGTERM or SIGHUP it is renamed into place marked partial when any run has rows.
+Each run is independent and deterministic, and no file but ``timings.csv`` holds a
+measurement of time, a date or anything else of the machine's timing: every other file
+is byte-identical between two runs of the same manifest, FMUs and seeds, parallel or
+serial. With ``resume`` the complete runs of an earlier ``DIR`` whose inputs are
+unchanged are kept instead of run again (:mod:`.resume`); with ``real_time`` the one run
+is paced to the wall clock (:class:`~agv_cosim.execution.Pacer`; its row of timings.csv
+says how it went). ``DIR`` is assembled under a temporary name and
+renamed into place; on SIGINT, SIGTERM or SIGHUP it is renamed into place marked partial
+when any run has rows.
 """
 
 import os
 import sys
 from collections.abc import Iterable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from ..errors import FolderLost
+from ..errors import FolderLost, OutputError
 from ..files import AtomicDir, printable, write_summary, write_text
 from ..manifest import Manifest
 from ..report import montecarlo, plots
 from ..report.page import write_report_quietly
-from ..report.records import RunResult, summary_rows
+from ..report.records import TIMINGS, RunResult, summary_rows, write_timings
 from ..system import Job
 from .distributed import run_on_dask
 from .pool import run_isolated
 from .prepare import prepare
+from .resume import check_resumable, reuse_runs
 
-__all__ = ["default_out_dir", "execute", "progress_bar", "run_manifest"]
+__all__ = ["check_options", "default_out_dir", "execute", "progress_bar", "run_manifest"]
 
 
 def default_out_dir(manifest: Manifest) -> Path:
@@ -51,7 +62,8 @@ def default_out_dir(manifest: Manifest) -> Path:
 
 def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = None,
             workers: int | None = None, quiet: bool = False, overwrite: bool = False,
-            dask: str | None = None) -> tuple[Path, list[RunResult]]:
+            dask: str | None = None, resume: bool = False,
+            real_time: float | None = None) -> tuple[Path, list[RunResult]]:
     """Run ``jobs`` and write the output folder (see the module docstring).
 
     Parameters
@@ -71,6 +83,19 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         Address of a Dask scheduler (``tcp://HOST:PORT``): run the jobs on that cluster
         (see :mod:`agv_cosim.distributed`) instead of local processes; ``workers`` is
         then unused. Raises :class:`~agv_cosim.distributed.ClusterError`.
+    resume : bool
+        Keep every complete run of the result folder ``out_dir`` whose inputs are
+        unchanged, run the others (:mod:`.resume`); the folder written is the one a
+        run without ``resume`` writes but for timings.csv (whose rows of the reused runs
+        are the earlier ones). Raises
+        :class:`~agv_cosim.errors.OutputError` when ``out_dir`` is not ours or of
+        another manifest, or with ``overwrite``.
+    real_time : float, optional
+        Pace the one run at this real-time factor (:class:`~agv_cosim.execution.Pacer`;
+        1 is the wall clock); its result's ``real_time`` and its row of timings.csv
+        say how it went.
+        Refused (:func:`check_options`) for more than one run, or with ``dask`` or
+        ``resume``.
 
     Returns
     -------
@@ -78,15 +103,27 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         The output folder and one result dict per job (in job order).
     """
     out_dir = Path(out_dir) if out_dir else default_out_dir(manifest)
-    workers = workers or os.cpu_count() or 1
-    workers = max(1, min(workers, len(jobs)))
-    with AtomicDir(out_dir, overwrite=overwrite) as folder:
+    check_options(jobs, overwrite, dask, resume, real_time)
+    if real_time is not None:
+        jobs = [replace(job, real_time=real_time) for job in jobs]
+    if resume:  # before AtomicDir, whose refusal of a folder not ours speaks of replacing
+        check_resumable(out_dir, manifest)
+    about = {"manifest": manifest.name, "manifest_sha256": manifest.sha256}
+    with AtomicDir(out_dir, overwrite=overwrite, about=about) as folder:
         written = folder.path
         assert written is not None
-        total = sum(job.plan.steps for job in jobs)
+        reused = reuse_runs(folder.target, manifest, jobs, written) if resume else {}
+        todo = [job for i, job in enumerate(jobs) if i not in reused]
+        if resume and not quiet:
+            print(printable(f"agv-cosim: resume: reused {len(reused)} of {len(jobs)} "
+                            f"run(s) of {folder.target}; running {len(todo)}"),
+                  file=sys.stderr)
+        workers = max(1, min(workers or os.cpu_count() or 1, len(todo)))
+        total = sum(job.plan.steps for job in todo)
         bar = progress_bar()(total=total, desc=manifest.name, unit="step", delay=2.0, disable=quiet,
-                   file=sys.stderr, mininterval=0.5, postfix={"runs": f"0/{len(jobs)}"})
-        finished = 0
+                   file=sys.stderr, mininterval=0.5,
+                   postfix={"runs": f"{len(reused)}/{len(jobs)}"})
+        finished = len(reused)
 
         def run_done() -> None:
             nonlocal finished
@@ -94,15 +131,22 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
             bar.set_postfix(runs=f"{finished}/{len(jobs)}")
 
         try:
-            if dask:
-                results = run_on_dask(dask, jobs, written, bar.update, run_done)
+            if not todo:
+                ran = []
+            elif dask:
+                ran = run_on_dask(dask, todo, written, bar.update, run_done)
             else:
-                results = run_isolated(jobs, written, workers, bar.update, run_done)
+                ran = run_isolated(todo, written, workers, bar.update, run_done)
         except BaseException as stop:
             bar.close()  # before any message: the error is the last line on stderr
+            so_far = getattr(stop, "results", None)
+            if reused and so_far is not None:
+                setattr(stop, "results",  # noqa: B010 - read by _keep_partial, the CLI
+                        _merged(len(jobs), reused, so_far))
             _keep_partial(manifest, jobs, folder, stop)
             raise
         bar.close()
+        results = _merged(len(jobs), reused, ran)
         folder.check_intact()
         results = [_checked_files(job, result, written)
                    for job, result in zip(jobs, results)]
@@ -125,6 +169,35 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
                   file=sys.stderr)
         target = folder.commit()
     return target, results
+
+
+def check_options(jobs: list[Job], overwrite: bool = False, dask: str | None = None,
+                  resume: bool = False, real_time: float | None = None) -> None:
+    """Refuse options of :func:`execute` that do not go together
+    (:class:`~agv_cosim.errors.OutputError`, one line)."""
+    if resume and overwrite:
+        raise OutputError("--resume and --overwrite exclude each other (--resume keeps "
+                          "the complete runs of a result folder of ours, --overwrite "
+                          "replaces any folder)")
+    if real_time is None:
+        return
+    if not (real_time > 0 and real_time != float("inf")):
+        raise OutputError(f"--real-time: {real_time!r} must be a positive, finite factor")
+    if len(jobs) != 1:
+        raise OutputError(f"--real-time: paces one run; the manifest has {len(jobs)} "
+                          "(choose one with --variant, or a manifest without a sweep)")
+    if dask:
+        raise OutputError("--real-time: runs on this machine, not with --dask")
+    if resume:
+        raise OutputError("--real-time and --resume exclude each other")
+
+
+def _merged(count: int, reused: dict[int, RunResult],
+            ran: list[RunResult]) -> list[RunResult]:
+    """The results of all ``count`` jobs in job order: the reused ones by index, the
+    others from ``ran`` (in order)."""
+    others = iter(ran)
+    return [reused[i] if i in reused else next(others) for i in range(count)]
 
 
 def progress_bar() -> type:
@@ -171,8 +244,10 @@ def _in_kernel() -> bool:
 
 
 def _write_summary(folder: AtomicDir, results: list[RunResult]) -> None:
+    """summary.csv and timings.csv of ``results``."""
     assert folder.path is not None
     write_summary(folder.path / "summary.csv", summary_rows(results))
+    write_timings(folder.path / TIMINGS, results)
 
 
 def _checked_files(job: Job, result: RunResult, root: str | Path) -> RunResult:

@@ -1,8 +1,8 @@
 """Stage 5, the report: the results made of the runs' time series. :mod:`.metrics` (tracking
 metrics, streamed from ``timeseries.csv``), :mod:`.plots` (the runs overlaid),
 :mod:`.montecarlo` (``montecarlo.json`` and its figure), :mod:`.records` (``run.json``,
-``metrics.json``, ``summary.csv``), :mod:`.page` (``index.html``, the result folder's
-HTML report, and the figures that compare the runs). The time series file itself is
+``metrics.json``, ``summary.csv``, ``timings.csv``), :mod:`.page` (``index.html``, the
+result folder's HTML report, and the figures that compare the runs). The time series file itself is
 :mod:`agv_cosim.timeseries`; output folders are :mod:`agv_cosim.files`.
 """
 

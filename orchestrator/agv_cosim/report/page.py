@@ -10,7 +10,8 @@ run) and writes into it:
   and metrics (units in the headers; a table sorts by a click on its header), the
   Monte Carlo statistics, every figure, the paths, hashes and versions from run.json, and
   links to the raw files. One file with its style and script inline: it opens from disk
-  with no network.
+  with no network. It shows no timing (it links ``timings.csv``): the same folder
+  contents give the same page, byte for byte.
 - ``sweep_metrics.png`` (a sweep with a numeric swept value): the main metrics against
   it, one line per variant (:func:`agv_cosim.report.plots.sweep_metrics_figure`);
 - ``montecarlo_scatter.png`` (a Monte Carlo result): box plots of the main metrics per
@@ -47,6 +48,7 @@ from urllib.parse import quote
 from ..errors import OutputError
 from ..files import FolderLock, create_file, marker_data, printable, write_json
 from . import plots
+from .records import TIMINGS
 
 #: The page, at the top of the result folder.
 REPORT_FILE = "index.html"
@@ -77,7 +79,7 @@ _FIGURE_ORDER = ("signals.png", "trajectory.png", plots.SWEEP_FILE, "montecarlo.
 #: Files of a run folder linked from the runs table.
 _RUN_FILES = ("timeseries.csv", "metrics.json", "run.json", "output.txt")
 #: Files of the result folder linked from the page.
-_RAW_FILES = ("summary.csv", "montecarlo.json", "partial.txt", "plots_error.txt",
+_RAW_FILES = ("summary.csv", TIMINGS, "montecarlo.json", "partial.txt", "plots_error.txt",
               "montecarlo_error.txt", MANIFEST_COPY)
 
 
@@ -337,7 +339,7 @@ def _runs_table(runs, folder, units, sampled):
     names = main_metrics(_metric_names(runs), 10 ** 6)
     head = ["<th>run</th>", "<th>variant</th>", "<th>status</th>"]
     head += [_th(k, units) for k in swept + mc_keys + names]
-    head += ["<th>wall time <span class=unit>[s]</span></th>", "<th>files</th>"]
+    head.append("<th>files</th>")
     body = []
     for run in runs:
         label = run["folder"]
@@ -348,7 +350,6 @@ def _runs_table(runs, folder, units, sampled):
                  f'<td class="status {_e(status.replace(" ", "-"))}"{error}>{_e(status)}</td>']
         cells += [_cell(run["sweep_point"].get(k)) for k in swept + mc_keys]
         cells += [_cell(run["metrics"].get(k)) for k in names]
-        cells.append(_cell(run.get("wall_time_s")))
         links = [f'<a href="{_href(label, name)}">{_e(name.split(".")[0])}</a>'
                  for name in _RUN_FILES if (Path(folder) / label / name).is_file()]
         cells.append(f"<td class=files>{' '.join(links)}</td>")
@@ -479,7 +480,11 @@ def render(folder: str | Path, runs: list[dict], manifest: dict, manifest_source
         "<p>Each run's folder holds <code>timeseries.csv</code> (time, then "
         "component.variable), <code>metrics.json</code>, <code>run.json</code> (inputs, "
         "hashes, versions) and <code>output.txt</code> when its FMUs printed: linked in "
-        "the runs table.</p>")
+        "the runs table.</p>"
+        + (f"<p><code>{TIMINGS}</code> holds each run's wall time (and a paced run's "
+           "real-time factor): the one file that differs between two runs of the same "
+           "manifest; this page shows no timings, so that it does not.</p>"
+           if TIMINGS in raw else ""))
     template = Template(resources.files(__package__).joinpath("page_template.html")
                         .read_text(encoding="utf-8"))
     return template.substitute(title=_e(name), body="\n".join(body))

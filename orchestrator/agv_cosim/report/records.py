@@ -1,6 +1,13 @@
 """The records of a run and of a sweep: ``run.json``, ``metrics.json``, ``summary.csv``,
-and the result of a run as the pipeline passes it on (:class:`RunResult`)."""
+``timings.csv``, and the result of a run as the pipeline passes it on
+(:class:`RunResult`).
 
+Every record but ``timings.csv`` is reproducible: the same manifest, FMUs and seeds give
+the same bytes. What the machine's timing decides (each run's wall time; a paced run's
+achieved real-time factor, overruns and lateness) goes into ``timings.csv`` only, one row
+per run (:data:`TIMING_COLUMNS`)."""
+
+import csv
 import hashlib
 import importlib
 import json
@@ -9,12 +16,22 @@ import platform
 from pathlib import Path
 from typing import Any, NotRequired, TypedDict
 
-from ..files import write_json, write_summary
+from ..files import create_file, json_text, write_json, write_summary
 from ..system import Job
 from ..version import __version__
 
-__all__ = ["RunResult", "inputs_sha256", "record_units", "run_inputs", "run_result",
-           "summary_rows", "versions", "write_run_files", "write_summary"]
+__all__ = ["REAL_TIME_FIELDS", "TIMINGS", "TIMING_COLUMNS", "RunResult", "inputs_sha256",
+           "read_timings", "record_units", "recorded_inputs", "run_inputs", "run_result",
+           "summary_rows", "timing_rows", "versions", "write_run_files", "write_summary",
+           "write_timings"]
+
+#: The result folder's file of the runs' timings: the one file that is not reproducible.
+TIMINGS = "timings.csv"
+#: The keys of a paced run's report (:meth:`agv_cosim.execution.Pacer.report`).
+REAL_TIME_FIELDS = ("target", "achieved", "overruns", "max_lateness_s", "steps", "wall_s")
+#: timings.csv's columns: the run's label, its wall time [s], then its pacing report
+#: (empty for a run that was not paced).
+TIMING_COLUMNS = ("run", "wall_time_s", *(f"real_time_{k}" for k in REAL_TIME_FIELDS))
 
 
 class RunResult(TypedDict):
@@ -31,6 +48,12 @@ class RunResult(TypedDict):
     variant: str | None
     #: bytes of the timeseries.csv written (a run that wrote one)
     csv_bytes: NotRequired[int]
+    #: the run's wall time [s] (timings.csv; None or absent when not measured)
+    wall_time_s: NotRequired[float | None]
+    #: a paced run's report, :data:`REAL_TIME_FIELDS` (timings.csv)
+    real_time: NotRequired[dict[str, Any]]
+    #: true for a run kept from an earlier result folder (``--resume``)
+    reused: NotRequired[bool]
 
 
 def run_result(job: Job, status: str, *, rows: int = 0, error: str | None = None,
@@ -97,6 +120,12 @@ def record_units(job: Job) -> dict[str, str | None]:
     return units
 
 
+def recorded_inputs(job: Job) -> dict[str, Any]:
+    """:func:`run_inputs` of ``job`` as run.json records them (``inputs``, read back):
+    what compares equal to the ``inputs`` of an earlier run's run.json."""
+    return json.loads(json_text(_exact(run_inputs(job))))
+
+
 def inputs_sha256(inputs: dict[str, Any]) -> str:
     """SHA-256 of :func:`run_inputs` in a canonical JSON form (keys sorted; NaN and inf
     kept apart from null)."""
@@ -118,14 +147,15 @@ def _exact(value: Any) -> Any:
 
 
 def write_run_files(job: Job, run_dir: Path, rows: int, status: str, error: str | None,
-                    wall: float | None, values: dict[str, Any], metrics_error: str | None,
+                    values: dict[str, Any], metrics_error: str | None,
                     ended_by: str | None = None) -> RunResult:
-    """Write metrics.json and run.json of a run (replacing ours); return its result."""
+    """Write metrics.json and run.json of a run (replacing ours); return its result.
+    Neither file holds a timing: they are the same for the same inputs."""
     write_json(run_dir / "metrics.json", values, replace=True)
     inputs = run_inputs(job)
     digest = inputs_sha256(inputs)
     inputs = _exact(inputs)
-    write_json(run_dir / "run.json", {
+    record: dict[str, Any] = {
         "label": job.label, "variant": job.variant, "sweep_point": _exact(job.point),
         "manifest": job.manifest_path, "manifest_sha256": job.manifest_sha256,
         "fmu_sha256": job.fmu_sha256,
@@ -133,10 +163,69 @@ def write_run_files(job: Job, run_dir: Path, rows: int, status: str, error: str 
         "parameters": _exact(job.parameters), "algorithm": job.plan.algorithm,
         "start": job.plan.start, "stop": job.plan.stop, "step": job.plan.step,
         "record_every": job.plan.record_every, "rows": rows,
-        "versions": inputs["versions"], "wall_time_s": wall, "status": status,
+        "versions": inputs["versions"], "status": status,
         "error": error, "metrics_error": metrics_error, "partial": status != "complete",
         "ended_by": ended_by or ("stop time" if status == "complete" else None),
         "timeout_s": job.timeout, "inputs": inputs, "inputs_sha256": digest,
-        "events": inputs["events"], "units": record_units(job)}, replace=True)
+        "events": inputs["events"], "units": record_units(job)}
+    write_json(run_dir / "run.json", record, replace=True)
     return run_result(job, status, rows=rows, error=error, metrics=values,
                       metrics_error=metrics_error)
+
+
+def timing_rows(results: list[RunResult]) -> list[dict[str, Any]]:
+    """timings.csv's rows (:data:`TIMING_COLUMNS`), one per result: None where a value
+    was not measured."""
+    rows = []
+    for result in results:
+        paced = result.get("real_time") or {}
+        row: dict[str, Any] = {"run": result["label"],
+                               "wall_time_s": result.get("wall_time_s")}
+        row.update({f"real_time_{k}": paced.get(k) for k in REAL_TIME_FIELDS})
+        rows.append(row)
+    return rows
+
+
+def write_timings(path: str | Path, results: list[RunResult]) -> None:
+    """Write timings.csv (:func:`timing_rows`; floats as ``repr``, None as empty) into
+    a new file (:func:`~agv_cosim.files.create_file`)."""
+    with create_file(path) as stream:
+        writer = csv.DictWriter(stream, fieldnames=TIMING_COLUMNS)
+        writer.writeheader()
+        for row in timing_rows(results):
+            writer.writerow({k: (repr(v) if isinstance(v, float) else v)
+                             for k, v in row.items()})
+
+
+def _number(text: str) -> int | float | None:
+    """A cell of timings.csv read back: empty is None, else the int or float written."""
+    if not text:
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        return float(text)
+
+
+def read_timings(path: str | Path) -> dict[str, dict[str, Any]]:
+    """The rows of a timings.csv by run label, each ``{"wall_time_s": ...,
+    "real_time": {...}}`` (``real_time`` only for a paced run), as :func:`timing_rows`
+    made them. Empty when the file is missing; rows that cannot be read are left out."""
+    try:
+        with open(path, newline="", encoding="utf-8") as stream:
+            rows = list(csv.DictReader(stream))
+    except (OSError, UnicodeError, csv.Error):
+        return {}
+    found: dict[str, dict[str, Any]] = {}
+    for row in rows:
+        try:
+            wall = _number(row.get("wall_time_s") or "")
+            paced = {k: _number(row.get(f"real_time_{k}") or "") for k in REAL_TIME_FIELDS}
+        except ValueError:
+            continue
+        entry: dict[str, Any] = {"wall_time_s": wall}
+        if paced["target"] is not None:
+            entry["real_time"] = paced
+        if row.get("run"):
+            found[row["run"]] = entry
+    return found

@@ -10,8 +10,8 @@ problem in a variant's run names the variant. The result is a
 """
 
 import math
-from collections.abc import Iterable
-from typing import Any
+from collections.abc import Callable, Iterable
+from typing import Any, TypeVar
 
 from .. import fmitypes
 from ..errors import ManifestError, ModelError, TableError, did_you_mean
@@ -22,8 +22,10 @@ from .model import ModelInfo, read_model
 from .order import feedthrough_order
 from .table import read_table
 
+_T = TypeVar("_T")
+
 __all__ = ["check_connections", "check_events", "check_parameters", "check_run",
-           "read_models", "validate"]
+           "raise_all", "read_models", "validate"]
 
 
 def _parameter_key(manifest: Manifest, run: RunSpec, cname: str, pname: str) -> str:
@@ -131,8 +133,10 @@ def read_models(manifest: Manifest, run: RunSpec) -> dict[str, ModelInfo]:
 def check_parameters(manifest: Manifest, run: RunSpec,
                      models: dict[str, ModelInfo]) -> dict[str, dict[str, Any]]:
     """The run's parameter values parsed against their variables (name, causality, type,
-    range), per component; ``run`` is left as it is."""
+    range), per component; ``run`` is left as it is. Raises the first problem found,
+    the others in its ``others``."""
     err = manifest.error
+    problems: list[ManifestError] = []
     parsed: dict[str, dict[str, Any]] = {}
     for cname, comp in run.components.items():
         info = models[cname]
@@ -143,14 +147,18 @@ def check_parameters(manifest: Manifest, run: RunSpec,
             if var is None:
                 names = [v.name for v in info.parameters]
                 match = did_you_mean(pname, names)
-                raise err(key, f"unknown parameter '{pname}' of {cname} ({info.model_name}"
-                          + (f"){match}" if match else f"; parameters: {', '.join(names)})"))
+                problems.append(err(key, f"unknown parameter '{pname}' of {cname} "
+                                    f"({info.model_name}" + (f"){match}" if match else
+                                    f"; parameters: {', '.join(names)})")))
+                continue
             if var.causality != "parameter":
-                raise err(key, f"'{cname}.{pname}' is {_article(var.causality)}, "
-                          "not a parameter")
+                problems.append(err(key, f"'{cname}.{pname}' is "
+                                    f"{_article(var.causality)}, not a parameter"))
+                continue
             why = var.unsupported("parameter")
             if why:
-                raise err(key, f"'{cname}.{pname}' is {why}")
+                problems.append(err(key, f"'{cname}.{pname}' is {why}"))
+                continue
             try:
                 values[pname] = (fmitypes.parse_array(var.ftype, value, var.size or 0, var)
                                  if var.dims else fmitypes.parse(var.ftype, value, var))
@@ -160,9 +168,35 @@ def check_parameters(manifest: Manifest, run: RunSpec,
                     problem = f"type mismatch: '{cname}.{pname}' {problem}"
                 else:
                     problem = f"'{cname}.{pname}' {problem}"
-                raise err(key, problem) from None
+                problems.append(err(key, problem))
         parsed[cname] = values
+    raise_all(problems)
     return parsed
+
+
+def raise_all(problems: list[ManifestError]) -> None:
+    """Raise the first of ``problems`` (if any) with the others, each once, in its
+    ``others`` (the others of each flattened in): every problem reported at once."""
+    found: list[ManifestError] = []
+    seen: set[str] = set()
+    for problem in problems:
+        for one in [problem, *problem.others]:
+            if str(one) not in seen:
+                seen.add(str(one))
+                found.append(one)
+    if found:
+        first = found[0]
+        first.others = found[1:]
+        raise first
+
+
+def _collect(problems: list[ManifestError], check: Callable[..., _T], *args: Any) -> _T | None:
+    """``check(*args)``, or None with its problem appended to ``problems``."""
+    try:
+        return check(*args)
+    except ManifestError as problem:
+        problems.append(problem)
+        return None
 
 
 def check_connections(manifest: Manifest, models: dict[str, ModelInfo],
@@ -228,7 +262,9 @@ def _check_sweep(manifest: Manifest, models: dict[str, ModelInfo]) -> None:
 
 
 def check_run(manifest: Manifest, run: RunSpec) -> tuple[CheckedRun, list[str]]:
-    """One run checked as a system; with the names of its unconnected inputs.
+    """One run checked as a system; with the names of its unconnected inputs. Raises
+    the first problem found, the others (of the parameters, the sweep, the connections,
+    then the events) in its ``others``.
 
     A problem of a variant's run names the variant: its own keys
     (``variants.<name>...``) do, and a problem at a key of the base gets
@@ -236,15 +272,21 @@ def check_run(manifest: Manifest, run: RunSpec) -> tuple[CheckedRun, list[str]]:
     try:
         return _check_run(manifest, run)
     except ManifestError as error:
-        raise _in_variant(manifest, run, error) from None
+        first = _in_variant(manifest, run, error)
+        first.others = [_in_variant(manifest, run, other) for other in error.others]
+        raise first from None
 
 
 def _check_run(manifest: Manifest, run: RunSpec) -> tuple[CheckedRun, list[str]]:
     models = read_models(manifest, run)
-    parameters = check_parameters(manifest, run, models)
-    _check_sweep(manifest, models)
-    targets = check_connections(manifest, models, run.connections)
-    events = check_events(manifest, run, models, targets)
+    problems: list[ManifestError] = []
+    parameters = _collect(problems, check_parameters, manifest, run, models)
+    _collect(problems, _check_sweep, manifest, models)
+    targets = _collect(problems, check_connections, manifest, models, run.connections)
+    events = None if targets is None else \
+        _collect(problems, check_events, manifest, run, models, targets)  # needs targets
+    raise_all(problems)
+    assert parameters is not None and targets is not None and events is not None
     try:
         order = feedthrough_order(models, run.connections, manifest.path,
                                   manifest.algorithm)
@@ -316,8 +358,13 @@ def validate(manifest: Manifest, runs: list[RunSpec],
     #: unconnected inputs -> the variants (None: the base) whose runs leave them so
     unconnected_by: dict[tuple[str, ...], list[str | None]] = {}
     sources = [(source, list(names)) for source, names in extra_signals]
+    problems: list[ManifestError] = []
     for run in runs:
-        one, unconnected = check_run(manifest, run)
+        try:
+            one, unconnected = check_run(manifest, run)
+        except ManifestError as problem:  # the others runs' problems are reported too
+            problems.append(problem)
+            continue
         if unconnected:
             found = unconnected_by.setdefault(tuple(unconnected), [])
             if run.variant not in found:
@@ -327,9 +374,10 @@ def validate(manifest: Manifest, runs: list[RunSpec],
             for name in names:
                 if name not in recorded:
                     where = f"variant '{run.variant}': " if run.variant else ""
-                    raise manifest.error(source, f"{where}signal '{name}' is not recorded "
-                                         "(see [record])")
+                    problems.append(manifest.error(
+                        source, f"{where}signal '{name}' is not recorded (see [record])"))
         checked.append(one)
+    raise_all(problems)
     every = list(dict.fromkeys(run.variant for run in runs))
     warnings = []
     for inputs, variants in unconnected_by.items():

@@ -100,6 +100,9 @@ class Job:
     #: wall-clock limit of the run [s] (``[simulation] timeout`` or ``--timeout``); None:
     #: no limit. A run still going then is stopped and reported ``timed out``.
     timeout: float | None = None
+    #: real-time factor the run's steps are paced at (``--real-time``); None: unpaced.
+    #: Pacing does not change the results, so it is not one of the run's inputs.
+    real_time: float | None = None
 
     @property
     def manifest_dir(self) -> Path:

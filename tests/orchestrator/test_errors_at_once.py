@@ -1,0 +1,39 @@
+"""The problems the system check finds (after the schema stage: parameters, sweep,
+connections, events, signals) are reported all at once, one line each, capped at
+``errors.MAX_REPORTED`` lines, as the schema's are."""
+
+from agv_cosim import cli
+from agv_cosim.errors import MAX_REPORTED
+
+
+def _edit(path, *pairs):
+    text = path.read_text()
+    for old, new in pairs:
+        assert text.count(old) == 1, old
+        text = text.replace(old, new)
+    path.write_text(text)
+    return path
+
+
+def test_every_problem_of_the_system_at_once(chain, capsys):
+    path = _edit(chain(), ("k = 3.0", "kk = 3.0"),
+                 ("offset = 1.0, slope = 2.0", 'offset = 1.0, slope = "steep"'),
+                 ('from = "gain2.y"\nto = "int.u"', 'from = "gain2.y"\nto = "int.uu"'))
+    assert cli.main(["validate", str(path), "--no-init"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert [line.split(": ", 4)[3] for line in err] == [
+        "components.src.parameters.slope", "components.gain.parameters.kk",
+        "connections[2].to"], err
+    assert "unknown parameter 'kk'" in err[1] and "did you mean 'k'" in err[1]
+    assert "'src.slope' is Real, got 'steep'" in err[0]
+    assert "unknown variable 'int.uu'" in err[2]
+
+
+def test_system_problems_are_capped(chain, capsys):
+    many = ", ".join(f"p{i} = 1.0" for i in range(MAX_REPORTED + 5))
+    path = _edit(chain(), ("k = 3.0", many))
+    assert cli.main(["run", str(path), "--no-init"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == MAX_REPORTED
+    assert all("unknown parameter 'p" in line for line in err[:-1])
+    assert err[-1] == f"agv-cosim: error: {path}: 6 more problem(s) not shown"
