@@ -37,3 +37,37 @@ def test_system_problems_are_capped(chain, capsys):
     assert len(err) == MAX_REPORTED
     assert all("unknown parameter 'p" in line for line in err[:-1])
     assert err[-1] == f"agv-cosim: error: {path}: 6 more problem(s) not shown"
+
+
+def test_every_connection_problem_at_once(chain, capsys):
+    path = _edit(chain(), ('from = "src.y"', 'from = "src.yy"'),
+                 ('to = "gain2.u"', 'to = "gain2.uu"'))
+    assert cli.main(["validate", str(path), "--no-init"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert [line.split(": ", 4)[3] for line in err] == [
+        "connections[0].from", "connections[1].to"], err
+    assert "unknown variable 'src.yy'" in err[0]
+    assert "unknown variable 'gain2.uu'" in err[1]
+
+
+VARIANTS = """
+[variants.slow.components.gain]
+parameters = { k = 1.0 }
+[variants.fast.components.gain]
+parameters = { k = 9.0 }
+[variants.fast.components.gain2]
+parameters = { kk = 2.0 }
+"""
+
+
+def test_a_problem_of_every_variant_is_said_once_without_a_variant(chain, capsys):
+    path = _edit(chain(extra=VARIANTS), ('to = "int.u"', 'to = "int.uu"'))
+    assert cli.main(["validate", str(path), "--no-init"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2, err
+    # the base's connection fails in both variants: once, naming no variant
+    assert "connections[2].to: unknown variable 'int.uu'" in err[0]
+    assert "variant" not in err[0]
+    # a problem of one variant's own key is said once and names it
+    assert "variants.fast.components.gain2.parameters.kk" in err[1]
+    assert err[1].count("unknown parameter 'kk'") == 1

@@ -205,50 +205,59 @@ def check_connections(manifest: Manifest, models: dict[str, ModelInfo],
     """Every connection (of ``connections``, default the manifest's) checked (output ->
     input, same type, same unit, one driver per input); returns the connected inputs,
     ``(component, variable)`` -> connection."""
-    err = manifest.error
+    problems: list[ManifestError] = []
     targets: dict[tuple[str, str], Connection] = {}
     for conn in manifest.connections if connections is None else connections:
-        ends = []
-        for side, (cname, vname), want in (("from", conn.source, "output"),
-                                          ("to", conn.target, "input")):
-            key = f"{conn.key}.{side}"
-            if cname not in models:
-                raise err(key, f"unknown component '{cname}'{did_you_mean(cname, models)}")
-            var = models[cname].variables.get(vname)
-            if var is None:
-                names = [v.name for v in models[cname].of_causality(want)]
-                match = did_you_mean(vname, names)
-                raise err(key, f"unknown variable '{cname}.{vname}' of "
-                          f"{models[cname].model_name}"
-                          + (match or f" ({want}s: {', '.join(names)})"))
-            if var.causality != want:
-                raise err(key, f"wrong causality: '{cname}.{vname}' is "
-                          f"{_article(var.causality)}, a connection goes output -> input")
-            ends.append(var)
-        src, dst = ends
-        for (cname, _), var in zip((conn.source, conn.target), ends, strict=True):
-            why = var.unsupported()
-            if why:
-                raise err(conn.key, f"'{cname}.{var.name}' is {why}")
-        if not fmitypes.compatible(src.ftype, dst.ftype):
-            raise err(conn.key, f"type mismatch: {conn.source[0]}.{src.name} is "
-                      f"{src.type}, {conn.target[0]}.{dst.name} is {dst.type} (no "
-                      "implicit conversion)")
-        # no unit and "1" both mean dimensionless (third-party FMUs often omit it)
-        if (src.unit or "1") != (dst.unit or "1"):
-            raise err(conn.key, f"unit mismatch: {conn.source[0]}.{src.name} is "
-                      f"[{src.unit}], {conn.target[0]}.{dst.name} is [{dst.unit}]")
-        if conn.target in targets:
-            driven, first = ".".join(conn.target), targets[conn.target].key
-            hint = ""
-            if conn.key.startswith("variants.") and not first.startswith("variants."):
-                variant = conn.key.split(".")[1]
-                hint = (f" (to replace it, list '{driven}' in variants.{variant}."
-                        "disconnect)")
-            raise err(f"{conn.key}.to", f"input '{driven}' is already connected by "
-                      f"{first}{hint}")
-        targets[conn.target] = conn
+        _collect(problems, _check_connection, manifest, models, conn, targets)
+    raise_all(problems)
     return targets
+
+
+def _check_connection(manifest: Manifest, models: dict[str, ModelInfo], conn: Connection,
+                      targets: dict[tuple[str, str], Connection]) -> None:
+    """One connection checked (see :func:`check_connections`), its input added to
+    ``targets``."""
+    err = manifest.error
+    ends = []
+    for side, (cname, vname), want in (("from", conn.source, "output"),
+                                      ("to", conn.target, "input")):
+        key = f"{conn.key}.{side}"
+        if cname not in models:
+            raise err(key, f"unknown component '{cname}'{did_you_mean(cname, models)}")
+        var = models[cname].variables.get(vname)
+        if var is None:
+            names = [v.name for v in models[cname].of_causality(want)]
+            match = did_you_mean(vname, names)
+            raise err(key, f"unknown variable '{cname}.{vname}' of "
+                      f"{models[cname].model_name}"
+                      + (match or f" ({want}s: {', '.join(names)})"))
+        if var.causality != want:
+            raise err(key, f"wrong causality: '{cname}.{vname}' is "
+                      f"{_article(var.causality)}, a connection goes output -> input")
+        ends.append(var)
+    src, dst = ends
+    for (cname, _), var in zip((conn.source, conn.target), ends, strict=True):
+        why = var.unsupported()
+        if why:
+            raise err(conn.key, f"'{cname}.{var.name}' is {why}")
+    if not fmitypes.compatible(src.ftype, dst.ftype):
+        raise err(conn.key, f"type mismatch: {conn.source[0]}.{src.name} is "
+                  f"{src.type}, {conn.target[0]}.{dst.name} is {dst.type} (no "
+                  "implicit conversion)")
+    # no unit and "1" both mean dimensionless (third-party FMUs often omit it)
+    if (src.unit or "1") != (dst.unit or "1"):
+        raise err(conn.key, f"unit mismatch: {conn.source[0]}.{src.name} is "
+                  f"[{src.unit}], {conn.target[0]}.{dst.name} is [{dst.unit}]")
+    if conn.target in targets:
+        driven, first = ".".join(conn.target), targets[conn.target].key
+        hint = ""
+        if conn.key.startswith("variants.") and not first.startswith("variants."):
+            variant = conn.key.split(".")[1]
+            hint = (f" (to replace it, list '{driven}' in variants.{variant}."
+                    "disconnect)")
+        raise err(f"{conn.key}.to", f"input '{driven}' is already connected by "
+                  f"{first}{hint}")
+    targets[conn.target] = conn
 
 
 def _check_sweep(manifest: Manifest, models: dict[str, ModelInfo]) -> None:
@@ -272,8 +281,8 @@ def check_run(manifest: Manifest, run: RunSpec) -> tuple[CheckedRun, list[str]]:
     try:
         return _check_run(manifest, run)
     except ManifestError as error:
-        first = _in_variant(manifest, run, error)
-        first.others = [_in_variant(manifest, run, other) for other in error.others]
+        first = _in_variant(manifest, run.variant, error)
+        first.others = [_in_variant(manifest, run.variant, other) for other in error.others]
         raise first from None
 
 
@@ -299,10 +308,10 @@ def _check_run(manifest: Manifest, run: RunSpec) -> tuple[CheckedRun, list[str]]
                       events=events, record=record), unconnected
 
 
-def _in_variant(manifest: Manifest, run: RunSpec, error: ManifestError) -> ManifestError:
-    """``error`` of ``run`` naming the run's variant (unchanged for a base run or a key
-    of the variant's own)."""
-    variant = run.variant
+def _in_variant(manifest: Manifest, variant: str | None,
+                error: ManifestError) -> ManifestError:
+    """``error`` of a run of ``variant`` naming the variant (unchanged for a base run or
+    a key of the variant's own)."""
     if variant is None:
         return error
     own = f"variants.{variant}"
@@ -358,27 +367,36 @@ def validate(manifest: Manifest, runs: list[RunSpec],
     #: unconnected inputs -> the variants (None: the base) whose runs leave them so
     unconnected_by: dict[tuple[str, ...], list[str | None]] = {}
     sources = [(source, list(names)) for source, names in extra_signals]
-    problems: list[ManifestError] = []
+    #: each problem as the base's keys give it -> (the problem, the variants it is in)
+    found: dict[str, tuple[ManifestError, list[str | None]]] = {}
     for run in runs:
+        problems: list[ManifestError] = []
         try:
-            one, unconnected = check_run(manifest, run)
-        except ManifestError as problem:  # the others runs' problems are reported too
-            problems.append(problem)
-            continue
-        if unconnected:
-            found = unconnected_by.setdefault(tuple(unconnected), [])
-            if run.variant not in found:
-                found.append(run.variant)
-        recorded = set(one.record)
-        for source, names in sources:
-            for name in names:
-                if name not in recorded:
-                    where = f"variant '{run.variant}': " if run.variant else ""
-                    problems.append(manifest.error(
-                        source, f"{where}signal '{name}' is not recorded (see [record])"))
-        checked.append(one)
-    raise_all(problems)
+            one, unconnected = _check_run(manifest, run)
+        except ManifestError as error:  # the other runs' problems are reported too
+            problems = [error, *error.others]
+            error.others = []
+        else:
+            if unconnected:
+                leaving = unconnected_by.setdefault(tuple(unconnected), [])
+                if run.variant not in leaving:
+                    leaving.append(run.variant)
+            recorded = set(one.record)
+            problems = [manifest.error(source, f"signal '{name}' is not recorded (see "
+                                       "[record])")
+                        for source, names in sources for name in names
+                        if name not in recorded]
+            checked.append(one)
+        for problem in problems:
+            having = found.setdefault(str(problem), (problem, []))[1]
+            if run.variant not in having:
+                having.append(run.variant)
     every = list(dict.fromkeys(run.variant for run in runs))
+    # the same problem in the runs of every variant (two or more) is the base's, said once;
+    # else once per variant, naming it
+    raise_all([one for problem, having in found.values()
+               for one in ([problem] if having == every and len(every) > 1 else
+                           [_in_variant(manifest, variant, problem) for variant in having])])
     warnings = []
     for inputs, variants in unconnected_by.items():
         where = "" if variants == every or variants == [None] else \
