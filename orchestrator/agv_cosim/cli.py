@@ -14,6 +14,7 @@ on stderr, its control characters escaped (an FMU's message cannot drive the ter
 import argparse
 import sys
 import traceback
+from collections.abc import Iterable
 
 from .files import printable
 from .ssp.exporter import add_cli as add_ssp_cli
@@ -101,10 +102,19 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     _warn(warnings)
     if not args.no_init:
         check_initialisation(manifest, jobs, args.timeout)
-    print(printable(f"{manifest.path}: ok: {len(jobs)} run(s), {len(manifest.components)} "
-                    f"component(s), {len(manifest.connections)} connection(s), "
+    print(printable(f"{manifest.path}: ok: {len(jobs)} run(s), "
+                    f"{_counts(len(job.plan.models) for job in jobs)} component(s), "
+                    f"{_counts(len(job.plan.connections) for job in jobs)} connection(s), "
                     f"{manifest.algorithm}"))
     return 0
+
+
+def _counts(counts: Iterable[int]) -> str:
+    """'5', or '5-7' when the runs (of variants that rewire) have different counts."""
+    values = sorted(set(counts))
+    if len(values) <= 1:
+        return str(values[0] if values else 0)
+    return f"{values[0]}-{values[-1]}"
 
 
 def _kept(error):

@@ -381,3 +381,19 @@ def test_a_sampled_parameter_every_run_must_have(chain, fmus):
     with pytest.raises(ManifestError, match=r"montecarlo\.parameters\.q\.n: unknown "
                                             r"component 'q'$"):
         load_manifest(_paired(chain, fmus, sampled.replace('"p.n"', '"q.n"')))
+
+
+def test_validate_counts_each_variants_own_wiring(chain, fmus, capsys):
+    more = """
+[variants.more.components.q]
+fmu = "{pair}"
+[[variants.more.connections]]
+from = "src.y"
+to = "q.u1"
+"""
+    path = _paired(chain, fmus, extra=more.format(pair=fmus["agv_test_pair"]))
+    assert cli.main(["validate", str(path), "--no-init"]) == 0
+    out = capsys.readouterr().out
+    # unit and paired: 4 components, 3 connections; more: 5 components, 4 connections
+    assert out.strip().endswith(": ok: 3 run(s), 4-5 component(s), 3-4 connection(s), "
+                                "gauss-seidel"), out
