@@ -16,8 +16,6 @@ import sys
 import traceback
 
 from .files import printable
-from .ssp.exporter import add_cli as add_ssp_cli
-from .ssp.importer import opened
 from .version import __version__
 
 
@@ -156,6 +154,14 @@ def _cmd_report(args):
     return 0
 
 
+def _cmd_export_ssp(args: argparse.Namespace) -> int:
+    from .ssp import export_ssp
+
+    out = export_ssp(args.manifest, args.output, args.variant, args.set)
+    print(printable(str(out)))
+    return 0
+
+
 def _cmd_list(args):
     from pathlib import Path
 
@@ -285,13 +291,33 @@ def make_parser() -> argparse.ArgumentParser:
     listing.add_argument("path", nargs="?", default="fmus",
                          help="an FMU or a folder of FMUs (default: fmus)")
     listing.set_defaults(func=_cmd_list)
-    add_ssp_cli(sub)
+
+    export = sub.add_parser(
+        "export-ssp", help="write one run of a manifest as an SSP 1.0 package",
+        description="Write one run (one variant, no sweep) of a manifest as a "
+                    "self-contained SSP 1.0 package: SystemStructure.ssd (components, "
+                    "connectors with units, connections, parameter values, default "
+                    "experiment with the fixed step libcosim reads) and the FMUs under "
+                    "resources/.")
+    export.add_argument("manifest", help="experiment manifest (TOML)")
+    export.add_argument("--variant", metavar="NAME", help="the variant to export")
+    export.add_argument("--set", action="append", default=[], metavar="COMP.PARAM=VALUE",
+                        help="override a parameter (repeatable)")
+    export.add_argument("-o", "--output", required=True, metavar="FILE.ssp",
+                        help="the package to write")
+    export.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                        help="show tracebacks on errors")
+    export.set_defaults(func=_cmd_export_ssp)
     return parser
 
 
 def _dispatch(args):
+    if getattr(args, "manifest", None) is None:
+        return args.func(args)
+    from .ssp.importer import opened
+
     # a .ssp package given as the manifest is read into the same Manifest a file gives
-    with opened(getattr(args, "manifest", None)) as manifest:
+    with opened(args.manifest) as manifest:
         if manifest is not None:
             args.manifest = manifest
         return args.func(args)

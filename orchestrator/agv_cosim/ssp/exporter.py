@@ -22,7 +22,6 @@ interval and the manifest's ``[metrics]`` and ``[plots]`` tables (``agv:Metrics`
 names is not packed). Other tools ignore it.
 """
 
-import argparse
 import json
 import os
 import tempfile
@@ -50,7 +49,6 @@ from .common import (
     ssp_type,
     unit_definitions,
 )
-from .importer import opened
 
 
 def _enumeration_types(fmu_path):
@@ -289,31 +287,3 @@ def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
     finally:
         partial.unlink(missing_ok=True)
     return out_path
-
-
-def _cmd_export_ssp(args: argparse.Namespace) -> int:
-    with opened(args.manifest) as manifest:
-        out = export_ssp(manifest, args.output, args.variant, args.set)
-    print(out)
-    return 0
-
-
-def add_cli(subparsers: Any) -> argparse.ArgumentParser:
-    """Register ``agv-cosim export-ssp`` on the CLI's subparsers."""
-    parser = subparsers.add_parser(
-        "export-ssp", help="write one run of a manifest as an SSP 1.0 package",
-        description="Write one run (one variant, no sweep) of a manifest as a "
-                    "self-contained SSP 1.0 package: SystemStructure.ssd (components, "
-                    "connectors with units, connections, parameter values, default "
-                    "experiment with the fixed step libcosim reads) and the FMUs under "
-                    "resources/.")
-    parser.add_argument("manifest", help="experiment manifest (TOML)")
-    parser.add_argument("--variant", metavar="NAME", help="the variant to export")
-    parser.add_argument("--set", action="append", default=[], metavar="COMP.PARAM=VALUE",
-                        help="override a parameter (repeatable)")
-    parser.add_argument("-o", "--output", required=True, metavar="FILE.ssp",
-                        help="the package to write")
-    parser.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
-                        help="show tracebacks on errors")
-    parser.set_defaults(func=_cmd_export_ssp)
-    return parser
