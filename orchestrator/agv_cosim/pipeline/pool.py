@@ -76,6 +76,19 @@ def inherited_fds(context: ForkContext | ForkServerContext) -> list[int] | None:
     return open_fds()
 
 
+def _exit_fd(pid: int | None) -> int | None:
+    """A pidfd of process ``pid`` (Linux 5.3 and later), which reads ready once the
+    process has ended, or None. A forked worker's sentinel (a pipe the worker holds)
+    reads ready while the worker is still exiting, which a wait on it would spin on."""
+    pidfd_open = getattr(os, "pidfd_open", None)
+    if pidfd_open is None or pid is None:
+        return None
+    try:
+        return int(pidfd_open(pid))
+    except OSError:
+        return None
+
+
 def _worker(jobs: Connection, channel: Connection, output: Connection, life: Connection,
             scratch: str, track: Track, inherited: list[int] | None = None) -> None:
     """Body of a worker process: run the jobs the parent sends, one at a time.
@@ -202,6 +215,9 @@ class IdleWorkers:
     def _end(worker: dict[str, Any]) -> None:
         kill_group(worker["process"])
         worker["process"].join()
+        if worker["pidfd"] is not None:
+            os.close(worker["pidfd"])
+            worker["pidfd"] = None
         for name in ("output", "send", "frames"):
             worker[name].close()
         shutil.rmtree(worker["scratch"], ignore_errors=True)
@@ -268,7 +284,10 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         process.start()
         for end in (job_reader, writer, out_writer):
             end.close()
-        worker = {"process": process, "send": job_writer, "frames": Frames(reader),
+        pidfd = _exit_fd(process.pid)
+        worker = {"process": process, "pidfd": pidfd,
+                  "exited": process.sentinel if pidfd is None else pidfd,
+                  "send": job_writer, "frames": Frames(reader),
                   "output": OutputLog(out_reader), "scratch": scratch, "track": track,
                   "index": None, "deadline": None, "leaving": False}
         pool.append(worker)
@@ -302,6 +321,9 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         worker["output"].close()
         worker["send"].close()
         worker["frames"].close()
+        if worker["pidfd"] is not None:
+            os.close(worker["pidfd"])
+            worker["pidfd"] = None
         shutil.rmtree(worker["scratch"], ignore_errors=True)
         if worker in pool:  # (an interruption may have come in the middle of an end)
             pool.remove(worker)
@@ -344,7 +366,7 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
             now = time.monotonic()
             deadlines = [w["deadline"] for w in pool if w["deadline"] is not None]
             pause = min([1.0] + [max(0.0, d - now) for d in deadlines])
-            handles = [w["process"].sentinel for w in pool]
+            handles = [w["exited"] for w in pool]
             handles += [w["frames"].fd for w in pool if not w["frames"].closed]
             handles += [w["output"].fd for w in pool if not w["output"].closed]
             wait(handles, timeout=pause)
