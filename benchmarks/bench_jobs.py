@@ -1,8 +1,9 @@
 """Benchmark: ``--jobs N`` efficiency on a sweep, T(jobs 1) / (N x T(jobs N)).
 
 The seed-000 loop (``experiments/seed000_models_abc.toml`` variant ``a``, 5 FMUs, its
-metrics and figure) with ``stop`` = ``--stop`` (default 2 s, 2000 steps of 1 ms), swept
-over ``--runs`` values of ``vehicle.v0`` (default 32). Each round runs the whole command
+metrics and figure; ``--no-plots``: without ``[plots]``) with ``stop`` = ``--stop``
+(default 2 s, 2000 steps of 1 ms), swept over ``--runs`` values of ``vehicle.v0``
+(default 32). Each round runs the whole command
 (``agv-cosim run ... --quiet``) with ``--jobs 1`` and then ``--jobs N``, and checks that
 the two result folders hold the same bytes (see :func:`_same`). It
 prints each round's wall and CPU times (the command and its children, ``RUSAGE_CHILDREN``)
@@ -27,8 +28,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def _manifest(folder: Path, runs: int, stop: float) -> Path:
+def _manifest(folder: Path, runs: int, stop: float, plots: bool) -> Path:
     text = (ROOT / "experiments" / "seed000_models_abc.toml").read_text()
+    if not plots:
+        text = text[:text.index("[plots]")]
     text = re.sub(r"(?m)^stop = .*$", f"stop = {stop!r}", text)
     text = text.replace('"../fmus/', f'"{ROOT / "fmus"}/')
     values = ", ".join(repr(1.0 + 0.01 * i) for i in range(runs))
@@ -76,11 +79,14 @@ def main() -> None:
     parser.add_argument("--stop", type=float, default=2.0)
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--no-plots", action="store_true",
+                        help="without the manifest's [plots] (no signals.png; the page's "
+                             "sweep figure is still drawn)")
     args = parser.parse_args()
     efficiencies = []
     with tempfile.TemporaryDirectory(prefix="bench-jobs-") as tmp:
         folder = Path(tmp)
-        manifest = _manifest(folder, args.runs, args.stop)
+        manifest = _manifest(folder, args.runs, args.stop, not args.no_plots)
         print(f"{args.runs} runs of {args.stop:g} s (seed000 variant a), --jobs 1 against "
               f"--jobs {args.jobs}")
         for round_ in range(1, args.rounds + 1):
