@@ -23,7 +23,9 @@ time and the median of the per-round ratios against fmpy.
 
 ``--baseline DIR`` also runs every agv-cosim case with another checkout (``DIR/.venv``
 and ``DIR/fmus``, e.g. ``git worktree add DIR COMMIT`` then ``make venv fmus`` there) in
-the same rounds, and prints this checkout against it.
+the same rounds, and prints this checkout against it. For ``run loop`` it also splits the
+time after the command's main function returned: atexit handlers, then interpreter
+finalisation (timestamps written by a wrapper of ``agv_cosim.cli.main``).
 
 Run: ``.venv/bin/python benchmarks/bench_startup.py [--rounds 5] [--baseline DIR]``
 """
@@ -83,6 +85,40 @@ def _cases(root: Path, folder: Path) -> dict[str, list[str]]:
     }
 
 
+#: ``agv-cosim`` as its console script runs it (``cli.console`` where there is one, else
+#: ``sys.exit(cli.main())``), with the times (epoch seconds) its main function returned
+#: and the last atexit handler ran written to stderr; the rest of the process's life is
+#: the interpreter's finalisation.
+_FINALISED = """
+import atexit, sys, time
+from agv_cosim import cli
+atexit.register(lambda: sys.stderr.write(f"ATEXIT_END {time.time()!r}\\n"))
+main = cli.main
+def timed(*args):
+    code = main(*args)
+    sys.stderr.write(f"MAIN_END {time.time()!r}\\n")
+    return code
+cli.main = timed
+if hasattr(cli, "console"):
+    cli.console()
+sys.exit(cli.main())
+"""
+
+
+def _finalisation(root: Path, command: list[str]) -> tuple[float, float]:
+    """(s from main's return to the end of the atexit handlers, s from there to the
+    process's end) of an ``agv-cosim`` command run by ``root``'s Python."""
+    python = str(root / ".venv" / "bin" / "python")
+    done = subprocess.run([python, "-c", _FINALISED, *command[1:]], capture_output=True,
+                          text=True)
+    end = time.time()
+    found = dict(re.findall(r"(?m)^(MAIN_END|ATEXIT_END) (\S+)$", done.stderr))
+    if done.returncode != 0 or len(found) != 2:
+        sys.exit(f"finalisation run failed: {done.stderr.strip()[-500:]}")
+    main_end, atexit_end = float(found["MAIN_END"]), float(found["ATEXIT_END"])
+    return atexit_end - main_end, end - atexit_end
+
+
 def _timed(command: list[str]) -> tuple[float, float]:
     """(wall s, CPU s of the command and its waited-for children)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -116,11 +152,14 @@ def main() -> None:
             for command in side.values():
                 _timed(command)
         _timed(fmpy)
+        finals: dict[str, list[tuple[float, float]]] = {}
         for _ in range(args.rounds):
             anchor.append(_timed(fmpy))
             for name, side in sides.items():
                 for case, command in side.items():
                     times.setdefault((name, case), []).append(_timed(command))
+                root = ROOT if name == "new" else args.baseline.resolve()
+                finals.setdefault(name, []).append(_finalisation(root, side["run loop"]))
     med = statistics.median
     print(f"{args.rounds} rounds, medians; ratios are per round (paired), then the median")
     print(f"{'case':<22} {'side':<4} {'wall s':>7} {'CPU s':>7} {'/fmpy wall':>11} "
@@ -139,6 +178,10 @@ def main() -> None:
             line += (f"  {med(n[0] / o[0] for n, o in zip(samples, old)):12.2f} "
                      f"{med(n[1] / o[1] for n, o in zip(samples, old)):11.2f}")
         print(line)
+    for name, samples in finals.items():
+        print(f"run loop, {name}: after main returned: atexit handlers "
+              f"{med(a for a, _ in samples):.3f} s, then interpreter finalisation "
+              f"{med(f for _, f in samples):.3f} s (medians)")
 
 
 if __name__ == "__main__":
