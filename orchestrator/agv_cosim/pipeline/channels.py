@@ -217,3 +217,7 @@ def child_setup(output: Connection | None, life: Connection,
         os.close(target)
     else:
         output.close()
+    if inherited is not None:  # forked: sys.stdout and sys.stderr are the command's objects
+        sys.stdout = open(1, "w", errors="backslashreplace", closefd=False)  # noqa: SIM115
+        sys.stderr = open(2, "w", errors="backslashreplace", buffering=1,  # noqa: SIM115
+                          closefd=False)
