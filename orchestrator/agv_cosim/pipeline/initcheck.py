@@ -14,7 +14,7 @@ from ..lifetime import kill_group, scratch_dir
 from ..manifest import Manifest
 from ..system import Job, ModelInfo
 from .channels import Frames, child_setup, send_frame
-from .pool import inherited_fds, process_context
+from .pool import inherited_fds, process_context, start_process
 
 __all__ = ["INIT_TIMEOUT", "check_initialisation"]
 
@@ -111,7 +111,7 @@ def check_initialisation(manifest: Manifest, jobs: list[Job],
     current, failure, finished = None, None, False
     deadline = time.monotonic() + limit
     try:
-        process.start()
+        start_process(process, context)
         writer.close()
         while failure is None and not finished:
             now = time.monotonic()
