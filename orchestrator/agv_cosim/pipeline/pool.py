@@ -9,7 +9,9 @@ A worker that dies is reported as its run's failure (partial if it had recorded 
 and the other runs go on. Reusing a worker after clean runs spares each later run the
 process start and the import of the FMUs' bundled cores. Each worker leads a process
 group of its own, so a run that exceeds its limit is ended with every process its FMUs
-started.
+started. Workers are forked from the command's process while it runs a single thread
+(:func:`process_context`; else they come from a fork server), so they start at once
+with what the command has imported.
 """
 
 import gc
