@@ -182,7 +182,9 @@ def _command(args, cluster, on_cluster=False):
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     cluster_before = cluster.cpu() if on_cluster else 0.0
     begin = time.perf_counter()
-    done = subprocess.run([str(BIN / "agv-cosim"), *args], capture_output=True, text=True)
+    # python -m: the module's own entry, which also older code (--code) has
+    done = subprocess.run([sys.executable, "-m", "agv_cosim.cli", *args],
+                          capture_output=True, text=True)
     wall = time.perf_counter() - begin
     _reap_orphans(keep)
     cluster_after = cluster.cpu() if on_cluster else 0.0

@@ -12,13 +12,13 @@ on stderr, its control characters escaped (an FMU's message cannot drive the ter
 """
 
 import argparse
+import atexit
+import os
 import sys
 import traceback
 from collections.abc import Iterable
 
 from .files import printable
-from .ssp.exporter import add_cli as add_ssp_cli
-from .ssp.importer import opened
 from .version import __version__
 
 
@@ -196,6 +196,14 @@ def _cmd_report(args):
     return 0
 
 
+def _cmd_export_ssp(args: argparse.Namespace) -> int:
+    from .ssp import export_ssp
+
+    out = export_ssp(args.manifest, args.output, args.variant, args.set)
+    print(printable(str(out)))
+    return 0
+
+
 def _cmd_list(args):
     from pathlib import Path
 
@@ -346,13 +354,33 @@ def make_parser() -> argparse.ArgumentParser:
     listing.add_argument("path", nargs="?", default="fmus",
                          help="an FMU or a folder of FMUs (default: fmus)")
     listing.set_defaults(func=_cmd_list)
-    add_ssp_cli(sub)
+
+    export = sub.add_parser(
+        "export-ssp", help="write one run of a manifest as an SSP 1.0 package",
+        description="Write one run (one variant, no sweep) of a manifest as a "
+                    "self-contained SSP 1.0 package: SystemStructure.ssd (components, "
+                    "connectors with units, connections, parameter values, default "
+                    "experiment with the fixed step libcosim reads) and the FMUs under "
+                    "resources/.")
+    export.add_argument("manifest", help="experiment manifest (TOML)")
+    export.add_argument("--variant", metavar="NAME", help="the variant to export")
+    export.add_argument("--set", action="append", default=[], metavar="COMP.PARAM=VALUE",
+                        help="override a parameter (repeatable)")
+    export.add_argument("-o", "--output", required=True, metavar="FILE.ssp",
+                        help="the package to write")
+    export.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                        help="show tracebacks on errors")
+    export.set_defaults(func=_cmd_export_ssp)
     return parser
 
 
 def _dispatch(args):
+    if getattr(args, "manifest", None) is None:
+        return args.func(args)
+    from .ssp.importer import opened
+
     # a .ssp package given as the manifest is read into the same Manifest a file gives
-    with opened(getattr(args, "manifest", None)) as manifest:
+    with opened(args.manifest) as manifest:
         if manifest is not None:
             args.manifest = manifest
         return args.func(args)
@@ -417,5 +445,24 @@ def main(argv: list[str] | None = None) -> int:
                        "(run with --debug for the traceback)", 1)
 
 
+def console() -> None:
+    """Entry point of the ``agv-cosim`` console script: :func:`main`, then the process
+    ends without the interpreter's finalisation, which tears down every module one by
+    one (0.3-2 s with matplotlib and pydantic loaded, longer than many runs). First the
+    atexit handlers run (multiprocessing's, the removal of our scratch folders) and
+    stdout and stderr are flushed; every file the command wrote is closed by then (the
+    result folder is committed before :func:`main` returns). ``--help``, ``--version``
+    and usage errors exit through ``SystemExit`` as usual."""
+    code = main()
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            if stream is not None:
+                stream.flush()
+        except (OSError, ValueError):  # the reader went away: nothing more to say
+            pass
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    console()

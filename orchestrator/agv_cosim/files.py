@@ -9,17 +9,17 @@ import csv
 import errno
 import io
 import json
+import math
 import os
 import re
 import shutil
 import stat
+import sys
 import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any, BinaryIO
-
-import numpy as np
 
 from .errors import FolderLost, OutputError
 from .lifetime import CREATE_FLAGS, signals_blocked
@@ -74,14 +74,15 @@ def write_text(path: str | Path, text: str) -> None:
 
 
 def _json_safe(value):
+    np = sys.modules.get("numpy")  # a numpy value exists only once numpy is imported
     if isinstance(value, dict):
         return {str(k): _json_safe(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [_json_safe(v) for v in value]
-    if isinstance(value, (np.floating, float)):
+    if isinstance(value, float) or (np is not None and isinstance(value, np.floating)):
         value = float(value)
-        return value if np.isfinite(value) else None
-    if isinstance(value, np.integer):
+        return value if math.isfinite(value) else None
+    if np is not None and isinstance(value, np.integer):
         return int(value)
     if isinstance(value, Path):
         return str(value)

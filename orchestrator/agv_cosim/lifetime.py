@@ -102,10 +102,9 @@ def ignore_termination() -> Callable[[], None]:
 def _prctl_pdeathsig(signum):
     """``prctl(PR_SET_PDEATHSIG, signum)``; False where it is not available."""
     import ctypes
-    import ctypes.util
 
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        libc = ctypes.CDLL(None, use_errno=True)  # this process's symbols, libc's among them
         return libc.prctl(1, int(signum), 0, 0, 0) == 0
     except (OSError, AttributeError):
         return False
@@ -183,6 +182,28 @@ def drop_helper_channels() -> None:
             setattr(holder, name, None)
 
 
+def open_fds() -> list[int]:
+    """The file descriptors open in this process now (Linux ``/proc/self/fd``; elsewhere
+    an empty list)."""
+    try:
+        return sorted(int(name) for name in os.listdir("/proc/self/fd"))
+    except OSError:
+        return []
+
+
+def close_inherited(fds: list[int], keep: set[int]) -> None:
+    """Close, in a child forked from the command's process, the descriptors ``fds`` it
+    inherited (the parent's :func:`open_fds` before the fork) but those in ``keep`` and
+    the standard ones: an FMU that writes into every descriptor it finds cannot reach
+    the parent's other pipes (the other workers', the life pipe's writing end)."""
+    for fd in fds:
+        if fd > 2 and fd not in keep:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
 def kill_group(process: Any) -> None:
     """SIGKILL the process group led by ``process`` (a multiprocessing Process started
     with :func:`own_process_group`), else the process alone."""
@@ -206,11 +227,10 @@ def die_with_parent() -> None:
     their next write to the parent fails).
     """
     import ctypes
-    import ctypes.util
 
     parent = os.getppid()
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        libc = ctypes.CDLL(None, use_errno=True)  # this process's symbols, libc's among them
         pr_set_pdeathsig = 1
         libc.prctl(pr_set_pdeathsig, int(signal.SIGKILL), 0, 0, 0)
     except (OSError, AttributeError):

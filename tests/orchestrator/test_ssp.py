@@ -7,7 +7,6 @@ steering sensor -> controller, controller -> actuator -> vehicle; wheelbase 1.49
 0.1 m initial lateral offset, 1 m/s.
 """
 
-import argparse
 import re
 import zipfile
 from pathlib import Path
@@ -21,6 +20,7 @@ from agv_cosim.manifest import ManifestError, load_manifest
 from agv_cosim.plan import plan_runs
 from agv_cosim.execution import RowObserver, simulate
 from agv_cosim.pipeline import prepare
+from agv_cosim.cli import make_parser
 from manifests import localise_text
 from libcosim_runner import run_libcosim
 
@@ -171,8 +171,7 @@ def test_export_refuses_several_runs(component_fmus, tmp_path):
 
 def test_cli_export(package, tmp_path, capsys):
     manifest, _ = package
-    parser = argparse.ArgumentParser()
-    ssp_export.add_cli(parser.add_subparsers(dest="command"))
+    parser = make_parser()
     out = tmp_path / "cli.ssp"
     args = parser.parse_args(["export-ssp", str(manifest), "--variant",
                               variant_of(manifest) or "", "-o", str(out)]

@@ -39,7 +39,6 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-from scipy.special import ellipeinc
 
 from ..errors import ParameterError
 from .angles import TWO_PI, heading_error  # noqa: F401 - heading_error: part of this API
@@ -269,6 +268,8 @@ class _SinePiece:
                 -ak * self.k * self.k * cs)
 
     def s_of_x(self, x):
+        from scipy.special import ellipeinc  # only sine paths need scipy
+
         return self.sa + self.q / self.k * float(ellipeinc(self.k * (x - self.a), self.par))
 
     def x_of_s(self, s):

@@ -40,8 +40,6 @@ model c the phase margin is 63 deg (gain margin 3.6).
 import math
 
 import numpy as np
-import scipy.linalg
-import scipy.signal
 
 from ..errors import ParameterError
 from ..numerics.finite import finite as _finite
@@ -283,6 +281,8 @@ class IdentifiedActuator(SteeringActuator):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
+        import scipy.signal  # model c only: the other models do not import scipy
+
         scale = self.K / EQ6_DC_GAIN
         a, b, c, d = scipy.signal.tf2ss([scale * n for n in EQ6_NUM], EQ6_DEN)
         self._a, self._b, self._c = a, b.ravel(), c.ravel()
@@ -298,6 +298,8 @@ class IdentifiedActuator(SteeringActuator):
             m[:n, :n] = self._a
             m[n, :n] = self._c          # alpha' = C x (the rate)
             m[:n, n + 1] = self._b      # input column
+            import scipy.linalg
+
             e = scipy.linalg.expm(m * h)
             found = (e[:n + 1, :n + 1], e[:n + 1, n + 1])
             if len(self._cache) > 16:

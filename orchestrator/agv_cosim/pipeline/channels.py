@@ -16,10 +16,16 @@ from pathlib import Path
 from typing import IO, Any
 
 from ..files import create_file
-from ..lifetime import die_with_parent, drop_helper_channels, own_process_group
+from ..lifetime import (
+    TERMINATION_SIGNALS,
+    close_inherited,
+    die_with_parent,
+    drop_helper_channels,
+    own_process_group,
+)
 
 __all__ = ["MAX_FRAME", "MAX_OUTPUT", "OUTPUT_FILE", "Frames", "OutputLog", "child_setup",
-           "flush_c_stdio", "send_frame", "start_process"]
+           "flush_c_stdio", "send_frame", "start_without_main"]
 
 # --------------------------------------------------------------------------- channels
 #
@@ -178,27 +184,36 @@ class OutputLog(_PipeReader):
 def flush_c_stdio() -> None:
     """Flush C stdio buffers of this process (an FMU's printf to a pipe is buffered)."""
     import ctypes
-    import ctypes.util
 
     sys.stdout.flush()
     sys.stderr.flush()
     try:
-        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").fflush(None)
+        ctypes.CDLL(None).fflush(None)  # this process's symbols, libc's among them
     except (OSError, AttributeError):
         pass
 
 
-def child_setup(output: Connection | None, life: Connection) -> None:
+def child_setup(output: Connection | None, life: Connection,
+                inherited: list[int] | None = None, keep: tuple[Connection, ...] = ()
+                ) -> None:
     """Common start of a process that runs FMUs: it drops multiprocessing's helper
-    channels (an FMU cannot write into them), dies with its parent, leads a process
-    group of its own with a guard that ends the group when this process ends or when
-    ``life`` (the reading end of a pipe only the command's process writes) closes,
-    ignores SIGINT (the parent stops it) and writes its stdout and stderr to
-    ``output`` (a pipe Connection, or None for /dev/null)."""
+    channels and, when forked from the command's process, the descriptors it inherited
+    (``inherited``, see :func:`~agv_cosim.lifetime.close_inherited`) but ``output``,
+    ``life`` and ``keep`` (an FMU cannot write into them), dies with its parent, leads
+    a process group of its own with a guard that ends the group when this process ends
+    or when ``life`` (the reading end of a pipe only the command's process writes)
+    closes, ignores SIGINT (the parent stops it), takes the default action of SIGTERM
+    and SIGHUP, and writes its stdout and stderr to ``output`` (a pipe Connection, or
+    None for /dev/null)."""
     drop_helper_channels()
+    if inherited is not None:
+        close_inherited(inherited, {c.fileno() for c in (output, life, *keep)
+                                    if c is not None})
     die_with_parent()
     own_process_group(life.fileno())
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for sig in TERMINATION_SIGNALS:  # a forked child has the command's handlers
+        signal.signal(sig, signal.SIG_DFL)
     target = os.open(os.devnull, os.O_WRONLY) if output is None else output.fileno()
     for fd in (1, 2):
         os.dup2(target, fd)
@@ -206,6 +221,10 @@ def child_setup(output: Connection | None, life: Connection) -> None:
         os.close(target)
     else:
         output.close()
+    if inherited is not None:  # forked: sys.stdout and sys.stderr are the command's objects
+        sys.stdout = open(1, "w", errors="backslashreplace", closefd=False)  # noqa: SIM115
+        sys.stderr = open(2, "w", errors="backslashreplace", buffering=1,  # noqa: SIM115
+                          closefd=False)
 
 
 _starting = threading.Lock()
@@ -240,7 +259,7 @@ def _main_left_alone() -> Iterator[None]:
             spawn.get_preparation_data = original
 
 
-def start_process(process: BaseProcess) -> None:
+def start_without_main(process: BaseProcess) -> None:
     """``process.start()``, the child not importing the caller's ``__main__`` (a script
     or notebook calling agv_cosim needs no ``if __name__ == "__main__":`` guard)."""
     with _main_left_alone():

@@ -18,10 +18,11 @@ What a task does on a worker (:func:`run_remote`):
    ``run.json`` is the hash of the bytes that ran.
 2. **The same crash isolation as locally.** The run goes to a run host of the worker
    (:mod:`agv_cosim.pipeline.host`: an ordinary subprocess, kept for the worker's later
-   tasks), which runs it through :func:`agv_cosim.pipeline.pool.run_isolated`: a child
-   process of its own (``forkserver``), so an FMU that aborts its process fails only its
-   run, reported ``partial`` or ``failed`` with the same text as locally; the worker
-   goes on. A subprocess works in a daemonic worker (the default under a nanny), where
+   tasks), which runs it through :func:`agv_cosim.pipeline.pool.run_isolated` in its
+   worker process, kept between tasks as a local sweep keeps it between runs (replaced
+   after a run that did not end ``complete``), so an FMU that aborts its process fails
+   only its run, reported ``partial`` or ``failed`` with the same text as locally; the
+   worker goes on. A subprocess works in a daemonic worker (the default under a nanny), where
    :mod:`multiprocessing` cannot start children, so stock workers need no setting.
 3. The run's folder (``timeseries.csv``, ``run.json``, ``metrics.json``) goes back to the
    client as bytes; the client writes it, then computes the run's metrics from the

@@ -4,11 +4,18 @@ A Dask worker under a nanny is a daemonic process, which :mod:`multiprocessing` 
 to have children, so it cannot run :func:`agv_cosim.pipeline.pool.run_isolated` itself.
 It can start an ordinary subprocess: a run host (``python -m agv_cosim.pipeline.host``),
 which reads ``(job, root)`` requests from its stdin and runs each through
-:func:`~agv_cosim.pipeline.pool.run_isolated` (the run in a child process of its own,
+:func:`~agv_cosim.pipeline.pool.run_isolated` (the run in a worker process of its own,
 exactly as locally), then writes the run's result to its stdout (pickles, one per
 request). A host lives as long as its Dask worker: it ends when its stdin closes or its
-parent process is gone, so its fork server (with numpy, scipy and fmpy preloaded) is
-started once per host, not once per run.
+parent process is gone (the kernel kills it then, ``PR_SET_PDEATHSIG``).
+
+The host keeps its worker process between requests, as a local sweep does between runs
+(:class:`~agv_cosim.pipeline.pool.IdleWorkers`): a worker whose run ended ``complete``
+takes the next request's run with its FMUs' cores already imported and its FMUs already
+extracted; after any other ending it exits and the next run gets a fresh worker, forked
+from the host (which runs a single thread, see
+:func:`~agv_cosim.pipeline.pool.process_context`). A run that crashes its worker is a
+result, as locally; the host goes on.
 
 The worker side (:func:`run_hosted`) keeps its idle hosts for the next task, one host per
 task running at once; a host that dies or answers nonsense is dropped and the next task
@@ -20,13 +27,13 @@ import pickle
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 from typing import IO, cast
 
+from ..lifetime import die_with_parent
 from ..report.records import RunResult
 from ..system import Job
-from .pool import run_isolated
+from .pool import IdleWorkers, run_isolated
 
 __all__ = ["HOST_MODULE", "main", "run_hosted", "serve"]
 
@@ -39,37 +46,37 @@ _idle_lock = threading.Lock()
 
 def serve(requests: IO[bytes], replies: IO[bytes]) -> None:
     """Run each ``(job, root)`` request read from ``requests`` (pickles) until it ends;
-    write ``("done", result)`` or ``("error", one line)`` for each to ``replies``."""
-    while True:
-        try:
-            job, root = pickle.load(requests)
-        except EOFError:
-            return
-        try:
-            [result] = run_isolated([job], Path(root), 1, lambda steps: None, lambda: None)
-            reply: tuple[str, object] = ("done", result)
-        except Exception as failure:  # noqa: BLE001 - reported to the task, one line
-            reply = ("error", " ".join(f"{type(failure).__name__}: {failure}".split()))
-        pickle.dump(reply, replies, protocol=pickle.HIGHEST_PROTOCOL)
-        replies.flush()
-
-
-def _watch_parent(parent: int) -> None:
-    """End this process when its parent (the Dask worker) is gone; the runs' processes
-    then end with it (their guard sees the pool's life pipe close)."""
-    while os.getppid() == parent:
-        time.sleep(1.0)
-    os._exit(1)
+    write ``("done", result)`` or ``("error", one line)`` for each to ``replies``. The
+    worker of a complete run waits for the next request; all end with ``requests``."""
+    idle = IdleWorkers()
+    try:
+        while True:
+            try:
+                job, root = pickle.load(requests)
+            except EOFError:
+                return
+            try:
+                [result] = run_isolated([job], Path(root), 1, lambda steps: None,
+                                        lambda: None, idle)
+                reply: tuple[str, object] = ("done", result)
+            except Exception as failure:  # noqa: BLE001 - reported to the task, one line
+                reply = ("error", " ".join(f"{type(failure).__name__}: {failure}".split()))
+            pickle.dump(reply, replies, protocol=pickle.HIGHEST_PROTOCOL)
+            replies.flush()
+    finally:
+        idle.close()
 
 
 def main() -> None:
     """Body of a run host: requests on stdin, replies on the original stdout; anything
-    else printed goes to stderr."""
+    else printed goes to stderr. Killed by the kernel when its parent (the Dask worker)
+    ends; its workers then end with it (their guard sees the life pipe close)."""
     replies = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)
-    threading.Thread(target=_watch_parent, args=(os.getppid(),), name="agv-cosim parent",
-                     daemon=True).start()
+    die_with_parent()
     serve(sys.stdin.buffer, replies)
+    replies.flush()
+    os._exit(0)  # the workers are ended and the replies flushed: nothing left to finalise
 
 
 def _start_host() -> subprocess.Popen[bytes]:

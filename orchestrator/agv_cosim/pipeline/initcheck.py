@@ -5,7 +5,6 @@ import os
 import shutil
 import tempfile
 import time
-from multiprocessing import get_context
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
@@ -14,16 +13,18 @@ from ..execution.units import enter_initialisation
 from ..lifetime import kill_group, scratch_dir
 from ..manifest import Manifest
 from ..system import Job, ModelInfo
-from .channels import Frames, child_setup, send_frame, start_process
-from .pool import FORKSERVER_PRELOAD
+from .channels import Frames, child_setup, send_frame
+from .pool import inherited_fds, process_context, start_process
 
 __all__ = ["INIT_TIMEOUT", "check_initialisation"]
 
 
 def _check_child(checks: list[tuple[str, ModelInfo, dict[str, Any], float, float]],
-                 channel: Connection, life: Connection, scratch: str) -> None:
+                 channel: Connection, life: Connection, scratch: str,
+                 inherited: list[int] | None = None) -> None:
     """Body of the initialisation check's child: instantiate and initialise each FMU."""
-    child_setup(None, life)  # an FMU's prints go nowhere: validate writes no results
+    # an FMU's prints go nowhere: validate writes no results
+    child_setup(None, life, inherited, (channel,))
     tempfile.tempdir = scratch
     keep_extractions(scratch)  # an FMU checked with several parameter sets: unpacked once
     fd = channel.fileno()
@@ -99,18 +100,18 @@ def check_initialisation(manifest: Manifest, jobs: list[Job],
             where.append((cname, job.label))
     if not checks:
         return
-    context = get_context("forkserver")
-    context.set_forkserver_preload(list(FORKSERVER_PRELOAD))
+    context = process_context()
     reader, writer = context.Pipe(duplex=False)
     life_reader, life_writer = context.Pipe(duplex=False)
     scratch = scratch_dir("check")
     process = context.Process(target=_check_child, name="agv-cosim check",
-                              args=(checks, writer, life_reader, scratch))
+                              args=(checks, writer, life_reader, scratch,
+                                    inherited_fds(context)))
     frames = Frames(reader)
     current, failure, finished = None, None, False
     deadline = time.monotonic() + limit
     try:
-        start_process(process)
+        start_process(process, context)
         writer.close()
         while failure is None and not finished:
             now = time.monotonic()

@@ -9,23 +9,29 @@ A worker that dies is reported as its run's failure (partial if it had recorded 
 and the other runs go on. Reusing a worker after clean runs spares each later run the
 process start and the import of the FMUs' bundled cores. Each worker leads a process
 group of its own, so a run that exceeds its limit is ended with every process its FMUs
-started.
+started. Workers are forked from the command's process while it runs a single thread
+(:func:`process_context`; else they come from a fork server), so they start at once
+with what the command has imported.
 """
 
+import gc
 import os
 import shutil
+import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable
 from multiprocessing import get_context
 from multiprocessing.connection import Connection, wait
+from multiprocessing.context import ForkContext, ForkServerContext
 from pathlib import Path
 from typing import Any
 
 from ..errors import Interrupted
 from ..execution.instance import keep_extractions
 from ..execution.track import Track, describe_track
-from ..lifetime import ignore_termination, kill_group, scratch_dir
+from ..lifetime import ignore_termination, kill_group, open_fds, scratch_dir
 from ..report import metrics
 from ..report.records import RunResult, run_result, write_run_files
 from ..system import Job
@@ -37,24 +43,81 @@ from .channels import (
     child_setup,
     flush_c_stdio,
     send_frame,
-    start_process,
+    start_without_main,
 )
 from .job import run_job
 
-__all__ = ["FORKSERVER_PRELOAD", "not_run", "run_isolated"]
+__all__ = ["FORKSERVER_PRELOAD", "IdleWorkers", "inherited_fds", "not_run", "process_context",
+           "run_isolated", "start_process"]
 
-#: Modules the fork server imports once, so that each run's child starts with them
-#: instead of importing them again: this module (and with it fmpy's wrapper, numpy,
-#: matplotlib) and the third-party modules the component cores import at instantiation
-#: (scipy.signal alone took ~1 s a run on a 2-core machine). Third-party only: the cores
-#: (agv_core) must still come from each FMU's own resources, as the FMU was built. A
-#: module missing here is skipped by the fork server.
-FORKSERVER_PRELOAD = (__name__, "fmpy.fmi2", "numpy", "scipy.signal", "scipy.linalg",
-                      "scipy.optimize", "scipy.special", "scipy.integrate")
+#: Modules the fork server (used when this process has other threads, see
+#: :func:`process_context`) imports once, so that each worker starts with them: this
+#: module (and with it numpy) and fmpy's wrapper. Not the scientific modules a
+#: component core may import (scipy.signal, ...): a worker imports those when an FMU of
+#: its run needs them, once per worker. A module missing here is skipped by the fork
+#: server.
+FORKSERVER_PRELOAD = (__name__, "fmpy.fmi2", "numpy")
+
+
+def process_context() -> ForkContext | ForkServerContext:
+    """The multiprocessing context of the processes that run FMUs.
+
+    ``fork`` while this process runs a single thread: the child starts at once, with
+    every module this process has imported, and no fork server is started (it closes
+    what it inherited, see :func:`~agv_cosim.pipeline.channels.child_setup`). Otherwise
+    the ``forkserver`` (preloaded with :data:`FORKSERVER_PRELOAD`): forking a process
+    in which another thread runs may copy a lock that thread holds.
+    """
+    if threading.active_count() == 1:
+        return get_context("fork")
+    context = get_context("forkserver")
+    context.set_forkserver_preload(list(FORKSERVER_PRELOAD))
+    return context
+
+
+def inherited_fds(context: ForkContext | ForkServerContext) -> list[int] | None:
+    """What a child of ``context`` is to close of what it inherits: this process's open
+    descriptors when it forks from this process, else None (a fork server's child
+    inherits only what it is given); flushes this process's stdout and stderr first (a
+    forked child would write their buffers again)."""
+    if context.get_start_method() != "fork":
+        return None
+    sys.stdout.flush()
+    sys.stderr.flush()
+    return open_fds()
+
+
+def start_process(process: Any, context: ForkContext | ForkServerContext) -> None:
+    """Start ``process`` (of ``context``); when it is forked from this process, with this
+    process's objects frozen out of the garbage collector meanwhile (``gc.freeze``):
+    the child's collections then never walk the command's heap (the jobs, the
+    manifest), which would cost time and copy its pages; else (the fork server) without
+    the caller's ``__main__`` (:func:`~agv_cosim.pipeline.channels.start_without_main`)."""
+    if context.get_start_method() != "fork":
+        start_without_main(process)
+        return
+    gc.freeze()
+    try:
+        process.start()
+    finally:
+        gc.unfreeze()
+
+
+def _exit_fd(pid: int | None) -> int | None:
+    """A pidfd of process ``pid`` (Linux 5.3 and later), which reads ready once the
+    process has ended, or None. A forked worker's sentinel (a pipe the worker holds)
+    reads ready while the worker is still exiting, which a wait on it would spin on."""
+    pidfd_open = getattr(os, "pidfd_open", None)
+    if pidfd_open is None or pid is None:
+        return None
+    try:
+        return int(pidfd_open(pid))
+    except OSError:
+        return None
 
 
 def _worker(jobs: Connection, channel: Connection, output: Connection, life: Connection,
-            scratch: str, track: Track) -> None:
+            scratch: str, track: Track, inherited: list[int] | None = None) -> None:
     """Body of a worker process: run the jobs the parent sends, one at a time.
 
     ``jobs`` is the reading end of a pipe that brings ``(job, run_dir)`` or None (stop);
@@ -69,9 +132,9 @@ def _worker(jobs: Connection, channel: Connection, output: Connection, life: Con
 
     FMUs are extracted under ``scratch``, which the parent deletes however the worker
     ends (a process that dies cannot clean up after itself). See :func:`child_setup`
-    for how the worker lives and ends.
+    for how the worker lives and ends (``inherited``: see :func:`inherited_fds`).
     """
-    child_setup(output, life)
+    child_setup(output, life, inherited, (jobs, channel))
     tempfile.tempdir = scratch
     keep_extractions(scratch)  # each FMU unpacked once per worker (the parent deletes it)
     fd = channel.fileno()
@@ -172,9 +235,53 @@ def _process_end(exitcode: int | None) -> str:
     return f"the run's process died ({how})"
 
 
+class IdleWorkers:
+    """Workers that :func:`run_isolated` leaves running when it returns, for the next
+    call to take (a run host's, :mod:`agv_cosim.pipeline.host`): each ended its last
+    run ``complete`` and waits for a job. Their life pipe (see :func:`child_setup`)
+    stays open with them; :meth:`close` ends them."""
+
+    def __init__(self) -> None:
+        #: each: dict as :func:`run_isolated` keeps them (process, send, frames, ...)
+        self.workers: list[dict[str, Any]] = []
+        #: (reading end, writing end) of the life pipe, made by the first call
+        self.life: tuple[Connection, Connection] | None = None
+
+    def take(self) -> dict[str, Any] | None:
+        """A worker that is still alive (the dead ones cleaned up), or None."""
+        while self.workers:
+            worker = self.workers.pop()
+            if worker["process"].is_alive():
+                return worker
+            self._end(worker)
+        return None
+
+    @staticmethod
+    def _end(worker: dict[str, Any]) -> None:
+        kill_group(worker["process"])
+        worker["process"].join()
+        if worker["pidfd"] is not None:
+            os.close(worker["pidfd"])
+            worker["pidfd"] = None
+        for name in ("output", "send", "frames"):
+            worker[name].close()
+        shutil.rmtree(worker["scratch"], ignore_errors=True)
+
+    def close(self) -> None:
+        """End the workers (their process groups killed) and close the life pipe."""
+        for worker in self.workers:
+            self._end(worker)
+        self.workers.clear()
+        if self.life is not None:
+            for connection in self.life:
+                connection.close()
+            self.life = None
+
+
 def run_isolated(jobs: list[Job], root: Path, workers: int,
                  on_progress: Callable[[int], None],
-                 on_done: Callable[[], None]) -> list[RunResult]:
+                 on_done: Callable[[], None],
+                 idle: IdleWorkers | None = None) -> list[RunResult]:
     """Run every job in a worker process, ``workers`` processes at a time.
 
     A worker runs one job at a time and gets the next one only if its last run ended
@@ -191,9 +298,12 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
     the termination signals ignored until ``.restore()`` is called, so that the caller
     can keep what was done. A run whose process ended before it reported has the time
     from handing it out to its end as its ``wall_time_s``.
+
+    With ``idle``, the workers of that :class:`IdleWorkers` take jobs first, and the
+    workers whose last run ended ``complete`` are left running in it when the runs are
+    done (else every worker is ended before this returns).
     """
-    context = get_context("forkserver")
-    context.set_forkserver_preload(list(FORKSERVER_PRELOAD))
+    context = process_context()
     results: list[RunResult | None] = [None] * len(jobs)
     last_message = [None] * len(jobs)
     waiting = list(range(len(jobs)))
@@ -201,7 +311,12 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
     #: started: when its run was handed out, the wall time of a run it does not report)
     pool: list[dict[str, Any]] = []
     # closes when this process ends, however: each worker's guard then ends its group
-    life_reader, life_writer = context.Pipe(duplex=False)
+    if idle is not None and idle.life is not None:
+        life_reader, life_writer = idle.life
+    else:
+        life_reader, life_writer = context.Pipe(duplex=False)
+        if idle is not None:
+            idle.life = (life_reader, life_writer)
 
     def start_worker() -> dict[str, Any]:
         job_reader, job_writer = context.Pipe(duplex=False)
@@ -212,13 +327,16 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         track[0] = -1.0  # no component yet
         process = context.Process(target=_worker, name="agv-cosim worker",
                                   args=(job_reader, writer, out_writer, life_reader, scratch,
-                                        track))
-        start_process(process)
+                                        track, inherited_fds(context)))
+        start_process(process, context)
         for end in (job_reader, writer, out_writer):
             end.close()
-        worker = {"process": process, "send": job_writer, "frames": Frames(reader),
+        pidfd = _exit_fd(process.pid)
+        worker = {"process": process, "pidfd": pidfd,
+                  "exited": process.sentinel if pidfd is None else pidfd,
+                  "send": job_writer, "frames": Frames(reader),
                   "output": OutputLog(out_reader), "scratch": scratch, "track": track,
-                  "index": None, "deadline": None, "started": None}
+                  "index": None, "deadline": None, "started": None, "leaving": False}
         pool.append(worker)
         return worker
 
@@ -253,6 +371,9 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         worker["output"].close()
         worker["send"].close()
         worker["frames"].close()
+        if worker["pidfd"] is not None:
+            os.close(worker["pidfd"])
+            worker["pidfd"] = None
         shutil.rmtree(worker["scratch"], ignore_errors=True)
         if worker in pool:  # (an interruption may have come in the middle of an end)
             pool.remove(worker)
@@ -269,23 +390,33 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
             worker["index"] = worker["deadline"] = None
             on_done()
             if payload["status"] != "complete":
+                worker["leaving"] = True
                 return  # the worker exits by itself: its end retires it
             if waiting:
                 give(worker)
-            else:  # nothing left for it: let it exit
+            elif idle is None:  # nothing left for it: let it exit
+                worker["leaving"] = True
                 try:
                     worker["send"].send(None)
                 except OSError:
                     pass
 
+    def busy() -> bool:
+        return any(w["index"] is not None or w["leaving"] for w in pool)
+
     try:
-        while waiting or pool:
+        while waiting or busy():
             while waiting and len(pool) < workers:
-                give(start_worker())
+                kept = idle.take() if idle is not None else None
+                if kept is not None:
+                    pool.append(kept)
+                    give(kept)
+                else:
+                    give(start_worker())
             now = time.monotonic()
             deadlines = [w["deadline"] for w in pool if w["deadline"] is not None]
             pause = min([1.0] + [max(0.0, d - now) for d in deadlines])
-            handles = [w["process"].sentinel for w in pool]
+            handles = [w["exited"] for w in pool]
             handles += [w["frames"].fd for w in pool if not w["frames"].closed]
             handles += [w["output"].fd for w in pool if not w["output"].closed]
             wait(handles, timeout=pause)
@@ -317,9 +448,17 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         raise
     finally:
         for worker in list(pool):
-            end(worker)
-        life_reader.close()
-        life_writer.close()
+            if (idle is not None and worker["index"] is None and not worker["leaving"]
+                    and worker["process"].is_alive()):
+                worker["output"].read()
+                worker["output"].detach()  # the run's output.txt is complete and closed
+                pool.remove(worker)
+                idle.workers.append(worker)
+            else:
+                end(worker)
+        if idle is None:
+            life_reader.close()
+            life_writer.close()
     done = [r for r in results if r is not None]
     assert len(done) == len(results), "a run ended without a result"
     return done

@@ -217,6 +217,9 @@ def progress_bar() -> type:
 
     class Bar(tqdm):
         drawn = False
+        # no monitor thread: the runs' processes are forked from this process while it
+        # has a single thread (agv_cosim.pipeline.pool.process_context)
+        monitor_interval = 0
 
         def display(self, *args: Any, **kwargs: Any) -> Any:
             self.drawn = True

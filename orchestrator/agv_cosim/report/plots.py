@@ -82,17 +82,17 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeGuard
+from typing import TYPE_CHECKING, Any, TypeGuard
 
 import numpy as np
-from matplotlib import rc_context
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 
 from ..files import open_output
 from ..manifest import schema
 from ..timeseries import CHUNK_ROWS, count_rows, iter_timeseries, timeseries_columns
 from .metrics import load_path
+
+if TYPE_CHECKING:  # matplotlib is imported by the functions that draw, when they draw
+    from matplotlib.figure import Figure
 
 #: File names of the figures (stable, so that a rerun overwrites them).
 SIGNALS_FILE = "signals.png"
@@ -611,6 +611,8 @@ def _save(figure, path, dpi):
             # pixels its outline crosses (4 h run: +18.5 MiB to draw, +6.7 MiB in chunks
             # of 1000 points). Only such figures are drawn in chunks, so the others keep
             # their exact bytes.
+            from matplotlib import rc_context
+
             with rc_context({"agg.path.chunksize": _AGG_CHUNK}):
                 figure.savefig(stream, dpi=dpi, format="png", metadata={"Software": None})
         else:
@@ -621,7 +623,7 @@ def _save(figure, path, dpi):
 def signals_figure(runs: Iterable["RunData"],
                    spec: "schema.PlotsTable | dict[str, Any] | None",
                    units: dict[str, str] | None = None,
-                   sampled: Iterable[str] = ()) -> Figure:
+                   sampled: Iterable[str] = ()) -> "Figure":
     """The figure of ``signals.png``: one subplot per signal, every run overlaid.
 
     Parameters
@@ -647,6 +649,9 @@ def signals_figure(runs: Iterable["RunData"],
     names = spec["signals"]
     units = {**(units or {}), **spec["units"]}
     units.setdefault("time", "s")
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
     figure = Figure(figsize=(_WIDTH, 1.0 + 2.0 * len(names)), layout="constrained")
     axes = figure.subplots(len(names), 1, sharex=True, squeeze=False)[:, 0]
     buckets = _buckets(spec)
@@ -721,7 +726,7 @@ def _offsets_along(geometry, x, y):
 def trajectory_figure(runs: Iterable["RunData"],
                       spec: "schema.PlotsTable | dict[str, Any] | None",
                       geometry: Any = None, units: dict[str, str] | None = None,
-                      sampled: Iterable[str] = ()) -> Figure:
+                      sampled: Iterable[str] = ()) -> "Figure":
     """The figure of ``trajectory.png``: x-y of every run over the reference path and,
     with a path, each run's lateral offset from it along the path.
 
@@ -753,6 +758,9 @@ def trajectory_figure(runs: Iterable["RunData"],
     units = {**(units or {}), **spec["units"]}
     buckets = _buckets(spec, trajectory=True)
     styles = run_styles(runs, units, sampled)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
     if geometry is None:
         figure = Figure(figsize=(_WIDTH, 6.0), layout="constrained")
         ax = figure.add_subplot()
@@ -913,7 +921,7 @@ def _finite(value):
 
 
 def sweep_metrics_figure(rows: list, key: str, metrics: list, units: dict,
-                         title: str | None = None) -> Figure:
+                         title: str | None = None) -> "Figure":
     """Each metric against the swept value ``key``, one line (with markers) per group:
     the variant and the other swept values.
 
@@ -938,6 +946,9 @@ def sweep_metrics_figure(rows: list, key: str, metrics: list, units: dict,
     others = [k for k in sweep_keys(points) if k != key]
     cols = 2 if len(metrics) > 3 else 1
     nrows = -(-len(metrics) // cols)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
     figure = Figure(figsize=(_WIDTH, 0.8 + 2.4 * nrows), layout="constrained")
     axes = figure.subplots(nrows, cols, squeeze=False).ravel()
     groups: dict[str, list[dict[str, Any]]] = {}
@@ -978,7 +989,7 @@ def spearman(x: Any, y: Any) -> float | None:
 
 
 def montecarlo_figure(rows: list, parameters: list, metrics: list, units: dict,
-                      title: str | None = None) -> Figure:
+                      title: str | None = None) -> "Figure":
     """Monte Carlo results: per metric (one row of panels), box plots per group in the
     metric's unit, then a scatter of the metric against each sampled parameter with
     Spearman's rank correlation rho per group.
@@ -1002,6 +1013,9 @@ def montecarlo_figure(rows: list, parameters: list, metrics: list, units: dict,
     """
     groups = list(dict.fromkeys(row["group"] for row in rows))
     cols = 1 + len(parameters)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
     figure = Figure(figsize=(max(_WIDTH, 2.9 * cols), 0.9 + 2.7 * len(metrics)),
                     layout="constrained")
     axes = figure.subplots(len(metrics), cols, squeeze=False)
@@ -1060,7 +1074,7 @@ def montecarlo_figure(rows: list, parameters: list, metrics: list, units: dict,
     return figure
 
 
-def save_figure(figure: Figure, path: str | Path, dpi: int = DEFAULT_DPI) -> Path:
+def save_figure(figure: "Figure", path: str | Path, dpi: int = DEFAULT_DPI) -> Path:
     """Write ``figure`` as a PNG at ``path`` (fixed metadata: same figure, same bytes;
     never through a symbolic link)."""
     return _save(figure, Path(path), dpi)

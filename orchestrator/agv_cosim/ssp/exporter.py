@@ -25,7 +25,6 @@ interval and the manifest's ``[metrics]`` and ``[plots]`` tables (``agv:Metrics`
 names is not packed). Other tools ignore it.
 """
 
-import argparse
 import json
 import os
 import tempfile
@@ -53,7 +52,6 @@ from .common import (
     ssp_type,
     unit_definitions,
 )
-from .importer import opened
 
 
 def _enumeration_types(fmu_path):
@@ -321,30 +319,3 @@ def _refuse_what_ssp_cannot_hold(manifest: Manifest, one: Any) -> None:
         raise refuse(own, f"events.{event.name}", "a scenario event cannot be written to "
                      "an SSP package (SSP 1.0 has no events)")
 
-
-def _cmd_export_ssp(args: argparse.Namespace) -> int:
-    with opened(args.manifest) as manifest:
-        out = export_ssp(manifest, args.output, args.variant, args.set)
-    print(out)
-    return 0
-
-
-def add_cli(subparsers: Any) -> argparse.ArgumentParser:
-    """Register ``agv-cosim export-ssp`` on the CLI's subparsers."""
-    parser = subparsers.add_parser(
-        "export-ssp", help="write one run of a manifest as an SSP 1.0 package",
-        description="Write one run (one variant, no sweep) of a manifest as a "
-                    "self-contained SSP 1.0 package: SystemStructure.ssd (components, "
-                    "connectors with units, connections, parameter values, default "
-                    "experiment with the fixed step libcosim reads) and the FMUs under "
-                    "resources/.")
-    parser.add_argument("manifest", help="experiment manifest (TOML)")
-    parser.add_argument("--variant", metavar="NAME", help="the variant to export")
-    parser.add_argument("--set", action="append", default=[], metavar="COMP.PARAM=VALUE",
-                        help="override a parameter (repeatable)")
-    parser.add_argument("-o", "--output", required=True, metavar="FILE.ssp",
-                        help="the package to write")
-    parser.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
-                        help="show tracebacks on errors")
-    parser.set_defaults(func=_cmd_export_ssp)
-    return parser

@@ -1,0 +1,108 @@
+"""Benchmark: ``--jobs N`` efficiency on a sweep, T(jobs 1) / (N x T(jobs N)).
+
+The seed-000 loop (``experiments/seed000_models_abc.toml`` variant ``a``, 5 FMUs, its
+metrics and figure; ``--no-plots``: without ``[plots]``) with ``stop`` = ``--stop``
+(default 2 s, 2000 steps of 1 ms), swept over ``--runs`` values of ``vehicle.v0``
+(default 32). Each round runs the whole command
+(``agv-cosim run ... --quiet``) with ``--jobs 1`` and then ``--jobs N``, and checks that
+the two result folders hold the same bytes (see :func:`_same`). It
+prints each round's wall and CPU times (the command and its children, ``RUSAGE_CHILDREN``)
+and efficiency, and the median efficiency.
+
+Run: ``.venv/bin/python benchmarks/bench_jobs.py [--runs 32] [--stop 2] [--jobs 2]
+[--rounds 3]``
+"""
+
+import argparse
+import filecmp
+import json
+import re
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _manifest(folder: Path, runs: int, stop: float, plots: bool) -> Path:
+    text = (ROOT / "experiments" / "seed000_models_abc.toml").read_text()
+    if not plots:
+        text = text[:text.index("[plots]")]
+    text = re.sub(r"(?m)^stop = .*$", f"stop = {stop!r}", text)
+    text = text.replace('"../fmus/', f'"{ROOT / "fmus"}/')
+    values = ", ".join(repr(1.0 + 0.01 * i) for i in range(runs))
+    text += f'\n[sweep]\n"vehicle.v0" = [{values}]\n'
+    path = folder / "jobs_sweep.toml"
+    path.write_text(text)
+    return path
+
+
+def _run(manifest: Path, out: Path, jobs: int) -> tuple[float, float]:
+    """(wall s, CPU s of the command and its children)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    done = subprocess.run([str(ROOT / ".venv" / "bin" / "agv-cosim"), "run", str(manifest),
+                           "--variant", "a", "--jobs", str(jobs), "--out", str(out),
+                           "--overwrite", "--quiet"], capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode != 0:
+        sys.exit(f"--jobs {jobs}: exit {done.returncode}: {done.stderr.strip()[-500:]}")
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def _same(a: Path, b: Path) -> bool:
+    """The two result folders hold the same time series, metrics, records and figures
+    (``run.json`` without its wall time; ``index.html`` quotes wall times)."""
+    for path in sorted(a.rglob("*")):
+        if not path.is_file() or path.suffix not in (".csv", ".json", ".png"):
+            continue
+        other = b / path.relative_to(a)
+        if path.name == "run.json":
+            left, right = (json.loads(p.read_text()) for p in (path, other))
+            for info in (left, right):
+                info.pop("wall_time_s", None)
+            if left != right:
+                return False
+        elif not filecmp.cmp(path, other, shallow=False):
+            return False
+    return True
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--runs", type=int, default=32)
+    parser.add_argument("--stop", type=float, default=2.0)
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--no-plots", action="store_true",
+                        help="without the manifest's [plots] (no signals.png; the page's "
+                             "sweep figure is still drawn)")
+    args = parser.parse_args()
+    efficiencies = []
+    with tempfile.TemporaryDirectory(prefix="bench-jobs-") as tmp:
+        folder = Path(tmp)
+        manifest = _manifest(folder, args.runs, args.stop, not args.no_plots)
+        print(f"{args.runs} runs of {args.stop:g} s (seed000 variant a), --jobs 1 against "
+              f"--jobs {args.jobs}")
+        for round_ in range(1, args.rounds + 1):
+            one, cpu_one = _run(manifest, folder / "one", 1)
+            many, cpu_many = _run(manifest, folder / "many", args.jobs)
+            same = _same(folder / "one", folder / "many")
+            efficiency = one / (args.jobs * many)
+            efficiencies.append(efficiency)
+            print(f"round {round_}: --jobs 1 {one:.2f} s wall ({cpu_one:.2f} s CPU), "
+                  f"--jobs {args.jobs} {many:.2f} s wall ({cpu_many:.2f} s CPU), "
+                  f"efficiency {efficiency:.1%}, result folders "
+                  f"{'identical' if same else 'DIFFER'}")
+            if not same:
+                sys.exit("the result folders differ")
+    print(f"median efficiency {statistics.median(efficiencies):.1%} (target >= 85 %)")
+
+
+if __name__ == "__main__":
+    main()
