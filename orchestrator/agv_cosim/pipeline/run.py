@@ -120,9 +120,11 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
                   file=sys.stderr)
         workers = max(1, min(workers or os.cpu_count() or 1, len(todo)))
         total = sum(job.plan.steps for job in todo)
-        bar = progress_bar()(total=total, desc=manifest.name, unit="step", delay=2.0, disable=quiet,
-                   file=sys.stderr, mininterval=0.5,
-                   postfix={"runs": f"{len(reused)}/{len(jobs)}"})
+        # smoothing 0: the rate (and the ETA) averaged since the start, not over the last
+        # updates, which the first runs' start-up (FMUs unpacked, loaded) makes slow
+        bar = progress_bar()(total=total, desc=manifest.name, unit="step", delay=2.0,
+                             disable=quiet, file=sys.stderr, mininterval=0.5, smoothing=0,
+                             postfix={"runs": f"{len(reused)}/{len(jobs)}"})
         finished = len(reused)
 
         def run_done() -> None:
