@@ -69,7 +69,12 @@ fmu = "{fmus}/AgvVehicle.fmu"
 parameters = {{ wheelbase = 1.4944, v0 = 1.0, y0 = 0.1, reference_point = "front" }}
 [components.sensor]
 fmu = "{fmus}/AgvVisionSensor.fmu"
-parameters = {{ path = "{path}", frame_period = 0.0, latency = 0.0, noise_lateral = 0.0, noise_heading = 0.0 }}
+[components.sensor.parameters]
+path = "{path}"
+frame_period = 0.0
+latency = 0.0
+noise_lateral = 0.0
+noise_heading = 0.0
 [components.steer]
 fmu = "{fmus}/AgvSteerSensor.fmu"
 parameters = {{ noise = 0.0, resolution = 0.0 }}

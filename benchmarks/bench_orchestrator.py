@@ -39,7 +39,6 @@ Run: ``python benchmarks/bench_orchestrator.py [--rounds 3] [--stop 20] [--recor
 """
 
 import argparse
-import ctypes
 import json
 import os
 import resource

@@ -97,7 +97,8 @@ def main():
             ours.append(per_step)
             theirs.append(time_libcosim(package, record, step, n))
         a, b = statistics.median(ours), statistics.median(theirs)
-        print(f"seed 000 model a, 5 FMUs, {n} macro steps of {step * 1e3:g} ms, {args.rounds} rounds")
+        print(f"seed 000 model a, 5 FMUs, {n} macro steps of {step * 1e3:g} ms, "
+              f"{args.rounds} rounds")
         print(f"agv-cosim master (Jacobi): {a * 1e6:8.1f} us per macro step")
         print(f"libcosim 0.11 (Jacobi):    {b * 1e6:8.1f} us per macro step")
         print(f"ratio libcosim / agv-cosim: {b / a:.2f}  "
