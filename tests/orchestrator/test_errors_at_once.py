@@ -71,3 +71,21 @@ def test_a_problem_of_every_variant_is_said_once_without_a_variant(chain, capsys
     # a problem of one variant's own key is said once and names it
     assert "variants.fast.components.gain2.parameters.kk" in err[1]
     assert err[1].count("unknown parameter 'kk'") == 1
+
+
+def test_each_problem_is_said_once(chain, fmus, capsys):
+    # swap gives gain another interface: the base's parameter and both connections of
+    # gain fail in its run only, found by two checks (parameters, then connections)
+    variants = f"""
+[variants.unit.components.gain]
+parameters = {{ k = 1.0 }}
+[variants.swap.components.gain]
+fmu = "{fmus['agv_test_pair']}"
+"""
+    path = chain(extra=variants)
+    assert cli.main(["validate", str(path), "--no-init"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == len(set(err)) == 3, err
+    assert [line.split(": ", 5)[3:5] for line in err] == [
+        ["components.gain.parameters.k", "variant 'swap'"],
+        ["connections[0].to", "variant 'swap'"], ["connections[1].from", "variant 'swap'"]], err

@@ -184,6 +184,8 @@ def raise_all(problems: list[ManifestError]) -> None:
             if str(one) not in seen:
                 seen.add(str(one))
                 found.append(one)
+    for one in found:
+        one.others = []
     if found:
         first = found[0]
         first.others = found[1:]
