@@ -21,7 +21,8 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from multiprocessing.connection import Connection, wait
 from multiprocessing.context import ForkContext, ForkServerContext
@@ -47,7 +48,8 @@ from .channels import (
 )
 from .job import run_job
 
-__all__ = ["FORKSERVER_PRELOAD", "IdleWorkers", "inherited_fds", "not_run", "process_context",
+__all__ = ["FORKSERVER_PRELOAD", "IdleWorkers", "call_concurrently", "inherited_fds", "not_run",
+           "process_context",
            "run_isolated", "start_process"]
 
 #: Modules the fork server (used when this process has other threads, see
@@ -101,6 +103,51 @@ def start_process(process: Any, context: ForkContext | ForkServerContext) -> Non
         process.start()
     finally:
         gc.unfreeze()
+
+
+#: The tasks of :func:`call_concurrently` under way: its forked processes inherit them
+#: and are sent an index, so that no task need be pickled.
+_TASKS: Sequence[Callable[[], Any]] = ()
+
+
+def _call_task(index: int) -> Any:
+    return _TASKS[index]()
+
+
+def call_concurrently(tasks: Sequence[Callable[[], Any]], workers: int,
+                      failed: Callable[[BaseException], Any]) -> list[Any]:
+    """Call each of ``tasks`` and return what they returned, in order.
+
+    With more than one task and ``workers``, while this process runs a single thread,
+    in up to ``workers`` processes forked from it (started at once, with this process's
+    objects frozen out of their garbage collector, as :func:`start_process`); each
+    task's result is sent back pickled. Otherwise here, one after the other. A task that
+    raises, or whose process died, gives ``failed(exception)`` instead.
+    """
+    global _TASKS
+    if workers < 2 or len(tasks) < 2 or threading.active_count() != 1:
+        return [_guarded(task, failed) for task in tasks]
+    sys.stdout.flush()
+    sys.stderr.flush()
+    _TASKS = tasks
+    try:
+        with ProcessPoolExecutor(max_workers=min(workers, len(tasks)),
+                                 mp_context=get_context("fork")) as executor:
+            gc.freeze()
+            try:  # a fork context starts every process at the first submit
+                futures = [executor.submit(_call_task, i) for i in range(len(tasks))]
+            finally:
+                gc.unfreeze()
+            return [_guarded(future.result, failed) for future in futures]
+    finally:
+        _TASKS = ()
+
+
+def _guarded(call: Callable[[], Any], failed: Callable[[BaseException], Any]) -> Any:
+    try:
+        return call()
+    except Exception as failure:  # noqa: BLE001 - given to the caller's ``failed``
+        return failed(failure)
 
 
 def _exit_fd(pid: int | None) -> int | None:

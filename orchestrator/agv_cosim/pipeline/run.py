@@ -35,8 +35,9 @@ when any run has rows.
 
 import os
 import sys
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -44,11 +45,11 @@ from ..errors import FolderLost, OutputError
 from ..files import AtomicDir, printable, write_summary, write_text
 from ..manifest import Manifest
 from ..report import montecarlo, plots
-from ..report.page import write_report_quietly
+from ..report.page import draw_figures, write_report_quietly
 from ..report.records import TIMINGS, RunResult, summary_rows, write_timings
 from ..system import Job
 from .distributed import run_on_dask
-from .pool import run_isolated
+from .pool import call_concurrently, run_isolated
 from .prepare import prepare
 from .resume import check_resumable, reuse_runs
 
@@ -118,7 +119,8 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
             print(printable(f"agv-cosim: resume: reused {len(reused)} of {len(jobs)} "
                             f"run(s) of {folder.target}; running {len(todo)}"),
                   file=sys.stderr)
-        workers = max(1, min(workers or os.cpu_count() or 1, len(todo)))
+        workers_asked = max(1, workers or os.cpu_count() or 1)
+        workers = min(workers_asked, max(1, len(todo)))
         total = sum(job.plan.steps for job in todo)
         # smoothing 0: the rate (and the ETA) averaged since the start, not over the last
         # updates, which the first runs' start-up (FMUs unpacked, loaded) makes slow
@@ -153,22 +155,7 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         results = [_checked_files(job, result, written)
                    for job, result in zip(jobs, results)]
         _write_summary(folder, results)
-        if manifest.montecarlo is not None:
-            figure_error = montecarlo.write_outputs(manifest.montecarlo, jobs, results,
-                                                    written, manifest.name)
-            if figure_error:
-                write_text(written / "montecarlo_error.txt", figure_error + "\n")
-                print(printable(f"agv-cosim: warning: {manifest.path}: montecarlo figure: "
-                                f"{figure_error}"), file=sys.stderr)
-        plot_error = _plots(manifest, jobs, results, written)
-        if plot_error:
-            write_text(written / "plots_error.txt", plot_error + "\n")
-            print(printable(f"agv-cosim: warning: {manifest.path}: plots: {plot_error}"),
-                  file=sys.stderr)
-        # index.html and the comparison figures, read from the folder's files
-        if report_error := write_report_quietly(written):
-            print(printable(f"agv-cosim: warning: {manifest.path}: report: {report_error}"),
-                  file=sys.stderr)
+        _finish(manifest, jobs, results, written, workers_asked)
         target = folder.commit()
     return target, results
 
@@ -305,6 +292,41 @@ def _keep_partial(manifest: Manifest, jobs: list[Job], folder: AtomicDir,
     finally:
         if restore is not None:
             restore()
+
+
+def _finish(manifest: Manifest, jobs: list[Job], results: list[RunResult], written: Path,
+            workers: int) -> None:
+    """Write ``montecarlo.json``, then every figure of the folder (montecarlo.png, the
+    ``[plots]`` figures, the page's figures; each task writes its own files) in up to
+    ``workers`` processes at once (:func:`~.pool.call_concurrently`), then index.html,
+    which lists the figures written. A figure's failure is written to the folder
+    (``*_error.txt``) and said on stderr; the results stay."""
+    tasks: list[Callable[[], str | list[str] | None]] = []
+    if manifest.montecarlo is not None:
+        montecarlo.write_aggregate(manifest.montecarlo, jobs, results, written)
+        tasks.append(partial(montecarlo.draw, manifest.montecarlo, jobs, results, written,
+                             manifest.name))
+    tasks.append(partial(_plots, manifest, jobs, results, written))
+    tasks.append(partial(draw_figures, written))
+    outcomes = call_concurrently(tasks, workers,
+                                 lambda failure: f"{type(failure).__name__}: {failure}")
+    if manifest.montecarlo is not None:
+        figure_error = outcomes.pop(0)
+        if figure_error:
+            write_text(written / "montecarlo_error.txt", f"{figure_error}\n")
+            print(printable(f"agv-cosim: warning: {manifest.path}: montecarlo figure: "
+                            f"{figure_error}"), file=sys.stderr)
+    plot_error, drawn = outcomes
+    if plot_error:
+        write_text(written / "plots_error.txt", f"{plot_error}\n")
+        print(printable(f"agv-cosim: warning: {manifest.path}: plots: {plot_error}"),
+              file=sys.stderr)
+    # index.html, read from the folder's files (the figures drawn above among them)
+    report_error = printable(drawn) if isinstance(drawn, str) else \
+        write_report_quietly(written, drawn)
+    if report_error:
+        print(printable(f"agv-cosim: warning: {manifest.path}: report: {report_error}"),
+              file=sys.stderr)
 
 
 def _plots(manifest: Manifest, jobs: list[Job], results: list[RunResult],

@@ -19,7 +19,7 @@ from ..manifest.montecarlo import MonteCarlo
 from ..plan.sampling import group_name
 from .page import metric_unit
 
-__all__ = ["aggregate", "figure", "statistics", "write_outputs"]
+__all__ = ["aggregate", "draw", "figure", "statistics", "write_aggregate", "write_outputs"]
 
 
 def statistics(values: Iterable[float | None], runs: int) -> dict[str, Any]:
@@ -144,12 +144,25 @@ def figure(mc: MonteCarlo, jobs: list[Any], results: list[Any], folder: str | Pa
     return path
 
 
-def write_outputs(mc: MonteCarlo, jobs: list[Any], results: list[Any], folder: str | Path,
-                  title: str | None = None) -> str | None:
-    """Write ``montecarlo.json`` and ``montecarlo.png``; return a figure error or None."""
+def write_aggregate(mc: MonteCarlo, jobs: list[Any], results: list[Any],
+                    folder: str | Path) -> None:
+    """Write ``montecarlo.json`` (:func:`aggregate`)."""
     write_json(Path(folder) / "montecarlo.json", aggregate(mc, jobs, results))
+
+
+def draw(mc: MonteCarlo, jobs: list[Any], results: list[Any], folder: str | Path,
+         title: str | None = None) -> str | None:
+    """Write ``montecarlo.png`` (:func:`figure`); return its error as one line, or
+    None."""
     try:
         figure(mc, jobs, results, folder, title)
     except Exception as failure:  # noqa: BLE001 - a figure must not lose the results
         return f"{type(failure).__name__}: {failure}"
     return None
+
+
+def write_outputs(mc: MonteCarlo, jobs: list[Any], results: list[Any], folder: str | Path,
+                  title: str | None = None) -> str | None:
+    """Write ``montecarlo.json`` and ``montecarlo.png``; return a figure error or None."""
+    write_aggregate(mc, jobs, results, folder)
+    return draw(mc, jobs, results, folder, title)

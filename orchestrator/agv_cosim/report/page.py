@@ -40,6 +40,8 @@ import math
 import os
 import stat
 import tomllib
+from collections.abc import Iterable
+from functools import partial
 from importlib import resources
 from pathlib import Path
 from string import Template
@@ -254,7 +256,8 @@ def collect_units(runs: list[dict], manifest: dict) -> dict:
 # --------------------------------------------------------------------------- figures
 
 def _comparison_figures(runs, manifest, units, sampled, title):
-    """(file name, figure) of the comparison figures the result calls for."""
+    """(file name, function that draws the figure) of the comparison figures the result
+    calls for."""
     figures = []
     names = _metric_names(runs, varying=True)
     if not runs or not names:
@@ -269,7 +272,8 @@ def _comparison_figures(runs, manifest, units, sampled, title):
         rows = [{"group": _group(run, sampled), "point": run["sweep_point"],
                  "status": run.get("status"), "metrics": run["metrics"]} for run in runs]
         figures.append((plots.MONTECARLO_SCATTER_FILE,
-                        plots.montecarlo_figure(rows, parameters, chosen, units, title)))
+                        partial(plots.montecarlo_figure, rows, parameters, chosen, units,
+                                title)))
         return figures
     key = plots.colour_key(points)
     if key is None:
@@ -279,8 +283,8 @@ def _comparison_figures(runs, manifest, units, sampled, title):
     if key is not None:
         rows = [{"variant": run.get("variant"), "point": run["sweep_point"],
                  "status": run.get("status"), "metrics": run["metrics"]} for run in runs]
-        figures.append((plots.SWEEP_FILE, plots.sweep_metrics_figure(
-            rows, key, main_metrics(names, 6), units, title)))
+        figures.append((plots.SWEEP_FILE, partial(
+            plots.sweep_metrics_figure, rows, key, main_metrics(names, 6), units, title)))
     return figures
 
 
@@ -516,7 +520,46 @@ def _fresh(path):
     return path
 
 
-def write_report(folder: str | Path, *, locked: bool = False) -> Path:
+def _inputs(folder):
+    """What the page of ``folder`` shows: (runs, manifest, its source, units, the
+    comparison figures (name, function that draws it), their dpi)."""
+    runs = read_runs(folder)
+    if not runs:
+        raise OutputError(f"{folder}: holds no run (no <run>/run.json)")
+    manifest, source = read_manifest(folder, runs)
+    units = collect_units(runs, manifest)
+    sampled = plots.sampled_names(folder)
+    title = (manifest.get("plots") or {}).get("title") or manifest.get("name")
+    dpi = (manifest.get("plots") or {}).get("dpi")
+    dpi = dpi if isinstance(dpi, int) and 20 <= dpi <= 600 else plots.DEFAULT_DPI
+    figures = _comparison_figures(runs, manifest, units, sampled, title)
+    return runs, manifest, source, units, figures, dpi
+
+
+def _checked_folder(folder: str | Path) -> Path:
+    folder = Path(os.path.abspath(folder))
+    if folder.is_symlink() or not folder.is_dir():
+        raise OutputError(f"{folder}: not a folder")
+    if marker_data(folder) is None:
+        raise OutputError(f"{folder}: not a result folder of agv-cosim (no .agv-cosim "
+                          "marker); refusing to write a report into it")
+    return folder
+
+
+def _draw(folder, figures, dpi, drawn=()):
+    """Check the page's files (``drawn``: figures of ours written already), record
+    them, and draw the figures not in ``drawn``."""
+    names = [name for name, _ in figures] + [REPORT_FILE]
+    record = _record(folder)
+    _check_writable(folder, [name for name in names if name not in drawn], record)
+    write_json(folder / RECORD, {"files": sorted(record | set(names))}, replace=True)
+    for name, draw in figures:
+        if name not in drawn:
+            plots.save_figure(draw(), _fresh(folder / name), dpi)
+
+
+def write_report(folder: str | Path, *, locked: bool = False,
+                 drawn: Iterable[str] = ()) -> Path:
     """Write (or rewrite) the report of the result folder ``folder``.
 
     Parameters
@@ -525,6 +568,9 @@ def write_report(folder: str | Path, *, locked: bool = False) -> Path:
         A result folder of agv-cosim (it carries the marker ``.agv-cosim``).
     locked : bool
         The caller holds the folder (a run writing its temporary folder): no lock taken.
+    drawn : iterable of str
+        The page's figures written already by :func:`draw_figures` of the same folder
+        (with ``locked``): not drawn again.
 
     Returns
     -------
@@ -537,44 +583,38 @@ def write_report(folder: str | Path, *, locked: bool = False) -> Path:
         The folder is not one of ours, another run is writing it, or a file the report
         would write is there and not its own (the message names it); nothing is written.
     """
-    folder = Path(os.path.abspath(folder))
-    if folder.is_symlink() or not folder.is_dir():
-        raise OutputError(f"{folder}: not a folder")
-    if marker_data(folder) is None:
-        raise OutputError(f"{folder}: not a result folder of agv-cosim (no .agv-cosim "
-                          "marker); refusing to write a report into it")
-    lock = None if locked else FolderLock(folder.parent / f".{folder.name}.lock", folder)
+    path = _checked_folder(folder)
+    lock = None if locked else FolderLock(path.parent / f".{path.name}.lock", path)
     try:
-        runs = read_runs(folder)
-        if not runs:
-            raise OutputError(f"{folder}: holds no run (no <run>/run.json)")
-        manifest, source = read_manifest(folder, runs)
-        units = collect_units(runs, manifest)
-        sampled = plots.sampled_names(folder)
-        title = (manifest.get("plots") or {}).get("title") or manifest.get("name")
-        dpi = (manifest.get("plots") or {}).get("dpi")
-        dpi = dpi if isinstance(dpi, int) and 20 <= dpi <= 600 else plots.DEFAULT_DPI
-        figures = _comparison_figures(runs, manifest, units, sampled, title)
-        names = [name for name, _ in figures] + [REPORT_FILE]
-        record = _record(folder)
-        _check_writable(folder, names, record)
-        write_json(folder / RECORD, {"files": sorted(record | set(names))}, replace=True)
-        for name, figure in figures:
-            plots.save_figure(figure, _fresh(folder / name), dpi)
-        page = render(folder, runs, manifest, source, units, [n for n, _ in figures])
-        with create_file(_fresh(folder / REPORT_FILE)) as stream:
+        runs, manifest, source, units, figures, dpi = _inputs(path)
+        _draw(path, figures, dpi, set(drawn))
+        page = render(path, runs, manifest, source, units, [n for n, _ in figures])
+        with create_file(_fresh(path / REPORT_FILE)) as stream:
             stream.write(page)
-        return folder / REPORT_FILE
+        return path / REPORT_FILE
     finally:
         if lock is not None:
             lock.release()
 
 
-def write_report_quietly(folder: str | Path) -> str | None:
-    """:func:`write_report` for a run's own folder (locked by the run); returns the
-    problem as one line instead of raising (a report must not lose the results)."""
+def draw_figures(folder: str | Path) -> list[str]:
+    """Draw the page's figures of the result folder ``folder``, which the caller holds,
+    without the page: :func:`write_report` with ``locked`` and ``drawn`` (the names
+    returned) writes it after. Lets a run draw them in a process of their own, next to
+    its other figures (which the page lists, so the page comes last). Raises as
+    :func:`write_report`."""
+    folder = _checked_folder(folder)
+    _, _, _, _, figures, dpi = _inputs(folder)
+    _draw(folder, figures, dpi)
+    return [name for name, _ in figures]
+
+
+def write_report_quietly(folder: str | Path, drawn: Iterable[str] = ()) -> str | None:
+    """:func:`write_report` for a run's own folder (locked by the run; ``drawn`` as
+    there); returns the problem as one line instead of raising (a report must not lose
+    the results)."""
     try:
-        write_report(folder, locked=True)
+        write_report(folder, locked=True, drawn=drawn)
     except Exception as failure:  # noqa: BLE001 - reported, the run's results stay
         return printable(f"{type(failure).__name__}: {failure}")
     return None
