@@ -306,8 +306,10 @@ def _finish(manifest: Manifest, jobs: list[Job], results: list[RunResult], writt
         montecarlo.write_aggregate(manifest.montecarlo, jobs, results, written)
         tasks.append(partial(montecarlo.draw, manifest.montecarlo, jobs, results, written,
                              manifest.name))
-    tasks.append(partial(_plots, manifest, jobs, results, written))
-    tasks.append(partial(draw_figures, written))
+    if manifest.plots:
+        tasks.append(partial(_plots, manifest, jobs, results, written))
+    if len(results) > 1:  # the page compares runs: of one run it draws no figure
+        tasks.append(partial(draw_figures, written))
     outcomes = call_concurrently(tasks, workers,
                                  lambda failure: f"{type(failure).__name__}: {failure}")
     if manifest.montecarlo is not None:
@@ -316,11 +318,12 @@ def _finish(manifest: Manifest, jobs: list[Job], results: list[RunResult], writt
             write_text(written / "montecarlo_error.txt", f"{figure_error}\n")
             print(printable(f"agv-cosim: warning: {manifest.path}: montecarlo figure: "
                             f"{figure_error}"), file=sys.stderr)
-    plot_error, drawn = outcomes
+    plot_error = outcomes.pop(0) if manifest.plots else None
     if plot_error:
         write_text(written / "plots_error.txt", f"{plot_error}\n")
         print(printable(f"agv-cosim: warning: {manifest.path}: plots: {plot_error}"),
               file=sys.stderr)
+    drawn = outcomes.pop(0) if outcomes else []
     # index.html, read from the folder's files (the figures drawn above among them)
     report_error = printable(drawn) if isinstance(drawn, str) else \
         write_report_quietly(written, drawn)
