@@ -84,3 +84,34 @@ def test_a_plot_failing_in_its_process_is_reported(chain, tmp_path, monkeypatch,
     # the page's own figure, drawn beside it, and the page (which names the failure)
     assert (out / plots.SWEEP_FILE).is_file()
     assert "plots_error.txt" in (out / "index.html").read_text()
+
+
+INTERRUPTED = """
+import os, signal, sys, time
+from functools import partial
+from agv_cosim.pipeline.pool import call_concurrently
+
+def task(seconds):
+    time.sleep(seconds)
+    return os.getpid()
+
+signal.signal(signal.SIGALRM, lambda *_: os.killpg(0, signal.SIGINT))  # as Ctrl-C does
+signal.setitimer(signal.ITIMER_REAL, 0.5)
+try:
+    call_concurrently([partial(task, 0.1), partial(task, 2.0)], 2, repr)
+except KeyboardInterrupt:
+    print("interrupted", file=sys.stderr)
+"""
+
+
+def test_an_interruption_reaches_the_command_only():
+    """Ctrl-C goes to the whole process group: the figure processes, the busy one and
+    the one waiting for a task, leave it to the command (no traceback of theirs), which
+    gets its KeyboardInterrupt."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", INTERRUPTED], capture_output=True,
+                          text=True, timeout=60, start_new_session=True)
+    assert done.stderr.strip() == "interrupted", done.stderr
+    assert done.returncode == 0

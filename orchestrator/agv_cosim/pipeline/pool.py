@@ -17,6 +17,7 @@ with what the command has imported.
 import gc
 import os
 import shutil
+import signal
 import sys
 import tempfile
 import threading
@@ -32,7 +33,13 @@ from typing import Any
 from ..errors import Interrupted
 from ..execution.instance import keep_extractions
 from ..execution.track import Track, describe_track
-from ..lifetime import ignore_termination, kill_group, open_fds, scratch_dir
+from ..lifetime import (
+    TERMINATION_SIGNALS,
+    ignore_termination,
+    kill_group,
+    open_fds,
+    scratch_dir,
+)
 from ..report import metrics
 from ..report.records import RunResult, run_result, write_run_files
 from ..system import Job
@@ -132,7 +139,8 @@ def call_concurrently(tasks: Sequence[Callable[[], Any]], workers: int,
     _TASKS = tasks
     try:
         with ProcessPoolExecutor(max_workers=min(workers, len(tasks)),
-                                 mp_context=get_context("fork")) as executor:
+                                 mp_context=get_context("fork"),
+                                 initializer=_figure_child) as executor:
             gc.freeze()
             try:  # a fork context starts every process at the first submit
                 futures = [executor.submit(_call_task, i) for i in range(len(tasks))]
@@ -141,6 +149,15 @@ def call_concurrently(tasks: Sequence[Callable[[], Any]], workers: int,
             return [_guarded(future.result, failed) for future in futures]
     finally:
         _TASKS = ()
+
+
+def _figure_child() -> None:
+    """Start of a process of :func:`call_concurrently`: a signal is the command's to
+    handle (its process group gets the terminal's SIGINT too), so it ignores SIGINT and
+    ends at SIGTERM or SIGHUP without a traceback."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for sig in TERMINATION_SIGNALS:
+        signal.signal(sig, signal.SIG_DFL)
 
 
 def _guarded(call: Callable[[], Any], failed: Callable[[BaseException], Any]) -> Any:
