@@ -25,6 +25,7 @@ from .errors import (
     ManifestError,
     ModelError,
     OutputError,
+    kept_summary,
 )
 from .files import printable
 
@@ -224,15 +225,6 @@ def _set_items(sets: Mapping[str, Any] | Iterable[str]) -> list[str]:
     return list(sets)
 
 
-def _kept(error: BaseException) -> str | None:
-    """What a stopped run kept, as the command says it."""
-    kept, results = getattr(error, "kept", None), getattr(error, "results", None)
-    if kept is None or results is None:
-        return None
-    complete = sum(r["status"] == "complete" for r in results)
-    return (f"{complete} of {len(results)} run(s) complete kept in {kept} (marked partial: "
-            "partial.txt, summary.csv)")
-
 
 def _say(text: str) -> None:
     print(printable(text), file=sys.stderr)
@@ -313,7 +305,7 @@ def run(manifest: str | Path, *, out: str | Path | None = None,
     except FolderLost as error:
         raise AgvCosimError(str(error), exit_code=1) from error
     except ClusterError as error:
-        kept = _kept(error)
+        kept = kept_summary(error)
         raise AgvCosimError(f"{error}" + (f"; {kept}" if kept else ""), exit_code=1,
                             kept=getattr(error, "kept", None)) from error
     except (KeyboardInterrupt, Interrupted):

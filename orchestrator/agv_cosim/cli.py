@@ -18,6 +18,7 @@ import sys
 import traceback
 from collections.abc import Iterable
 
+from .errors import kept_summary
 from .files import printable
 from .version import __version__
 
@@ -117,15 +118,6 @@ def _counts(counts: Iterable[int]) -> str:
     return f"{values[0]}-{values[-1]}"
 
 
-def _kept(error):
-    """What a stopped command kept: '; k of n run(s) complete kept in DIR (...)'."""
-    kept, results = getattr(error, "kept", None), getattr(error, "results", None)
-    if kept is None or results is None:
-        return None
-    complete = sum(r["status"] == "complete" for r in results)
-    return (f"{complete} of {len(results)} run(s) complete kept in {kept} (marked partial: "
-            "partial.txt, summary.csv)")
-
 
 def _cmd_run(args):
     from .pipeline import check_options, default_out_dir, execute, prepare, reusable
@@ -153,7 +145,7 @@ def _cmd_run(args):
                                   overwrite=args.overwrite, dask=args.dask,
                                   resume=args.resume, real_time=args.real_time)
     except ClusterError as error:
-        kept = _kept(error)
+        kept = kept_summary(error)
         _say(f"agv-cosim: error: {error}" + (f"; {kept}" if kept else ""))
         return 1
     bad = [r for r in results if r["status"] != "complete"]
@@ -395,7 +387,7 @@ def _report(args, text, code):
 
 
 def _interrupted(args, name, signum, error):
-    kept = _kept(error)
+    kept = kept_summary(error)
     return _report(args, f"interrupted by {name}" + (f"; {kept}" if kept else
                                                     " (no result folder was completed)"),
                    128 + signum)

@@ -13,7 +13,7 @@ __all__ = [
     "MAX_REPORTED", "AgvCosimError", "BuildError", "BundleError", "ClusterError", "ExamplesError",
     "FolderLost", "Interrupted", "ManifestError", "ModelError", "OutputError",
     "SamplingError", "SchemaError", "SimulationError", "SspError", "StandaloneError",
-    "TableError", "WorkerUnfit", "closest", "did_you_mean",
+    "TableError", "WorkerUnfit", "closest", "did_you_mean", "kept_summary",
 ]
 
 #: Most problems of one manifest reported at once (one line each).
@@ -144,3 +144,15 @@ class Interrupted(BaseException):
     @property
     def name(self) -> str:
         return signal.Signals(self.signum).name
+
+
+def kept_summary(error: BaseException) -> str | None:
+    """What a stopped run kept, as the command says it: 'k of n run(s) complete kept in
+    DIR (marked partial: ...)', from the error's ``kept`` folder and ``results``; None
+    when it kept nothing."""
+    kept, results = getattr(error, "kept", None), getattr(error, "results", None)
+    if kept is None or results is None:
+        return None
+    complete = sum(r["status"] == "complete" for r in results)
+    return (f"{complete} of {len(results)} run(s) complete kept in {kept} (marked partial: "
+            "partial.txt, summary.csv)")

@@ -4,6 +4,7 @@
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from .. import fmitypes
 from ..errors import SimulationError
@@ -14,7 +15,7 @@ from ..report.records import RunResult, write_run_files
 from ..system import Job
 from ..timeseries import CsvSink
 
-__all__ = ["run_job"]
+__all__ = ["run_job", "run_metrics"]
 
 
 def run_job(job: Job, run_dir: str | Path, progress: Callable[[int], None] | None = None,
@@ -60,15 +61,7 @@ def run_job(job: Job, run_dir: str | Path, progress: Callable[[int], None] | Non
     rows = sink.rows
     wall = time.perf_counter() - begin
     status = "complete" if error is None else ("partial" if rows else "failed")
-    values, metrics_error = {}, None
-    if job.metrics_spec and rows:
-        try:
-            # streamed from the file in chunks: memory does not grow with the run's length
-            values = dict(metrics.compute_metrics_csv(run_dir / "timeseries.csv",
-                                                      job.metrics_spec,
-                                                      base_dir=job.manifest_dir))
-        except Exception as failure:  # noqa: BLE001 - reported in run.json
-            metrics_error = f"{type(failure).__name__}: {failure}"
+    values, metrics_error = run_metrics(job, run_dir, rows)
     result = write_run_files(job, run_dir, rows, status, error, values, metrics_error,
                              ended_by)
     result["csv_bytes"] = sink.bytes
@@ -76,3 +69,16 @@ def run_job(job: Job, run_dir: str | Path, progress: Callable[[int], None] | Non
     if pace is not None:
         result["real_time"] = pace.report()
     return result
+
+
+def run_metrics(job: Job, run_dir: Path, rows: int) -> tuple[dict[str, Any], str | None]:
+    """The metrics of a run from its timeseries.csv (streamed in chunks: memory does not
+    grow with the run's length), and the error that stopped them (None); nothing for a
+    run without ``[metrics]`` or without rows."""
+    if not job.metrics_spec or not rows:
+        return {}, None
+    try:
+        return dict(metrics.compute_metrics_csv(run_dir / "timeseries.csv", job.metrics_spec,
+                                                base_dir=job.manifest_dir)), None
+    except Exception as failure:  # noqa: BLE001 - reported in run.json
+        return {}, f"{type(failure).__name__}: {failure}"

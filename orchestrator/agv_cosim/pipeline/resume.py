@@ -28,10 +28,10 @@ from typing import Any
 from ..errors import OutputError
 from ..files import marker_data
 from ..manifest import Manifest
-from ..report import metrics
 from ..report.records import TIMINGS, RunResult, read_timings, recorded_inputs, write_run_files
 from ..system import Job
 from ..timeseries import count_rows
+from .job import run_metrics
 
 __all__ = ["check_resumable", "reusable", "reuse_runs"]
 
@@ -136,14 +136,7 @@ def reuse_runs(target: str | Path, manifest: Manifest, jobs: list[Job],
             if (old / name).is_file() and not (old / name).is_symlink():
                 _keep(old / name, run_dir / name)
         rows = record["rows"]
-        values, metrics_error = {}, None
-        if job.metrics_spec and rows:  # as run_job computes them
-            try:
-                values = dict(metrics.compute_metrics_csv(run_dir / "timeseries.csv",
-                                                          job.metrics_spec,
-                                                          base_dir=job.manifest_dir))
-            except Exception as failure:  # noqa: BLE001 - reported in run.json
-                metrics_error = f"{type(failure).__name__}: {failure}"
+        values, metrics_error = run_metrics(job, run_dir, rows)
         result = write_run_files(job, run_dir, rows, "complete", None, values,
                                  metrics_error, record.get("ended_by"))
         result["csv_bytes"] = (run_dir / "timeseries.csv").stat().st_size
