@@ -2,7 +2,8 @@
 (agv_cosim.pipeline.pool.call_concurrently, used by pipeline.run after the runs)."""
 
 import os
-from functools import partial
+import subprocess
+import sys
 
 import pytest
 from test_resume import folder_contents
@@ -21,38 +22,61 @@ signals = ["int.y", "gain.y"]
 """
 
 
-def _pid(index: int) -> tuple[int, int]:
+#: call_concurrently forks only from a single-threaded process, which a pytest-xdist
+#: worker is not (execnet's threads): these checks run in a fresh interpreter
+FORKED = """
+import os
+from functools import partial
+from agv_cosim.pipeline.pool import call_concurrently
+
+def pid(index):
     return index, os.getpid()
 
-
-def _raise() -> None:
+def fail():
     raise ValueError("boom")
 
-
-def _die() -> None:
+def die():
     os._exit(3)
 
-
-def _said(failure: BaseException) -> str:
+def said(failure):
     return f"{type(failure).__name__}: {failure}"
 
+tasks = [partial(pid, i) for i in range(3)]
+results = call_concurrently(tasks, 2, said)
+assert [index for index, _ in results] == [0, 1, 2], results
+assert all(child != os.getpid() for _, child in results), results
+# one worker, or one task: here, one after the other
+assert call_concurrently(tasks, 1, said) == [(i, os.getpid()) for i in range(3)]
+assert call_concurrently(tasks[:1], 4, said) == [(0, os.getpid())]
+# a task that raises gives its failure, forked or not
+assert call_concurrently([partial(pid, 0), fail], 2, said)[1] == "ValueError: boom"
+assert call_concurrently([fail, partial(pid, 1)], 1, said)[0] == "ValueError: boom"
+# a process that dies: its task (at least) says so, nothing raises here
+died = call_concurrently([die, partial(pid, 1)], 2, said)[0]
+assert isinstance(died, str) and died.startswith("BrokenProcessPool"), died
+print("ok")
+"""
 
-def test_tasks_run_in_forked_processes_in_order():
-    tasks = [partial(_pid, i) for i in range(3)]
-    results = call_concurrently(tasks, 2, _said)
-    assert [index for index, _ in results] == [0, 1, 2]
-    assert all(pid != os.getpid() for _, pid in results)
-    # one worker, or one task: here, one after the other
-    assert call_concurrently(tasks, 1, _said) == [(i, os.getpid()) for i in range(3)]
-    assert call_concurrently(tasks[:1], 4, _said) == [(0, os.getpid())]
+
+def test_tasks_run_in_forked_processes_in_order_and_fail_alone():
+    done = subprocess.run([sys.executable, "-c", FORKED], capture_output=True, text=True,
+                          timeout=120)
+    assert (done.returncode, done.stdout.strip()) == (0, "ok"), done.stderr
 
 
-def test_a_failing_task_gives_its_failure():
-    assert call_concurrently([partial(_pid, 0), _raise], 2, _said)[1] == "ValueError: boom"
-    assert call_concurrently([_raise, partial(_pid, 1)], 1, _said)[0] == "ValueError: boom"
-    # a process that dies: its task (at least) says so, nothing raises here
-    died = call_concurrently([_die, partial(_pid, 1)], 2, _said)[0]
-    assert isinstance(died, str) and died.startswith("BrokenProcessPool")
+def test_a_threaded_caller_calls_the_tasks_here():
+    """With other threads (a pytest-xdist worker, a Jupyter kernel) nothing is forked."""
+    import threading
+
+    stop = threading.Event()
+    helper = threading.Thread(target=stop.wait)
+    helper.start()
+    try:
+        got = call_concurrently([os.getpid, os.getpid], 2, repr)
+    finally:
+        stop.set()
+        helper.join()
+    assert got == [os.getpid(), os.getpid()]
 
 
 @pytest.mark.slow  # seconds: runs FMUs in processes
@@ -108,9 +132,6 @@ def test_an_interruption_reaches_the_command_only():
     """Ctrl-C goes to the whole process group: the figure processes, the busy one and
     the one waiting for a task, leave it to the command (no traceback of theirs), which
     gets its KeyboardInterrupt."""
-    import subprocess
-    import sys
-
     done = subprocess.run([sys.executable, "-c", INTERRUPTED], capture_output=True,
                           text=True, timeout=60, start_new_session=True)
     assert done.stderr.strip() == "interrupted", done.stderr
