@@ -161,6 +161,17 @@ def user_mode(directory: bool = True) -> int:
     return (0o777 if directory else 0o666) & ~mask
 
 
+def read_json_object(path: str | Path) -> dict[str, Any] | None:
+    """The JSON object in the file ``path``, or None when it cannot be read, is not
+    JSON or holds something other than an object."""
+    try:
+        with open(path, encoding="utf-8") as stream:
+            data = json.load(stream)
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
 def marker_data(folder: str | Path) -> dict[str, Any] | None:
     """Our marker's JSON in ``folder`` (a regular file, not a link), or None."""
     try:

@@ -48,7 +48,14 @@ from string import Template
 from urllib.parse import quote
 
 from ..errors import OutputError
-from ..files import FolderLock, create_file, marker_data, printable, write_json
+from ..files import (
+    FolderLock,
+    create_file,
+    marker_data,
+    printable,
+    read_json_object,
+    write_json,
+)
 from . import plots
 from .records import TIMINGS
 
@@ -87,15 +94,6 @@ _RAW_FILES = ("summary.csv", TIMINGS, "montecarlo.json", "partial.txt", "plots_e
 
 # --------------------------------------------------------------------------- reading
 
-def _read_json(path):
-    try:
-        with open(path, encoding="utf-8") as stream:
-            data = json.load(stream)
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None
-
-
 def _read_text(path, limit=1 << 16):
     try:
         with open(path, encoding="utf-8", errors="replace") as stream:
@@ -121,11 +119,11 @@ def read_runs(folder: str | Path) -> list[dict]:
     for entry in sorted(folder.iterdir()):
         if entry.is_symlink() or not entry.is_dir():
             continue
-        info = _read_json(entry / "run.json")
+        info = read_json_object(entry / "run.json")
         if info is None:
             continue
         info["folder"] = entry.name
-        metrics = _read_json(entry / "metrics.json")
+        metrics = read_json_object(entry / "metrics.json")
         info["metrics"] = metrics if metrics is not None else {}
         if not isinstance(info.get("sweep_point"), dict):
             info["sweep_point"] = {}
@@ -471,7 +469,7 @@ def render(folder: str | Path, runs: list[dict], manifest: dict, manifest_source
     body.append("<h2 id=runs>Runs</h2><p class=hint>Click a column's header to sort by it; "
                 "hover a number for its exact value.</p>")
     body.append(_runs_table(runs, folder, units, sampled))
-    mc = _read_json(folder / "montecarlo.json")
+    mc = read_json_object(folder / "montecarlo.json")
     if mc:
         body.append("<h2 id=montecarlo>Monte Carlo</h2>")
         body.append(_montecarlo_table(mc, units, main_metrics(_metric_names(runs), 8)))
@@ -497,7 +495,7 @@ def render(folder: str | Path, runs: list[dict], manifest: dict, manifest_source
 # --------------------------------------------------------------------------- writing
 
 def _record(folder):
-    data = _read_json(folder / RECORD)
+    data = read_json_object(folder / RECORD)
     files = (data or {}).get("files")
     return set(files) if isinstance(files, list) else set()
 

@@ -86,7 +86,7 @@ from typing import TYPE_CHECKING, Any, TypeGuard
 
 import numpy as np
 
-from ..files import open_output
+from ..files import open_output, read_json_object
 from ..manifest import schema
 from ..timeseries import CHUNK_ROWS, count_rows, iter_timeseries, timeseries_columns
 from .metrics import load_path
@@ -806,21 +806,10 @@ def trajectory_figure(runs: Iterable["RunData"],
     return figure
 
 
-def _read_json(path):
-    import json
-
-    try:
-        with open(path, encoding="utf-8") as stream:
-            data = json.load(stream)
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None
-
-
 def sampled_names(folder: str | Path) -> list:
     """Names a Monte Carlo result in ``folder`` samples (its ``montecarlo.json``:
     ``parameters`` and ``seeds``); empty without one."""
-    data = _read_json(Path(folder) / "montecarlo.json") or {}
+    data = read_json_object(Path(folder) / "montecarlo.json") or {}
     return list(data.get("parameters") or {}) + list(data.get("seeds") or [])
 
 
@@ -830,7 +819,7 @@ def describe_runs(runs: list, folder: str | Path) -> dict:
     path, run.json's ``fmus``)."""
     fmus: dict[str, str] = {}
     for run in runs:
-        info = _read_json(Path(folder) / run.label / "run.json") or {}
+        info = read_json_object(Path(folder) / run.label / "run.json") or {}
         if run.variant is None:
             run.variant = info.get("variant")
         if run.point is None:
