@@ -330,7 +330,7 @@ def _run(manifest: str | Path, out: str | Path | None, variants: list[str] | Non
          sets: list[str], jobs: int | None, quiet: bool, overwrite: bool, dask: str | None,
          timeout: float | None, init_check: bool) -> tuple[Path, list[Any], list[str]]:
     """``agv-cosim run``'s steps: prepare, the initialisation check, execute."""
-    from .pipeline import INIT_TIMEOUT, check_initialisation, execute, prepare
+    from .pipeline import INIT_TIMEOUT, execute, prepare
     from .ssp.importer import opened
 
     with opened(manifest) as source:
@@ -338,9 +338,8 @@ def _run(manifest: str | Path, out: str | Path | None, variants: list[str] | Non
         if not quiet:
             for warning in warnings:
                 _say(f"agv-cosim: warning: {warning}")
-        if init_check and dask is None:
-            limit = max(timeout or loaded.timeout or 0.0, INIT_TIMEOUT)
-            check_initialisation(loaded, planned, limit)
+        limit = max(timeout or loaded.timeout or 0.0, INIT_TIMEOUT) \
+            if init_check and dask is None else None
         target, results = execute(loaded, planned, out, jobs, quiet, overwrite=overwrite,
-                                  dask=dask)
+                                  dask=dask, init_limit=limit)
     return target, list(results), warnings

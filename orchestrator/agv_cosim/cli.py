@@ -120,7 +120,7 @@ def _counts(counts: Iterable[int]) -> str:
 
 
 def _cmd_run(args):
-    from .pipeline import check_options, default_out_dir, execute, prepare, reusable
+    from .pipeline import check_options, execute, prepare
 
     if args.jobs is not None and args.jobs < 1:
         return _error("--jobs: must be >= 1")
@@ -128,22 +128,13 @@ def _cmd_run(args):
                                        timeout=args.timeout)
     _warn(warnings)
     check_options(jobs, args.overwrite, args.dask, args.resume, args.real_time)
-    if not args.no_init and args.dask is None:  # what validate checks, before any run
-        from .pipeline import INIT_TIMEOUT, check_initialisation
-
-        # the runs' wall-clock limit bounds a run, not this check (whose child process
-        # also starts up in it): at least validate's default
-        limit = max(args.timeout or manifest.timeout or 0.0, INIT_TIMEOUT)
-        kept = set(reusable(args.out or default_out_dir(manifest), manifest, jobs)
-                   if args.resume else ())
-        check_initialisation(manifest, [j for i, j in enumerate(jobs) if i not in kept],
-                             limit)
     from .errors import ClusterError
 
     try:
         target, results = execute(manifest, jobs, args.out, args.jobs, args.quiet,
                                   overwrite=args.overwrite, dask=args.dask,
-                                  resume=args.resume, real_time=args.real_time)
+                                  resume=args.resume, real_time=args.real_time,
+                                  init_limit=_init_limit(args, manifest))
     except ClusterError as error:
         kept = kept_summary(error)
         _say(f"agv-cosim: error: {error}" + (f"; {kept}" if kept else ""))
@@ -169,6 +160,17 @@ def _cmd_run(args):
         if "real_time" in result and not result.get("reused"):
             print(_paced(result["real_time"]))
     return 1 if bad or unmeasured else 0
+
+
+def _init_limit(args, manifest):
+    """The initialisation check's limit per FMU [s] of ``run`` (None: no check, with
+    --no-init or --dask). The runs' wall-clock limit bounds a run, not this check: at
+    least validate's default."""
+    if args.no_init or args.dask is not None:
+        return None
+    from .pipeline import INIT_TIMEOUT
+
+    return max(args.timeout or manifest.timeout or 0.0, INIT_TIMEOUT)
 
 
 def _paced(report):

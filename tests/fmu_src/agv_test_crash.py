@@ -1,4 +1,5 @@
-"""Test FMU: kills the process that runs it (SIGABRT) once t >= crash_time."""
+"""Test FMU: kills the process that runs it (SIGABRT) once t >= crash_time, or in
+fmi2ExitInitializationMode when ``crash_time`` < 0."""
 
 import os
 
@@ -14,10 +15,13 @@ class AgvTestCrash(core.fmi.fmi_slave.AgvSlave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.parameter("crash_time", 1.0, "s", "Time from which doStep aborts the process")
+        self.parameter("crash_time", 1.0, "s", "Time from which doStep aborts the process "
+                       "(< 0: initialisation aborts it)")
         self.output("t_out", "s", "Current time")
 
     def make_core(self):
+        if self.crash_time < 0.0:
+            os.abort()
         return {"crash_time": float(self.crash_time)}
 
     def advance(self, t, h):

@@ -72,3 +72,69 @@ def test_validate_catches_a_refused_value(fmus, tmp_path, capsys):
     assert "parameter 'fail_time': must be >= 0" in err[0]
     assert cli.main(["validate", str(path), "--set", "first.fail_time=-2.0",
                      "--no-init"]) == 0
+
+
+def _files(folder):
+    return {p.relative_to(folder): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file()}
+
+
+def test_run_checks_a_sweep_in_its_first_worker(fmus, tmp_path, capsys):
+    """run's check is done by the first worker, before its first run, while the other
+    worker runs: a value refused in the sweep's second run is validate's one line, exit 2,
+    and the earlier result folder at the target is left as it was (nothing beside it)."""
+    path = _manifest(fmus, tmp_path, 5.0, 5.0)
+    out = tmp_path / "o"
+    assert cli.main(["run", str(path), "--quiet", "--out", str(out)]) == 0
+    before = _files(out)
+    sweep = tmp_path / "sweep.toml"
+    sweep.write_text(path.read_text() + '[sweep]\n"first.fail_time" = [5.0, -2.0, 4.0]\n')
+    capsys.readouterr()
+    assert cli.main(["validate", str(sweep)]) == 2
+    said = [line for line in capsys.readouterr().err.splitlines() if "warning" not in line]
+    assert len(said) == 1 and "(run base__first.fail_time=-2.0)" in said[0]
+    assert cli.main(["run", str(sweep), "--quiet", "--out", str(out), "--jobs", "2",
+                     "--overwrite"]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if "warning" not in line]
+    assert err == said
+    assert _files(out) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o", "sweep.toml", "two.toml"]
+
+
+def test_run_stops_at_an_fmu_that_kills_its_process_in_initialisation(fmus, tmp_path,
+                                                                      capsys):
+    """An FMU that aborts its process while it is initialised: run says what validate
+    says (the process's signal, the component, the run), exit 2, no result folder."""
+    path = tmp_path / "crash.toml"
+    path.write_text(f'name = "crash"\n[simulation]\nstop = 0.1\nstep = 0.1\n'
+                    f'[components.boom]\nfmu = "{fmus["agv_test_crash"]}"\n'
+                    'parameters = { crash_time = -1.0 }\n')
+    assert cli.main(["validate", str(path)]) == 2
+    said = capsys.readouterr().err.strip().splitlines()
+    assert cli.main(["run", str(path), "--quiet", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == said == [f"agv-cosim: error: {path}:5: components.boom: run base: the "
+                           "FMU's process died (signal 6) while it was instantiated and "
+                           "initialised"]
+    assert not (tmp_path / "o").exists()
+
+
+def test_execute_stops_a_check_past_its_limit(fmus, tmp_path):
+    """execute's initialisation check gives each FMU init_limit seconds: an FMU that
+    hangs in its initialisation is stopped with the check's error, no folder written."""
+    import pytest
+
+    from agv_cosim.errors import ManifestError
+    from agv_cosim.pipeline import execute, prepare
+
+    path = tmp_path / "hang.toml"
+    path.write_text(f'name = "hang"\n[simulation]\nstop = 0.1\nstep = 0.1\n'
+                    f'[components.h]\nfmu = "{fmus["agv_test_hang"]}"\n'
+                    'parameters = { hang_time = -1.0 }\n')
+    manifest, jobs, _ = prepare(path)
+    with pytest.raises(ManifestError) as stop:
+        execute(manifest, jobs, tmp_path / "o", quiet=True, init_limit=1.0)
+    assert str(stop.value).endswith("components.h: run base: the FMU did not finish "
+                                    "instantiating and initialising within 1.0 s and was "
+                                    "stopped (--timeout sets the limit)")
+    assert not (tmp_path / "o").exists()

@@ -70,3 +70,39 @@ def test_a_failed_runs_worker_is_not_kept_and_the_host_serves_on(chain, fmus, tm
     statuses = [result["status"] for _, result in answers]
     assert statuses[0] == statuses[2] == "complete" and statuses[1] in ("failed", "partial")
     assert "no message of agv-cosim" in answers[1][1]["error"]
+
+
+@pytest.mark.slow  # seconds: runs FMUs in processes
+def test_the_checking_worker_runs_after_its_check_and_meanwhile_overlaps(chain, tmp_path):
+    """run_isolated with checks and one worker: that worker checks, then runs both jobs
+    (one process in all); ``meanwhile`` is called once, before any run ended; the
+    folders hold what runs without the check write."""
+    from agv_cosim.pipeline import initcheck
+
+    manifest, jobs, _ = runner.prepare(chain(extra='[sweep]\n"gain.k" = [1.0, 2.0]\n'))
+    checks = initcheck.plan_checks(manifest, jobs, 30.0)
+    assert checks is not None and len(checks.items) == 5  # gain checked with k = 1 and 2
+    events: list[str] = []
+    started: list[int] = []
+    real_start = pool.start_process
+
+    def counted(process, context):
+        real_start(process, context)
+        started.append(process.pid)
+
+    pool.start_process, saved = counted, pool.start_process
+    try:
+        (tmp_path / "a").mkdir()
+        checked = pool.run_isolated(jobs, tmp_path / "a", 1, _noop,
+                                    lambda: events.append("done"), checks=checks,
+                                    meanwhile=lambda: events.append("meanwhile"))
+    finally:
+        pool.start_process = saved
+    assert events == ["meanwhile", "done", "done"]
+    assert len(started) == 1
+    (tmp_path / "b").mkdir()
+    plain = pool.run_isolated(jobs, tmp_path / "b", 1, _noop, _noop)
+    assert [r["status"] for r in checked] == [r["status"] for r in plain] == ["complete"] * 2
+    for job in jobs:
+        assert ((tmp_path / "a" / job.label / "timeseries.csv").read_bytes()
+                == (tmp_path / "b" / job.label / "timeseries.csv").read_bytes())

@@ -276,7 +276,7 @@ def test_an_interrupted_resume_keeps_the_reused_runs(chain, tmp_path, monkeypatc
     assert not any(_run(path, out, resume=False).values())
     path.write_text(path.read_text().replace("[1.0, 2.0]", "[1.0, 3.0]"))
 
-    def interrupted(jobs, *args):
+    def interrupted(jobs, *args, **kwargs):
         stop = Interrupted(signal.SIGTERM)
         stop.results = [pool.not_run(job) for job in jobs]
         raise stop

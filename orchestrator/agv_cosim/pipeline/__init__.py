@@ -1,9 +1,9 @@
 """The pipeline end to end: :mod:`.prepare` (manifest -> plan -> system: the jobs),
 :mod:`.job` (one job run into its folder), :mod:`.pool` (local worker processes),
-:mod:`.distributed` (a Dask cluster), :mod:`.initcheck` (``validate``'s initialisation
-check), :mod:`.run` (the jobs run and the output folder written), :mod:`.resume` (the
-runs of an earlier folder kept by ``--resume``), :mod:`.channels` (how a worker reports
-to its parent).
+:mod:`.distributed` (a Dask cluster), :mod:`.initcheck` (the initialisation check of
+``validate`` and ``run``), :mod:`.run` (the jobs run and the output folder written),
+:mod:`.resume` (the runs of an earlier folder kept by ``--resume``), :mod:`.channels` (how
+a worker reports to its parent).
 """
 
 from .initcheck import INIT_TIMEOUT, check_initialisation

@@ -2,6 +2,7 @@
 stderr on another, and the set-up every process that runs FMUs starts with."""
 
 import contextlib
+import gc
 import os
 import pickle
 import signal
@@ -9,8 +10,9 @@ import struct
 import sys
 import threading
 from collections.abc import Iterator
-from multiprocessing import spawn
+from multiprocessing import get_context, spawn
 from multiprocessing.connection import Connection
+from multiprocessing.context import ForkContext, ForkServerContext
 from multiprocessing.process import BaseProcess
 from pathlib import Path
 from typing import IO, Any
@@ -21,11 +23,13 @@ from ..lifetime import (
     close_inherited,
     die_with_parent,
     drop_helper_channels,
+    open_fds,
     own_process_group,
 )
 
-__all__ = ["MAX_FRAME", "MAX_OUTPUT", "OUTPUT_FILE", "Frames", "OutputLog", "child_setup",
-           "flush_c_stdio", "send_frame", "start_without_main"]
+__all__ = ["FORKSERVER_PRELOAD", "MAX_FRAME", "MAX_OUTPUT", "OUTPUT_FILE", "Frames",
+           "OutputLog", "child_setup", "flush_c_stdio", "inherited_fds", "process_context",
+           "send_frame", "start_process", "start_without_main"]
 
 # --------------------------------------------------------------------------- channels
 #
@@ -39,7 +43,7 @@ __all__ = ["MAX_FRAME", "MAX_OUTPUT", "OUTPUT_FILE", "Frames", "OutputLog", "chi
 _FRAME = struct.Struct("!I")
 #: Longest frame accepted from a worker [bytes] (a result dict is a few kB).
 MAX_FRAME = 16 << 20
-_KINDS = ("progress", "message", "done", "checking", "failed")
+_KINDS = ("progress", "message", "done", "checking", "failed", "checked")
 #: Output of a run's process (FMU prints, Python warnings) kept in its folder [bytes];
 #: what comes after is counted, not kept.
 MAX_OUTPUT = 1 << 20
@@ -264,3 +268,56 @@ def start_without_main(process: BaseProcess) -> None:
     or notebook calling agv_cosim needs no ``if __name__ == "__main__":`` guard)."""
     with _main_left_alone():
         process.start()
+
+
+#: Modules the fork server (used when this process has other threads, see
+#: :func:`process_context`) imports once, so that each worker starts with them: the pool
+#: (:mod:`.pool`, and with it numpy) and fmpy's wrapper. Not the scientific modules a
+#: component core may import (scipy.signal, ...): a worker imports those when an FMU of
+#: its run needs them, once per worker. A module missing here is skipped by the fork
+#: server.
+FORKSERVER_PRELOAD = ("agv_cosim.pipeline.pool", "fmpy.fmi2", "numpy")
+
+
+def process_context() -> ForkContext | ForkServerContext:
+    """The multiprocessing context of the processes that run FMUs.
+
+    ``fork`` while this process runs a single thread: the child starts at once, with
+    every module this process has imported, and no fork server is started (it closes
+    what it inherited, see :func:`child_setup`). Otherwise
+    the ``forkserver`` (preloaded with :data:`FORKSERVER_PRELOAD`): forking a process
+    in which another thread runs may copy a lock that thread holds.
+    """
+    if threading.active_count() == 1:
+        return get_context("fork")
+    context = get_context("forkserver")
+    context.set_forkserver_preload(list(FORKSERVER_PRELOAD))
+    return context
+
+
+def inherited_fds(context: ForkContext | ForkServerContext) -> list[int] | None:
+    """What a child of ``context`` is to close of what it inherits: this process's open
+    descriptors when it forks from this process, else None (a fork server's child
+    inherits only what it is given); flushes this process's stdout and stderr first (a
+    forked child would write their buffers again)."""
+    if context.get_start_method() != "fork":
+        return None
+    sys.stdout.flush()
+    sys.stderr.flush()
+    return open_fds()
+
+
+def start_process(process: Any, context: ForkContext | ForkServerContext) -> None:
+    """Start ``process`` (of ``context``); when it is forked from this process, with this
+    process's objects frozen out of the garbage collector meanwhile (``gc.freeze``):
+    the child's collections then never walk the command's heap (the jobs, the
+    manifest), which would cost time and copy its pages; else (the fork server) without
+    the caller's ``__main__`` (:func:`start_without_main`)."""
+    if context.get_start_method() != "fork":
+        start_without_main(process)
+        return
+    gc.freeze()
+    try:
+        process.start()
+    finally:
+        gc.unfreeze()

@@ -14,7 +14,7 @@ The host keeps its worker process between requests, as a local sweep does betwee
 takes the next request's run with its FMUs' cores already imported and its FMUs already
 extracted; after any other ending it exits and the next run gets a fresh worker, forked
 from the host (which runs a single thread, see
-:func:`~agv_cosim.pipeline.pool.process_context`). A run that crashes its worker is a
+:func:`~agv_cosim.pipeline.channels.process_context`). A run that crashes its worker is a
 result, as locally; the host goes on.
 
 The worker side (:func:`run_hosted`) keeps its idle hosts for the next task, one host per

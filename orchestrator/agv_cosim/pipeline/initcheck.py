@@ -1,41 +1,114 @@
-"""The initialisation check of ``agv-cosim validate``: each FMU instantiated and
-initialised once with each run's parameters, in a child process of its own."""
+"""The initialisation check: each FMU instantiated and initialised once with each run's
+parameters, in a process that runs FMUs (not in the command's).
+
+:func:`check_initialisation` (``agv-cosim validate``) does it in a child process of its
+own; ``agv-cosim run`` hands the same :class:`InitChecks` to the first worker of its
+pool (:func:`agv_cosim.pipeline.pool.run_isolated`), which checks, then runs: the FMUs
+are unpacked, loaded and their cores imported once for both.
+"""
 
 import os
 import shutil
 import tempfile
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
+from ..errors import ManifestError
 from ..execution.instance import FmuInstance, keep_extractions
 from ..execution.units import enter_initialisation
 from ..lifetime import kill_group, scratch_dir
 from ..manifest import Manifest
 from ..system import Job, ModelInfo
-from .channels import Frames, child_setup, send_frame
-from .pool import inherited_fds, process_context, start_process
+from .channels import Frames, child_setup, inherited_fds, process_context, send_frame, start_process
 
-__all__ = ["INIT_TIMEOUT", "check_initialisation"]
+__all__ = ["INIT_TIMEOUT", "InitChecks", "check_initialisation", "plan_checks",
+           "run_checks"]
+
+#: Default limit [s] of the initialisation check, per FMU instance (its instantiation
+#: and initialisation), when neither ``--timeout`` nor the manifest's ``[simulation]
+#: timeout`` gives one. Far above what a sound FMU needs (a component FMU of this
+#: project takes about a second on a loaded 2-core machine).
+INIT_TIMEOUT = 60.0
 
 
-def _check_child(checks: list[tuple[str, ModelInfo, dict[str, Any], float, float]],
-                 channel: Connection, life: Connection, scratch: str,
-                 inherited: list[int] | None = None) -> None:
-    """Body of the initialisation check's child: instantiate and initialise each FMU."""
-    # an FMU's prints go nowhere: validate writes no results
-    child_setup(None, life, inherited, (channel,))
-    tempfile.tempdir = scratch
-    keep_extractions(scratch)  # an FMU checked with several parameter sets: unpacked once
-    fd = channel.fileno()
+@dataclass
+class InitChecks:
+    """What the initialisation check of ``jobs`` instantiates (see :func:`plan_checks`).
 
-    def send(message: tuple[str, Any]) -> None:
-        try:
-            send_frame(fd, message)
-        except OSError:
-            os._exit(1)
+    ``items``: (component, model, parameter values, start, stop) per distinct (FMU,
+    parameter values) pair, for the first component and run that has it; ``where``:
+    (component, run label) of each item; ``limit``: seconds each item may take."""
 
-    for index, (cname, info, values, start, stop) in enumerate(checks):
+    manifest: Manifest
+    items: list[tuple[str, ModelInfo, dict[str, Any], float, float]]
+    where: list[tuple[str, str]]
+    limit: float
+
+    def error(self, index: int, text: str, refused: bool) -> ManifestError:
+        """The check's one-line error for item ``index``: the FMU's refusal
+        (``refused``) or what happened to the process that checked it."""
+        cname, label = self.where[index]
+        return self.manifest.error(f"components.{cname}",
+                                   f"the FMU refuses to initialise (run {label}): {text}"
+                                   if refused else f"run {label}: {text}")
+
+    def died(self, index: int | None, exitcode: int | None) -> ManifestError:
+        """The error when the checking process ended during item ``index``."""
+        how = (f"signal {-exitcode}" if exitcode is not None and exitcode < 0
+               else f"exit code {exitcode}")
+        return self.error(index or 0, f"the FMU's process died ({how}) while it was "
+                                      "instantiated and initialised", False)
+
+    def broken(self, index: int | None) -> ManifestError:
+        """The error when the checking process wrote something that is no frame."""
+        return self.error(index or 0, "the FMU's process wrote data that is no message of "
+                                      "agv-cosim into its channel (an FMU writing into a "
+                                      "file descriptor it does not own)", False)
+
+    def timed_out(self, index: int | None) -> ManifestError:
+        """The error when item ``index`` took longer than :attr:`limit`."""
+        return self.error(index or 0, f"the FMU did not finish instantiating and "
+                                      f"initialising within {self.limit!r} s and was "
+                                      "stopped (--timeout sets the limit)", False)
+
+
+def plan_checks(manifest: Manifest, jobs: list[Job],
+                limit: float | None = None) -> InitChecks | None:
+    """The checks of ``jobs``: each distinct (FMU, parameter values) pair once, for the
+    first component that has it (time tables are checked when they are read); None
+    when there is nothing to check. ``limit`` [s] per FMU (default: the manifest's
+    ``[simulation] timeout``, else :data:`INIT_TIMEOUT`)."""
+    items, where, seen = [], [], set()
+    for job in jobs:
+        for cname, info in job.plan.models.items():
+            if info.table is not None:
+                continue
+            values = job.plan.parameters.get(cname, {})
+            key = (info.sha256, repr(sorted(values.items())))
+            if key in seen:
+                continue
+            seen.add(key)
+            items.append((cname, info, values, job.plan.start, job.plan.stop))
+            where.append((cname, job.label))
+    if not items:
+        return None
+    return InitChecks(manifest, items, where,
+                      limit if limit is not None else (manifest.timeout or INIT_TIMEOUT))
+
+
+def run_checks(items: list[tuple[str, ModelInfo, dict[str, Any], float, float]],
+               send: Callable[[tuple[str, Any]], None]) -> bool:
+    """Instantiate, initialise and free each of ``items`` in this process (a child that
+    runs FMUs, whose extractions are kept: an FMU checked with several parameter sets
+    is unpacked once). Sends ``("checking", index)`` before each and ``("failed",
+    (index, text))`` at the first refusal; returns whether all passed (the caller then
+    sends ``("checked", None)``). After a refusal
+    the process must not run FMUs any more (a failed pythonfmu instance may have damaged
+    the heap)."""
+    for index, (cname, info, values, start, stop) in enumerate(items):
         send(("checking", index))
         instance, failure = None, None
         calls: list[str] = []  # FMI calls after instantiation; the last is the one under way
@@ -57,16 +130,29 @@ def _check_child(checks: list[tuple[str, ModelInfo, dict[str, Any], float, float
                 instance.close()
         if failure:
             send(("failed", (index, failure)))
-            os._exit(0)  # a failed pythonfmu instance may have damaged the heap
-    send(("done", None))
+            return False
+    return True
+
+
+def _check_child(items: list[tuple[str, ModelInfo, dict[str, Any], float, float]],
+                 channel: Connection, life: Connection, scratch: str,
+                 inherited: list[int] | None = None) -> None:
+    """Body of :func:`check_initialisation`'s child: :func:`run_checks`, then exit."""
+    # an FMU's prints go nowhere: validate writes no results
+    child_setup(None, life, inherited, (channel,))
+    tempfile.tempdir = scratch
+    keep_extractions(scratch)
+    fd = channel.fileno()
+
+    def send(message: tuple[str, Any]) -> None:
+        try:
+            send_frame(fd, message)
+        except OSError:
+            os._exit(1)
+
+    if run_checks(items, send):
+        send(("checked", None))
     os._exit(0)
-
-
-#: Default limit [s] of ``validate``'s initialisation check, per FMU instance (its
-#: instantiation and initialisation), when neither ``--timeout`` nor the manifest's
-#: ``[simulation] timeout`` gives one. Far above what a sound FMU needs (a component
-#: FMU of this project takes about a second on a loaded 2-core machine).
-INIT_TIMEOUT = 60.0
 
 
 def check_initialisation(manifest: Manifest, jobs: list[Job],
@@ -75,80 +161,55 @@ def check_initialisation(manifest: Manifest, jobs: list[Job],
 
     Catches what only the FMU knows (a parameter value it refuses), without running.
     The FMUs run in a child process of their own (see the module docstring); each
-    distinct (FMU, parameter values) pair is checked once (for the first component
-    that has it), and the first refusal stops. An
-    FMU that takes longer than ``timeout`` [s] (default: the manifest's ``[simulation]
-    timeout``, else :data:`INIT_TIMEOUT`) to instantiate and initialise is stopped.
+    distinct (FMU, parameter values) pair is checked once (:func:`plan_checks`), and
+    the first refusal stops. An FMU that takes longer than ``timeout`` [s] (default: the
+    manifest's ``[simulation] timeout``, else :data:`INIT_TIMEOUT`) to instantiate and
+    initialise is stopped.
 
     Raises
     ------
     ManifestError
         Naming the component, the run, the FMI call and the FMU's own message.
     """
-    limit = timeout if timeout is not None else (manifest.timeout or INIT_TIMEOUT)
-    checks, where, seen = [], [], set()
-    for job in jobs:
-        for cname, info in job.plan.models.items():
-            if info.table is not None:  # a time table: checked when it was read
-                continue
-            values = job.plan.parameters.get(cname, {})
-            key = (info.sha256, repr(sorted(values.items())))
-            if key in seen:
-                continue
-            seen.add(key)
-            checks.append((cname, info, values, job.plan.start, job.plan.stop))
-            where.append((cname, job.label))
-    if not checks:
+    checks = plan_checks(manifest, jobs, timeout)
+    if checks is None:
         return
     context = process_context()
     reader, writer = context.Pipe(duplex=False)
     life_reader, life_writer = context.Pipe(duplex=False)
     scratch = scratch_dir("check")
     process = context.Process(target=_check_child, name="agv-cosim check",
-                              args=(checks, writer, life_reader, scratch,
+                              args=(checks.items, writer, life_reader, scratch,
                                     inherited_fds(context)))
     frames = Frames(reader)
-    current, failure, finished = None, None, False
-    deadline = time.monotonic() + limit
+    current: int | None = None
+    failure: ManifestError | None = None
+    finished = False
+    deadline = time.monotonic() + checks.limit
     try:
         start_process(process, context)
         writer.close()
         while failure is None and not finished:
-            now = time.monotonic()
             handles = [process.sentinel] + ([frames.fd] if not frames.closed else [])
-            wait(handles, timeout=min(1.0, max(0.0, deadline - now)))
-            for kind, payload in frames.read():
+            wait(handles, timeout=min(1.0, max(0.0, deadline - time.monotonic())))
+            alive = process.is_alive()
+            for kind, payload in frames.read():  # (after a death: its last words)
                 if kind == "checking":
-                    current, deadline = payload, time.monotonic() + limit
+                    current, deadline = payload, time.monotonic() + checks.limit
                 elif kind == "failed":
-                    failure = (*payload, True)
-                elif kind == "done":
+                    item, text = payload
+                    failure = checks.error(item, text, True)
+                elif kind == "checked":
                     finished = True
             if failure is not None or finished:
                 break
             if frames.broken:
-                failure = (current if current is not None else 0,
-                           "the FMU's process wrote data that is no message of agv-cosim "
-                           "into its channel (an FMU writing into a file descriptor it does "
-                           "not own)", False)
-            elif not process.is_alive():
-                for kind, payload in frames.read():
-                    if kind == "failed":
-                        failure = (*payload, True)
-                    elif kind == "done":
-                        finished = True
-                if failure is None and not finished:
-                    process.join()
-                    code = process.exitcode
-                    how = f"signal {-code}" if code and code < 0 else f"exit code {code}"
-                    failure = (current if current is not None else 0,
-                               f"the FMU's process died ({how}) while it was instantiated "
-                               "and initialised", False)
+                failure = checks.broken(current)
+            elif not alive:
+                process.join()
+                failure = checks.died(current, process.exitcode)
             elif time.monotonic() >= deadline:
-                failure = (current if current is not None else 0,
-                           f"the FMU did not finish instantiating and initialising within "
-                           f"{limit!r} s and was stopped (--timeout sets the limit)",
-                           False)
+                failure = checks.timed_out(current)
     finally:
         kill_group(process)
         if process.pid is not None:
@@ -158,8 +219,4 @@ def check_initialisation(manifest: Manifest, jobs: list[Job],
         life_writer.close()
         shutil.rmtree(scratch, ignore_errors=True)
     if failure is not None:
-        index, text, refused = failure
-        cname, label = where[index]
-        raise manifest.error(f"components.{cname}",
-                            f"the FMU refuses to initialise (run {label}): {text}"
-                            if refused else f"run {label}: {text}")
+        raise failure

@@ -26,7 +26,6 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from multiprocessing.connection import Connection, wait
-from multiprocessing.context import ForkContext, ForkServerContext
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +36,6 @@ from ..lifetime import (
     TERMINATION_SIGNALS,
     ignore_termination,
     kill_group,
-    open_fds,
     scratch_dir,
 )
 from ..report import metrics
@@ -45,72 +43,23 @@ from ..report.records import RunResult, run_result, write_run_files
 from ..system import Job
 from ..timeseries import count_rows
 from .channels import (
+    FORKSERVER_PRELOAD,
     OUTPUT_FILE,
     Frames,
     OutputLog,
     child_setup,
     flush_c_stdio,
+    inherited_fds,
+    process_context,
     send_frame,
-    start_without_main,
+    start_process,
 )
+from .initcheck import InitChecks, run_checks
 from .job import run_job
 
 __all__ = ["FORKSERVER_PRELOAD", "IdleWorkers", "call_concurrently", "inherited_fds", "not_run",
            "process_context",
            "run_isolated", "start_process"]
-
-#: Modules the fork server (used when this process has other threads, see
-#: :func:`process_context`) imports once, so that each worker starts with them: this
-#: module (and with it numpy) and fmpy's wrapper. Not the scientific modules a
-#: component core may import (scipy.signal, ...): a worker imports those when an FMU of
-#: its run needs them, once per worker. A module missing here is skipped by the fork
-#: server.
-FORKSERVER_PRELOAD = (__name__, "fmpy.fmi2", "numpy")
-
-
-def process_context() -> ForkContext | ForkServerContext:
-    """The multiprocessing context of the processes that run FMUs.
-
-    ``fork`` while this process runs a single thread: the child starts at once, with
-    every module this process has imported, and no fork server is started (it closes
-    what it inherited, see :func:`~agv_cosim.pipeline.channels.child_setup`). Otherwise
-    the ``forkserver`` (preloaded with :data:`FORKSERVER_PRELOAD`): forking a process
-    in which another thread runs may copy a lock that thread holds.
-    """
-    if threading.active_count() == 1:
-        return get_context("fork")
-    context = get_context("forkserver")
-    context.set_forkserver_preload(list(FORKSERVER_PRELOAD))
-    return context
-
-
-def inherited_fds(context: ForkContext | ForkServerContext) -> list[int] | None:
-    """What a child of ``context`` is to close of what it inherits: this process's open
-    descriptors when it forks from this process, else None (a fork server's child
-    inherits only what it is given); flushes this process's stdout and stderr first (a
-    forked child would write their buffers again)."""
-    if context.get_start_method() != "fork":
-        return None
-    sys.stdout.flush()
-    sys.stderr.flush()
-    return open_fds()
-
-
-def start_process(process: Any, context: ForkContext | ForkServerContext) -> None:
-    """Start ``process`` (of ``context``); when it is forked from this process, with this
-    process's objects frozen out of the garbage collector meanwhile (``gc.freeze``):
-    the child's collections then never walk the command's heap (the jobs, the
-    manifest), which would cost time and copy its pages; else (the fork server) without
-    the caller's ``__main__`` (:func:`~agv_cosim.pipeline.channels.start_without_main`)."""
-    if context.get_start_method() != "fork":
-        start_without_main(process)
-        return
-    gc.freeze()
-    try:
-        process.start()
-    finally:
-        gc.unfreeze()
-
 
 #: The tasks of :func:`call_concurrently` under way: its forked processes inherit them
 #: and are sent an index, so that no task need be pickled.
@@ -181,8 +130,13 @@ def _exit_fd(pid: int | None) -> int | None:
 
 
 def _worker(jobs: Connection, channel: Connection, output: Connection, life: Connection,
-            scratch: str, track: Track, inherited: list[int] | None = None) -> None:
-    """Body of a worker process: run the jobs the parent sends, one at a time.
+            scratch: str, track: Track, inherited: list[int] | None = None,
+            checks: list[Any] | None = None) -> None:
+    """Body of a worker process: run the jobs the parent sends, one at a time; with
+    ``checks`` (:attr:`~agv_cosim.pipeline.initcheck.InitChecks.items`), first the
+    initialisation check (:func:`~agv_cosim.pipeline.initcheck.run_checks`:
+    ``("checked", None)`` when it passed, else the worker exits after its ``failed``
+    message).
 
     ``jobs`` is the reading end of a pipe that brings ``(job, run_dir)`` or None (stop);
     ``channel`` (frames, see above) carries progress, FMU messages and each result back;
@@ -211,6 +165,13 @@ def _worker(jobs: Connection, channel: Connection, output: Connection, life: Con
 
     def progress(steps: int) -> None:
         send(("progress", steps))
+
+    if checks is not None:
+        passed = run_checks(checks, send)
+        flush_c_stdio()  # what the FMUs printed is in the pipe before the answer
+        if not passed:
+            os._exit(0)  # a failed pythonfmu instance may have damaged the heap
+        send(("checked", None))
 
     while True:
         try:
@@ -345,7 +306,9 @@ class IdleWorkers:
 def run_isolated(jobs: list[Job], root: Path, workers: int,
                  on_progress: Callable[[int], None],
                  on_done: Callable[[], None],
-                 idle: IdleWorkers | None = None) -> list[RunResult]:
+                 idle: IdleWorkers | None = None,
+                 checks: InitChecks | None = None,
+                 meanwhile: Callable[[], None] | None = None) -> list[RunResult]:
     """Run every job in a worker process, ``workers`` processes at a time.
 
     A worker runs one job at a time and gets the next one only if its last run ended
@@ -366,14 +329,28 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
     With ``idle``, the workers of that :class:`IdleWorkers` take jobs first, and the
     workers whose last run ended ``complete`` are left running in it when the runs are
     done (else every worker is ended before this returns).
+
+    With ``checks`` (:func:`~agv_cosim.pipeline.initcheck.plan_checks`), the first
+    worker does the initialisation check before it takes a job (the other workers run
+    meanwhile); an FMU's refusal, or that worker's death, broken channel or overrun of
+    ``checks.limit`` per FMU during the check, stops every worker and raises the
+    check's :class:`~agv_cosim.errors.ManifestError` (the runs' results are then not
+    returned).
+
+    ``meanwhile`` is called once, after the first workers started (work of this
+    process that can overlap the runs, e.g. :func:`~agv_cosim.report.plots.import_drawing`).
     """
+    assert checks is None or idle is None, "a run host's workers are not checked"
     context = process_context()
     results: list[RunResult | None] = [None] * len(jobs)
     last_message = [None] * len(jobs)
     waiting = list(range(len(jobs)))
     #: each: dict(process, send, frames, output, scratch, track, index, deadline,
-    #: started: when its run was handed out, the wall time of a run it does not report)
+    #: started: when its run was handed out, the wall time of a run it does not report;
+    #: checking: True while it does the initialisation check, then ``checked``: the
+    #: index of the check item under way)
     pool: list[dict[str, Any]] = []
+    to_check = checks
     # closes when this process ends, however: each worker's guard then ends its group
     if idle is not None and idle.life is not None:
         life_reader, life_writer = idle.life
@@ -382,7 +359,7 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         if idle is not None:
             idle.life = (life_reader, life_writer)
 
-    def start_worker() -> dict[str, Any]:
+    def start_worker(check: InitChecks | None = None) -> dict[str, Any]:
         job_reader, job_writer = context.Pipe(duplex=False)
         reader, writer = context.Pipe(duplex=False)
         out_reader, out_writer = context.Pipe(duplex=False)
@@ -391,7 +368,8 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         track[0] = -1.0  # no component yet
         process = context.Process(target=_worker, name="agv-cosim worker",
                                   args=(job_reader, writer, out_writer, life_reader, scratch,
-                                        track, inherited_fds(context)))
+                                        track, inherited_fds(context),
+                                        check.items if check is not None else None))
         start_process(process, context)
         for end in (job_reader, writer, out_writer):
             end.close()
@@ -400,7 +378,10 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
                   "exited": process.sentinel if pidfd is None else pidfd,
                   "send": job_writer, "frames": Frames(reader),
                   "output": OutputLog(out_reader), "scratch": scratch, "track": track,
-                  "index": None, "deadline": None, "started": None, "leaving": False}
+                  "index": None, "deadline": None, "started": None, "leaving": False,
+                  "checking": check is not None, "checked": None}
+        if check is not None:
+            worker["deadline"] = time.monotonic() + check.limit
         pool.append(worker)
         return worker
 
@@ -442,8 +423,32 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         if worker in pool:  # (an interruption may have come in the middle of an end)
             pool.remove(worker)
 
+    def next_job(worker: dict[str, Any]) -> None:
+        """A worker that is free: the next job, else (no idle workers kept) its end."""
+        if waiting:
+            give(worker)
+        elif idle is None:  # nothing left for it: let it exit
+            worker["leaving"] = True
+            try:
+                worker["send"].send(None)
+            except OSError:
+                pass
+
     def handle(worker: dict[str, Any], kind: str, payload: Any) -> None:
         index = worker["index"]
+        if worker["checking"] and checks is not None:
+            if kind == "checking":
+                worker["checked"] = payload
+                worker["deadline"] = time.monotonic() + checks.limit
+            elif kind == "failed":
+                item, text = payload
+                raise checks.error(item, text, True)
+            elif kind == "checked":
+                worker["output"].read()  # the check's output (dropped) before any run's
+                worker["checking"] = False
+                worker["deadline"] = None
+                next_job(worker)
+            return
         if kind == "progress":
             on_progress(payload)
         elif kind == "message" and index is not None:
@@ -456,17 +461,21 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
             if payload["status"] != "complete":
                 worker["leaving"] = True
                 return  # the worker exits by itself: its end retires it
-            if waiting:
-                give(worker)
-            elif idle is None:  # nothing left for it: let it exit
-                worker["leaving"] = True
-                try:
-                    worker["send"].send(None)
-                except OSError:
-                    pass
+            next_job(worker)
 
     def busy() -> bool:
-        return any(w["index"] is not None or w["leaving"] for w in pool)
+        return any(w["index"] is not None or w["leaving"] or w["checking"] for w in pool)
+
+    def check_ended(worker: dict[str, Any], alive: bool) -> None:
+        """Raise the check's error when the checking ``worker`` went wrong."""
+        assert checks is not None
+        if worker["frames"].broken:
+            raise checks.broken(worker["checked"])
+        if not alive:
+            worker["process"].join()
+            raise checks.died(worker["checked"], worker["process"].exitcode)
+        if time.monotonic() >= worker["deadline"]:
+            raise checks.timed_out(worker["checked"])
 
     try:
         while waiting or busy():
@@ -475,8 +484,14 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
                 if kept is not None:
                     pool.append(kept)
                     give(kept)
+                elif to_check is not None:  # takes a job once its check passed
+                    start_worker(to_check)
+                    to_check = None
                 else:
                     give(start_worker())
+            if meanwhile is not None:
+                overlap, meanwhile = meanwhile, None
+                overlap()
             now = time.monotonic()
             deadlines = [w["deadline"] for w in pool if w["deadline"] is not None]
             pause = min([1.0] + [max(0.0, d - now) for d in deadlines])
@@ -487,9 +502,12 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
             now = time.monotonic()
             for worker in list(pool):
                 worker["output"].read()
-                for kind, payload in worker["frames"].read():
+                alive = worker["process"].is_alive()
+                for kind, payload in worker["frames"].read():  # (a dead one's last words)
                     handle(worker, kind, payload)
-                if worker["frames"].broken:
+                if worker["checking"]:
+                    check_ended(worker, alive)
+                elif worker["frames"].broken:
                     end(worker, how="the run's process wrote data that is no message of "
                                     "agv-cosim into its result channel (an FMU writing into "
                                     "a file descriptor it does not own) and was stopped")

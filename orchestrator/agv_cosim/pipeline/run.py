@@ -49,6 +49,7 @@ from ..report.page import draw_figures, write_report_quietly
 from ..report.records import TIMINGS, RunResult, summary_rows, write_timings
 from ..system import Job
 from .distributed import run_on_dask
+from .initcheck import plan_checks
 from .pool import call_concurrently, run_isolated
 from .prepare import prepare
 from .resume import check_resumable, reuse_runs
@@ -64,7 +65,8 @@ def default_out_dir(manifest: Manifest) -> Path:
 def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = None,
             workers: int | None = None, quiet: bool = False, overwrite: bool = False,
             dask: str | None = None, resume: bool = False,
-            real_time: float | None = None) -> tuple[Path, list[RunResult]]:
+            real_time: float | None = None,
+            init_limit: float | None = None) -> tuple[Path, list[RunResult]]:
     """Run ``jobs`` and write the output folder (see the module docstring).
 
     Parameters
@@ -97,6 +99,12 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         say how it went.
         Refused (:func:`check_options`) for more than one run, or with ``dask`` or
         ``resume``.
+    init_limit : float, optional
+        Do the initialisation check (:func:`~.initcheck.plan_checks`) of the runs to do,
+        each FMU given this many seconds, in the first local worker before its first
+        run (:func:`~.pool.run_isolated`): a refusal raises its
+        :class:`~agv_cosim.errors.ManifestError` and no folder is written. Not with
+        ``dask`` (refused).
 
     Returns
     -------
@@ -105,6 +113,8 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
     """
     out_dir = Path(out_dir) if out_dir else default_out_dir(manifest)
     check_options(jobs, overwrite, dask, resume, real_time)
+    if init_limit is not None and dask:
+        raise OutputError("the initialisation check runs on this machine, not with --dask")
     if real_time is not None:
         jobs = [replace(job, real_time=real_time) for job in jobs]
     if resume:  # before AtomicDir, whose refusal of a folder not ours speaks of replacing
@@ -140,7 +150,12 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
             elif dask:
                 ran = run_on_dask(dask, todo, written, bar.update, run_done)
             else:
-                ran = run_isolated(todo, written, workers, bar.update, run_done)
+                checks = plan_checks(manifest, todo, init_limit) \
+                    if init_limit is not None else None
+                ran = run_isolated(todo, written, workers, bar.update, run_done,
+                                   checks=checks,
+                                   meanwhile=plots.import_drawing
+                                   if _draws(manifest, len(jobs)) else None)
         except BaseException as stop:
             bar.close()  # before any message: the error is the last line on stderr
             so_far = getattr(stop, "results", None)
@@ -207,7 +222,7 @@ def progress_bar() -> type:
     class Bar(tqdm):
         drawn = False
         # no monitor thread: the runs' processes are forked from this process while it
-        # has a single thread (agv_cosim.pipeline.pool.process_context)
+        # has a single thread (agv_cosim.pipeline.channels.process_context)
         monitor_interval = 0
 
         def display(self, *args: Any, **kwargs: Any) -> Any:
@@ -330,6 +345,12 @@ def _finish(manifest: Manifest, jobs: list[Job], results: list[RunResult], writt
     if report_error:
         print(printable(f"agv-cosim: warning: {manifest.path}: report: {report_error}"),
               file=sys.stderr)
+
+
+def _draws(manifest: Manifest, runs: int) -> bool:
+    """Whether the result folder of ``runs`` runs of ``manifest`` has figures
+    (:func:`_finish`): a Monte Carlo, ``[plots]``, or the page's comparison of runs."""
+    return manifest.montecarlo is not None or bool(manifest.plots) or runs > 1
 
 
 def _plots(manifest: Manifest, jobs: list[Job], results: list[RunResult],

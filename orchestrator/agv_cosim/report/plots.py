@@ -150,6 +150,14 @@ class RunData:
 
 # --------------------------------------------------------------------------- validation
 
+def import_drawing() -> None:
+    """Import what drawing a figure needs (matplotlib's Figure and Agg canvas, with its
+    font list): a command that will draw calls it while its runs are under way, so that
+    the figure processes it forks afterwards start with it."""
+    import matplotlib.backends.backend_agg  # noqa: F401
+    import matplotlib.figure  # noqa: F401
+
+
 def _validate(spec: "schema.PlotsTable | dict[str, Any] | None") -> dict[str, Any]:
     """``spec`` normalised (defaults filled in): a :class:`~agv_cosim.manifest.schema.PlotsTable`
     as the manifest's schema checked it, or a plain ``[plots]`` table checked here (a
