@@ -2,6 +2,8 @@
 
 import csv
 import json
+import os
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -158,6 +160,47 @@ def test_kept_extraction_gives_each_instance_its_own_folder_of_links(fmus, tmp_p
         assert files(two.unzip_dir) and files(kept)
     finally:
         two.close()
+
+
+def test_extract_ahead_unpacks_each_fmu_once_privately_and_leaves_a_bad_one(fmus, tmp_path,
+                                                                           monkeypatch):
+    """extract_ahead (threads) keeps one private extraction per FMU, the same files as
+    one unpacked alone, and the process's umask as it was; an archive that does not
+    unpack is not kept: its instance unpacks it again and reports the error."""
+    import stat
+
+    from agv_cosim.execution import instance as model
+    from agv_cosim.system import read_model
+
+    monkeypatch.setattr(model, "_EXTRACT_ROOT", [])
+    monkeypatch.setattr(model, "_EXTRACTED", {})
+    monkeypatch.setattr(model.tempfile, "tempdir", str(tmp_path))
+    infos = [read_model(fmus[name]) for name in ("agv_test_gain", "agv_test_source")]
+    broken = tmp_path / "broken.fmu"
+    broken.write_bytes(fmus["agv_test_gain"].read_bytes())
+    bad = read_model(broken)
+    broken.write_bytes(b"PK no longer a zip archive")
+    model.keep_extractions(str(tmp_path))
+    old = os.umask(0o022)
+    try:
+        model.extract_ahead([*infos, infos[0], bad])
+        assert os.umask(0o022) == 0o022
+    finally:
+        os.umask(old)
+    assert sorted(model._EXTRACTED) == sorted((str(i.path), i.sha256) for i in infos)
+    for info in infos:
+        kept = Path(model._EXTRACTED[(str(info.path), info.sha256)])
+        alone = tmp_path / f"alone-{info.identifier}"
+        with zipfile.ZipFile(info.path) as archive:
+            archive.extractall(alone)
+        assert ({p.relative_to(kept): p.read_bytes() for p in kept.rglob("*") if p.is_file()}
+                == {p.relative_to(alone): p.read_bytes() for p in alone.rglob("*")
+                    if p.is_file()})
+        for entry in [kept, *kept.rglob("*")]:
+            assert stat.S_IMODE(entry.stat().st_mode) & 0o077 == 0, entry
+    assert len(list(tmp_path.glob("agv_cosim_fmu_*"))) == 2  # the bad one's removed
+    with pytest.raises(zipfile.BadZipFile):
+        model.FmuInstance(bad, "bad")
 
 
 def test_a_bar_drawn_only_through_its_postfix_ends_its_line_on_close():

@@ -15,13 +15,13 @@ import stat
 import sys
 import tempfile
 import zipfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
 from ..system.model import IDENTIFIER, ModelInfo
 
-__all__ = ["FmuInstance", "keep_extractions"]
+__all__ = ["FmuInstance", "extract_ahead", "keep_extractions"]
 
 
 #: Instance key -> message list of that instance (see :func:`_logger`).
@@ -102,10 +102,47 @@ def _extract(path: str | Path, dest: str) -> None:
     folders 0700, its files 0600; a binary needs no x bit to be loaded)."""
     old = os.umask(0o077)
     try:
-        with zipfile.ZipFile(path) as archive:
-            archive.extractall(dest)
+        _unzip(path, dest)
     finally:
         os.umask(old)
+
+
+def _unzip(path: str | Path, dest: str) -> None:
+    with zipfile.ZipFile(path) as archive:
+        archive.extractall(dest)
+
+
+def extract_ahead(infos: Iterable[ModelInfo]) -> None:
+    """In a process that keeps extractions (:func:`keep_extractions`), unpack the FMUs of
+    ``infos`` not kept yet, up to 4 at once in threads: unpacking an FMU is mostly
+    waiting for the file system to create its many small files, which one thread does
+    one after the other. An FMU that fails to unpack here is left to its instance
+    (which unpacks it again and reports the error where it belongs)."""
+    if not _EXTRACT_ROOT:
+        return
+    todo: dict[tuple[str, str], ModelInfo] = {}
+    for info in infos:
+        key = (str(info.path), info.sha256)
+        if info.table is None and key not in _EXTRACTED:
+            todo.setdefault(key, info)
+    if len(todo) < 2:
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    folders = {key: tempfile.mkdtemp(prefix="agv_cosim_fmu_", dir=_EXTRACT_ROOT[0])
+               for key in todo}
+    old = os.umask(0o077)  # the process's: set once, around every thread's unpacking
+    try:
+        with ThreadPoolExecutor(max_workers=min(4, len(todo))) as threads:
+            done = {key: threads.submit(_unzip, info.path, folders[key])
+                    for key, info in todo.items()}
+    finally:
+        os.umask(old)
+    for key, future in done.items():
+        if future.exception() is None:
+            _EXTRACTED[key] = folders[key]
+        else:
+            shutil.rmtree(folders[key], ignore_errors=True)
 
 
 def _kept(info: ModelInfo) -> str:

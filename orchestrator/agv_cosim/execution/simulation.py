@@ -22,7 +22,7 @@ from ..errors import SimulationError
 from ..system import System
 from ..system.model import ModelInfo
 from .algorithm import Algorithm, Stepper, StopRequest, algorithm_for
-from .instance import FmuInstance
+from .instance import FmuInstance, extract_ahead
 from .observers import Observer
 from .pacing import Pacer
 from .scenario import Scenario
@@ -62,6 +62,7 @@ def _instantiate(system: System, instances: dict[str, FmuInstance], track: Track
                  on_message: Callable[[str, int, str], None] | None) -> None:
     """Instantiate every FMU into ``instances`` (so the caller can close them whatever
     happens)."""
+    extract_ahead(system.models.values())
     for i, (cname, info) in enumerate(system.models.items()):
         track[0] = i
         if info.table is None:

@@ -17,7 +17,7 @@ from multiprocessing.connection import Connection, wait
 from typing import Any
 
 from ..errors import ManifestError
-from ..execution.instance import FmuInstance, keep_extractions
+from ..execution.instance import FmuInstance, extract_ahead, keep_extractions
 from ..execution.units import enter_initialisation
 from ..lifetime import kill_group, scratch_dir
 from ..manifest import Manifest
@@ -108,6 +108,7 @@ def run_checks(items: list[tuple[str, ModelInfo, dict[str, Any], float, float]],
     sends ``("checked", None)``). After a refusal
     the process must not run FMUs any more (a failed pythonfmu instance may have damaged
     the heap)."""
+    extract_ahead(item[1] for item in items)
     for index, (cname, info, values, start, stop) in enumerate(items):
         send(("checking", index))
         instance, failure = None, None
