@@ -4,7 +4,10 @@ Each round runs, one after the other (paired: the ratios are taken round by roun
 machine that drifts moves both sides):
 
 fmpy
-    ``fmpy simulate fmus/AgvVehicle.fmu --stop-time 0.001`` (the yardstick);
+    ``fmpy simulate fmus/AgvVehicle.fmu --stop-time 0.001`` (the yardstick), as it
+    comes and with ``OPENBLAS_NUM_THREADS=1`` ("fmpy1": how the ``agv-cosim`` script
+    runs OpenBLAS, whose idle threads otherwise spin about 0.1 s of CPU in a process
+    that imports numpy; the like-for-like CPU anchor);
 run 1 FMU
     ``agv-cosim run`` of the vehicle alone (its position recorded), stop = 1 ms;
 run loop
@@ -31,6 +34,7 @@ Run: ``.venv/bin/python benchmarks/bench_startup.py [--rounds 5] [--baseline DIR
 """
 
 import argparse
+import os
 import re
 import resource
 import statistics
@@ -119,11 +123,12 @@ def _finalisation(root: Path, command: list[str]) -> tuple[float, float]:
     return atexit_end - main_end, end - atexit_end
 
 
-def _timed(command: list[str]) -> tuple[float, float]:
+def _timed(command: list[str], env: dict[str, str] | None = None) -> tuple[float, float]:
     """(wall s, CPU s of the command and its waited-for children)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    done = subprocess.run(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    done = subprocess.run(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                          env=env)
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:
@@ -148,6 +153,9 @@ def main() -> None:
             sides["old"] = _cases(args.baseline.resolve(), folder)
         times: dict[tuple[str, str], list[tuple[float, float]]] = {}
         anchor: list[tuple[float, float]] = []
+        # fmpy as agv-cosim runs OpenBLAS (one thread; cli.console): the like-for-like anchor
+        one_thread = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
+        anchor1: list[tuple[float, float]] = []
         for side in sides.values():  # warm-up: file caches, .pyc files
             for command in side.values():
                 _timed(command)
@@ -155,6 +163,7 @@ def main() -> None:
         finals: dict[str, list[tuple[float, float]]] = {}
         for _ in range(args.rounds):
             anchor.append(_timed(fmpy))
+            anchor1.append(_timed(fmpy, one_thread))
             for name, side in sides.items():
                 for case, command in side.items():
                     times.setdefault((name, case), []).append(_timed(command))
@@ -163,16 +172,20 @@ def main() -> None:
     med = statistics.median
     print(f"{args.rounds} rounds, medians; ratios are per round (paired), then the median")
     print(f"{'case':<22} {'side':<4} {'wall s':>7} {'CPU s':>7} {'/fmpy wall':>11} "
-          f"{'/fmpy CPU':>10}" + (f"  {'new/old wall':>12} {'new/old CPU':>11}"
-                                  if args.baseline else ""))
+          f"{'/fmpy CPU':>10} {'/fmpy1 CPU':>10}"
+          + (f"  {'new/old wall':>12} {'new/old CPU':>11}" if args.baseline else ""))
     print(f"{'fmpy simulate':<22} {'':<4} {med(w for w, _ in anchor):7.3f} "
           f"{med(c for _, c in anchor):7.3f}")
+    print(f"{'fmpy simulate (fmpy1)':<22} {'':<4} {med(w for w, _ in anchor1):7.3f} "
+          f"{med(c for _, c in anchor1):7.3f}   (OPENBLAS_NUM_THREADS=1)")
     for (name, case), samples in times.items():
         wall = med(w for w, _ in samples)
         cpu = med(c for _, c in samples)
         rw = med(w / a[0] for (w, _), a in zip(samples, anchor))
         rc = med(c / a[1] for (_, c), a in zip(samples, anchor))
-        line = f"{case:<22} {name:<4} {wall:7.3f} {cpu:7.3f} {rw:11.2f} {rc:10.2f}"
+        rc1 = med(c / a[1] for (_, c), a in zip(samples, anchor1))
+        line = (f"{case:<22} {name:<4} {wall:7.3f} {cpu:7.3f} {rw:11.2f} {rc:10.2f} "
+                f"{rc1:10.2f}")
         if name == "new" and ("old", case) in times:
             old = times[("old", case)]
             line += (f"  {med(n[0] / o[0] for n, o in zip(samples, old)):12.2f} "

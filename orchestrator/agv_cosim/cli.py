@@ -446,7 +446,13 @@ def console() -> None:
     atexit handlers run (multiprocessing's, the removal of our scratch folders) and
     stdout and stderr are flushed; every file the command wrote is closed by then (the
     result folder is committed before :func:`main` returns). ``--help``, ``--version``
-    and usage errors exit through ``SystemExit`` as usual."""
+    and usage errors exit through ``SystemExit`` as usual.
+
+    OpenBLAS (numpy's and scipy's linear algebra) runs one thread per process unless
+    ``OPENBLAS_NUM_THREADS`` says otherwise: the runs go in parallel as processes, the
+    components' matrices are far below OpenBLAS's size for threads, and its idle threads
+    spin (about 0.1 s of CPU in every process that imports numpy)."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     code = main()
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):

@@ -82,3 +82,23 @@ def test_drawing_a_figure_imports_matplotlib():
         "plots.sweep_metrics_figure([{'variant': 'a', 'point': {'k': 1.0}, 'status': 'complete', "
         "'metrics': {'m': 1.0}}], 'k', ['m'], {})\n")
     assert "matplotlib" in modules
+
+
+@pytest.mark.parametrize("preset", [None, "3"])
+def test_the_console_script_runs_openblas_on_one_thread_unless_told(preset):
+    """agv-cosim's entry point sets OPENBLAS_NUM_THREADS=1 before anything imports numpy,
+    and leaves a value the user set."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if preset is not None:
+        env["OPENBLAS_NUM_THREADS"] = preset
+    code = ("import os, sys\nfrom agv_cosim import cli\n"
+            "def main():\n"
+            "    print(os.environ['OPENBLAS_NUM_THREADS'], 'numpy' in sys.modules)\n"
+            "    return 0\n"
+            "cli.main = main\ncli.console()\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, cwd=ROOT, env=env)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == [preset or "1", "False"]
