@@ -20,6 +20,9 @@ $(STAMP): pyproject.toml setup.py constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[test]"
+	# the bytecode pip compiles for an installed package (an editable install gets none;
+	# with PYTHONDONTWRITEBYTECODE set, every command would compile the sources again)
+	$(BIN)/python -m compileall -q orchestrator/agv_cosim
 	touch $(STAMP)
 
 venv: $(STAMP)
