@@ -22,7 +22,8 @@ Every ``run`` is a whole command: manifest read, FMUs checked, the initialisatio
 the run in its own process, the result folder written (``--quiet``). Wall time is taken
 around each command; CPU time is the command's and its waited-for children's
 (``RUSAGE_CHILDREN``, after minus before). It prints, per case, the median wall and CPU
-time and the median of the per-round ratios against fmpy.
+time and the median of the per-round ratios against fmpy; then, from one more run of
+each, the peak resident memory of the command's largest process.
 
 ``--baseline DIR`` also runs every agv-cosim case with another checkout (``DIR/.venv``
 and ``DIR/fmus``, e.g. ``git worktree add DIR COMMIT`` then ``make venv fmus`` there) in
@@ -138,6 +139,21 @@ def _timed(command: list[str], env: dict[str, str] | None = None) -> tuple[float
     return wall, cpu
 
 
+#: Runs a command and prints the largest peak resident set size [KiB] of it and its
+#: descendants (RUSAGE_CHILDREN's ru_maxrss: a maximum over processes, not a sum).
+_PEAK = ("import resource, subprocess, sys\n"
+         "subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,"
+         " check=True)\n"
+         "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)\n")
+
+
+def _peak_rss(command: list[str]) -> float:
+    """The peak resident memory [MiB] of the largest process of ``command``."""
+    done = subprocess.run([sys.executable, "-c", _PEAK, *command], capture_output=True,
+                          text=True, check=True)
+    return int(done.stdout.split()[-1]) / 1024
+
+
 def _compile(root: Path) -> None:
     """Compile ``root``'s package to bytecode, as pip does when it installs a package (an
     editable install gets none, and with PYTHONDONTWRITEBYTECODE set every command would
@@ -179,6 +195,9 @@ def main() -> None:
                     times.setdefault((name, case), []).append(_timed(command))
                 root = ROOT if name == "new" else args.baseline.resolve()
                 finals.setdefault(name, []).append(_finalisation(root, side["run loop"]))
+        peaks = {(name, case): _peak_rss(command) for name, side in sides.items()
+                 for case, command in side.items() if case.startswith("run")}
+        peaks[("", "fmpy simulate")] = _peak_rss(fmpy)
     med = statistics.median
     print(f"{args.rounds} rounds, medians; ratios are per round (paired), then the median")
     print(f"{'case':<22} {'side':<4} {'wall s':>7} {'CPU s':>7} {'/fmpy wall':>11} "
@@ -205,6 +224,9 @@ def main() -> None:
         print(f"run loop, {name}: after main returned: atexit handlers "
               f"{med(a for a, _ in samples):.3f} s, then interpreter finalisation "
               f"{med(f for _, f in samples):.3f} s (medians)")
+    print("peak resident memory of the command's largest process (one run each): "
+          + ", ".join(f"{case}{' ' + name if name else ''} {mib:.0f} MiB"
+                      for (name, case), mib in peaks.items()))
 
 
 if __name__ == "__main__":

@@ -123,12 +123,16 @@ to = "bad.u"
     assert first.read_bytes() == third.read_bytes()
 
 
-def test_kept_extraction_gives_each_instance_its_own_folder_of_links(fmus, tmp_path,
-                                                                     monkeypatch):
-    """With keep_extractions (what a worker does), an FMU is unpacked once and every
-    instance gets a folder of its own whose files are hard links to that copy; both
-    instances instantiate from there, and closing one leaves the other's files and the
-    kept copy in place. Without it, each instance unpacks the archive (no shared files)."""
+def test_kept_extraction_gives_each_instance_its_own_binary_and_links(fmus, tmp_path,
+                                                                      monkeypatch):
+    """With keep_extractions (what a worker does), an FMU is unpacked once; every instance
+    gets a folder of its own holding this platform's binaries as hard links to that copy
+    (a library path of its own: globals of its own) and every other entry as a symbolic
+    link to it; both instances instantiate from there, and closing one leaves the other's
+    folder and the kept copy in place. Without it, each instance unpacks the archive (no
+    shared files)."""
+    import fmpy
+
     from agv_cosim.execution import instance as model
     from agv_cosim.system import read_model
 
@@ -142,24 +146,38 @@ def test_kept_extraction_gives_each_instance_its_own_folder_of_links(fmus, tmp_p
 
     plain = model.FmuInstance(info, "plain")
     try:
-        assert all(p.stat().st_nlink == 1 for p in files(plain.unzip_dir))
+        assert all(p.stat().st_nlink == 1 and not p.is_symlink()
+                   for p in files(plain.unzip_dir))
     finally:
         plain.close()
 
     model.keep_extractions(str(tmp_path))
     one, two = model.FmuInstance(info, "one"), model.FmuInstance(info, "two")
+    platform = Path("binaries", fmpy.platform)
     try:
         [kept] = model._EXTRACTED.values()
         for instance in (one, two):
-            assert instance.unzip_dir != kept
-            names = [p.relative_to(instance.unzip_dir) for p in files(instance.unzip_dir)]
-            assert names == [p.relative_to(kept) for p in files(kept)] and names
-            assert all((Path(instance.unzip_dir) / n).samefile(Path(kept) / n)
-                       for n in names)
+            own = Path(instance.unzip_dir)
+            assert own != Path(kept)
+            binaries = sorted(p.relative_to(own) for p in (own / platform).iterdir())
+            assert binaries == sorted(p.relative_to(kept)
+                                      for p in (Path(kept) / platform).iterdir())
+            assert binaries and all(not (own / b).is_symlink() and (own / b).is_file()
+                                    and (own / b).samefile(Path(kept) / b)
+                                    for b in binaries)
+            assert not (own / "binaries").is_symlink()
+            others = sorted(p.name for p in own.iterdir() if p.name != "binaries")
+            assert others == sorted(p.name for p in Path(kept).iterdir()
+                                    if p.name != "binaries")
+            assert "resources" in others and "modelDescription.xml" in others
+            assert all((own / n).is_symlink() and (own / n).resolve() == Path(kept, n)
+                       for n in others)
         one.close()
-        assert files(two.unzip_dir) and files(kept)
+        assert not Path(kept, platform).is_symlink() and files(kept)
+        assert files(Path(two.unzip_dir) / platform) and files(kept)
     finally:
         two.close()
+    assert files(kept)
 
 
 def test_extract_ahead_unpacks_each_fmu_once_privately_and_leaves_a_bad_one(fmus, tmp_path,

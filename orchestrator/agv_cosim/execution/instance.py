@@ -156,12 +156,38 @@ def _kept(info: ModelInfo) -> str:
     return source
 
 
+def _binaries(info: ModelInfo) -> str:
+    """The folder of the FMU's binaries for this platform, relative to its extraction."""
+    import fmpy
+
+    return f"binaries/{fmpy.platform_tuple if info.fmi_version == '3.0' else fmpy.platform}"
+
+
 def _unpack(info: ModelInfo, dest: str) -> None:
-    """Put the contents of FMU ``info.path`` into the existing folder ``dest``."""
+    """Put the contents of FMU ``info.path`` into the existing folder ``dest``.
+
+    In a process that keeps extractions, ``dest`` gets this platform's binaries as hard
+    links to the kept extraction's files, in folders of its own (a library loaded from a
+    path of its own has globals of its own: each instance starts from the library's
+    initial state), and every other entry (``resources/``, ``modelDescription.xml``, the
+    other platforms' binaries, ...) as a symbolic link to the kept one."""
     if not _EXTRACT_ROOT:
         _extract(info.path, dest)
         return
-    shutil.copytree(_kept(info), dest, copy_function=_link_or_copy, dirs_exist_ok=True)
+    kept = _kept(info)
+    own = _binaries(info)
+    for entry in os.listdir(kept):
+        if entry != "binaries":
+            os.symlink(os.path.join(kept, entry), os.path.join(dest, entry))
+    if not os.path.isdir(os.path.join(kept, "binaries")):
+        return
+    os.mkdir(os.path.join(dest, "binaries"), 0o700)
+    for platform in os.listdir(os.path.join(kept, "binaries")):
+        source = os.path.join(kept, "binaries", platform)
+        if f"binaries/{platform}" == own and not os.path.islink(source):
+            shutil.copytree(source, os.path.join(dest, own), copy_function=_link_or_copy)
+        else:
+            os.symlink(source, os.path.join(dest, "binaries", platform))
 
 
 class FmuInstance:
@@ -247,8 +273,7 @@ class FmuInstance:
 
         if not IDENTIFIER.fullmatch(info.identifier):
             raise RuntimeError(f"modelIdentifier {info.identifier!r} is not a name")
-        platform = fmpy.platform_tuple if info.fmi_version == "3.0" else fmpy.platform
-        relative = f"binaries/{platform}/{info.identifier}{fmpy.sharedLibraryExtension}"
+        relative = f"{_binaries(info)}/{info.identifier}{fmpy.sharedLibraryExtension}"
         assert self.unzip_dir is not None  # extracted before the library is looked up
         library = os.path.join(self.unzip_dir, relative)
         try:
