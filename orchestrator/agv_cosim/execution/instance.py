@@ -184,7 +184,8 @@ def _unpack(info: ModelInfo, dest: str) -> None:
     os.mkdir(os.path.join(dest, "binaries"), 0o700)
     for platform in os.listdir(os.path.join(kept, "binaries")):
         source = os.path.join(kept, "binaries", platform)
-        if f"binaries/{platform}" == own and not os.path.islink(source):
+        if (f"binaries/{platform}" == own and os.path.isdir(source)
+                and not os.path.islink(source)):
             shutil.copytree(source, os.path.join(dest, own), copy_function=_link_or_copy)
         else:
             os.symlink(source, os.path.join(dest, "binaries", platform))
