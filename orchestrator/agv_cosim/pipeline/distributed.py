@@ -43,6 +43,7 @@ import hashlib
 import json
 import logging
 import os
+import queue
 import re
 import shutil
 import stat
@@ -238,6 +239,30 @@ def _write_back(job, result, files, root):
     return result
 
 
+def _taken(arrived: "queue.SimpleQueue[Any]", timeout: float) -> list[Any]:
+    """What ``arrived`` holds: waits up to ``timeout`` [s] for the first item."""
+    try:
+        items = [arrived.get(timeout=timeout)]
+    except queue.Empty:
+        return []
+    while True:
+        try:
+            items.append(arrived.get_nowait())
+        except queue.Empty:
+            return items
+
+
+def _failure(future: Any) -> str:
+    """What a finished task raised (its message), or ''."""
+    import asyncio
+
+    try:
+        future.result()
+    except (Exception, asyncio.CancelledError) as error:  # noqa: BLE001 - its text only
+        return str(error)
+    return ""
+
+
 def _worker_count(client):
     """Workers the scheduler knows now, or None when it does not answer within
     :data:`CONNECT_TIMEOUT` (gone, or the client is no longer connected)."""
@@ -280,8 +305,6 @@ def run_on_dask(address: str, jobs: list[Job], root: Path,
     the exception carries ``results`` (the finished runs, the others ``not run``) so
     that the caller keeps them.
     """
-    from distributed import wait as wait_futures
-
     restore_logs = _quiet_logs()
     client = connect(address)
     results: list[RunResult | None] = [None] * len(jobs)
@@ -310,23 +333,31 @@ def run_on_dask(address: str, jobs: list[Job], root: Path,
             future = client.submit(run_remote, job, needed, pure=False,
                                    key=f"agv-cosim-{os.getpid()}-{index}-{job.label}")
             futures[future] = index
+        # each finished task is put here by Dask's callback thread: the loop takes them
+        # as they come (no wait over every pending task, no scheduler call per task)
+        arrived: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        for future in futures:
+            future.add_done_callback(arrived.put)
         pending = set(futures)
         lost_since: float | None = None
         while pending:
-            try:
-                wait_futures(list(pending), timeout=1.0, return_when="FIRST_COMPLETED")
-            except TimeoutError:  # nothing finished within the second
-                pass
-            except Exception as error:  # noqa: BLE001 - e.g. futures cancelled: the end
-                reasons = sorted(set(re.findall(r"for reason: ([^.\n]+)", str(error))))
-                why = ", ".join(reasons) or type(error).__name__
+            ready = _taken(arrived, 1.0)
+            quiet = not ready
+            if quiet:  # nothing for a second: a completion a callback missed, if any
+                ready = [f for f in pending if f.done()]
+            done = [f for f in dict.fromkeys(ready) if f in pending and f.done()]
+            cancelled = [f for f in done if f.cancelled()]
+            if cancelled:
+                reasons = sorted({reason for f in cancelled
+                                  for reason in re.findall(r"for reason: ([^.\n]+)",
+                                                           _failure(f))})
+                why = ", ".join(reasons) or "CancelledError"
                 problem: str | None = (
                     f"lost the scheduler at {address}" if _worker_count(client) is None
                     else f"the cluster at {address} cancelled the runs left (a worker "
                          "holding their FMUs died)")
                 raise ClusterError(f"--dask: {problem} ({why}); {len(pending)} run(s) did "
-                                   "not finish") from None
-            done = [f for f in futures if f in pending and f.done()]
+                                   "not finish")
             pending.difference_update(done)
             for future in done:
                 index = futures[future]
@@ -345,8 +376,9 @@ def run_on_dask(address: str, jobs: list[Job], root: Path,
                 results[index] = _write_back(job, result, files, root)
                 on_progress(job.plan.steps)
                 on_done()
-            if not pending:
-                break
+            if not pending or not quiet:  # runs that finish: the cluster is there
+                lost_since = None
+                continue
             problem = None
             workers = _worker_count(client)
             if workers is None:
