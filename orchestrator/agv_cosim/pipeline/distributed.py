@@ -215,15 +215,19 @@ def _write_back(job, result, files, root):
     """Write a run's files under ``root`` and compute its metrics here (the client)."""
     run_dir = Path(root) / job.label
     run_dir.mkdir(exist_ok=True)  # never its parents: a removed result folder stays gone
+    result = RunResult(**result)
+    # with metrics, run.json and metrics.json are written once, after the metrics
+    measured = bool(job.metrics_spec and result["rows"] and "run.json" in files)
     for name, data in files.items():
         target = run_dir / name
         if run_dir.resolve() not in target.resolve().parents:
             raise ClusterError(f"a worker returned a file outside its run folder: {name!r}")
+        if measured and name in ("run.json", "metrics.json"):
+            continue
         target.parent.mkdir(parents=True, exist_ok=True)
         with create_file(target, binary=True) as stream:
             stream.write(data)
-    result = RunResult(**result)
-    if job.metrics_spec and result["rows"]:
+    if measured:
         values, metrics_error = {}, None
         try:
             values = dict(metrics.compute_metrics_csv(
@@ -231,10 +235,10 @@ def _write_back(job, result, files, root):
                 base_dir=job.manifest_dir))
         except Exception as failure:  # noqa: BLE001 - reported in run.json, as locally
             metrics_error = f"{type(failure).__name__}: {failure}"
-        write_json(run_dir / "metrics.json", values, replace=True)
-        info = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
+        write_json(run_dir / "metrics.json", values)
+        info = json.loads(files["run.json"].decode("utf-8"))
         info["metrics_error"] = metrics_error
-        write_json(run_dir / "run.json", info, replace=True)
+        write_json(run_dir / "run.json", info)
         result.update(metrics=values, metrics_error=metrics_error)
     return result
 
@@ -294,13 +298,15 @@ def _quiet_logs():
 
 def run_on_dask(address: str, jobs: list[Job], root: Path,
                 on_progress: Callable[[int], None],
-                on_done: Callable[[], None]) -> list[RunResult]:
+                on_done: Callable[[], None],
+                meanwhile: Callable[[], None] | None = None) -> list[RunResult]:
     """Run ``jobs`` on the cluster at ``address``; write each run under ``root``.
 
-    Same contract as :func:`agv_cosim.pipeline.pool.run_isolated`: one result dict per job, in
-    job order. ``on_progress`` gets each finished run's steps at once. A run whose task
-    fails on the cluster (its worker died, ...) is ``failed`` with the reason and the
-    others go on. When the command cannot go on (the scheduler gone, no worker left
+    Same contract as :func:`agv_cosim.pipeline.pool.run_isolated`: one result dict per
+    job, in job order; ``meanwhile`` is called once the tasks are submitted.
+    ``on_progress`` gets each finished run's steps at once. A run whose task fails on
+    the cluster (its worker died, ...) is ``failed`` with the reason and the others go
+    on. When the command cannot go on (the scheduler gone, no worker left
     for :data:`LOST_TIMEOUT` s, a worker unfit to run anything, a SIGINT/SIGTERM/SIGHUP)
     the exception carries ``results`` (the finished runs, the others ``not run``) so
     that the caller keeps them.
@@ -338,6 +344,8 @@ def run_on_dask(address: str, jobs: list[Job], root: Path,
         arrived: queue.SimpleQueue[Any] = queue.SimpleQueue()
         for future in futures:
             future.add_done_callback(arrived.put)
+        if meanwhile is not None:
+            meanwhile()
         pending = set(futures)
         lost_since: float | None = None
         while pending:
