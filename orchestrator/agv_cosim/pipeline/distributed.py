@@ -298,15 +298,13 @@ def _quiet_logs():
 
 def run_on_dask(address: str, jobs: list[Job], root: Path,
                 on_progress: Callable[[int], None],
-                on_done: Callable[[], None],
-                meanwhile: Callable[[], None] | None = None) -> list[RunResult]:
+                on_done: Callable[[], None]) -> list[RunResult]:
     """Run ``jobs`` on the cluster at ``address``; write each run under ``root``.
 
     Same contract as :func:`agv_cosim.pipeline.pool.run_isolated`: one result dict per
-    job, in job order; ``meanwhile`` is called once the tasks are submitted.
-    ``on_progress`` gets each finished run's steps at once. A run whose task fails on
-    the cluster (its worker died, ...) is ``failed`` with the reason and the others go
-    on. When the command cannot go on (the scheduler gone, no worker left
+    job, in job order. ``on_progress`` gets each finished run's steps at once. A run
+    whose task fails on the cluster (its worker died, ...) is ``failed`` with the reason
+    and the others go on. When the command cannot go on (the scheduler gone, no worker left
     for :data:`LOST_TIMEOUT` s, a worker unfit to run anything, a SIGINT/SIGTERM/SIGHUP)
     the exception carries ``results`` (the finished runs, the others ``not run``) so
     that the caller keeps them.
@@ -344,8 +342,6 @@ def run_on_dask(address: str, jobs: list[Job], root: Path,
         arrived: queue.SimpleQueue[Any] = queue.SimpleQueue()
         for future in futures:
             future.add_done_callback(arrived.put)
-        if meanwhile is not None:
-            meanwhile()
         pending = set(futures)
         lost_since: float | None = None
         while pending:

@@ -147,16 +147,16 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         try:
             if not todo:
                 ran = []
+            elif dask:
+                ran = run_on_dask(dask, todo, written, bar.update, run_done)
             else:
+                checks = plan_checks(manifest, todo, init_limit) \
+                    if init_limit is not None else None
                 # the figures' imports while the runs are under way
-                overlap = plots.import_drawing if _draws(manifest, len(jobs)) else None
-                if dask:
-                    ran = run_on_dask(dask, todo, written, bar.update, run_done, overlap)
-                else:
-                    checks = plan_checks(manifest, todo, init_limit) \
-                        if init_limit is not None else None
-                    ran = run_isolated(todo, written, workers, bar.update, run_done,
-                                       checks=checks, meanwhile=overlap)
+                ran = run_isolated(todo, written, workers, bar.update, run_done,
+                                   checks=checks,
+                                   meanwhile=plots.import_drawing
+                                   if _draws(manifest, len(jobs)) else None)
         except BaseException as stop:
             bar.close()  # before any message: the error is the last line on stderr
             so_far = getattr(stop, "results", None)
