@@ -6,8 +6,9 @@
 a worker reports to its parent).
 """
 
-from .initcheck import INIT_TIMEOUT, check_initialisation
+from .initcheck import INIT_TIMEOUT
 from .job import run_job
+from .pool import check_initialisation
 from .prepare import prepare
 from .resume import reusable
 from .run import check_options, default_out_dir, execute, run_manifest

@@ -1,31 +1,22 @@
 """The initialisation check: each FMU instantiated and initialised once with each run's
-parameters, in a process that runs FMUs (not in the command's).
-
-:func:`check_initialisation` (``agv-cosim validate``) does it in a child process of its
-own; ``agv-cosim run`` hands the same :class:`InitChecks` to the first worker of its
-pool (:func:`agv_cosim.pipeline.pool.run_isolated`), which checks, then runs: the FMUs
-are unpacked, loaded and their cores imported once for both.
+parameters (:func:`plan_checks`), in a worker process of the pool
+(:func:`run_checks` in :func:`agv_cosim.pipeline.pool.run_isolated`), never in the
+command's. ``agv-cosim run`` hands the checks to its first worker, which then runs: the
+FMUs are unpacked, loaded and their cores imported once for both; ``agv-cosim validate``
+(:func:`agv_cosim.pipeline.pool.check_initialisation`) to a worker that runs nothing.
 """
 
-import os
-import shutil
-import tempfile
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from multiprocessing.connection import Connection, wait
 from typing import Any
 
 from ..errors import ManifestError
-from ..execution.instance import FmuInstance, extract_ahead, keep_extractions
+from ..execution.instance import FmuInstance, extract_ahead
 from ..execution.units import enter_initialisation
-from ..lifetime import kill_group, scratch_dir
 from ..manifest import Manifest
 from ..system import Job, ModelInfo
-from .channels import Frames, child_setup, inherited_fds, process_context, send_frame, start_process
 
-__all__ = ["INIT_TIMEOUT", "InitChecks", "check_initialisation", "plan_checks",
-           "run_checks"]
+__all__ = ["INIT_TIMEOUT", "InitChecks", "plan_checks", "run_checks"]
 
 #: Default limit [s] of the initialisation check, per FMU instance (its instantiation
 #: and initialisation), when neither ``--timeout`` nor the manifest's ``[simulation]
@@ -101,9 +92,9 @@ def plan_checks(manifest: Manifest, jobs: list[Job],
 
 def run_checks(items: list[tuple[str, ModelInfo, dict[str, Any], float, float]],
                send: Callable[[tuple[str, Any]], None]) -> bool:
-    """Instantiate, initialise and free each of ``items`` in this process (a child that
-    runs FMUs, whose extractions are kept: an FMU checked with several parameter sets
-    is unpacked once). Sends ``("checking", index)`` before each and ``("failed",
+    """Instantiate, initialise and free each of ``items`` in this process (a pool worker,
+    whose extractions are kept: an FMU checked with several parameter sets is unpacked
+    once). Sends ``("checking", index)`` before each and ``("failed",
     (index, text))`` at the first refusal; returns whether all passed (the caller then
     sends ``("checked", None)``). After a refusal
     the process must not run FMUs any more (a failed pythonfmu instance may have damaged
@@ -133,91 +124,3 @@ def run_checks(items: list[tuple[str, ModelInfo, dict[str, Any], float, float]],
             send(("failed", (index, failure)))
             return False
     return True
-
-
-def _check_child(items: list[tuple[str, ModelInfo, dict[str, Any], float, float]],
-                 channel: Connection, life: Connection, scratch: str,
-                 inherited: list[int] | None = None) -> None:
-    """Body of :func:`check_initialisation`'s child: :func:`run_checks`, then exit."""
-    # an FMU's prints go nowhere: validate writes no results
-    child_setup(None, life, inherited, (channel,))
-    tempfile.tempdir = scratch
-    keep_extractions(scratch)
-    fd = channel.fileno()
-
-    def send(message: tuple[str, Any]) -> None:
-        try:
-            send_frame(fd, message)
-        except OSError:
-            os._exit(1)
-
-    if run_checks(items, send):
-        send(("checked", None))
-    os._exit(0)
-
-
-def check_initialisation(manifest: Manifest, jobs: list[Job],
-                         timeout: float | None = None) -> None:
-    """Instantiate and initialise each FMU once with each run's parameters.
-
-    Catches what only the FMU knows (a parameter value it refuses), without running.
-    The FMUs run in a child process of their own (see the module docstring); each
-    distinct (FMU, parameter values) pair is checked once (:func:`plan_checks`), and
-    the first refusal stops. An FMU that takes longer than ``timeout`` [s] (default: the
-    manifest's ``[simulation] timeout``, else :data:`INIT_TIMEOUT`) to instantiate and
-    initialise is stopped.
-
-    Raises
-    ------
-    ManifestError
-        Naming the component, the run, the FMI call and the FMU's own message.
-    """
-    checks = plan_checks(manifest, jobs, timeout)
-    if checks is None:
-        return
-    context = process_context()
-    reader, writer = context.Pipe(duplex=False)
-    life_reader, life_writer = context.Pipe(duplex=False)
-    scratch = scratch_dir("check")
-    process = context.Process(target=_check_child, name="agv-cosim check",
-                              args=(checks.items, writer, life_reader, scratch,
-                                    inherited_fds(context)))
-    frames = Frames(reader)
-    current: int | None = None
-    failure: ManifestError | None = None
-    finished = False
-    deadline = time.monotonic() + checks.limit
-    try:
-        start_process(process, context)
-        writer.close()
-        while failure is None and not finished:
-            handles = [process.sentinel] + ([frames.fd] if not frames.closed else [])
-            wait(handles, timeout=min(1.0, max(0.0, deadline - time.monotonic())))
-            alive = process.is_alive()
-            for kind, payload in frames.read():  # (after a death: its last words)
-                if kind == "checking":
-                    current, deadline = payload, time.monotonic() + checks.limit
-                elif kind == "failed":
-                    item, text = payload
-                    failure = checks.error(item, text, True)
-                elif kind == "checked":
-                    finished = True
-            if failure is not None or finished:
-                break
-            if frames.broken:
-                failure = checks.broken(current)
-            elif not alive:
-                process.join()
-                failure = checks.died(current, process.exitcode)
-            elif time.monotonic() >= deadline:
-                failure = checks.timed_out(current)
-    finally:
-        kill_group(process)
-        if process.pid is not None:
-            process.join()
-        frames.close()
-        life_reader.close()
-        life_writer.close()
-        shutil.rmtree(scratch, ignore_errors=True)
-    if failure is not None:
-        raise failure

@@ -38,6 +38,7 @@ from ..lifetime import (
     kill_group,
     scratch_dir,
 )
+from ..manifest import Manifest
 from ..report import metrics
 from ..report.records import RunResult, run_result, write_run_files
 from ..system import Job
@@ -54,12 +55,11 @@ from .channels import (
     send_frame,
     start_process,
 )
-from .initcheck import InitChecks, run_checks
+from .initcheck import InitChecks, plan_checks, run_checks
 from .job import run_job
 
-__all__ = ["FORKSERVER_PRELOAD", "IdleWorkers", "call_concurrently", "inherited_fds", "not_run",
-           "process_context",
-           "run_isolated", "start_process"]
+__all__ = ["FORKSERVER_PRELOAD", "IdleWorkers", "call_concurrently", "check_initialisation",
+           "inherited_fds", "not_run", "process_context", "run_isolated", "start_process"]
 
 #: The tasks of :func:`call_concurrently` under way: its forked processes inherit them
 #: and are sent an index, so that no task need be pickled.
@@ -350,7 +350,6 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
     #: checking: True while it does the initialisation check, then ``checked``: the
     #: index of the check item under way)
     pool: list[dict[str, Any]] = []
-    to_check = checks
     # closes when this process ends, however: each worker's guard then ends its group
     if idle is not None and idle.life is not None:
         life_reader, life_writer = idle.life
@@ -478,15 +477,14 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
             raise checks.timed_out(worker["checked"])
 
     try:
+        if checks is not None:  # takes a job once its check passed
+            start_worker(checks)
         while waiting or busy():
             while waiting and len(pool) < workers:
                 kept = idle.take() if idle is not None else None
                 if kept is not None:
                     pool.append(kept)
                     give(kept)
-                elif to_check is not None:  # takes a job once its check passed
-                    start_worker(to_check)
-                    to_check = None
                 else:
                     give(start_worker())
             if meanwhile is not None:
@@ -544,3 +542,37 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
     done = [r for r in results if r is not None]
     assert len(done) == len(results), "a run ended without a result"
     return done
+
+
+def check_initialisation(manifest: Manifest, jobs: list[Job],
+                         timeout: float | None = None) -> None:
+    """Instantiate and initialise each FMU once with each run's parameters
+    (``agv-cosim validate``).
+
+    Catches what only the FMU knows (a parameter value it refuses), without running:
+    the checks (:func:`~agv_cosim.pipeline.initcheck.plan_checks`: each distinct (FMU,
+    parameter values) pair once) are made by a pool worker that runs no job
+    (:func:`run_isolated`), the first refusal stops them. An FMU that takes longer than
+    ``timeout`` [s] (default: the manifest's ``[simulation] timeout``, else
+    :data:`~agv_cosim.pipeline.initcheck.INIT_TIMEOUT`) to instantiate and initialise
+    is stopped.
+
+    Raises
+    ------
+    ManifestError
+        Naming the component, the run, the FMI call and the FMU's own message.
+    """
+    checks = plan_checks(manifest, jobs, timeout)
+    if checks is None:
+        return
+    try:
+        run_isolated([], Path(), 1, _ignored, _ignored, checks=checks)  # no job: no folder
+    except BaseException as stop:
+        restore = getattr(stop, "restore", None)  # termination signals back as they were
+        if restore is not None:
+            restore()
+        raise
+
+
+def _ignored(*args: Any) -> None:
+    return None
