@@ -84,8 +84,9 @@ _EXTRACT_ROOT: list[str] = []
 
 def keep_extractions(folder: str) -> None:
     """Extract each FMU once in this process, under ``folder``, and give every instance
-    a folder of its own made of hard links to that extraction (far cheaper than
-    unpacking the archive again). ``folder`` must be deleted by whoever owns it."""
+    a folder of its own made from that extraction (its binaries hard-linked, the rest
+    symbolic links: see :func:`_unpack`; far cheaper than unpacking the archive again).
+    ``folder`` must be deleted by whoever owns it."""
     _EXTRACT_ROOT[:] = [folder]
     _EXTRACTED.clear()
 
