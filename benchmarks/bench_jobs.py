@@ -28,6 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from bench_startup import compile_package  # this folder: sys.path[0] of a script
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -68,14 +70,6 @@ def _same(a: Path, b: Path) -> bool:
                for name in files if name.name != "timings.csv")
 
 
-def _compile(root: Path) -> None:
-    """Compile ``root``'s package to bytecode, as pip does when it installs a package (an
-    editable install gets none, and with PYTHONDONTWRITEBYTECODE set every command would
-    compile the sources again): each side is measured as installed."""
-    subprocess.run([str(root / ".venv" / "bin" / "python"), "-m", "compileall", "-q",
-                    str(root / "orchestrator" / "agv_cosim")], check=True)
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--runs", type=int, default=32)
@@ -96,7 +90,7 @@ def main() -> None:
         manifests = {name: _manifest(folder, args.runs, args.stop, not args.no_plots, root)
                      for name, root in sides}
         for _, root in sides:
-            _compile(root)
+            compile_package(root)
         print(f"{args.runs} runs of {args.stop:g} s (seed000 variant a), --jobs 1 against "
               f"--jobs {args.jobs}")
         for round_ in range(1, args.rounds + 1):

@@ -154,7 +154,7 @@ def _peak_rss(command: list[str]) -> float:
     return int(done.stdout.split()[-1]) / 1024
 
 
-def _compile(root: Path) -> None:
+def compile_package(root: Path) -> None:
     """Compile ``root``'s package to bytecode, as pip does when it installs a package (an
     editable install gets none, and with PYTHONDONTWRITEBYTECODE set every command would
     compile the sources again): each side is measured as installed."""
@@ -181,7 +181,7 @@ def main() -> None:
         one_thread = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
         anchor1: list[tuple[float, float]] = []
         for root in [ROOT] + ([args.baseline.resolve()] if args.baseline else []):
-            _compile(root)
+            compile_package(root)
         for side in sides.values():  # warm-up: file caches, .pyc files
             for command in side.values():
                 _timed(command)
