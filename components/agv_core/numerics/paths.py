@@ -585,7 +585,7 @@ def path_files(spec):
 
 def rebase_path(spec, base_dir):
     """``spec`` with each relative file name it names (:func:`path_files`) joined to
-    ``base_dir``, every other character as written: ``parse_path(rebase_path(spec, d))``
+    ``base_dir``, its other items as written: ``parse_path(rebase_path(spec, d))``
     reads the files ``parse_path(spec, d)`` reads, from any working folder. A value that
     names no file is returned as it is. Raises ParameterError("path", ...) when a joined
     name holds a ``,``, which a path string cannot carry."""
