@@ -284,3 +284,23 @@ def test_resume_reruns_a_run_whose_waypoint_file_changed(waypoints, tmp_path, ca
     assert values["lateral_error_max"] == pytest.approx(values["path_error_max"], abs=1e-9)
     assert_same_folder(out, _clean(waypoints, tmp_path / "clean"))
     shutil.rmtree(tmp_path / "clean")
+
+
+def test_resume_refuses_a_users_link_where_a_run_is_written(chain, tmp_path, capsys):
+    """A link (or file) of the user's named as a run that runs again is neither deleted
+    nor written through: one line naming it, the folder left as it was."""
+    path = chain(stop=0.3)
+    out = tmp_path / "out"
+    assert _run(path, out, "--quiet") == 0
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    shutil.rmtree(out / "base")
+    (out / "base").symlink_to(mine)
+    before = _files(out)
+    capsys.readouterr()
+    assert _run(path, out, "--resume", "--quiet") == 2
+    assert capsys.readouterr().err.strip() == (
+        f"agv-cosim: error: {out / 'base'}: not a run folder of agv-cosim, where run "
+        "'base' is written; refusing to resume (move it away)")
+    assert os.readlink(out / "base") == str(mine) and not any(mine.iterdir())
+    assert _files(out) == before

@@ -234,6 +234,10 @@ def keep_others(target: str | Path, manifest: Manifest, jobs: list[Job],
     for entry in _names(previous):
         old = previous / entry
         if not stat.S_ISDIR(os.lstat(old).st_mode):
+            if entry in labels:  # kept, the run would be written through it or beside it
+                raise OutputError(f"{old}: not a run folder of agv-cosim, where run "
+                                  f"'{entry}' is written; refusing to resume (move it "
+                                  "away)")
             if entry not in FOLDER_FILES and entry not in figures:
                 _carry(old, root / entry)
                 users.append(entry)
