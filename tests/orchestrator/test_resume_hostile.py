@@ -239,13 +239,13 @@ def test_a_waypoint_file_is_the_manifests_wherever_the_run_starts(waypoints, tmp
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     (elsewhere / "wp.csv").write_text("x,y\n-1,5\n10,5\n")
-    empty = tmp_path / "empty"
-    empty.mkdir()
+    empty = tmp_path / "empty" / "deeper"
+    empty.mkdir(parents=True)
     records = []
-    for cwd in (elsewhere, empty):
+    for cwd, manifest in ((elsewhere, "../m/wp.toml"), (empty, "../../m/wp.toml")):
         monkeypatch.chdir(cwd)
         out = tmp_path / f"out-{cwd.name}"
-        assert _run(waypoints, out, "--quiet") == 0, capsys.readouterr().err
+        assert _run(manifest, out, "--quiet") == 0, capsys.readouterr().err
         values = _metrics(out)
         assert values["lateral_error_max"] == pytest.approx(0.0, abs=1e-9), values
         assert values["path_error_max"] == pytest.approx(0.0, abs=1e-9), values
@@ -253,6 +253,7 @@ def test_a_waypoint_file_is_the_manifests_wherever_the_run_starts(waypoints, tmp
     assert records[0] == records[1]
     record = json.loads(records[0])
     assert record["parameters"]["sensor"]["path"] == "waypoints:file=wp.csv"
+    assert record["manifest"] == str(waypoints)
     digest = hashlib.sha256((waypoints.parent / "wp.csv").read_bytes()).hexdigest()
     assert record["inputs"]["files"] == {"sensor.path": {"wp.csv": digest}}
 

@@ -1,6 +1,7 @@
 """The first three stages in one call: a manifest loaded, planned and checked into the
 self-contained :class:`~agv_cosim.system.Job` of each run."""
 
+import os
 from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
@@ -90,7 +91,8 @@ def prepare(manifest: str | Path | Manifest, variants: list[str] | None = None,
         jobs.append(Job(label=run.label, variant=run.variant, point=run.point, plan=system,
                         parameters=effective,
                         fmu_sha256={c: info.sha256 for c, info in models.items()},
-                        manifest_path=str(manifest.path), manifest_sha256=manifest.sha256,
+                        manifest_path=os.path.abspath(manifest.path),
+                        manifest_sha256=manifest.sha256,
                         metrics_spec=manifest.metrics,
                         fmu_paths={c: _shown_path(info.path, manifest)
                                    for c, info in models.items()},
@@ -126,7 +128,10 @@ def _with_files(manifest: Manifest, one: CheckedRun, hashes: dict[Path, str]
 
 
 def _shown_path(path: str | Path, manifest: Manifest) -> str:
-    """How run.json names an FMU: inside an unpacked .ssp as ``<ssp>!/<entry>``."""
+    """How run.json names an FMU: inside an unpacked .ssp as ``<ssp>!/<entry>`` (the
+    package's absolute path, as run.json names the manifest: the same from any current
+    folder)."""
     if manifest.unpacked is not None and manifest.unpacked in Path(path).parents:
-        return f"{manifest.path}!/{Path(path).relative_to(manifest.unpacked).as_posix()}"
+        entry = Path(path).relative_to(manifest.unpacked).as_posix()
+        return f"{os.path.abspath(manifest.path)}!/{entry}"
     return str(path)
