@@ -84,8 +84,9 @@ def test_resume_never_deletes_a_users_file(chain, tmp_path, capsys):
     runs = sorted(p.parent.name for p in out.glob("*/run.json"))
     assert len(runs) == 3
     (out / "notes.txt").write_text("my notes\n")
-    (out / "mine").mkdir()
-    (out / "mine" / "data.bin").write_bytes(b"\x00\x01")
+    (out / "mine" / "deep").mkdir(parents=True)
+    (out / "mine" / "deep" / "data.bin").write_bytes(b"\x00\x01")
+    (out / "mine" / "deep").chmod(0o555)
     (out / "link").symlink_to("notes.txt")
     for run in runs:
         (out / run / "remark.txt").write_text(f"{run}\n")
@@ -99,7 +100,9 @@ def test_resume_never_deletes_a_users_file(chain, tmp_path, capsys):
     assert _run(path, out, "--resume") == 0
     err = capsys.readouterr().err
     assert (out / "notes.txt").read_text() == "my notes\n"
-    assert (out / "mine" / "data.bin").read_bytes() == b"\x00\x01"
+    assert (out / "mine" / "deep" / "data.bin").read_bytes() == b"\x00\x01"
+    assert (out / "mine" / "deep").stat().st_mode & 0o777 == 0o555
+    (out / "mine" / "deep").chmod(0o755)
     assert os.readlink(out / "link") == "notes.txt"
     for run in runs:
         assert (out / run / "remark.txt").read_text() == f"{run}\n"
@@ -109,10 +112,12 @@ def test_resume_never_deletes_a_users_file(chain, tmp_path, capsys):
     assert not (out / runs[1] / "run.json").exists()  # the stale run itself is gone
     clean = _clean(path, tmp_path / "clean")
     mine = folder_contents(out)
-    users = {"notes.txt", "link", "mine/data.bin", *(f"{run}/remark.txt" for run in runs)}
+    users = {"notes.txt", "link", "mine/deep/data.bin",
+             *(f"{run}/remark.txt" for run in runs)}
     assert users <= set(mine)
     for name in users:
         (out / name).unlink()
+    (out / "mine" / "deep").rmdir()
     (out / "mine").rmdir()
     (out / runs[1]).rmdir()
     assert_same_folder(out, clean)

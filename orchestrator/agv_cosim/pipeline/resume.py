@@ -233,7 +233,11 @@ def keep_others(target: str | Path, manifest: Manifest, jobs: list[Job],
     users: list[str] = []
     for entry in _names(previous):
         old = previous / entry
-        if not stat.S_ISDIR(os.lstat(old).st_mode):
+        try:
+            mode = os.lstat(old).st_mode
+        except FileNotFoundError:
+            continue
+        if not stat.S_ISDIR(mode):
             if entry in labels:  # kept, the run would be written through it or beside it
                 raise OutputError(f"{old}: not a run folder of agv-cosim, where run "
                                   f"'{entry}' is written; refusing to resume (move it "
@@ -246,7 +250,8 @@ def keep_others(target: str | Path, manifest: Manifest, jobs: list[Job],
         if entry not in labels and record is None:  # not a run of ours
             _carry(old, root / entry)
             users.append(entry)
-        elif record is not None and record.get("variant") in others:
+        elif record is not None and isinstance(record.get("variant"), str) \
+                and record["variant"] in others:
             _carry(old, root / entry)
             kept.append(_kept_result(entry, record, old, timings))
         else:  # a run of ours the command writes again, or a stale one: the user's files
@@ -288,26 +293,33 @@ def _kept_result(label: str, record: dict[str, Any], run_dir: Path,
 
 
 def _carry(source: Path, destination: Path) -> None:
-    """``source`` (a file, a link, or a folder with everything in it) at
-    ``destination`` too: hard links, else copies; a link stays a link."""
-    info = os.lstat(source)
+    """``source`` (a file, a link, or a folder with everything in it, at any depth) at
+    ``destination`` too: hard links, else copies; a link stays a link; a folder gets
+    its permissions once filled."""
+    folders: list[tuple[Path, int]] = []
+    pending = [(source, destination)]
     try:
-        if stat.S_ISDIR(info.st_mode):
-            destination.mkdir(exist_ok=True)
-            for name in _names(source):
-                _carry(source / name, destination / name)
-            return
-        try:
-            os.link(source, destination, follow_symlinks=False)
-        except OSError as error:
-            if error.errno not in (errno.EXDEV, errno.EPERM, errno.EMLINK):
-                raise
-            if stat.S_ISLNK(info.st_mode):
-                os.symlink(os.readlink(source), destination)
-            elif stat.S_ISREG(info.st_mode):
-                shutil.copy2(source, destination, follow_symlinks=False)
-            else:
-                raise
+        while pending:
+            old, new = pending.pop()
+            info = os.lstat(old)
+            if stat.S_ISDIR(info.st_mode):
+                new.mkdir(exist_ok=True)
+                folders.append((new, stat.S_IMODE(info.st_mode)))
+                pending.extend((old / name, new / name) for name in _names(old))
+                continue
+            try:
+                os.link(old, new, follow_symlinks=False)
+            except OSError as error:
+                if error.errno not in (errno.EXDEV, errno.EPERM, errno.EMLINK):
+                    raise
+                if stat.S_ISLNK(info.st_mode):
+                    os.symlink(os.readlink(old), new)
+                elif stat.S_ISREG(info.st_mode):
+                    shutil.copy2(old, new, follow_symlinks=False)
+                else:
+                    raise
+        for folder, mode in reversed(folders):
+            os.chmod(folder, mode)
     except OSError as error:
         raise OutputError(f"{source}: cannot keep it in the new folder (--resume keeps "
                           f"what it does not write): {error.strerror or error}") from None
