@@ -26,7 +26,8 @@ Each run is independent and deterministic, and no file but ``timings.csv`` holds
 measurement of time, a date or anything else of the machine's timing: every other file
 is byte-identical between two runs of the same manifest, FMUs and seeds, parallel or
 serial. With ``resume`` the complete runs of an earlier ``DIR`` whose inputs are
-unchanged are kept instead of run again (:mod:`.resume`); with ``real_time`` the one run
+unchanged are kept instead of run again, and what the command does not write (other
+variants' runs, a user's files) is kept as it is (:mod:`.resume`); with ``real_time`` the one run
 is paced to the wall clock (:class:`~agv_cosim.execution.Pacer`; its row of timings.csv
 says how it went). ``DIR`` is assembled under a temporary name and
 renamed into place; on SIGINT, SIGTERM or SIGHUP it is renamed into place marked partial
@@ -88,9 +89,11 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         then unused. Raises :class:`~agv_cosim.distributed.ClusterError`.
     resume : bool
         Keep every complete run of the result folder ``out_dir`` whose inputs are
-        unchanged, run the others (:mod:`.resume`); the folder written is the one a
-        run without ``resume`` writes but for timings.csv (whose rows of the reused runs
-        are the earlier ones). Raises
+        unchanged, run the others, keep the runs of variants not in ``jobs`` and every
+        file this tool does not write as they are (:mod:`.resume`); with every variant
+        run, the folder written is the one a run without ``resume`` writes but for
+        timings.csv (whose rows of the reused runs are the earlier ones) and the user's
+        files kept. Raises
         :class:`~agv_cosim.errors.OutputError` when ``out_dir`` is not ours or of
         another manifest, or with ``overwrite``.
     real_time : float, optional
