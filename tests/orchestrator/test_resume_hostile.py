@@ -16,6 +16,7 @@ from test_resume import assert_same_folder, folder_contents
 
 from agv_cosim import cli
 from agv_cosim.build import build_one, default_components_dir
+from agv_cosim.report.records import TIMINGS, read_timings
 
 #: two variants of the chain (tests/orchestrator/conftest.py), one run each
 TWO_VARIANTS = """
@@ -42,30 +43,33 @@ def _summary(folder):
 
 
 def test_resume_of_one_variant_keeps_the_other_variants_runs(chain, tmp_path, capsys):
-    """``--variant a --resume`` after a change to a (and to b) reruns a and keeps b's
-    run as it is: its files, byte for byte, and its row of summary.csv."""
+    """``--variant b --resume`` after a change to b (and to a) reruns b and keeps a's
+    run as it is: its files, byte for byte, its rows of summary.csv (in the manifest's
+    order) and timings.csv; the page shows it."""
     path = chain(extra=TWO_VARIANTS, stop=0.3)
     out = tmp_path / "out"
     assert _run(path, out, "--quiet") == 0
-    before = _files(out / "b")
+    before = _files(out / "a")
     assert set(before) == {"timeseries.csv", "metrics.json", "run.json"}
-    b_row = next(line for line in _summary(out) if line.startswith("b,"))
+    a_row = next(line for line in _summary(out) if line.startswith("a,"))
+    a_timing = read_timings(out / TIMINGS)["a"]
     path.write_text(path.read_text().replace("k = 1.0", "k = 2.0")
                     .replace("k = 5.0", "k = 6.0"))
     capsys.readouterr()
-    assert _run(path, out, "--variant", "a", "--resume") == 0
+    assert _run(path, out, "--variant", "b", "--resume") == 0
     err = capsys.readouterr().err
-    assert (out / "b").is_dir() and _files(out / "b") == before
+    assert (out / "a").is_dir() and _files(out / "a") == before
     assert "reused 0 of 1 run(s)" in err and "kept 1 run(s) of other variants" in err
     assert [line.split(",")[0] for line in _summary(out)] == ["run", "a", "b"]
-    assert b_row in _summary(out)
-    assert json.loads((out / "a" / "run.json").read_text())["parameters"]["gain"]["k"] == 2.0
-    page = (out / "index.html").read_text()
-    assert 'href="b/run.json"' in page
-
-    # every variant run: b's changed inputs run it again, the folder is a clean run's
-    assert _run(path, out, "--resume", "--quiet") == 0
+    assert _summary(out)[1] == a_row
+    assert read_timings(out / TIMINGS)["a"] == a_timing
     assert json.loads((out / "b" / "run.json").read_text())["parameters"]["gain"]["k"] == 6.0
+    page = (out / "index.html").read_text()
+    assert 'href="a/run.json"' in page and 'href="b/run.json"' in page
+
+    # every variant run: a's changed inputs run it again, the folder is a clean run's
+    assert _run(path, out, "--resume", "--quiet") == 0
+    assert json.loads((out / "a" / "run.json").read_text())["parameters"]["gain"]["k"] == 2.0
     assert_same_folder(out, _clean(path, tmp_path / "clean"))
 
 
