@@ -314,3 +314,29 @@ def test_resume_refuses_a_users_link_where_a_run_is_written(chain, tmp_path, cap
         "'base' is written; refusing to resume (move it away)")
     assert os.readlink(out / "base") == str(mine) and not any(mine.iterdir())
     assert _files(out) == before
+
+
+def test_a_file_a_parameter_names_is_checked_without_blocking(tmp_path):
+    """What the check of a run says of a file a parameter names: missing, a folder, a
+    FIFO (refused at once, not read) or a link to a device; a regular file (or a link to
+    one) is fine and hashed by the name as written."""
+    from agv_cosim.system.files import file_problem, hash_files, named_files, resolved
+
+    os.mkfifo(tmp_path / "fifo.csv")
+    (tmp_path / "dir.csv").mkdir()
+    (tmp_path / "zero.csv").symlink_to("/dev/zero")
+    (tmp_path / "wp.csv").write_text("x,y\n0,0\n1,0\n")
+    (tmp_path / "link.csv").symlink_to("wp.csv")
+    for name, why in (("missing.csv", "No such file"), ("dir.csv", "not a regular file"),
+                      ("fifo.csv", "not a regular file"), ("zero.csv", "not a regular file")):
+        problem = file_problem(f"waypoints:file={name}", tmp_path)
+        assert problem == (f"file '{name}' (relative to the manifest): {tmp_path / name}: "
+                           f"{why}" + (" or directory" if why == "No such file" else ""))
+    assert file_problem("waypoints:file=link.csv", tmp_path) is None
+    assert file_problem("line:x0=1", tmp_path) is None and named_files(2.0) == []
+    assert resolved("waypoints:file=wp.csv", tmp_path) == f"waypoints:file={tmp_path}/wp.csv"
+    digest = hashlib.sha256(b"x,y\n0,0\n1,0\n").hexdigest()
+    assert hash_files({"s.path": "waypoints:file=link.csv", "s.k": 1.0}, tmp_path) == {
+        "s.path": {"link.csv": digest}}
+    assert "cannot be written in a path string" in file_problem(
+        "waypoints:file=wp.csv", tmp_path / "a,b")
