@@ -127,6 +127,33 @@ def test_resume_never_deletes_a_users_file(chain, tmp_path, capsys):
     assert_same_folder(out, clean)
 
 
+def test_a_run_replacing_its_folder_keeps_a_users_file(chain, tmp_path, capsys):
+    """A run without --resume that replaces a result folder of ours (of this manifest or
+    of another) keeps every file and folder it did not write, at the same place, and
+    says so; what it wrote before is replaced by a clean run's folder."""
+    path = chain(extra='[sweep]\n"gain.k" = [1.0, 2.0]\n', stop=0.3)
+    out = tmp_path / "out"
+    assert _run(path, out, "--quiet") == 0
+    runs = sorted(p.parent.name for p in out.glob("*/run.json"))
+    (out / "notes.txt").write_text("my notes\n")
+    (out / "mine").mkdir()
+    (out / "mine" / "data.bin").write_bytes(b"\x00\x01")
+    (out / runs[0] / "remark.txt").write_text("kept\n")
+    other = chain(stop=0.2, name="other.toml")  # another manifest's run into the same folder
+    capsys.readouterr()
+    assert _run(other, out) == 0
+    err = capsys.readouterr().err
+    assert "kept 3 file(s) not written by agv-cosim: " in err
+    assert (out / "notes.txt").read_text() == "my notes\n"
+    assert (out / "mine" / "data.bin").read_bytes() == b"\x00\x01"
+    assert (out / runs[0] / "remark.txt").read_text() == "kept\n"
+    assert not (out / runs[0] / "run.json").exists()  # the earlier run itself is gone
+    (out / "notes.txt").unlink()
+    shutil.rmtree(out / "mine")
+    shutil.rmtree(out / runs[0])
+    assert_same_folder(out, _clean(other, tmp_path / "clean"))
+
+
 def test_resume_reruns_a_run_whose_timeseries_was_cut(chain, tmp_path, capsys):
     """A timeseries.csv cut in the middle of its last row (as many rows) is not reused:
     the run is run again and the folder is a clean run's."""

@@ -55,8 +55,8 @@ from ..system import Job
 from ..system.files import file_sha256
 from .job import run_metrics
 
-__all__ = ["FOLDER_FILES", "RUN_FILES", "check_resumable", "keep_others", "listed",
-           "reusable", "reuse_runs"]
+__all__ = ["FOLDER_FILES", "RUN_FILES", "check_resumable", "keep_others", "keep_users",
+           "listed", "reusable", "reuse_runs"]
 
 #: Files of a run folder a reused run keeps as they are (the others are written again).
 KEPT_FILES = ("timeseries.csv", "output.txt")
@@ -224,8 +224,28 @@ def keep_others(target: str | Path, manifest: Manifest, jobs: list[Job],
     previous = _previous(Path(os.path.abspath(target)), manifest)
     if previous is None:
         return [], []
-    labels = {job.label for job in jobs}
     others = set(manifest.variants) - {job.variant for job in jobs}
+    return _keep_from(previous, {job.label for job in jobs}, others, root)
+
+
+def keep_users(target: str | Path, jobs: list[Job], root: Path) -> list[str]:
+    """Carry into the new folder ``root`` every file and folder of the result folder
+    ``target`` that this tool does not write, at the same place, for a run (not
+    ``--resume``) that replaces it: a user's file is never deleted. The runs of the
+    earlier folder are replaced, whatever their manifest. Nothing when ``target`` is
+    not a result folder with our marker (a missing or empty one, or one replaced with
+    ``--overwrite``). Returns the entries kept (paths relative to the folder)."""
+    previous = Path(os.path.abspath(target))
+    if previous.is_symlink() or not previous.is_dir() or marker_data(previous) is None:
+        return []
+    return _keep_from(previous, {job.label for job in jobs}, set(), root)[1]
+
+
+def _keep_from(previous: Path, labels: set[str], others: set[str],
+               root: Path) -> tuple[list[RunResult], list[str]]:
+    """:func:`keep_others` on the earlier folder ``previous``: the runs of variants in
+    ``others`` whole, the entries not ours at the same place; ``labels`` are the runs
+    the command writes."""
     report = _read_record(previous / RECORD) or {}
     figures = {name for name in report.get("files", []) if isinstance(name, str)}
     timings = read_timings(previous / TIMINGS)
@@ -321,7 +341,7 @@ def _carry(source: Path, destination: Path) -> None:
         for folder, mode in reversed(folders):
             os.chmod(folder, mode)
     except OSError as error:
-        raise OutputError(f"{source}: cannot keep it in the new folder (--resume keeps "
+        raise OutputError(f"{source}: cannot keep it in the new folder (a run keeps "
                           f"what it does not write): {error.strerror or error}") from None
 
 

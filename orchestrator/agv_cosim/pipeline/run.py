@@ -53,7 +53,7 @@ from .distributed import run_on_dask
 from .initcheck import plan_checks
 from .pool import call_concurrently, run_isolated
 from .prepare import prepare
-from .resume import check_resumable, keep_others, listed, reuse_runs
+from .resume import check_resumable, keep_others, keep_users, listed, reuse_runs
 
 __all__ = ["check_options", "default_out_dir", "execute", "progress_bar", "run_manifest"]
 
@@ -128,7 +128,7 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         assert written is not None
         reused = reuse_runs(folder.target, manifest, jobs, written) if resume else {}
         kept, users = keep_others(folder.target, manifest, jobs, written) if resume \
-            else ([], [])
+            else ([], keep_users(folder.target, jobs, written))
         todo = [job for i, job in enumerate(jobs) if i not in reused]
         if resume and not quiet:
             print(printable(f"agv-cosim: resume: reused {len(reused)} of {len(jobs)} "
@@ -138,7 +138,7 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         if users and not quiet:
             shown = ", ".join(users[:5]) + (f" and {len(users) - 5} more"
                                              if len(users) > 5 else "")
-            print(printable(f"agv-cosim: resume: kept {len(users)} file(s) not written by "
+            print(printable(f"agv-cosim: kept {len(users)} file(s) not written by "
                             f"agv-cosim: {shown}"), file=sys.stderr)
         workers_asked = max(1, workers or os.cpu_count() or 1)
         workers = min(workers_asked, max(1, len(todo)))
