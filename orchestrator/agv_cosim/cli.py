@@ -34,18 +34,28 @@ def _error(text: str) -> int:
 
 
 def _cmd_build(args: argparse.Namespace) -> int:
-    from .build import build_fmus
+    from .build import build_fmus, component_scripts
     from .errors import BuildError
 
+    scripts = component_scripts(args.names) if args.names else None
+    started = [0.0]
+
+    def progress(k, n, script, result):
+        import time
+
+        if result is None:
+            started[0] = time.monotonic()
+            _say(f"agv-cosim build: [{k}/{n}] {script.name} ...")
+            return
+        state = "built" if result.rebuilt else "up to date"
+        print(f"{result.fmu}  {state} ({time.monotonic() - started[0]:.1f} s)", flush=True)
+
     try:
-        results = build_fmus(args.out, force=args.force, fmi_version=args.fmi,
-                             standalone=args.standalone)
+        build_fmus(args.out, scripts, force=args.force, fmi_version=args.fmi,
+                   standalone=args.standalone, progress=progress)
     except BuildError as error:
         print(f"agv-cosim build: error: {error}", file=sys.stderr)
         return 1
-    for result in results:
-        state = "built" if result.rebuilt else "up to date"
-        print(f"{result.fmu}  {state}")
     return 0
 
 
@@ -237,6 +247,9 @@ def make_parser() -> argparse.ArgumentParser:
 
     build = sub.add_parser("build", help="build the component FMUs (only what changed)",
                            parents=[debug])
+    build.add_argument("names", nargs="*", metavar="NAME",
+                       help="build only these components (AgvVehicle or agv_vehicle; "
+                            "default: all)")
     build.add_argument("--out", default="fmus", help="output folder (default: fmus)")
     build.add_argument("--force", action="store_true", help="rebuild every FMU")
     build.add_argument("--fmi", type=int, choices=(2, 3), default=2,

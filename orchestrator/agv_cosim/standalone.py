@@ -31,7 +31,7 @@ libraries are stripped of debug information, and the building Python's prefix, w
 same length (a compiled-in fallback that the loader never uses, since it sets ``home``).
 """
 
-import functools
+import atexit
 import importlib.metadata
 import json
 import os
@@ -233,13 +233,39 @@ def _scrub(path: Path, prefixes: Iterable[str]) -> None:
         path.write_bytes(changed)
 
 
-@functools.lru_cache(maxsize=2)
+#: The runtime folders assembled by this process (platform folder -> temporary folder).
+_RUNTIMES: dict[str, Path] = {}
+
+
+def discard_runtimes() -> None:
+    """Remove the temporary runtime folders of :func:`runtime_base` (also at exit)."""
+    while _RUNTIMES:
+        _, root = _RUNTIMES.popitem()
+        shutil.rmtree(root, ignore_errors=True)
+
+
+atexit.register(discard_runtimes)
+
+
 def runtime_base(platform_dir: str) -> Path:
-    """A temporary folder with the runtime less its packages (cached per process):
+    """A temporary folder with the runtime less its packages, assembled once per process
+    (removed by :func:`discard_runtimes`, which ``build_fmus`` calls when done):
     ``{relative path: absolute file}`` to put under ``binaries/<platform>/python/``."""
+    if platform_dir in _RUNTIMES and _RUNTIMES[platform_dir].is_dir():
+        return _RUNTIMES[platform_dir]
     version, libpython, stdlib = _python_facts()
     patchelf, strip = _tool("patchelf"), _tool("strip")
     root = Path(tempfile.mkdtemp(prefix="agv_runtime_"))
+    try:
+        _assemble_runtime(root, version, libpython, stdlib, patchelf, strip)
+    except BaseException:
+        shutil.rmtree(root, ignore_errors=True)
+        raise
+    _RUNTIMES[platform_dir] = root
+    return root
+
+
+def _assemble_runtime(root, version, libpython, stdlib, patchelf, strip):
     lib = root / "lib"
     target_stdlib = lib / f"python{version}"
     excluded = {stdlib / part for part in STDLIB_EXCLUDED}
