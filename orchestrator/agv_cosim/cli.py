@@ -234,10 +234,29 @@ def _cmd_list(args):
     return status
 
 
+class _Parser(argparse.ArgumentParser):
+    """The top-level parser: arguments left over after a subcommand's are that
+    subcommand's error (its usage line, not the top-level one)."""
+
+    commands: dict[str, argparse.ArgumentParser] = {}
+
+    def parse_args(self, args=None, namespace=None):  # type: ignore[override]
+        parsed, extra = self.parse_known_args(args, namespace)
+        if extra:
+            command = self.commands.get(getattr(parsed, "command", None) or "", self)
+            command.error(f"unrecognized arguments: {' '.join(extra)}")
+        return parsed
+
+
+def _plain(text: str | None) -> str:
+    """A docstring as ``--help`` shows it: reST's double backquotes as single ones."""
+    return (text or "").replace("``", "`")
+
+
 def make_parser() -> argparse.ArgumentParser:
     """The argument parser of ``agv-cosim`` with all its subcommands."""
-    parser = argparse.ArgumentParser(prog="agv-cosim", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = _Parser(prog="agv-cosim", description=_plain(__doc__),
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"agv-cosim {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     debug = argparse.ArgumentParser(add_help=False)
@@ -378,6 +397,7 @@ def make_parser() -> argparse.ArgumentParser:
     export.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                         help="show tracebacks on errors")
     export.set_defaults(func=_cmd_export_ssp)
+    parser.commands = dict(sub.choices)
     return parser
 
 
