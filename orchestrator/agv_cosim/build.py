@@ -724,7 +724,7 @@ def build_one(script: str | Path, out_dir: str | Path, core_dir: str | Path | No
 
                 fmu_path = Fmu3Builder.build_FMU(
                     staged_script, dest=Path(tmp) / "out", project_files=project_files,
-                    needsExecutionTool=True, canGetAndSetFMUState=True,
+                    needsExecutionTool=not standalone, canGetAndSetFMUState=True,
                     canSerializeFMUState=True,
                     # pythonfmu3 0.3.4 writes another option's value here unless given
                     canHandleVariableCommunicationStepSize=True,
@@ -732,7 +732,7 @@ def build_one(script: str | Path, out_dir: str | Path, core_dir: str | Path | No
             else:
                 fmu_path = FmuBuilder.build_FMU(
                     staged_script, dest=Path(tmp) / "out", project_files=project_files,
-                    needsExecutionTool=True, canGetAndSetFMUstate=True,
+                    needsExecutionTool=not standalone, canGetAndSetFMUstate=True,
                     canSerializeFMUstate=True,
                 )
         except BuildError:
