@@ -82,7 +82,8 @@ SYSTEM_LIBRARIES = re.compile(r"^(libc|libm|libpthread|libdl|librt|libutil|ld-li
 #: resources the way the bridge does, step its default experiment a little, print every
 #: file the process used: the files of the modules loaded (those of the interpreter's own
 #: start too), the files opened (an audit hook: data files a package reads) and the
-#: shared libraries mapped (/proc/self/maps: those an extension module links). Besides,
+#: shared libraries mapped (/proc/self/maps: those an extension module links), with the
+#: extension modules the runtime leaves out blocked (argv[2]). Besides,
 #: every standard-library module that an import statement of the FMU's own sources names
 #: (anywhere, a function's import too) is imported first, so that a call this probe does
 #: not make still finds its module.
@@ -95,6 +96,8 @@ def hook(event, args):
         used.add(args[0])
 sys.addaudithook(hook)
 resources = Path(sys.argv[1])
+for blocked in json.loads(sys.argv[2]):  # not in the runtime: its fallbacks load instead
+    sys.modules[blocked] = None
 sys.path.insert(0, str(resources))
 for source in sorted(resources.rglob("*.py")):
     try:
@@ -143,13 +146,24 @@ def imported_files(fmu_path: str | Path) -> list[Path]:
     with tempfile.TemporaryDirectory(prefix="agv_probe_") as tmp:
         with zipfile.ZipFile(fmu_path) as archive:
             archive.extractall(tmp)
-        done = subprocess.run([sys.executable, "-c", _PROBE, str(Path(tmp) / "resources")],
+        done = subprocess.run([sys.executable, "-c", _PROBE, str(Path(tmp) / "resources"),
+                               json.dumps(_left_out_modules())],
                               capture_output=True, text=True, timeout=600)
     if done.returncode != 0:
         last = (done.stderr.strip().splitlines() or [f"exit code {done.returncode}"])[-1]
         raise StandaloneError(f"{Path(fmu_path).name}: cannot find what its slave imports: "
                               f"{last}")
     return [Path(f) for f in json.loads(done.stdout.strip().splitlines()[-1])]
+
+
+def _left_out_modules() -> list[str]:
+    """Names of the extension modules of lib-dynload that the runtime leaves out
+    (:data:`DYNLOAD_EXCLUDED`): the probe runs without them, so that the modules that
+    stand in for them are found (hashlib's own md5, sha1, ... without OpenSSL's
+    ``_hashlib``)."""
+    dynload = Path(sysconfig.get_paths()["stdlib"]) / "lib-dynload"
+    return sorted(path.name.split(".")[0] for path in dynload.glob("*.so")
+                  if DYNLOAD_EXCLUDED.match(path.name))
 
 
 def _site_packages():
