@@ -12,6 +12,12 @@ with unchanged sources is skipped (the FMU's GUID already matches, computed with
 requirement list the FMU ships as long as exactly those versions are installed), and a
 built FMU that ``fmpy.validation`` finds fault with fails the build.
 
+The out folder's ``build-index.json`` records each FMU this command wrote there and the
+hash of its bytes; only such an FMU, unchanged, is replaced (:func:`check_replaceable`):
+a user's file or a symbolic link at an FMU's place is refused (OutputError, before
+anything is built). Each FMU is written as a new file (O_EXCL | O_NOFOLLOW) beside its
+place and renamed onto it, as ``run`` writes its files.
+
 pythonfmu writes the model description; its Linux binary is not shipped. The build
 compiles ``components/fmu_loader/agv_fmu_loader.c`` (the loader: finds or starts a
 Python, no Python symbol of its own) and ``agv_fmu_bridge.c`` (the FMI 2.0 and 3.0 C API

@@ -6,6 +6,7 @@ The refusals are checked before anything is built, so those tests build nothing 
 fast tier); the tests that build use the small test FMU of ``tests/fmu_src``."""
 
 import json
+import re
 import os
 import zipfile
 
@@ -136,3 +137,15 @@ def test_an_unknown_component_name_lists_the_valid_ones(tmp_path, capsys, extra)
     assert "no component 'AgvVehicel'" in line and "did you mean 'AgvVehicle'" in line
     assert "valid names: AgvAckermann, " in line and "AgvVisionSensor" in line
     assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.slow
+def test_build_names_build_only_those_with_progress(tmp_path, capsys):
+    out = tmp_path / "x"
+    assert cli.main(["build", "AgvGyro", "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert captured.err.splitlines() == ["agv-cosim build: [1/1] agv_gyro.py ..."]
+    assert re.fullmatch(r".*AgvGyro\.fmu  built \(\d+\.\d s\)\n", captured.out)
+    assert sorted(os.listdir(out)) == ["AgvGyro.fmu", INDEX_FILE]
+    assert cli.main(["build", "agv_gyro", "--out", str(out)]) == 0
+    assert "AgvGyro.fmu  up to date" in capsys.readouterr().out
