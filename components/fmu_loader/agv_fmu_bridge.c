@@ -45,6 +45,16 @@
  *    always written.
  *  - fmi3EnterInitializationMode calls setup_experiment(startTime) before
  *    enter_initialization_mode(), as fmi2SetupExperiment does in FMI 2.0.
+ *  - what FMI forbids is refused here, in C, before any Python runs, with the Error
+ *    status and a message through the host's logger (see "the state machine" below): a
+ *    call in a mode where FMI does not allow it, a step size <= 0 or not finite, a
+ *    GUID / instantiationToken other than the one the build wrote into
+ *    resources/agv_build.json, a get or set of a value reference that is not a variable
+ *    of the call's type, a set of an output, of the independent variable, or of a fixed
+ *    parameter after initialisation mode (the variables' types and causalities come from
+ *    the slave's _fmi_variables() at instantiation). The slave refuses the rest
+ *    (non-finite inputs, FMU states that are not its own) by raising an exception with
+ *    the attribute fmi_error (SlaveLogic's CallRefused): that is an Error, not Fatal.
  */
 #define _GNU_SOURCE
 #define PY_SSIZE_T_CLEAN
