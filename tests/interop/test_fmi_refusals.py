@@ -94,6 +94,21 @@ class Dut:
     def step(self, t, h):
         return self.slave.doStep(t, h)
 
+    # fmpy spells the FMU-state methods FMUstate (FMI 2.0) and FMUState (FMI 3.0)
+    def get_state(self):
+        return self.slave.getFMUState() if self.fmi3 else self.slave.getFMUstate()
+
+    def set_state(self, state):
+        return (self.slave.setFMUState if self.fmi3 else self.slave.setFMUstate)(state)
+
+    def serialize(self, state):
+        return bytes((self.slave.serializeFMUState if self.fmi3
+                      else self.slave.serializeFMUstate)(state))
+
+    def deserialize(self, data):
+        return (self.slave.deserializeFMUState if self.fmi3
+                else self.slave.deSerializeFMUstate)(data)
+
     def errors(self):
         return [text for status, text in self.log if status == 3]
 
@@ -302,29 +317,28 @@ def test_a_state_that_is_not_the_fmus_is_refused(built, open_dut, case, tamper, 
     dut.set_real("alpha", 0.2)
     for k in range(5):
         dut.step(0.1 * k, 0.1)
-    saved = dut.slave.getFMUstate()
-    data = bytes(dut.slave.serializeFMUstate(saved))
+    data = dut.serialize(dut.get_state())
     dut.step(0.5, 0.1)
     reference = dut.get_real("heading")
     state = json.loads(data)
     tamper(state)
-    bad = dut.slave.deSerializeFMUstate(json.dumps(state).encode())
-    assert refused(dut.slave.setFMUstate, bad) == 3
+    bad = dut.deserialize(json.dumps(state).encode())
+    assert refused(dut.set_state, bad) == 3
     assert "a state that does not belong to this FMU: " in dut.errors()[-1]
     assert reason in dut.errors()[-1]
-    dut.slave.setFMUstate(dut.slave.deSerializeFMUstate(data))
+    dut.set_state(dut.deserialize(data))
     dut.step(0.5, 0.1)
     assert dut.get_real("heading") == reference
 
 
 def test_another_fmus_state_and_garbage_are_refused(built, open_dut):
     chained = open_dut(built["agv_chained_form"]).ready()
-    foreign = bytes(chained.slave.serializeFMUstate(chained.slave.getFMUstate()))
+    foreign = chained.serialize(chained.get_state())
     dut = open_dut(built["agv_vehicle"]).ready()
-    assert refused(dut.slave.setFMUstate, dut.slave.deSerializeFMUstate(foreign)) == 3
+    assert refused(dut.set_state, dut.deserialize(foreign)) == 3
     assert "does not belong to this FMU: unknown variables" in dut.errors()[-1]
     garbage = open_dut(built["agv_vehicle"]).ready()
-    assert refused(garbage.slave.deSerializeFMUstate, b"\x00not a state") == 3
+    assert refused(garbage.deserialize, b"\x00not a state") == 3
     assert "does not belong to this FMU: not a serialised state" in garbage.errors()[-1]
 
 
