@@ -272,6 +272,20 @@ def test_a_bad_path_is_a_parameter_error(make):
             make(spec)
 
 
+@pytest.mark.parametrize("make", LAWS, ids=["pure_pursuit", "stanley", "rear_wheel"])
+def test_pose_rebuilt_from_a_path_relative_measurement(make):
+    """Source 'sensor': (s, e, theta) of the rear axle give back the pose it came from."""
+    spec = "sine:amplitude=2,wavelength=18.84955592153876"
+    law = make(spec, wheelbase=L)
+    path = paths.parse_path(spec)
+    for x, y, heading in [(1.0, 0.3, 0.5), (6.0, 1.2, -0.2), (13.0, -2.5, 0.1)]:
+        p = path.project(x, y)
+        pose = law.pose_from_path(p.s, p.offset, paths.heading_error(heading, p.heading))
+        assert pose == pytest.approx((x, y, heading), abs=1e-9)
+    with pytest.raises(FloatingPointError, match="'e_meas'"):
+        law.pose_from_path(1.0, math.nan, 0.0)
+
+
 def test_sample_and_hold_and_state_round_trip():
     law = rw.make_controller("line", wheelbase=L, sample_period=0.1)
     first = law.update(0.0, 0.0, 0.2, 0.0, 1.0)

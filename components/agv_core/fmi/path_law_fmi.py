@@ -9,10 +9,16 @@ angle mode or the vehicle's ``alpha``, ``delta_law``, ``lateral_error``,
 ``heading_error``, ``saturated``), so a manifest swaps one for another. A slave script
 subclasses :class:`PathLawSlave`, sets ``uses_speed``, declares its gains in
 ``declare_gains``, builds its core in ``make_core`` and may add outputs in
-``declare_extra_outputs`` / ``publish_extra``.
+``declare_extra_outputs`` / ``publish_extra``. With ``source = "sensor"`` the pose is
+rebuilt from a path-relative measurement of the rear axle (``s_meas``, ``e_meas``,
+``theta_meas``, e.g. AgvVisionSensor's outputs, latency and all) on the same path.
 """
 
+from ..errors import ParameterError
 from .fmi_slave import AgvSlave, Boolean, DefaultExperiment, String
+
+#: where the pose comes from: the inputs x, y, heading, or a path-relative measurement
+SOURCES = ("pose", "sensor")
 
 #: A reference experiment for every law: default path 'line' (the x axis), the rear axle
 #: held 0.1 m left of it from the start and turned 0.05 rad left at 0.5 s; 1 s at 10 ms.
@@ -34,7 +40,13 @@ class PathLawSlave(AgvSlave):
         self.input("y", 0.0, "m", "y of the rear-axle centre")
         self.input("heading", 0.0, "rad", "Vehicle heading, counter-clockwise from x, "
                    "continuous")
-        inputs = ("x", "y", "heading")
+        self.input("s_meas", 0.0, "m", "Arc length of the rear axle's projection (source "
+                   "'sensor', e.g. AgvVisionSensor.s)")
+        self.input("e_meas", 0.0, "m", "Lateral deviation of the rear-axle centre, positive "
+                   "left (source 'sensor', e.g. AgvVisionSensor.lateral_error)")
+        self.input("theta_meas", 0.0, "rad", "Heading error of the vehicle, vehicle minus path "
+                   "(source 'sensor', e.g. AgvVisionSensor.heading_error)")
+        inputs = ("x", "y", "heading", "s_meas", "e_meas", "theta_meas")
         if self.uses_speed:
             self.input("dv", 0.0, "m/s", "Speed added to the parameter speed (the "
                        "vehicle's v0 + dv)")
@@ -51,6 +63,10 @@ class PathLawSlave(AgvSlave):
         self.parameter("sample_period", defaults["sample_period"], "s",
                        "Controller sample period, output held between samples; 0 = every "
                        "step")
+        self.parameter("source", "pose", None,
+                       "'pose': inputs x, y, heading; 'sensor': the pose rebuilt from s_meas, "
+                       "e_meas, theta_meas on the same path (a sensor's latency then delays "
+                       "it)", kind=String)
         if self.uses_speed:
             self.parameter("speed", 1.0, "m/s", "Constant part of the rear-axle speed the law "
                            "uses (set it to the vehicle's v0)")
@@ -73,6 +89,15 @@ class PathLawSlave(AgvSlave):
         """The core's parameter defaults by name (override)."""
         raise NotImplementedError
 
+    def make_core(self):
+        if self.source not in SOURCES:
+            raise ParameterError("source", f"must be one of {SOURCES}, got '{self.source}'")
+        return self.make_law()
+
+    def make_law(self):
+        """Build the core from the parameters (override)."""
+        raise NotImplementedError
+
     def declare_gains(self, defaults):
         """Declare the law's own parameters (override)."""
 
@@ -86,12 +111,17 @@ class PathLawSlave(AgvSlave):
     def _speed(self):
         return self.speed + self.dv if self.uses_speed else 0.0
 
+    def _pose(self):
+        if self.source == "sensor":
+            return self.core.pose_from_path(self.s_meas, self.e_meas, self.theta_meas)
+        return self.x, self.y, self.heading
+
     def advance(self, t, h):
         # a static law; a sample instant inside this step is taken from the held inputs
-        self.core.step(t, h, self.x, self.y, self.heading, self._speed())
+        self.core.step(t, h, *self._pose(), self._speed())
 
     def publish(self):
-        self.core.update(self.time, self.x, self.y, self.heading, self._speed())
+        self.core.update(self.time, *self._pose(), self._speed())
         out = self.core.outputs
         self.delta, self.delta_law = out["delta"], out["delta_law"]
         self.lateral_error, self.heading_error = out["lateral_error"], out["heading_error"]

@@ -102,6 +102,27 @@ class PathLaw:
         refuse_non_finite(x, y, heading, v)
         return x, y, heading, v
 
+    def pose_from_path(self, s, lateral_error, heading_error):
+        """The rear-axle pose (x, y [m], heading [rad]) that a path-relative measurement
+        describes: the path point at arc length ``s`` [m], ``lateral_error`` [m] to its
+        left, heading = path heading + ``heading_error`` [rad] (a sensor's s, e, theta of
+        the rear-axle centre, e.g. AgvVisionSensor's with its latency).
+
+        Raises
+        ------
+        FloatingPointError
+            For a non-finite input (named s_meas, e_meas, theta_meas as in the FMUs).
+        """
+        s, e, theta = float(s), float(lateral_error), float(heading_error)
+        for name, value in (("s_meas", s), ("e_meas", e), ("theta_meas", theta)):
+            if not math.isfinite(value):
+                raise FloatingPointError(f"input '{name}' is {value}: a path-tracking law "
+                                         "needs a finite measurement")
+        p = self.path.point(s)
+        heading = float(p.heading)
+        return (float(p.x) - e * math.sin(heading), float(p.y) + e * math.cos(heading),
+                heading + theta)
+
     # ------------------------------------------------------------------ interface
     def update(self, t, x, y, heading, v):
         """Saturated wheel angle [rad] at time ``t`` [s] from the rear-axle pose (x, y [m],

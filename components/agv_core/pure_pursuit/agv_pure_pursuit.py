@@ -38,7 +38,7 @@ class AgvPurePursuit(core.fmi.path_law_fmi.PathLawSlave):
         self.alpha, self.lookahead = out["alpha"], out["lookahead"]
         self.goal_x, self.goal_y, self.on_chord = out["goal_x"], out["goal_y"], out["on_chord"]
 
-    def make_core(self):
+    def make_law(self):
         return core.pure_pursuit.pure_pursuit.make_controller(
             self.path, self.k_ld, self.L_min, self.wheelbase, self.delta_max,
             self.sample_period)

@@ -28,7 +28,7 @@ class AgvRearWheelFeedback(core.fmi.path_law_fmi.PathLawSlave):
 
     def declare_extra_outputs(self):
         self.output("curvature", "1/m", "Path curvature at the rear axle's projection, "
-                    "positive turning left", depends_on=("x", "y"))
+                    "positive turning left", depends_on=self.depends)
         self.output("in_domain", None, "False when 1 - c e <= 0 (law undefined; full-lock "
                     "recovery towards the path)", depends_on=self.depends,
                     kind=core.fmi.fmi_slave.Boolean, start=True)
@@ -36,7 +36,7 @@ class AgvRearWheelFeedback(core.fmi.path_law_fmi.PathLawSlave):
     def publish_extra(self, out):
         self.curvature, self.in_domain = out["curvature"], out["in_domain"]
 
-    def make_core(self):
+    def make_law(self):
         return core.rear_wheel_feedback.rear_wheel_feedback.make_controller(
             self.path, self.k_theta, self.k_e, self.wheelbase, self.delta_max,
             self.sample_period)

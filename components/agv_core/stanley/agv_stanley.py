@@ -25,13 +25,13 @@ class AgvStanley(core.fmi.path_law_fmi.PathLawSlave):
 
     def declare_extra_outputs(self):
         self.output("x_front", "m", "x of the front-wheel centre, the point regulated",
-                    depends_on=("x", "heading"))
+                    depends_on=self.depends)
         self.output("y_front", "m", "y of the front-wheel centre, the point regulated",
-                    depends_on=("y", "heading"))
+                    depends_on=self.depends)
 
     def publish_extra(self, out):
         self.x_front, self.y_front = out["x_front"], out["y_front"]
 
-    def make_core(self):
+    def make_law(self):
         return core.stanley.stanley.make_controller(
             self.path, self.k, self.k_soft, self.wheelbase, self.delta_max, self.sample_period)
