@@ -340,7 +340,9 @@ def test_fmu_gives_the_core_numbers_and_refuses_nan(component_fmus, stem):
                 slave.setReal([refs["dv"]], [0.5])
             got = slave.getReal([refs["delta"], refs["lateral_error"]])
             expected = core.update(t, x, y, heading, 2.5)
-            assert got == [expected, core.outputs["lateral_error"]]
+            # the same code on the same doubles; the projection's search starts from the
+            # last one's hint, which the FMU's extra publications move: equal to rounding
+            assert got == pytest.approx([expected, core.outputs["lateral_error"]], abs=1e-12)
             slave.doStep(t, 0.01)
             t += 0.01
         slave.setReal([refs["y"]], [math.nan])
