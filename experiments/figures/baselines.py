@@ -304,6 +304,18 @@ def table_lines(table):
     return lines
 
 
+def tuning_lines(tuning):
+    """The page's tuning table: every grid point's cost [cm] per tuning scenario and mean."""
+    names = [label(*s) for s in TUNING]
+    lines = ["| law | gains | " + " | ".join(f"{n} [cm]" for n in names) + " | mean [cm] |",
+             "| --- | --- | " + " | ".join("---" for _ in names) + " | --- |"]
+    for row in tuning:
+        cells = [f"{100 * float(row[n]):.2f}" for n in names]
+        lines.append(f"| {row['law']} | {row['gains']} | " + " | ".join(cells)
+                     + f" | {100 * float(row['mean_cost']):.2f} |")
+    return lines
+
+
 def winners(table):
     """scenario -> laws sorted by cost (cheapest first), with their costs."""
     by = {}
@@ -315,9 +327,9 @@ def winners(table):
 def figures(out=RESULTS, figures_dir=FIGURES):
     """The page's figures: cost per law and scenario; rear and front offsets on two
     scenarios."""
+    import numpy as np
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-    import numpy as np
 
     from agv_core.numerics.paths import parse_path, project_trajectory
     from agv_cosim.timeseries import read_timeseries
@@ -387,6 +399,7 @@ def main(argv=None):
         for scenario, ranked in winners(table).items():
             print(scenario, ", ".join(f"{law} {100 * c:.1f}" for c, law in ranked))
         tuning = read_csv(args.out / "tuning.csv")
+        print("\n".join(tuning_lines(tuning)))
         for law, (gains, c) in best_gains(tuning).items():
             print(f"best {law}: {gains} mean cost {100 * c:.2f} cm")
     return 0
