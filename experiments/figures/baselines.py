@@ -345,7 +345,7 @@ def figures(out=RESULTS, figures_dir=FIGURES):
                        if r["scenario"] == s and r["law"] == law) for s in scenarios]
         ax.bar(np.arange(len(scenarios)) + (i - 2.5) * width, values, width, label=LAWS[law])
     ax.set_xticks(np.arange(len(scenarios)), scenarios, rotation=40, ha="right", fontsize=8)
-    ax.set_ylabel("cost [cm]: RMS of rear + front offset, + 0.1 m per rad/s of RMS rate")
+    ax.set_ylabel("cost J [cm] (log scale)")
     ax.set_yscale("log")
     ax.grid(alpha=0.3, axis="y")
     ax.legend(fontsize=8, ncol=3)

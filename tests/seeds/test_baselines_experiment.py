@@ -4,7 +4,7 @@ numbers of experiments/baselines.md.
 The shipped manifest is one scenario of the page (kinematic vehicle, actuator a, the sine,
 2.5 m/s) with one variant per law; experiments/figures/baselines.py rewrites it into the
 others and tunes the laws. The test runs that scenario (6 runs of 30 s: a shortened
-version of the 15 scenarios and the tuning grid) on the session-built FMUs and checks
+version of the 17 scenarios and the tuning grid) on the session-built FMUs and checks
 that each law's row on the page is what the run gives, that the script's rewriting leaves
 the shipped scenario as it is, and that the gains in the manifest are the best points of
 the page's tuning table (slow: builds the component FMUs).
