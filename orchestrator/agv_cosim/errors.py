@@ -13,7 +13,8 @@ __all__ = [
     "MAX_REPORTED", "AgvCosimError", "BuildError", "BundleError", "ClusterError", "ExamplesError",
     "FolderLost", "Interrupted", "ManifestError", "ModelError", "OutputError",
     "SamplingError", "SchemaError", "SimulationError", "SspError", "StandaloneError",
-    "TableError", "WorkerUnfit", "closest", "did_you_mean", "kept_summary",
+    "TableError", "UnreadableFile", "WorkerUnfit", "closest", "did_you_mean",
+    "kept_summary",
 ]
 
 #: Most problems of one manifest reported at once (one line each).
@@ -89,6 +90,16 @@ class SimulationError(Exception):
 
 class OutputError(Exception):
     """An output folder we must not (or cannot) write; the text names the path."""
+
+
+class UnreadableFile(Exception):
+    """A file the tool reads that it refuses to read: not a regular file (a FIFO, a
+    device, a folder), larger than the limit of its kind, or not text/JSON/CSV as its
+    kind must be. The text names the file and the reason (``<path>: <problem>``)."""
+
+    def __init__(self, path: object, problem: str) -> None:
+        super().__init__(f"{path}: {problem}")
+        self.path, self.problem = str(path), problem
 
 
 class FolderLost(Exception):

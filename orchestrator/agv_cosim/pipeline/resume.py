@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import OutputError
-from ..files import marker_data
+from ..files import JSON_LIMIT, marker_data, read_bytes
 from ..manifest import Manifest
 from ..report.records import TIMINGS, RunResult, read_timings, recorded_inputs, write_run_files
 from ..system import Job
@@ -78,9 +78,9 @@ def _complete_run(run_dir: Path, job: Job) -> dict[str, Any] | None:
         if not stat.S_ISDIR(os.lstat(run_dir).st_mode):
             return None
         csv_info = os.lstat(run_dir / "timeseries.csv")
-        record = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
+        record = json.loads(read_bytes(run_dir / "run.json", JSON_LIMIT))
+    except (OSError, ValueError, RecursionError):  # missing or damaged: run again (not
+        return None  # a regular file, or larger than JSON_LIMIT: UnreadableFile, refused)
     if (not isinstance(record, dict) or record.get("status") != "complete"
             or not stat.S_ISREG(csv_info.st_mode)
             or not isinstance(record.get("inputs"), dict)):

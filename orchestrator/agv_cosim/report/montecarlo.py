@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..files import open_output, write_json
+from ..files import open_output, open_text, write_json
 from ..manifest.montecarlo import MonteCarlo
 from ..plan.sampling import group_name
 from .page import metric_unit
@@ -74,7 +74,7 @@ def _band(folder, members, signal):
         if result["status"] != "complete":
             continue
         path = Path(folder) / job.label / "timeseries.csv"
-        with open(path, encoding="utf-8", newline="") as stream:
+        with open_text(path) as stream:
             reader = csv.reader(stream)
             header = next(reader)
             column = header.index(signal)

@@ -35,6 +35,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import html
+import io
 import json
 import math
 import os
@@ -47,15 +48,21 @@ from pathlib import Path
 from string import Template
 from urllib.parse import quote
 
-from ..errors import OutputError
+from ..errors import OutputError, UnreadableFile
 from ..files import (
+    CSV_LIMIT,
     FolderLock,
     create_file,
     marker_data,
+    open_regular,
     printable,
+    read_bytes,
+    read_head,
     read_json_object,
+    read_text,
     write_json,
 )
+from ..manifest.load import MAX_MANIFEST_BYTES
 from . import plots
 from .records import TIMINGS
 
@@ -94,10 +101,12 @@ _RAW_FILES = ("summary.csv", TIMINGS, "montecarlo.json", "partial.txt", "plots_e
 
 # --------------------------------------------------------------------------- reading
 
-def _read_text(path, limit=1 << 16):
+def _read_text(path):
+    """The beginning of a note of the folder (:data:`~agv_cosim.files.NOTE_LIMIT`
+    bytes), or None when there is none; a note that is not a regular file raises
+    :class:`~agv_cosim.errors.UnreadableFile`."""
     try:
-        with open(path, encoding="utf-8", errors="replace") as stream:
-            return stream.read(limit)
+        return read_head(path).decode("utf-8", errors="replace")
     except OSError:
         return None
 
@@ -105,8 +114,8 @@ def _read_text(path, limit=1 << 16):
 def _summary_order(folder):
     """Run labels in summary.csv's order (empty without one)."""
     try:
-        with open(folder / "summary.csv", encoding="utf-8", newline="") as stream:
-            return [row.get("run", "") for row in csv.DictReader(stream)]
+        text = read_text(folder / "summary.csv", CSV_LIMIT, "summary.csv")
+        return [row.get("run", "") for row in csv.DictReader(io.StringIO(text, newline=""))]
     except (OSError, csv.Error):
         return []
 
@@ -135,10 +144,16 @@ def read_runs(folder: str | Path) -> list[dict]:
 
 def _sha256(path):
     digest = hashlib.sha256()
-    with open(path, "rb") as stream:
+    with open_regular(path) as stream:
         while block := stream.read(1 << 20):
             digest.update(block)
     return digest.hexdigest()
+
+
+def _toml(path):
+    """The TOML data of the manifest file ``path`` (a regular file of at most
+    :data:`~agv_cosim.manifest.MAX_MANIFEST_BYTES`)."""
+    return tomllib.loads(read_bytes(path, MAX_MANIFEST_BYTES).decode("utf-8"))
 
 
 def read_manifest(folder: str | Path, runs: list[dict]) -> tuple[dict, str]:
@@ -150,9 +165,8 @@ def read_manifest(folder: str | Path, runs: list[dict]) -> tuple[dict, str]:
     copy = Path(folder) / MANIFEST_COPY
     if copy.is_file() and not copy.is_symlink():
         try:
-            with open(copy, "rb") as stream:
-                return tomllib.load(stream), f"the copy {MANIFEST_COPY} in this folder"
-        except (OSError, tomllib.TOMLDecodeError):
+            return _toml(copy), f"the copy {MANIFEST_COPY} in this folder"
+        except (OSError, ValueError, UnreadableFile):
             pass
     if not runs:
         return {}, "no run"
@@ -165,11 +179,12 @@ def read_manifest(folder: str | Path, runs: list[dict]) -> tuple[dict, str]:
     try:
         if _sha256(path) != digest:
             return {}, f"{path} changed since the run (its SHA-256 differs); not used"
-        with open(path, "rb") as stream:
-            return tomllib.load(stream), f"{path} (SHA-256 as run)"
+        return _toml(path), f"{path} (SHA-256 as run)"
     except OSError:
         return {}, f"{path} not found from {os.getcwd()}"
-    except tomllib.TOMLDecodeError:
+    except UnreadableFile as error:
+        return {}, f"{error}; not used"
+    except ValueError:  # tomllib.TOMLDecodeError, UnicodeDecodeError
         return {}, f"{path} is not valid TOML"
 
 

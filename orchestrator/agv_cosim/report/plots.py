@@ -86,7 +86,7 @@ from typing import TYPE_CHECKING, Any, TypeGuard
 
 import numpy as np
 
-from ..files import open_output, read_json_object
+from ..files import FMU_LIMIT, open_output, open_regular, read_json_object
 from ..manifest import schema
 from ..timeseries import CHUNK_ROWS, count_rows, iter_timeseries, timeseries_columns
 from .metrics import load_path
@@ -390,20 +390,24 @@ def _variable_unit(variable):
 
 def _model_description(path):
     """fmpy's model description of the FMU at ``path`` (``<package>!/<entry>``: an FMU
-    inside an SSP package), or None when it cannot be read."""
+    inside an SSP package), or None when it cannot be read (a file that is not a
+    regular file is not opened: :func:`~agv_cosim.files.open_regular`)."""
+    import io
+    import zipfile
+
     from fmpy import read_model_description
 
     text = str(path)
     try:
         if "!/" in text:
-            import io
-            import zipfile
-
             package, entry = text.split("!/", 1)
-            with zipfile.ZipFile(package) as archive:
+            with open_regular(package) as stream, zipfile.ZipFile(stream) as archive:
+                if archive.getinfo(entry).file_size > FMU_LIMIT:
+                    return None
                 data = io.BytesIO(archive.read(entry))
             return read_model_description(data, validate=False)
-        return read_model_description(text, validate=False)
+        with open_regular(text) as stream:
+            return read_model_description(stream, validate=False)
     except Exception:  # noqa: BLE001 - a unit is a label: no FMU, no unit
         return None
 

@@ -1,0 +1,173 @@
+"""Hostile round four, reading: every file the tool reads (report, --resume, the API,
+manifests, SSP packages, FMU hashes) is opened without blocking, must be a regular file
+and is read whole only up to the limit of its kind; a FIFO, a device or a file too large
+is refused with one line naming it. The commands run in a subprocess with a time limit
+(and a memory limit), so that a case that would hang or exhaust memory fails instead."""
+
+import json
+import os
+import re
+import resource
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from agv_cosim import cli, files
+
+#: seconds a command that must not block may take (a FIFO blocked it forever before)
+LIMIT = 120
+#: address space of such a command [bytes]: reading /dev/zero runs into it at once
+MEMORY = 3 << 30
+
+
+def _limit_memory():
+    resource.setrlimit(resource.RLIMIT_AS, (MEMORY, MEMORY))
+
+
+def _command(*args, cwd=None):
+    """``agv-cosim args`` in a subprocess with a time and a memory limit: (exit code,
+    the lines on stderr)."""
+    done = subprocess.run([sys.executable, "-m", "agv_cosim.cli", *map(str, args)],
+                          capture_output=True, text=True, timeout=LIMIT, cwd=cwd,
+                          preexec_fn=_limit_memory)
+    return done.returncode, done.stderr.strip().splitlines()
+
+
+@pytest.fixture
+def results(chain, tmp_path):
+    """A result folder of two runs (a sweep), written by ``agv-cosim run``."""
+    manifest = chain(extra='[sweep]\n"gain.k" = [1.0, 2.0]\n')
+    out = tmp_path / "out"
+    assert cli.main(["run", str(manifest), "--out", str(out), "--quiet"]) == 0
+    return manifest, out
+
+
+def _edit_run_json(run_json, **changes):
+    record = json.loads(run_json.read_text())
+    for key, value in changes.items():
+        if isinstance(value, dict):
+            record[key].update(value)
+        else:
+            record[key] = value
+    run_json.write_text(json.dumps(record))
+
+
+def _zero(path):
+    os.symlink("/dev/zero", path)
+
+
+@pytest.mark.parametrize("command, name, make", [
+    ("report", "run.json", os.mkfifo), ("report", "run.json", _zero),
+    ("report", "metrics.json", _zero),
+    ("resume", "run.json", os.mkfifo), ("resume", "run.json", _zero),
+])
+def test_a_record_that_is_not_a_regular_file_is_refused(results, command, name, make):
+    """A run.json or metrics.json that is a FIFO (it hung the command) or a link to
+    /dev/zero (read until memory ran out: an internal error) is refused before any
+    read: one line naming it, exit 2."""
+    manifest, out = results
+    run = sorted(p for p in out.iterdir() if p.is_dir())[0]
+    (run / name).unlink()
+    make(run / name)
+    kind = "a FIFO" if (run / name).is_fifo() else "a device"
+    if command == "report":
+        code, lines = _command("report", out)
+    else:  # --resume computes the metrics again: it reads no metrics.json
+        code, lines = _command("run", manifest, "--out", out, "--resume", "--quiet")
+    assert (code, lines) == (2, [f"agv-cosim: error: {run / name}: is {kind}, not a "
+                                 "regular file"])
+    assert (run / name).is_symlink() or (run / name).is_fifo()  # left as it was
+
+
+def test_timings_that_are_a_fifo_are_refused_by_resume(results):
+    manifest, out = results
+    (out / "timings.csv").unlink()
+    os.mkfifo(out / "timings.csv")
+    code, lines = _command("run", manifest, "--out", out, "--resume", "--quiet")
+    assert (code, lines) == (2, [f"agv-cosim: error: {out / 'timings.csv'}: is a FIFO, "
+                                 "not a regular file"])
+
+
+def test_a_record_larger_than_its_limit_is_refused(results):
+    """A run.json beyond files.JSON_LIMIT (64 MiB) is refused by its size, unread (a
+    sparse file: no disk used)."""
+    _, out = results
+    run_json = sorted(p for p in out.iterdir() if p.is_dir())[0] / "run.json"
+    run_json.unlink()
+    with open(run_json, "wb") as stream:
+        stream.truncate(files.JSON_LIMIT + 1)
+    code, lines = _command("report", out)
+    assert (code, lines) == (2, [f"agv-cosim: error: {run_json}: is "
+                                 f"{files.JSON_LIMIT + 1} bytes; at most "
+                                 f"{files.JSON_LIMIT} are read"])
+
+
+@pytest.mark.parametrize("key", ["manifest", "fmu"])
+def test_the_report_does_not_open_a_fifo_named_by_run_json(results, tmp_path, key):
+    """A manifest or FMU path in run.json that is now a FIFO is not read: the page is
+    written (it says why the manifest was not used; the FMU gives no units)."""
+    _, out = results
+    fifo = tmp_path / ("fifo.toml" if key == "manifest" else "fifo.fmu")
+    os.mkfifo(fifo)
+    for run in (p for p in out.iterdir() if p.is_dir()):
+        if key == "manifest":
+            _edit_run_json(run / "run.json", manifest=str(fifo))
+        else:
+            _edit_run_json(run / "run.json", fmus={"gain": str(fifo)})
+    code, lines = _command("report", out)
+    assert (code, lines) == (0, [])
+    page = (out / "index.html").read_text()
+    if key == "manifest":
+        assert f"{fifo}: is a FIFO, not a regular file; not used" in page
+
+
+def test_a_fifo_in_an_ssp_package_folder_is_refused(tmp_path):
+    package = tmp_path / "package.ssp"  # an unpacked package: a folder
+    package.mkdir()
+    os.mkfifo(package / "SystemStructure.ssd")
+    code, lines = _command("validate", package)
+    assert (code, lines) == (2, [f"agv-cosim: error: {package}: SystemStructure.ssd: is a "
+                                 "FIFO, not a regular file"])
+
+
+def test_fmu_hashing_refuses_a_fifo(tmp_path):
+    """system.model.file_sha256 (the FMUs' and SSP packages' hashes) never opens a FIFO
+    for reading (it blocked forever)."""
+    fifo = tmp_path / "x.fmu"
+    os.mkfifo(fifo)
+    code = ("import sys\nfrom agv_cosim.system.model import file_sha256\n"
+            "from agv_cosim.errors import UnreadableFile\n"
+            "try:\n    file_sha256(sys.argv[1])\nexcept UnreadableFile as error:\n"
+            "    print(error)\n")
+    done = subprocess.run([sys.executable, "-c", code, str(fifo)], capture_output=True,
+                          text=True, timeout=LIMIT)
+    assert done.stdout.strip() == f"{fifo}: is a FIFO, not a regular file"
+
+
+#: calls that open or read a file by its name, not through agv_cosim.files
+_DIRECT = re.compile(r"(?<![\w.])open\(|\.read_text\(|\.read_bytes\(|json\.load\(|"
+                     r"read_csv\((?!io\.StringIO|stream)|ElementTree\.parse\(|tomllib\.load\(|"
+                     r"ZipFile\((?!stream)")
+
+
+def test_the_reading_helper_is_used_everywhere():
+    """No module of the report, --resume, the API, the manifest and SSP loaders or the
+    time series opens a file by its name but through agv_cosim.files (the page's
+    template, a file of the package, aside)."""
+    root = Path(cli.__file__).parent
+    modules = [*sorted((root / "report").glob("*.py")), root / "pipeline" / "resume.py",
+               root / "api.py", root / "manifest" / "load.py", root / "ssp" / "importer.py",
+               root / "timeseries.py"]
+    found = []
+    for module in modules:
+        text = module.read_text()
+        for match in _DIRECT.finditer(text):
+            line = text[:match.start()].count("\n") + 1
+            source = text.splitlines()[line - 1]
+            if "#" in source[:source.find(match.group())] or \
+                    "page_template.html" in text[max(0, match.start() - 80):match.start()]:
+                continue
+            found.append(f"{module.relative_to(root)}:{line}: {source.strip()}")
+    assert found == []
