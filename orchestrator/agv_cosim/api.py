@@ -28,6 +28,7 @@ from .errors import (
     ManifestError,
     ModelError,
     OutputError,
+    ReportError,
     UnreadableFile,
     kept_summary,
 )
@@ -447,6 +448,9 @@ def run(manifest: str | Path, *, out: str | Path | None = None,
         raise AgvCosimError(str(error), exit_code=2) from error
     except FolderLost as error:
         raise AgvCosimError(str(error), exit_code=1) from error
+    except ReportError as error:  # the results were written; their page was not
+        raise AgvCosimError(str(error), exit_code=1,
+                            kept=getattr(error, "kept", None)) from error
     except ClusterError as error:
         kept = kept_summary(error)
         raise AgvCosimError(f"{error}" + (f"; {kept}" if kept else ""), exit_code=1,

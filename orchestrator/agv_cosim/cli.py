@@ -397,7 +397,14 @@ def _interrupted(args, name, signum, error):
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``agv-cosim`` console script; returns the exit code."""
-    from .errors import FolderLost, Interrupted, ManifestError, OutputError, UnreadableFile
+    from .errors import (
+        FolderLost,
+        Interrupted,
+        ManifestError,
+        OutputError,
+        ReportError,
+        UnreadableFile,
+    )
     from .lifetime import (
         clean_stale_scratch,
         termination_signals,
@@ -420,7 +427,7 @@ def main(argv: list[str] | None = None) -> int:
         for more in lines[1:]:
             _say(f"agv-cosim: error: {more}")
         return code
-    except FolderLost as error:
+    except (FolderLost, ReportError) as error:
         return _report(args, f"error: {error}", 1)
     except BrokenPipeError:
         # the reader went away (e.g. `agv-cosim list | head`): stop quietly

@@ -12,7 +12,7 @@ from collections.abc import Iterable
 __all__ = [
     "MAX_REPORTED", "AgvCosimError", "BuildError", "BundleError", "ClusterError", "ExamplesError",
     "FolderLost", "Interrupted", "ManifestError", "ModelError", "OutputError",
-    "SamplingError", "SchemaError", "SimulationError", "SspError", "StandaloneError",
+    "ReportError", "SamplingError", "SchemaError", "SimulationError", "SspError", "StandaloneError",
     "TableError", "UnreadableFile", "WorkerUnfit", "closest", "did_you_mean",
     "kept_summary",
 ]
@@ -90,6 +90,11 @@ class SimulationError(Exception):
 
 class OutputError(Exception):
     """An output folder we must not (or cannot) write; the text names the path."""
+
+
+class ReportError(Exception):
+    """The report could not be written whole: its page (none is left) or a figure (the
+    page marks it); the text names the file and the reason. The results stay."""
 
 
 class UnreadableFile(Exception):

@@ -8,12 +8,14 @@ import json
 import os
 import re
 import resource
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+import agv_cosim
 from agv_cosim import cli, files
 
 #: seconds a command that must not block may take (a FIFO blocked it forever before)
@@ -171,3 +173,125 @@ def test_the_reading_helper_is_used_everywhere():
                 continue
             found.append(f"{module.relative_to(root)}:{line}: {source.strip()}")
     assert found == []
+
+
+# --------------------------------------------------------------------------- the API
+
+def _rewrite(path, data):
+    path.unlink()
+    path.write_bytes(data if isinstance(data, bytes) else data.encode())
+
+
+def _run_json(results, **changes):
+    """run.json of the first run with ``changes`` (None: the key removed)."""
+    _, out = results
+    path = out / _first_run(out) / "run.json"
+    record = json.loads(path.read_text())
+    record.update(changes)
+    _rewrite(path, json.dumps(record))
+
+
+def _first_run(out):
+    return sorted(p.name for p in out.iterdir() if p.is_dir())[0]
+
+
+@pytest.mark.parametrize("damage, read, culprit", [
+    (lambda out: _rewrite(out / "summary.csv", b"run,variant,status\nb\xe9se,,complete\n"),
+     lambda r: r.runs, "summary.csv"),                                 # UnicodeDecodeError
+    (lambda out: _rewrite(out / "summary.csv", "a,b\n1,2\n"),
+     lambda r: r.summary, "summary.csv"),                              # KeyError 'run'
+    (lambda out: _rewrite(out / "summary.csv", (out / "summary.csv").read_text()
+                          + '"unclosed\n'),
+     lambda r: r.summary, "summary.csv"),                              # ParserError
+    (lambda out: _rewrite(out / _first_run(out) / "run.json", "[1, 2]"),
+     lambda r: r.runs, "run.json"),                                    # AttributeError
+    (lambda out: _rewrite(out / _first_run(out) / "run.json", '{"rows": "many"}'),
+     lambda r: r.runs, "run.json"),                                    # ValueError
+    (lambda out: _rewrite(out / _first_run(out) / "run.json", '{"sweep_point": [1]}'),
+     lambda r: r.runs, "run.json"),                                    # TypeError
+    (lambda out: _rewrite(out / _first_run(out) / "run.json", "{not json"),
+     lambda r: r.runs, "run.json"),
+    (lambda out: _rewrite(out / _first_run(out) / "timeseries.csv", "time,a\n0,1\n1,2,3\n"),
+     lambda r: r.timeseries(r.runs[0].label), "timeseries.csv"),      # ParserError
+    (lambda out: _rewrite(out / _first_run(out) / "timeseries.csv", "t,a\n0,1\n"),
+     lambda r: r.timeseries(r.runs[0].label), "timeseries.csv"),      # ValueError (index)
+    (lambda out: _rewrite(out / _first_run(out) / "timeseries.csv", b"time,a\n0,\xff\n"),
+     lambda r: r.timeseries(r.runs[0].label), "timeseries.csv"),      # UnicodeDecodeError
+])
+def test_a_damaged_result_folder_raises_agv_cosim_error(results, damage, read, culprit):
+    """open_results on a damaged folder raises AgvCosimError, one line naming the
+    damaged file (before: UnicodeDecodeError, KeyError 'run', ParserError,
+    AttributeError, ValueError, TypeError)."""
+    _, out = results
+    damage(out)
+    with pytest.raises(agv_cosim.AgvCosimError) as raised:
+        read(agv_cosim.open_results(out))
+    text = str(raised.value)
+    assert text.startswith(str(out)) and f"{culprit}: " in text and "\n" not in text
+
+
+def test_units_of_a_damaged_run_json_are_unknown_not_an_exception(results):
+    """run.json without ``units`` whose ``fmus`` and ``fmu_sha256`` are not tables
+    (before: AttributeError): the units are unknown (None), the values are read."""
+    _, out = results
+    _run_json(results, units=None, fmus=["x"], fmu_sha256=3)
+    label = _first_run(out)
+    frame = agv_cosim.open_results(out).timeseries(label)
+    units = frame.attrs["units"]
+    assert len(frame) == 11 and units.pop("time") == "s" and set(units.values()) == {None}
+
+
+def test_a_run_label_cannot_leave_the_folder(results, tmp_path):
+    """A summary.csv that lists ``../outside/x`` is refused: a run label is one path
+    component, the folder of a run listed in the folder's own summary.csv (before:
+    timeseries() read ../outside/x/timeseries.csv)."""
+    _, out = results
+    outside = tmp_path / "outside" / "x"
+    shutil.copytree(out / _first_run(out), outside)
+    _rewrite(out / "summary.csv", "run,variant,status\n../outside/x,,complete\n")
+    with pytest.raises(agv_cosim.AgvCosimError, match=r"summary.csv: row 2: run "
+                       r"'\.\./outside/x' is not a plain folder name"):
+        agv_cosim.open_results(out).timeseries("../outside/x")
+
+
+def test_a_run_folder_that_is_a_link_is_refused(results, tmp_path):
+    _, out = results
+    label = _first_run(out)
+    shutil.move(out / label, tmp_path / "elsewhere")
+    (out / label).symlink_to(tmp_path / "elsewhere")
+    with pytest.raises(agv_cosim.AgvCosimError, match="is a symbolic link"):
+        agv_cosim.open_results(out).timeseries(label)
+
+
+def test_a_timeseries_that_is_a_fifo_is_refused_by_the_api(results):
+    _, out = results
+    path = out / _first_run(out) / "timeseries.csv"
+    path.unlink()
+    os.mkfifo(path)
+    code = ("import sys, agv_cosim\ntry:\n    r = agv_cosim.open_results(sys.argv[1])\n"
+            "    r.timeseries(r.runs[0].label)\nexcept agv_cosim.AgvCosimError as error:\n"
+            "    print(error)\n")
+    done = subprocess.run([sys.executable, "-c", code, str(out)], capture_output=True,
+                          text=True, timeout=LIMIT)
+    assert done.stdout.strip() == f"{path}: is a FIFO, not a regular file"
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"variants": [1]}, "variants: 1 is not a variant name (a string)"),
+    ({"variants": 1}, "variants: 1 is not a list of strings"),
+    ({"sets": [3]}, "sets: 3 is not an override 'component.parameter=value' (a string)"),
+    ({"out": 5}, "out: 5 is not a path"),
+])
+def test_bad_options_raise_agv_cosim_error(chain, tmp_path, options, message):
+    """Options of agv_cosim.run of the wrong type raise AgvCosimError naming the option
+    (before: TypeError), and nothing is written."""
+    options.setdefault("out", tmp_path / "out")
+    with pytest.raises(agv_cosim.AgvCosimError) as raised:
+        agv_cosim.run(chain(), quiet=True, **options)
+    assert str(raised.value) == message
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_manifest_that_is_not_a_path_raises_agv_cosim_error():
+    with pytest.raises(agv_cosim.AgvCosimError, match="manifest: 5 is not a path"):
+        agv_cosim.run(5, quiet=True)
