@@ -3,6 +3,10 @@ through a symbolic link; names from manifests checked as one path component; out
 folders assembled under a temporary name and renamed into place at the end
 (:class:`AtomicDir`), so an interrupted run never leaves a folder that looks complete.
 JSON, text and summary files are written through here too.
+
+And the files it reads (:func:`open_regular`, :func:`read_bytes` and their kin): opened
+without blocking, refused unless a regular file, read whole only up to the limit of their
+kind (:data:`JSON_LIMIT`, :data:`CSV_LIMIT`, :data:`XML_LIMIT`, :data:`FMU_LIMIT`).
 """
 
 import csv
@@ -248,17 +252,6 @@ def open_text(path: str | Path) -> IO[str]:
     """The regular file ``path`` (:func:`open_regular`) as UTF-8 text read as it goes
     (``newline=""``, as the csv module wants): for files streamed in pieces."""
     return io.TextIOWrapper(open_regular(path), encoding="utf-8", newline="")
-
-
-def read_json(path: str | Path, limit: int = JSON_LIMIT, what: str = "JSON record") -> Any:
-    """The JSON value in the regular file ``path`` (:func:`read_bytes`, at most
-    ``limit``). Raises :class:`~agv_cosim.errors.UnreadableFile` for a file that is not
-    a regular file, too large, or not JSON; OSError as :func:`os.open`."""
-    data = read_bytes(path, limit)
-    try:
-        return json.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError, RecursionError) as error:
-        raise UnreadableFile(path, f"is not JSON ({error}); a {what} must be") from None
 
 
 def read_json_object(path: str | Path) -> dict[str, Any] | None:

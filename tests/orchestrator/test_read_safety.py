@@ -295,3 +295,19 @@ def test_bad_options_raise_agv_cosim_error(chain, tmp_path, options, message):
 def test_a_manifest_that_is_not_a_path_raises_agv_cosim_error():
     with pytest.raises(agv_cosim.AgvCosimError, match="manifest: 5 is not a path"):
         agv_cosim.run(5, quiet=True)
+
+
+def test_a_time_table_larger_than_its_limit_is_refused(chain, tmp_path):
+    """A time table named by a manifest is read whole up to files.CSV_LIMIT (256 MiB);
+    a larger one (sparse: no disk used) is refused by its size, unread."""
+    table = tmp_path / "in.csv"
+    with open(table, "wb") as stream:
+        stream.truncate(files.CSV_LIMIT + 1)
+    path = chain()
+    path.write_text(path.read_text().replace(
+        "[components.src]\n", f'[components.tab]\ntable = "{table}"\n[components.src]\n'))
+    code, lines = _command("validate", path, "--no-init")
+    number = path.read_text().splitlines().index(f'table = "{table}"') + 1
+    assert (code, lines) == (2, [f"agv-cosim: error: {path}:{number}: components.tab.table: "
+                                 f"'{table}' is {files.CSV_LIMIT + 1} bytes; at most "
+                                 f"{files.CSV_LIMIT} are read"])

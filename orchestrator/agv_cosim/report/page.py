@@ -582,9 +582,10 @@ def _draw(folder, figures, dpi, drawn=()):
     them, and draw the figures not in ``drawn``. A figure that fails leaves no file;
     its name and error go into :data:`FIGURES_ERROR` (one line each), which a later
     drawing of every figure without a failure removes. Returns those lines."""
-    names = [name for name, _ in figures] + [REPORT_FILE, FIGURES_ERROR]
+    names = [name for name, _ in figures] + [REPORT_FILE]
     record = _record(folder)
-    _check_writable(folder, [name for name in names if name not in drawn], record)
+    _check_writable(folder, [name for name in names if name not in drawn] + [FIGURES_ERROR],
+                    record)
     write_json(folder / RECORD, {"files": sorted(record | set(names))}, replace=True)
     failures = []
     for name, draw in figures:
@@ -594,7 +595,9 @@ def _draw(folder, figures, dpi, drawn=()):
             except Exception as failure:  # noqa: BLE001 - the page says which, and why
                 failures.append(printable(f"{name}: {type(failure).__name__}: "
                                           f"{failure}"))
-    if failures:
+    if failures:  # recorded as the report's own file only when it writes one
+        write_json(folder / RECORD, {"files": sorted(record | set(names) | {FIGURES_ERROR})},
+                   replace=True)
         with create_file(_fresh(folder / FIGURES_ERROR)) as stream:
             stream.write("".join(f"{line}\n" for line in failures))
     elif not drawn:
