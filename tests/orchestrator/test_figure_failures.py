@@ -182,3 +182,17 @@ def test_a_manifest_whose_name_is_not_utf8_gets_its_page(chain, tmp_path, capsys
     assert _lines(capsys) == []
     page = (out / "index.html").read_text(encoding="utf-8")
     assert "ch\\xffain.toml" in page
+
+
+def test_the_api_says_a_page_was_not_written(chain, tmp_path, monkeypatch):
+    """agv_cosim.run whose page cannot be written raises AgvCosimError (exit code 1),
+    ``kept`` naming the result folder, which holds the results."""
+    import agv_cosim
+
+    out = tmp_path / "out"
+    _full_disk_for_the_page(monkeypatch)
+    with pytest.raises(agv_cosim.AgvCosimError) as raised:
+        agv_cosim.run(chain(extra=SWEEP), out=out, quiet=True)
+    assert raised.value.exit_code == 1 and raised.value.kept == out
+    assert str(raised.value).startswith(f"{out / 'index.html'}: not written (")
+    assert (out / "summary.csv").is_file() and not (out / "index.html").exists()

@@ -60,7 +60,6 @@ from ..files import (
     read_bytes,
     read_head,
     read_json_object,
-    read_text,
     write_json,
 )
 from ..manifest.load import MAX_MANIFEST_BYTES
@@ -118,9 +117,9 @@ def _read_text(path):
 def _summary_order(folder):
     """Run labels in summary.csv's order (empty without one)."""
     try:
-        text = read_text(folder / "summary.csv", CSV_LIMIT, "summary.csv")
+        text = read_bytes(folder / "summary.csv", CSV_LIMIT).decode("utf-8")
         return [row.get("run", "") for row in csv.DictReader(io.StringIO(text, newline=""))]
-    except (OSError, csv.Error):
+    except (OSError, UnicodeDecodeError, csv.Error):
         return []
 
 

@@ -17,7 +17,7 @@ import platform
 from pathlib import Path
 from typing import Any, NotRequired, TypedDict
 
-from ..files import CSV_LIMIT, create_file, json_text, read_text, write_json, write_summary
+from ..files import CSV_LIMIT, create_file, json_text, read_bytes, write_json, write_summary
 from ..system import Job
 from ..version import __version__
 
@@ -213,12 +213,11 @@ def read_timings(path: str | Path) -> dict[str, dict[str, Any]]:
     "real_time": {...}}`` (``real_time`` only for a paced run), as :func:`timing_rows`
     made them. Empty when the file is missing; rows that cannot be read are left out.
     A file that must not be read (not a regular file, larger than
-    :data:`~agv_cosim.files.CSV_LIMIT`, not UTF-8) raises
-    :class:`~agv_cosim.errors.UnreadableFile`."""
+    :data:`~agv_cosim.files.CSV_LIMIT`) raises :class:`~agv_cosim.errors.UnreadableFile`."""
     try:
-        text = read_text(path, CSV_LIMIT, TIMINGS)
+        text = read_bytes(path, CSV_LIMIT).decode("utf-8")
         rows = list(csv.DictReader(io.StringIO(text, newline="")))
-    except (OSError, csv.Error):
+    except (OSError, UnicodeDecodeError, csv.Error):
         return {}
     found: dict[str, dict[str, Any]] = {}
     for row in rows:
