@@ -9,8 +9,11 @@ needs no ``if __name__ == "__main__":`` guard: the worker processes do not impor
 caller's main module. pandas is imported here only, when a DataFrame is asked for.
 """
 
+import csv
+import io
 import json
 import math
+import os
 import sys
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -25,9 +28,11 @@ from .errors import (
     ManifestError,
     ModelError,
     OutputError,
+    ReportError,
+    UnreadableFile,
     kept_summary,
 )
-from .files import printable
+from .files import CSV_LIMIT, JSON_LIMIT, open_regular, printable, read_bytes, read_text
 
 if TYPE_CHECKING:
     import pandas
@@ -95,29 +100,72 @@ class Results:
     def runs(self) -> list[Run]:
         """Every run, in the order of summary.csv."""
         if self._runs is None:
-            import csv
-
-            with open(self.folder / _SUMMARY, newline="", encoding="utf-8") as stream:
-                rows = list(csv.DictReader(stream))
+            path = self.folder / _SUMMARY
+            rows = list(csv.DictReader(io.StringIO(self._summary_text(), newline="")))
+            labels: set[str] = set()
+            for number, row in enumerate(rows, 2):
+                label = row.get("run")
+                problem = _label_problem(label) or (
+                    "is listed twice" if label in labels else None)
+                if problem:
+                    raise _damaged(path, f"row {number}: run {label!r} {problem}")
+                labels.add(str(label))
             self._runs = [self._read_run(row) for row in rows]
         return self._runs
 
-    def _read_run(self, row: dict[str, str]) -> Run:
-        label = row.get("run", "")
-        folder = self.folder / label
+    def _summary_text(self) -> str:
+        """summary.csv's text (checked: a regular file of at most CSV_LIMIT bytes, UTF-8,
+        whose header has the columns ``run``, ``variant`` and ``status``)."""
+        path = self.folder / _SUMMARY
+        text = _read(path, lambda: read_text(path, CSV_LIMIT, _SUMMARY))
         try:
-            info = json.loads((folder / "run.json").read_text(encoding="utf-8"))
-        except (OSError, ValueError):  # a run that never started has no run.json
-            return Run(label=label, status=row.get("status", ""), folder=folder,
+            header = next(csv.reader(io.StringIO(text, newline="")), [])
+        except csv.Error as error:
+            raise _damaged(path, f"not CSV ({error})") from None
+        if header[:3] != ["run", "variant", "status"]:
+            raise _damaged(path, "its header is not run, variant, status, ...; not a "
+                           "summary.csv of agv-cosim")
+        return text
+
+    def _read_run(self, row: dict[str, str]) -> Run:
+        label = row["run"]
+        folder = self.folder / label
+        if os.path.islink(folder):
+            raise _damaged(folder, f"run {label!r} is a symbolic link, not the run's folder")
+        path = folder / "run.json"
+        try:
+            raw = read_bytes(path, JSON_LIMIT)
+        except FileNotFoundError:  # a run that never started has no run.json
+            return Run(label=label, status=row.get("status") or "", folder=folder,
                        message=None if row.get("status") == "complete" else
                        row.get("status"), variant=row.get("variant") or None)
+        except (OSError, UnreadableFile) as error:
+            raise _unreadable(path, error) from None
+        info = _record(path, raw)
+        if info.get("label", label) != label:
+            raise _damaged(path, f"is the record of run {info.get('label')!r}, not of "
+                           f"{label!r} (summary.csv)")
+        point = info.get("sweep_point") or {}
+        rows = info.get("rows") or 0
+        for key, value, kind in (("status", info.get("status", ""), str),
+                                 ("error", info.get("error"), (str, type(None))),
+                                 ("variant", info.get("variant"), (str, type(None))),
+                                 ("metrics_error", info.get("metrics_error"),
+                                  (str, type(None))),
+                                 ("sweep_point", point, dict)):
+            if not isinstance(value, kind):
+                raise _damaged(path, f"{key}: {value!r} is not a "
+                               f"{'table' if kind is dict else 'string'}")
+        if isinstance(rows, bool) or not isinstance(rows, int) or rows < 0:
+            raise _damaged(path, f"rows: {rows!r} is not a count of rows")
         return Run(label=label, status=info.get("status", row.get("status", "")),
                    folder=folder, message=info.get("error"), variant=info.get("variant"),
-                   point=dict(info.get("sweep_point") or {}), rows=int(info.get("rows") or 0),
-                   metrics_error=info.get("metrics_error"))
+                   point=dict(point), rows=rows, metrics_error=info.get("metrics_error"))
 
     def run(self, label: str) -> Run:
-        """The run labelled ``label``."""
+        """The run labelled ``label`` (one of summary.csv's)."""
+        if not isinstance(label, str):
+            raise AgvCosimError(f"{self.folder}: run label {label!r} is not a string")
         for one in self.runs:
             if one.label == label:
                 return one
@@ -131,15 +179,20 @@ class Results:
         ``message``: why a run is not complete."""
         import pandas
 
-        frame = pandas.read_csv(self.folder / _SUMMARY, keep_default_na=False,
-                                na_values=[""])
+        messages = {r.label: r.message for r in self.runs}
+        path = self.folder / _SUMMARY
+        text = self._summary_text()
+        try:
+            frame = pandas.read_csv(io.StringIO(text), keep_default_na=False,
+                                    na_values=[""])
+        except (ValueError, csv.Error) as error:  # pandas' ParserError is a ValueError
+            raise _damaged(path, f"not CSV ({_first_line(error)})") from None
         for name in frame.columns[3:]:  # a column of numbers with "nan" or "inf" among them
             if pandas.api.types.is_string_dtype(frame[name]):
                 try:
                     frame[name] = [float(value) for value in frame[name]]
                 except (TypeError, ValueError):  # text (a string parameter swept)
                     pass
-        messages = {r.label: r.message for r in self.runs}
         frame["message"] = [messages.get(label) for label in frame["run"]]
         return frame
 
@@ -152,24 +205,88 @@ class Results:
 
         one = self.run(label)
         path = one.folder / "timeseries.csv"
-        if not path.is_file():
-            raise AgvCosimError(f"{path}: not found (run {label} is {one.status})")
-        frame = pandas.read_csv(path, index_col="time")
+        try:
+            stream = open_regular(path)
+        except FileNotFoundError:
+            raise AgvCosimError(f"{path}: not found (run {label} is {one.status})") \
+                from None
+        except (OSError, UnreadableFile) as error:
+            raise _unreadable(path, error) from None
+        try:
+            with stream:
+                frame = pandas.read_csv(stream, index_col="time", encoding="utf-8")
+        except (ValueError, csv.Error) as error:  # ParserError, no time column, not UTF-8
+            raise _damaged(path, f"not a timeseries.csv of agv-cosim "
+                           f"({_first_line(error)})") from None
+        except MemoryError:
+            raise AgvCosimError(f"{path}: too large to read whole (agv_cosim.timeseries."
+                                "iter_timeseries reads it in pieces)", exit_code=1) from None
         frame.attrs["units"] = self._units(one, ["time", *frame.columns])
         return frame
 
     def _units(self, one: Run, columns: list[str]) -> dict[str, str | None]:
+        path = one.folder / "run.json"
         try:
-            info = json.loads((one.folder / "run.json").read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+            info = _record(path, read_bytes(path, JSON_LIMIT))
+        except OSError:
             info = {}
+        except UnreadableFile as error:
+            raise _unreadable(path, error) from None
         known = info.get("units")
         if not isinstance(known, dict):
             known = _units_from_models(info)
-        return {name: known.get(name) for name in columns}
+        return {name: _text_or_none(known.get(name)) for name in columns}
 
     def _repr_html_(self) -> str:
         return f"<p>{_escape(repr(self))}</p>" + self.summary._repr_html_()
+
+
+def _label_problem(label: object) -> str | None:
+    """Why ``label`` cannot be a run's label (one path component), or None."""
+    if not isinstance(label, str) or not label:
+        return "is empty"
+    if label in (".", "..") or "/" in label or "\0" in label or "\\" in label:
+        return "is not a plain folder name (one path component)"
+    return None
+
+
+def _damaged(path: Path, problem: str) -> AgvCosimError:
+    """The error of a damaged result folder: ``<path>: <problem>`` (exit code 2)."""
+    return AgvCosimError(printable(f"{path}: {problem}"), exit_code=2)
+
+
+def _unreadable(path: Path, error: BaseException) -> AgvCosimError:
+    """The error of a file that cannot or must not be read (OSError, UnreadableFile)."""
+    if isinstance(error, OSError):
+        return _damaged(path, f"cannot read: {error.strerror or error}")
+    return AgvCosimError(printable(str(error)), exit_code=2)
+
+
+def _read(path: Path, read: Any) -> Any:
+    try:
+        return read()
+    except (OSError, UnreadableFile) as error:
+        raise _unreadable(path, error) from None
+
+
+def _record(path: Path, raw: bytes) -> dict[str, Any]:
+    """The JSON object of a run.json (``raw``: its bytes)."""
+    try:
+        info = json.loads(raw.decode("utf-8"))
+    except (ValueError, RecursionError) as error:
+        raise _damaged(path, f"not JSON ({error})") from None
+    if not isinstance(info, dict):
+        raise _damaged(path, "not a JSON object")
+    return info
+
+
+def _first_line(error: BaseException) -> str:
+    text = str(error).strip()
+    return text.splitlines()[0] if text else type(error).__name__
+
+
+def _text_or_none(value: Any) -> str | None:
+    return value if isinstance(value, str) else None
 
 
 def _escape(text: str) -> str:
@@ -184,11 +301,15 @@ def _units_from_models(info: dict[str, Any]) -> dict[str, str | None]:
     from .system.model import read_model
 
     units: dict[str, str | None] = {"time": "s"}
-    hashes = info.get("fmu_sha256") or {}
-    for cname, path in (info.get("fmus") or {}).items():
+    hashes, fmus = info.get("fmu_sha256"), info.get("fmus")
+    if not isinstance(hashes, dict) or not isinstance(fmus, dict):
+        return units
+    for cname, path in fmus.items():
+        if not isinstance(path, str):
+            continue
         try:
             model = read_model(path)
-        except (ModelError, OSError, ValueError):
+        except (ModelError, OSError, ValueError, UnreadableFile):
             continue
         if model.sha256 != hashes.get(cname):
             continue
@@ -222,7 +343,28 @@ def _set_items(sets: Mapping[str, Any] | Iterable[str]) -> list[str]:
         return [sets]
     if isinstance(sets, Mapping):
         return [f"{name}={_toml_value(value)}" for name, value in sets.items()]
-    return list(sets)
+    return _strings(sets, "sets", "an override 'component.parameter=value'")
+
+
+def _strings(values: Any, option: str, what: str) -> list[str]:
+    """``values`` (an iterable of strings) as a list; AgvCosimError naming ``option``
+    for anything else."""
+    if isinstance(values, (bytes, Mapping)) or not isinstance(values, Iterable):
+        raise AgvCosimError(f"{option}: {values!r} is not a list of strings")
+    items = list(values)
+    for item in items:
+        if not isinstance(item, str):
+            raise AgvCosimError(f"{option}: {item!r} is not {what} (a string)")
+    return items
+
+
+def _path_option(value: Any, option: str, optional: bool = False) -> None:
+    """AgvCosimError naming ``option`` unless ``value`` is a path (str or os.PathLike;
+    None when ``optional``)."""
+    if value is None and optional:
+        return
+    if isinstance(value, bool) or not isinstance(value, (str, os.PathLike)):
+        raise AgvCosimError(f"{option}: {value!r} is not a path")
 
 
 
@@ -288,9 +430,11 @@ def run(manifest: str | Path, *, out: str | Path | None = None,
                                     and math.isfinite(timeout) and timeout > 0):
         raise AgvCosimError(f"timeout: {timeout!r} must be a positive, finite number of "
                             "seconds")
+    _path_option(manifest, "manifest")
+    _path_option(out, "out", optional=True)
     overrides = _set_items(sets)
     chosen = [variants] if isinstance(variants, str) else (
-        list(variants) if variants is not None else None)
+        _strings(variants, "variants", "a variant name") if variants is not None else None)
     try:
         with termination_signals():
             use_own_scratch_for_multiprocessing()
@@ -300,10 +444,13 @@ def run(manifest: str | Path, *, out: str | Path | None = None,
     except ManifestError as error:
         lines = error.lines()
         raise AgvCosimError(lines[0], lines, 2) from error
-    except OutputError as error:
+    except (OutputError, UnreadableFile) as error:
         raise AgvCosimError(str(error), exit_code=2) from error
     except FolderLost as error:
         raise AgvCosimError(str(error), exit_code=1) from error
+    except ReportError as error:  # the results were written; their page was not
+        raise AgvCosimError(str(error), exit_code=1,
+                            kept=getattr(error, "kept", None)) from error
     except ClusterError as error:
         kept = kept_summary(error)
         raise AgvCosimError(f"{error}" + (f"; {kept}" if kept else ""), exit_code=1,

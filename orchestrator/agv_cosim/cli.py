@@ -431,7 +431,14 @@ def _interrupted(args, name, signum, error):
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``agv-cosim`` console script; returns the exit code."""
-    from .errors import FolderLost, Interrupted, ManifestError, OutputError
+    from .errors import (
+        FolderLost,
+        Interrupted,
+        ManifestError,
+        OutputError,
+        ReportError,
+        UnreadableFile,
+    )
     from .lifetime import (
         clean_stale_scratch,
         termination_signals,
@@ -447,14 +454,14 @@ def main(argv: list[str] | None = None) -> int:
             if args.command != "list":
                 clean_stale_scratch()
             return _dispatch(args)
-    except (ManifestError, OutputError) as error:
+    except (ManifestError, OutputError, UnreadableFile) as error:
         # every problem found in the manifest, one line each (capped)
         lines = error.lines() if isinstance(error, ManifestError) else [str(error)]
         code = _report(args, f"error: {lines[0]}", 2)
         for more in lines[1:]:
             _say(f"agv-cosim: error: {more}")
         return code
-    except FolderLost as error:
+    except (FolderLost, ReportError) as error:
         return _report(args, f"error: {error}", 1)
     except BrokenPipeError:
         # the reader went away (e.g. `agv-cosim list | head`): stop quietly

@@ -12,8 +12,9 @@ from collections.abc import Iterable
 __all__ = [
     "MAX_REPORTED", "AgvCosimError", "BuildError", "BundleError", "ClusterError", "ExamplesError",
     "FolderLost", "Interrupted", "ManifestError", "ModelError", "OutputError",
-    "SamplingError", "SchemaError", "SimulationError", "SspError", "StandaloneError",
-    "TableError", "WorkerUnfit", "closest", "did_you_mean", "kept_summary",
+    "ReportError", "SamplingError", "SchemaError", "SimulationError", "SspError", "StandaloneError",
+    "TableError", "UnreadableFile", "WorkerUnfit", "closest", "did_you_mean",
+    "kept_summary",
 ]
 
 #: Most problems of one manifest reported at once (one line each).
@@ -89,6 +90,21 @@ class SimulationError(Exception):
 
 class OutputError(Exception):
     """An output folder we must not (or cannot) write; the text names the path."""
+
+
+class ReportError(Exception):
+    """The report could not be written whole: its page (none is left) or a figure (the
+    page marks it); the text names the file and the reason. The results stay."""
+
+
+class UnreadableFile(Exception):
+    """A file the tool reads that it refuses to read: not a regular file (a FIFO, a
+    device, a folder), larger than the limit of its kind, or not text/JSON/CSV as its
+    kind must be. The text names the file and the reason (``<path>: <problem>``)."""
+
+    def __init__(self, path: object, problem: str) -> None:
+        super().__init__(f"{path}: {problem}")
+        self.path, self.problem = str(path), problem
 
 
 class FolderLost(Exception):

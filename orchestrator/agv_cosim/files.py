@@ -3,6 +3,10 @@ through a symbolic link; names from manifests checked as one path component; out
 folders assembled under a temporary name and renamed into place at the end
 (:class:`AtomicDir`), so an interrupted run never leaves a folder that looks complete.
 JSON, text and summary files are written through here too.
+
+And the files it reads (:func:`open_regular`, :func:`read_bytes` and their kin): opened
+without blocking, refused unless a regular file, read whole only up to the limit of their
+kind (:data:`JSON_LIMIT`, :data:`CSV_LIMIT`, :data:`XML_LIMIT`, :data:`FMU_LIMIT`).
 """
 
 import csv
@@ -21,7 +25,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO, Any, BinaryIO
 
-from .errors import FolderLost, OutputError
+from .errors import FolderLost, OutputError, UnreadableFile
 from .lifetime import CREATE_FLAGS, signals_blocked
 from .version import __version__
 
@@ -176,15 +180,121 @@ def user_mode(directory: bool = True) -> int:
     return (0o777 if directory else 0o666) & ~mask
 
 
-def read_json_object(path: str | Path) -> dict[str, Any] | None:
-    """The JSON object in the file ``path``, or None when it cannot be read, is not
-    JSON or holds something other than an object."""
+# --------------------------------------------------------------------------- reading
+#
+# Every file the tool reads from a user or from a result folder is opened here: without
+# blocking (a FIFO cannot hang the command), checked to be a regular file (a FIFO, a
+# device such as /dev/zero, a folder or a socket is refused with one line naming it),
+# and read whole only up to the limit of its kind.
+
+#: Largest JSON record read whole [bytes] (run.json, metrics.json, montecarlo.json,
+#: the report's record): a run.json of 3000 components' parameters is a few MB.
+JSON_LIMIT = 64 << 20
+#: Largest CSV table read whole [bytes] (summary.csv, timings.csv: one row per run).
+CSV_LIMIT = 256 << 20
+#: Largest XML document read whole [bytes] (an SSD, a parameter set .ssv).
+XML_LIMIT = 64 << 20
+#: Largest FMU read whole out of an SSP package [bytes] (FMUs on disk are streamed).
+FMU_LIMIT = 1 << 30
+#: Bytes of a note (partial.txt, plots_error.txt, ...) shown: its beginning only.
+NOTE_LIMIT = 1 << 16
+
+
+def _kind(mode: int) -> str:
+    return ("a folder" if stat.S_ISDIR(mode) else
+            "a FIFO" if stat.S_ISFIFO(mode) else
+            "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else
+            "a socket" if stat.S_ISSOCK(mode) else "not a file")
+
+
+def open_regular(path: str | Path) -> BinaryIO:
+    """``path`` opened for reading bytes, when it is a regular file (a symbolic link to
+    one is followed). Opened non-blocking first, so that a FIFO cannot hang us; anything
+    but a regular file is refused before any read.
+
+    Raises
+    ------
+    UnreadableFile
+        ``path`` is a FIFO, a device, a folder or a socket (the text names it).
+    OSError
+        As :func:`os.open` (missing file, permissions).
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
     try:
-        with open(path, encoding="utf-8") as stream:
-            data = json.load(stream)
-    except (OSError, ValueError):
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise UnreadableFile(path, f"is {_kind(info.st_mode)}, not a regular file")
+        os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def read_bytes(path: str | Path, limit: int) -> bytes:
+    """The bytes of the regular file ``path`` (:func:`open_regular`), at most ``limit``:
+    a larger file is refused (:class:`~agv_cosim.errors.UnreadableFile`, naming the
+    limit) before it is read."""
+    with open_regular(path) as stream:
+        size = os.fstat(stream.fileno()).st_size
+        if size > limit:
+            raise UnreadableFile(path, f"is {size} bytes; at most {limit} are read")
+        data = stream.read(limit + 1)
+    if len(data) > limit:  # it grew while we read it
+        raise UnreadableFile(path, f"is more than {limit} bytes; at most {limit} are "
+                             "read")
+    return data
+
+
+def read_head(path: str | Path, limit: int = NOTE_LIMIT) -> bytes:
+    """The first ``limit`` bytes of the regular file ``path`` (:func:`open_regular`)."""
+    with open_regular(path) as stream:
+        return stream.read(limit)
+
+
+def read_text(path: str | Path, limit: int, what: str = "file") -> str:
+    """The UTF-8 text of the regular file ``path`` (:func:`read_bytes`); a file that is
+    not UTF-8 is refused (:class:`~agv_cosim.errors.UnreadableFile`)."""
+    data = read_bytes(path, limit)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise UnreadableFile(path, f"is not UTF-8 text (byte {error.start}); a {what} "
+                             "must be") from None
+
+
+def open_text(path: str | Path) -> IO[str]:
+    """The regular file ``path`` (:func:`open_regular`) as UTF-8 text read as it goes
+    (``newline=""``, as the csv module wants): for files streamed in pieces."""
+    return io.TextIOWrapper(open_regular(path), encoding="utf-8", newline="")
+
+
+def read_json_object(path: str | Path) -> dict[str, Any] | None:
+    """The JSON object in the file ``path``, or None when it is missing, is not JSON or
+    holds something other than an object. A file that must not be read (a FIFO, a
+    device, larger than :data:`JSON_LIMIT`) raises
+    :class:`~agv_cosim.errors.UnreadableFile` (:func:`read_bytes`)."""
+    try:
+        data = json.loads(read_bytes(path, JSON_LIMIT).decode("utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError):
         return None
     return data if isinstance(data, dict) else None
+
+
+def displayable(text: object) -> str:
+    """``text`` that encodes as UTF-8: a file name's undecodable bytes (held as lone
+    surrogates, ``surrogateescape``) and any other lone surrogate written as escapes
+    (``\\xff``, ``\\udcff``)."""
+    text = str(text)
+    try:
+        text.encode("utf-8")
+        return text
+    except UnicodeEncodeError:
+        pass
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")
 
 
 def marker_data(folder: str | Path) -> dict[str, Any] | None:

@@ -16,7 +16,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from .files import csv_line
+from .files import csv_line, open_regular, open_text
 from .lifetime import CREATE_FLAGS
 
 __all__ = ["CHUNK_ROWS", "CsvSink", "count_rows", "iter_timeseries", "read_timeseries",
@@ -122,7 +122,7 @@ def _header(stream: IO[str]) -> list[str]:
 
 def timeseries_columns(path: str | Path) -> list[str]:
     """Column names of a ``timeseries.csv`` after ``time`` (its header)."""
-    with open(path, encoding="utf-8", newline="") as stream:
+    with open_text(path) as stream:
         return _header(stream)[1:]
 
 
@@ -174,7 +174,7 @@ def iter_timeseries(path: str | Path, columns: Iterable[str] | None = None,
     """
     if chunk_rows < 1:
         raise ValueError(f"chunk_rows must be >= 1, got {chunk_rows!r}")
-    with open(path, encoding="utf-8", newline="") as stream:
+    with open_text(path) as stream:
         header = _header(stream)
         wanted = header[1:] if columns is None else list(columns)
         position = {name: i for i, name in reversed(list(enumerate(header)))}
@@ -212,7 +212,7 @@ def count_rows(path: str | Path) -> int:
     """Rows of a ``timeseries.csv`` after its header (a last line without its newline
     counts too). Counted in fixed-size blocks; rows with quoted text (String columns,
     which may hold line breaks) are counted by the csv module."""
-    with open(path, "rb") as stream:
+    with open_regular(path) as stream:
         stream.seek(_header_end(stream))
         lines, last, quoted = 0, b"\n", False
         while block := stream.read(1 << 20):
@@ -221,6 +221,6 @@ def count_rows(path: str | Path) -> int:
             quoted = quoted or b'"' in block
         if not quoted:
             return lines + (last != b"\n")
-    with open(path, encoding="utf-8", newline="") as stream:
+    with open_text(path) as stream:
         _header(stream)
         return sum(1 for _ in csv.reader(stream))

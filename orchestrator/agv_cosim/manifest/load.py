@@ -9,16 +9,14 @@ opened). Every problem is a :class:`~agv_cosim.errors.ManifestError` whose text 
 """
 
 import hashlib
-import os
 import re
-import stat
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..errors import ManifestError, SchemaError, did_you_mean
-from ..files import check_name
+from ..errors import ManifestError, SchemaError, UnreadableFile, did_you_mean
+from ..files import check_name, read_bytes
 from . import schema
 from .montecarlo import MonteCarlo
 from .montecarlo import parse as parse_montecarlo
@@ -297,32 +295,16 @@ MAX_MANIFEST_BYTES = 16 << 20
 MAX_DEPTH = 32
 
 
-def read_regular_file(path: str | Path, limit: int, what: str = "file") -> bytes:
-    """The bytes of the regular file at ``path``, at most ``limit`` of them.
-
-    A FIFO, a device, a socket or a folder is refused before any read (opened
-    non-blocking, so a FIFO cannot hang us), and so is a file larger than ``limit``.
+def read_regular_file(path: str | Path, limit: int) -> bytes:
+    """The bytes of the regular file at ``path``, at most ``limit`` of them
+    (:func:`agv_cosim.files.read_bytes`: a FIFO, a device, a socket or a folder is
+    refused before any read, and so is a file larger than ``limit``).
     Raises OSError (``strerror`` set) or ValueError (the problem in words).
     """
-    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     try:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            kind = ("a folder" if stat.S_ISDIR(info.st_mode) else
-                    "a FIFO" if stat.S_ISFIFO(info.st_mode) else
-                    "a device" if stat.S_ISCHR(info.st_mode) or stat.S_ISBLK(info.st_mode)
-                    else "a socket" if stat.S_ISSOCK(info.st_mode) else "not a file")
-            raise ValueError(f"is {kind}, not a regular file")
-        if info.st_size > limit:
-            raise ValueError(f"is {info.st_size} bytes; at most {limit} are read")
-        os.set_blocking(fd, True)
-        with os.fdopen(fd, "rb", closefd=False) as stream:
-            data = stream.read(limit + 1)
-    finally:
-        os.close(fd)
-    if len(data) > limit:  # grew while we read it
-        raise ValueError(f"is more than {limit} bytes")
-    return data
+        return read_bytes(path, limit)
+    except UnreadableFile as error:
+        raise ValueError(error.problem) from None
 
 
 def nesting_problem(data: Any, limit: int = MAX_DEPTH) -> str | None:

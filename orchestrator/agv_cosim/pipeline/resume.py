@@ -37,7 +37,6 @@ replaces it only when committed (:class:`agv_cosim.files.AtomicDir`).
 """
 
 import errno
-import json
 import os
 import shutil
 import stat
@@ -45,11 +44,11 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ManifestError, OutputError
-from ..files import MARKER, marker_data
+from ..files import MARKER, marker_data, read_json_object
 from ..manifest import Manifest
 from ..plan import plan_runs
 from ..report import plots
-from ..report.page import RECORD, REPORT_FILE
+from ..report.page import FIGURES_ERROR, RECORD, REPORT_FILE
 from ..report.records import TIMINGS, RunResult, read_timings, recorded_inputs, write_run_files
 from ..system import Job
 from ..system.files import file_sha256
@@ -65,11 +64,9 @@ RUN_FILES = ("timeseries.csv", "metrics.json", "run.json", "output.txt")
 #: The files at the top of a result folder that this tool writes (besides the figures
 #: the report's record lists).
 FOLDER_FILES = (MARKER, "summary.csv", TIMINGS, REPORT_FILE, RECORD, "partial.txt",
-                "plots_error.txt", "montecarlo.json", "montecarlo.png",
+                FIGURES_ERROR, "plots_error.txt", "montecarlo.json", "montecarlo.png",
                 "montecarlo_error.txt", plots.SIGNALS_FILE, plots.TRAJECTORY_FILE,
                 plots.SWEEP_FILE, plots.MONTECARLO_SCATTER_FILE)
-#: Largest run.json read back [bytes].
-MAX_RECORD = 64 << 20
 
 
 def _comparable(inputs: dict[str, Any]) -> dict[str, Any]:
@@ -105,30 +102,6 @@ def check_resumable(target: str | Path, manifest: Manifest) -> None:
     _previous(Path(os.path.abspath(target)), manifest)
 
 
-def _read_record(path: Path) -> dict[str, Any] | None:
-    """The JSON object in the regular file ``path`` (not a link; opened without blocking,
-    at most :data:`MAX_RECORD` bytes read), or None."""
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
-    except OSError:
-        return None
-    try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            return None
-        chunks, size = [], 0
-        while size <= MAX_RECORD and (chunk := os.read(fd, 1 << 20)):
-            chunks.append(chunk)
-            size += len(chunk)
-        if size > MAX_RECORD:
-            return None
-        data = json.loads(b"".join(chunks).decode("utf-8"))
-    except (OSError, ValueError):
-        return None
-    finally:
-        os.close(fd)
-    return data if isinstance(data, dict) else None
-
-
 def _complete_run(run_dir: Path, job: Job) -> dict[str, Any] | None:
     """run.json of ``run_dir`` when the run can be reused for ``job``, else None: a
     complete run of the same inputs whose timeseries.csv is, byte for byte, the file it
@@ -139,7 +112,7 @@ def _complete_run(run_dir: Path, job: Job) -> dict[str, Any] | None:
         csv_info = os.lstat(run_dir / "timeseries.csv")
     except OSError:
         return None
-    record = _read_record(run_dir / "run.json")
+    record = read_json_object(run_dir / "run.json")
     if (record is None or record.get("status") != "complete"
             or not stat.S_ISREG(csv_info.st_mode)
             or not isinstance(record.get("rows"), int)
@@ -246,7 +219,7 @@ def _keep_from(previous: Path, labels: set[str], others: set[str],
     """:func:`keep_others` on the earlier folder ``previous``: the runs of variants in
     ``others`` whole, the entries not ours at the same place; ``labels`` are the runs
     the command writes."""
-    report = _read_record(previous / RECORD) or {}
+    report = read_json_object(previous / RECORD) or {}
     figures = {name for name in report.get("files", []) if isinstance(name, str)}
     timings = read_timings(previous / TIMINGS)
     kept: list[RunResult] = []
@@ -266,7 +239,7 @@ def _keep_from(previous: Path, labels: set[str], others: set[str],
                 _carry(old, root / entry)
                 users.append(entry)
             continue
-        record = None if entry in labels else _read_record(old / "run.json")
+        record = None if entry in labels else read_json_object(old / "run.json")
         if entry not in labels and record is None:  # not a run of ours
             _carry(old, root / entry)
             users.append(entry)
@@ -296,7 +269,7 @@ def _kept_result(label: str, record: dict[str, Any], run_dir: Path,
                  timings: dict[str, dict[str, Any]]) -> RunResult:
     """The :class:`RunResult` of a run kept as it is, from its run.json (``record``),
     metrics.json and row of timings.csv."""
-    metrics = _read_record(run_dir / "metrics.json") or {}
+    metrics = read_json_object(run_dir / "metrics.json") or {}
     point = record.get("sweep_point")
     rows = record.get("rows")
     result = RunResult(label=label, status=str(record.get("status")),

@@ -42,11 +42,11 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from ..errors import FolderLost, OutputError
+from ..errors import FolderLost, OutputError, ReportError
 from ..files import AtomicDir, printable, write_summary, write_text
 from ..manifest import Manifest
 from ..report import montecarlo, plots
-from ..report.page import draw_figures, write_report_quietly
+from ..report.page import REPORT_FILE, draw_figures, write_report_quietly
 from ..report.records import TIMINGS, RunResult, summary_rows, write_timings
 from ..system import Job
 from .distributed import run_on_dask
@@ -182,8 +182,13 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         results = [_checked_files(job, result, written)
                    for job, result in zip(jobs, results)]
         _write_summary(folder, listed(manifest, results, kept))
-        _finish(manifest, jobs, results, written, workers_asked)
+        page_error = _finish(manifest, jobs, results, written, workers_asked)
         target = folder.commit()
+    if page_error:  # the results are kept: the command fails, saying where they are
+        failure = ReportError(f"{target / REPORT_FILE}: not written ({page_error}); the "
+                              f"results are in {target}")
+        failure.kept, failure.results = target, results  # type: ignore[attr-defined]
+        raise failure
     return target, results
 
 
@@ -323,12 +328,13 @@ def _keep_partial(manifest: Manifest, jobs: list[Job], folder: AtomicDir,
 
 
 def _finish(manifest: Manifest, jobs: list[Job], results: list[RunResult], written: Path,
-            workers: int) -> None:
+            workers: int) -> str | None:
     """Write ``montecarlo.json``, then every figure of the folder (montecarlo.png, the
     ``[plots]`` figures, the page's figures; each task writes its own files) in up to
     ``workers`` processes at once (:func:`~.pool.call_concurrently`), then index.html,
     which lists the figures written. A figure's failure is written to the folder
-    (``*_error.txt``) and said on stderr; the results stay."""
+    (``*_error.txt``; the page shows it, with no image for that figure) and said on
+    stderr; the results stay. Returns why index.html was not written (None: it was)."""
     tasks: list[Callable[[], str | list[str] | None]] = []
     if manifest.montecarlo is not None:
         montecarlo.write_aggregate(manifest.montecarlo, jobs, results, written)
@@ -355,9 +361,13 @@ def _finish(manifest: Manifest, jobs: list[Job], results: list[RunResult], writt
     # index.html, read from the folder's files (the figures drawn above among them)
     report_error = printable(drawn) if isinstance(drawn, str) else \
         write_report_quietly(written, drawn)
-    if report_error:
+    page = written / REPORT_FILE
+    if not (page.is_file() and page.stat().st_size > 0):
+        return report_error or "no page"
+    if report_error:  # the page is there, without a figure it says could not be drawn
         print(printable(f"agv-cosim: warning: {manifest.path}: report: {report_error}"),
               file=sys.stderr)
+    return None
 
 
 def _draws(manifest: Manifest, runs: int) -> bool:

@@ -14,10 +14,11 @@ from typing import Any
 
 import numpy as np
 
-from ..files import open_output, write_json
+from ..files import open_text, write_json
 from ..manifest.montecarlo import MonteCarlo
 from ..plan.sampling import group_name
 from .page import metric_unit
+from .plots import plain_text, save_figure
 
 __all__ = ["aggregate", "draw", "figure", "statistics", "write_aggregate", "write_outputs"]
 
@@ -74,7 +75,7 @@ def _band(folder, members, signal):
         if result["status"] != "complete":
             continue
         path = Path(folder) / job.label / "timeseries.csv"
-        with open(path, encoding="utf-8", newline="") as stream:
+        with open_text(path) as stream:
             reader = csv.reader(stream)
             header = next(reader)
             column = header.index(signal)
@@ -90,6 +91,7 @@ def _band(folder, members, signal):
     return np.asarray(time), np.percentile(data, [5, 50, 95], axis=0)
 
 
+@plain_text
 def figure(mc: MonteCarlo, jobs: list[Any], results: list[Any], folder: str | Path,
            title: str | None = None, dpi: int = 110) -> Path | None:
     """``montecarlo.png``: box plots of the key metrics per group; the band of a signal."""
@@ -138,10 +140,7 @@ def figure(mc: MonteCarlo, jobs: list[Any], results: list[Any], folder: str | Pa
         ax.legend(fontsize="small", frameon=False)
     fig.suptitle((title + ": " if title else "") + f"{mc.samples} samples per group "
                  "(box: p25-p75, whiskers p5-p95)", fontsize="medium")
-    path = Path(folder) / "montecarlo.png"
-    with open_output(path) as stream:  # never written through a symbolic link
-        fig.savefig(stream, dpi=dpi, format="png", metadata={"Software": None})
-    return path
+    return save_figure(fig, Path(folder) / "montecarlo.png", dpi)
 
 
 def write_aggregate(mc: MonteCarlo, jobs: list[Any], results: list[Any],

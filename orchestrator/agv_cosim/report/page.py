@@ -35,6 +35,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import html
+import io
 import json
 import math
 import os
@@ -47,15 +48,21 @@ from pathlib import Path
 from string import Template
 from urllib.parse import quote
 
-from ..errors import OutputError
+from ..errors import OutputError, ReportError, UnreadableFile
 from ..files import (
+    CSV_LIMIT,
     FolderLock,
     create_file,
+    displayable,
     marker_data,
+    open_regular,
     printable,
+    read_bytes,
+    read_head,
     read_json_object,
     write_json,
 )
+from ..manifest.load import MAX_MANIFEST_BYTES
 from . import plots
 from .records import TIMINGS
 
@@ -87,17 +94,22 @@ _FIGURE_ORDER = ("signals.png", "trajectory.png", plots.SWEEP_FILE, "montecarlo.
                  plots.MONTECARLO_SCATTER_FILE)
 #: Files of a run folder linked from the runs table.
 _RUN_FILES = ("timeseries.csv", "metrics.json", "run.json", "output.txt")
+#: The note of the page's figures that could not be drawn (one line each), written
+#: by the report (it is among its files): the page shows it, and no image for them.
+FIGURES_ERROR = "figures_error.txt"
 #: Files of the result folder linked from the page.
 _RAW_FILES = ("summary.csv", TIMINGS, "montecarlo.json", "partial.txt", "plots_error.txt",
-              "montecarlo_error.txt", MANIFEST_COPY)
+              "montecarlo_error.txt", FIGURES_ERROR, MANIFEST_COPY)
 
 
 # --------------------------------------------------------------------------- reading
 
-def _read_text(path, limit=1 << 16):
+def _read_text(path):
+    """The beginning of a note of the folder (:data:`~agv_cosim.files.NOTE_LIMIT`
+    bytes), or None when there is none; a note that is not a regular file raises
+    :class:`~agv_cosim.errors.UnreadableFile`."""
     try:
-        with open(path, encoding="utf-8", errors="replace") as stream:
-            return stream.read(limit)
+        return read_head(path).decode("utf-8", errors="replace")
     except OSError:
         return None
 
@@ -105,9 +117,9 @@ def _read_text(path, limit=1 << 16):
 def _summary_order(folder):
     """Run labels in summary.csv's order (empty without one)."""
     try:
-        with open(folder / "summary.csv", encoding="utf-8", newline="") as stream:
-            return [row.get("run", "") for row in csv.DictReader(stream)]
-    except (OSError, csv.Error):
+        text = read_bytes(folder / "summary.csv", CSV_LIMIT).decode("utf-8")
+        return [row.get("run", "") for row in csv.DictReader(io.StringIO(text, newline=""))]
+    except (OSError, UnicodeDecodeError, csv.Error):
         return []
 
 
@@ -135,10 +147,16 @@ def read_runs(folder: str | Path) -> list[dict]:
 
 def _sha256(path):
     digest = hashlib.sha256()
-    with open(path, "rb") as stream:
+    with open_regular(path) as stream:
         while block := stream.read(1 << 20):
             digest.update(block)
     return digest.hexdigest()
+
+
+def _toml(path):
+    """The TOML data of the manifest file ``path`` (a regular file of at most
+    :data:`~agv_cosim.manifest.MAX_MANIFEST_BYTES`)."""
+    return tomllib.loads(read_bytes(path, MAX_MANIFEST_BYTES).decode("utf-8"))
 
 
 def read_manifest(folder: str | Path, runs: list[dict]) -> tuple[dict, str]:
@@ -150,9 +168,8 @@ def read_manifest(folder: str | Path, runs: list[dict]) -> tuple[dict, str]:
     copy = Path(folder) / MANIFEST_COPY
     if copy.is_file() and not copy.is_symlink():
         try:
-            with open(copy, "rb") as stream:
-                return tomllib.load(stream), f"the copy {MANIFEST_COPY} in this folder"
-        except (OSError, tomllib.TOMLDecodeError):
+            return _toml(copy), f"the copy {MANIFEST_COPY} in this folder"
+        except (OSError, ValueError, UnreadableFile):
             pass
     if not runs:
         return {}, "no run"
@@ -165,11 +182,12 @@ def read_manifest(folder: str | Path, runs: list[dict]) -> tuple[dict, str]:
     try:
         if _sha256(path) != digest:
             return {}, f"{path} changed since the run (its SHA-256 differs); not used"
-        with open(path, "rb") as stream:
-            return tomllib.load(stream), f"{path} (SHA-256 as run)"
+        return _toml(path), f"{path} (SHA-256 as run)"
     except OSError:
         return {}, f"{path} not found from {os.getcwd()}"
-    except tomllib.TOMLDecodeError:
+    except UnreadableFile as error:
+        return {}, f"{error}; not used"
+    except ValueError:  # tomllib.TOMLDecodeError, UnicodeDecodeError
         return {}, f"{path} is not valid TOML"
 
 
@@ -296,11 +314,15 @@ def _group(run, sampled):
 # --------------------------------------------------------------------------- the page
 
 def _e(value):
-    return html.escape(str(value), quote=True)
+    """``value`` as HTML text; a file name's undecodable bytes as escapes (``\\xff``:
+    :func:`~agv_cosim.files.displayable`), so that the page is always UTF-8."""
+    return html.escape(displayable(value), quote=True)
 
 
 def _href(*parts):
-    return "/".join(quote(str(part)) for part in parts)
+    """A relative link to the file ``parts`` (a file name's undecodable bytes
+    percent-encoded as the bytes they are)."""
+    return "/".join(quote(str(part), errors="surrogateescape") for part in parts)
 
 
 def _fmt(value):
@@ -414,9 +436,19 @@ def _provenance(runs, manifest_source):
     return "".join(parts)
 
 
+def _is_image(path):
+    """True for a regular file (not a link) that holds something: a figure that was
+    drawn (an empty one is never shown as a figure)."""
+    try:
+        info = os.lstat(path)
+    except OSError:
+        return False
+    return stat.S_ISREG(info.st_mode) and info.st_size > 0
+
+
 def _figures(folder, written):
-    names = {p.name for p in Path(folder).glob("*.png")
-             if p.is_file() and not p.is_symlink()} | set(written)
+    names = {p.name for p in Path(folder).glob("*.png")} | set(written)
+    names = {name for name in names if _is_image(Path(folder) / name)}
     ordered = [n for n in _FIGURE_ORDER if n in names] + sorted(names - set(_FIGURE_ORDER))
     out = []
     for name in ordered:
@@ -451,7 +483,7 @@ def render(folder: str | Path, runs: list[dict], manifest: dict, manifest_source
         f'<span class="status {_e(s.replace(" ", "-"))}">{n} {_e(s)}</span>'
         for s, n in statuses.items()) + f" of {len(runs)} run(s).</p>")
     for note, kind in (("partial.txt", "warning"), ("plots_error.txt", "warning"),
-                       ("montecarlo_error.txt", "warning")):
+                       ("montecarlo_error.txt", "warning"), (FIGURES_ERROR, "warning")):
         text = _read_text(folder / note)
         if text:
             body.append(f'<p class="{kind}"><a href="{_href(note)}">{_e(note)}</a>: '
@@ -546,14 +578,30 @@ def _checked_folder(folder: str | Path) -> Path:
 
 def _draw(folder, figures, dpi, drawn=()):
     """Check the page's files (``drawn``: figures of ours written already), record
-    them, and draw the figures not in ``drawn``."""
+    them, and draw the figures not in ``drawn``. A figure that fails leaves no file;
+    its name and error go into :data:`FIGURES_ERROR` (one line each), which a later
+    drawing of every figure without a failure removes. Returns those lines."""
     names = [name for name, _ in figures] + [REPORT_FILE]
     record = _record(folder)
-    _check_writable(folder, [name for name in names if name not in drawn], record)
+    _check_writable(folder, [name for name in names if name not in drawn] + [FIGURES_ERROR],
+                    record)
     write_json(folder / RECORD, {"files": sorted(record | set(names))}, replace=True)
+    failures = []
     for name, draw in figures:
         if name not in drawn:
-            plots.save_figure(draw(), _fresh(folder / name), dpi)
+            try:
+                plots.save_figure(draw(), _fresh(folder / name), dpi)
+            except Exception as failure:  # noqa: BLE001 - the page says which, and why
+                failures.append(printable(f"{name}: {type(failure).__name__}: "
+                                          f"{failure}"))
+    if failures:  # recorded as the report's own file only when it writes one
+        write_json(folder / RECORD, {"files": sorted(record | set(names) | {FIGURES_ERROR})},
+                   replace=True)
+        with create_file(_fresh(folder / FIGURES_ERROR)) as stream:
+            stream.write("".join(f"{line}\n" for line in failures))
+    elif not drawn:
+        _fresh(folder / FIGURES_ERROR)
+    return failures
 
 
 def write_report(folder: str | Path, *, locked: bool = False,
@@ -580,6 +628,9 @@ def write_report(folder: str | Path, *, locked: bool = False,
     OutputError
         The folder is not one of ours, another run is writing it, or a file the report
         would write is there and not its own (the message names it); nothing is written.
+    ReportError
+        The page could not be written (none is left), or it was written without a figure
+        that could not be drawn (it says which and why: :data:`FIGURES_ERROR`).
     """
     path = _checked_folder(folder)
     lock = None if locked else FolderLock(path.parent / f".{path.name}.lock", path)
@@ -587,12 +638,31 @@ def write_report(folder: str | Path, *, locked: bool = False,
         runs, manifest, source, units, figures, dpi = _inputs(path)
         _draw(path, figures, dpi, set(drawn))
         page = render(path, runs, manifest, source, units, [n for n, _ in figures])
-        with create_file(_fresh(path / REPORT_FILE)) as stream:
-            stream.write(page)
+        _write_page(path / REPORT_FILE, page)
+        failed = _read_text(path / FIGURES_ERROR)
+        if failed:
+            lines = failed.strip().splitlines()
+            raise ReportError(f"{path / REPORT_FILE}: written without {len(lines)} "
+                              f"figure(s) that could not be drawn ({FIGURES_ERROR}: "
+                              f"{lines[0]})")
         return path / REPORT_FILE
     finally:
         if lock is not None:
             lock.release()
+
+
+def _write_page(path, page):
+    """Write the page's text into the new file ``path``: encoded before the file is
+    made; a page that cannot be written is removed (never left empty or cut) and
+    raises :class:`~agv_cosim.errors.ReportError`."""
+    data = page.encode("utf-8")
+    try:
+        with create_file(_fresh(path), binary=True) as stream:
+            stream.write(data)
+    except OSError as error:
+        Path(path).unlink(missing_ok=True)
+        raise ReportError(f"{path}: could not be written: "
+                          f"{error.strerror or error}") from None
 
 
 def draw_figures(folder: str | Path) -> list[str]:

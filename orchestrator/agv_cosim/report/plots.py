@@ -78,15 +78,16 @@ Complete example::
     "ctrl.u" = "V"
 """
 
+import functools
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeGuard
+from typing import TYPE_CHECKING, Any, TypeGuard, TypeVar, cast
 
 import numpy as np
 
-from ..files import open_output, read_json_object
+from ..files import FMU_LIMIT, open_output, open_regular, read_json_object
 from ..manifest import schema
 from ..timeseries import CHUNK_ROWS, count_rows, iter_timeseries, timeseries_columns
 from .metrics import load_path
@@ -149,6 +150,27 @@ class RunData:
 
 
 # --------------------------------------------------------------------------- validation
+
+#: matplotlib settings every figure is made and drawn with: no mathtext and no TeX, so
+#: that text from manifests and FMUs (variable names, titles, groups, run labels) is
+#: drawn as written (a ``$`` drawn as a ``$``, never parsed as a formula).
+PLAIN_TEXT: dict[Any, Any] = {"text.parse_math": False, "text.usetex": False}
+
+_Draw = TypeVar("_Draw", bound=Callable[..., Any])
+
+
+def plain_text(draw: _Draw) -> _Draw:
+    """``draw`` (a function that makes a figure) run under :data:`PLAIN_TEXT`: every
+    text artist it makes is plain text."""
+    @functools.wraps(draw)
+    def plain(*args: Any, **kwargs: Any) -> Any:
+        from matplotlib import rc_context
+
+        with rc_context(PLAIN_TEXT):
+            return draw(*args, **kwargs)
+
+    return cast(_Draw, plain)
+
 
 def import_drawing() -> None:
     """Import what drawing a figure needs (matplotlib's Figure and Agg canvas, with its
@@ -390,20 +412,24 @@ def _variable_unit(variable):
 
 def _model_description(path):
     """fmpy's model description of the FMU at ``path`` (``<package>!/<entry>``: an FMU
-    inside an SSP package), or None when it cannot be read."""
+    inside an SSP package), or None when it cannot be read (a file that is not a
+    regular file is not opened: :func:`~agv_cosim.files.open_regular`)."""
+    import io
+    import zipfile
+
     from fmpy import read_model_description
 
     text = str(path)
     try:
         if "!/" in text:
-            import io
-            import zipfile
-
             package, entry = text.split("!/", 1)
-            with zipfile.ZipFile(package) as archive:
+            with open_regular(package) as stream, zipfile.ZipFile(stream) as archive:
+                if archive.getinfo(entry).file_size > FMU_LIMIT:
+                    return None
                 data = io.BytesIO(archive.read(entry))
             return read_model_description(data, validate=False)
-        return read_model_description(text, validate=False)
+        with open_regular(text) as stream:
+            return read_model_description(stream, validate=False)
     except Exception:  # noqa: BLE001 - a unit is a label: no FMU, no unit
         return None
 
@@ -612,22 +638,34 @@ def _colour_bar(figure, axes, styles):
 
 
 def _save(figure, path, dpi):
-    with open_output(path) as stream:  # never written through a symbolic link
-        if getattr(figure, "agv_decimated", False):
-            # A decimated line of a long run can go from a column's minimum to its
-            # maximum and back in every column; Agg's memory for one path grows with the
-            # pixels its outline crosses (4 h run: +18.5 MiB to draw, +6.7 MiB in chunks
-            # of 1000 points). Only such figures are drawn in chunks, so the others keep
-            # their exact bytes.
-            from matplotlib import rc_context
+    """Draw ``figure`` as PNG in memory, then write it to ``path``: a figure that fails
+    to draw leaves no file (never an empty image), one that fails to be written is
+    removed."""
+    import io
 
-            with rc_context({"agg.path.chunksize": _AGG_CHUNK}):
-                figure.savefig(stream, dpi=dpi, format="png", metadata={"Software": None})
-        else:
-            figure.savefig(stream, dpi=dpi, format="png", metadata={"Software": None})
+    from matplotlib import rc_context
+
+    settings = dict(PLAIN_TEXT)
+    if getattr(figure, "agv_decimated", False):
+        # A decimated line of a long run can go from a column's minimum to its
+        # maximum and back in every column; Agg's memory for one path grows with the
+        # pixels its outline crosses (4 h run: +18.5 MiB to draw, +6.7 MiB in chunks
+        # of 1000 points). Only such figures are drawn in chunks, so the others keep
+        # their exact bytes.
+        settings["agg.path.chunksize"] = _AGG_CHUNK
+    image = io.BytesIO()
+    with rc_context(settings):  # the ticks' labels are made as the figure is drawn
+        figure.savefig(image, dpi=dpi, format="png", metadata={"Software": None})
+    try:
+        with open_output(path) as stream:  # never written through a symbolic link
+            stream.write(image.getbuffer())
+    except BaseException:
+        Path(path).unlink(missing_ok=True)  # ours: open_output made or truncated it
+        raise
     return path
 
 
+@plain_text
 def signals_figure(runs: Iterable["RunData"],
                    spec: "schema.PlotsTable | dict[str, Any] | None",
                    units: dict[str, str] | None = None,
@@ -731,6 +769,7 @@ def _offsets_along(geometry, x, y):
     return arcs, offsets
 
 
+@plain_text
 def trajectory_figure(runs: Iterable["RunData"],
                       spec: "schema.PlotsTable | dict[str, Any] | None",
                       geometry: Any = None, units: dict[str, str] | None = None,
@@ -917,6 +956,7 @@ def _finite(value):
     return is_number(value)
 
 
+@plain_text
 def sweep_metrics_figure(rows: list, key: str, metrics: list, units: dict,
                          title: str | None = None) -> "Figure":
     """Each metric against the swept value ``key``, one line (with markers) per group:
@@ -985,6 +1025,7 @@ def spearman(x: Any, y: Any) -> float | None:
     return rho if math.isfinite(rho) else None
 
 
+@plain_text
 def montecarlo_figure(rows: list, parameters: list, metrics: list, units: dict,
                       title: str | None = None) -> "Figure":
     """Monte Carlo results: per metric (one row of panels), box plots per group in the

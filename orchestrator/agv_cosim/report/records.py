@@ -10,13 +10,14 @@ per run (:data:`TIMING_COLUMNS`)."""
 import csv
 import hashlib
 import importlib
+import io
 import json
 import math
 import platform
 from pathlib import Path
 from typing import Any, NotRequired, TypedDict
 
-from ..files import create_file, json_text, write_json, write_summary
+from ..files import CSV_LIMIT, create_file, json_text, read_bytes, write_json, write_summary
 from ..system import Job
 from ..version import __version__
 
@@ -219,11 +220,13 @@ def _number(text: str) -> int | float | None:
 def read_timings(path: str | Path) -> dict[str, dict[str, Any]]:
     """The rows of a timings.csv by run label, each ``{"wall_time_s": ...,
     "real_time": {...}}`` (``real_time`` only for a paced run), as :func:`timing_rows`
-    made them. Empty when the file is missing; rows that cannot be read are left out."""
+    made them. Empty when the file is missing; rows that cannot be read are left out.
+    A file that must not be read (not a regular file, larger than
+    :data:`~agv_cosim.files.CSV_LIMIT`) raises :class:`~agv_cosim.errors.UnreadableFile`."""
     try:
-        with open(path, newline="", encoding="utf-8") as stream:
-            rows = list(csv.DictReader(stream))
-    except (OSError, UnicodeError, csv.Error):
+        text = read_bytes(path, CSV_LIMIT).decode("utf-8")
+        rows = list(csv.DictReader(io.StringIO(text, newline="")))
+    except (OSError, UnicodeDecodeError, csv.Error):
         return {}
     found: dict[str, dict[str, Any]] = {}
     for row in rows:

@@ -43,8 +43,8 @@ from urllib.parse import unquote, urlparse
 from xml.etree import ElementTree
 
 from .. import fmitypes
-from ..errors import ManifestError, ModelError, SspError
-from ..files import check_name
+from ..errors import ManifestError, ModelError, SspError, UnreadableFile
+from ..files import XML_LIMIT, check_name, open_regular, read_bytes
 from ..lifetime import scratch_dir
 from ..manifest import Manifest, manifest_from_data
 from ..system.model import file_sha256, read_model
@@ -86,7 +86,7 @@ def safe_extract(archive_path: str | Path, dest: str | Path) -> None:
         a ``..`` component or a symbolic link (nothing is extracted then).
     """
     try:
-        with zipfile.ZipFile(archive_path) as archive:
+        with open_regular(archive_path) as stream, zipfile.ZipFile(stream) as archive:
             entries = archive.infolist()
             for info in entries:
                 reason = _unsafe_reason(info)
@@ -100,6 +100,8 @@ def safe_extract(archive_path: str | Path, dest: str | Path) -> None:
                     raise SspError(archive_path, "archive",
                                    f"refused: entry '{info.filename}' leaves the folder")
             archive.extractall(dest)
+    except UnreadableFile as error:
+        raise SspError(archive_path, "file", error.problem) from None
     except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, OSError) as error:
         raise SspError(archive_path, "archive", f"not a readable zip archive: {error}") \
             from None
@@ -196,9 +198,14 @@ def _bindings(package, base, element, key, ssd_units):
                 raise SspError(package, bkey, f"source '{source}' is not a file in the "
                                "package")
             try:
-                pset = ElementTree.parse(path).getroot()
+                pset = ElementTree.fromstring(read_bytes(path, XML_LIMIT))
             except ElementTree.ParseError as error:
                 raise SspError(package, bkey, f"{source}: not well-formed XML: {error}") \
+                    from None
+            except UnreadableFile as error:
+                raise SspError(package, bkey, f"{source}: {error.problem}") from None
+            except OSError as error:
+                raise SspError(package, bkey, f"{source}: cannot read: {error.strerror}") \
                     from None
             if pset.tag != q("ssv", "ParameterSet"):
                 raise SspError(package, bkey, f"{source}: root is not ssv:ParameterSet")
@@ -367,9 +374,11 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
     ssd_path = Path(ssd_path)
     base = ssd_path.parent.resolve()
     try:
-        root = ElementTree.parse(ssd_path).getroot()
+        root = ElementTree.fromstring(read_bytes(ssd_path, XML_LIMIT))
     except ElementTree.ParseError as error:
         raise SspError(package, SSD_NAME, f"not well-formed XML: {error}") from None
+    except UnreadableFile as error:
+        raise SspError(package, SSD_NAME, error.problem) from None
     except OSError:
         raise SspError(package, SSD_NAME, "missing (not an SSP package)") from None
     if root.tag != q("ssd", "SystemStructureDescription"):

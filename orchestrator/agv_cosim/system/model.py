@@ -31,6 +31,7 @@ from typing import Any
 
 from .. import fmitypes
 from ..errors import ModelError
+from ..files import open_regular
 from ..fmitypes import FmiType
 
 
@@ -145,9 +146,11 @@ _CACHE: dict[tuple[str, int, int], ModelInfo] = {}
 
 
 def file_sha256(path: str | Path) -> str:
-    """SHA-256 (hex) of a file's bytes."""
+    """SHA-256 (hex) of a file's bytes, read in blocks of 1 MiB (memory bounded
+    whatever its size); a file that is not a regular file (a FIFO, a device) is refused
+    before any read (:func:`agv_cosim.files.open_regular`)."""
     digest = hashlib.sha256()
-    with open(path, "rb") as stream:
+    with open_regular(path) as stream:
         for chunk in iter(lambda: stream.read(1 << 20), b""):
             digest.update(chunk)
     return digest.hexdigest()

@@ -19,11 +19,13 @@ unit a connection checks (``units = { <name> = "rad" }``; default none = dimensi
 
 import bisect
 import csv
+import io
 import math
 from collections.abc import MutableSequence
 from pathlib import Path
 
-from ..errors import TableError
+from ..errors import TableError, UnreadableFile
+from ..files import CSV_LIMIT, read_bytes
 from .model import ModelInfo, Variable, file_sha256
 
 MODES = ("linear", "hold")
@@ -37,11 +39,13 @@ class Table:
         interpolation = dict(interpolation or {})
         if self.path.exists() and not self.path.is_file():  # a FIFO would block a read
             raise TableError(f"'{self.path}' is not a regular file")
-        try:
-            with open(self.path, newline="", encoding="utf-8") as stream:
-                rows = list(csv.reader(stream))
+        try:  # read non-blocking and at most CSV_LIMIT bytes (files.read_bytes)
+            data = read_bytes(self.path, CSV_LIMIT)
+            rows = list(csv.reader(io.StringIO(data.decode("utf-8"), newline="")))
         except OSError as error:
             raise TableError(f"cannot read '{self.path}': {error.strerror}") from None
+        except UnreadableFile as error:
+            raise TableError(f"'{self.path}' {error.problem}") from None
         except UnicodeDecodeError:
             raise TableError(f"'{self.path}' is not UTF-8 text") from None
         if not rows or not rows[0] or rows[0][0].strip() != "time" or len(rows[0]) < 2:
