@@ -220,7 +220,12 @@ def test_report_of_a_sweep(chain, tmp_path, capsys):
         assert html.escape(run["folder"]) in page
         value = run["metrics"]["lateral_error_max"]
         assert f'title="{value!r}"' in page
-    assert "lateral_error_max <span class=unit>[1]</span>" in page  # int.y is in [1]
+    # int.y is in [1]; the header wraps at its underscores and links to the definition
+    assert ("lateral_<wbr>error_<wbr>max <span class=unit>[1]</span> "
+            '<a class=def href="#metric-lateral_error_max"') in page
+    for name in runs[0]["metrics"]:  # every metric's column links to its definition
+        assert page.count(f'href="#metric-{name}"') >= 1
+        assert page.count(f'<tr id="metric-{name}">') == 1
     assert "<p class=\"description\">" not in page  # the chain has no description
     images = _images(page)
     assert images[:2] == ["signals.png", "sweep_metrics.png"]

@@ -164,7 +164,7 @@ class Reference(_Table):
 
 
 class MetricsTable(_Table):
-    """``[metrics]`` (documented in :mod:`agv_cosim.metrics`)."""
+    """``[metrics]`` (documented in :mod:`agv_cosim.report.metrics` and docs/metrics.md)."""
 
     lateral_error: Signal | None = None
     heading_error: Signal | None = None
