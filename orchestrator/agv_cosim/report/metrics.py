@@ -193,7 +193,7 @@ def _lateral_docs(prefix: str, what: str) -> dict[str, MetricDoc]:
                         "integral e dt (positive: left of the path on average)", _AVERAGE),
         "std": ("m", f"time-weighted standard deviation of {what} about its signed mean: "
                 "sqrt((1/T) integral (e - m)^2 dt)", _AVERAGE),
-        "settling_time": ("s", f"t_s - t_0, t_s the first time after which |e| <= "
+        "settling_time": ("s", "t_s - t_0, t_s the first time after which |e| <= "
                           "settle_band for good (interpolated between samples); 0 when "
                           "|e| never leaves the band", f"{_UNSETTLED}; or {_NONFINITE}"),
         "settled_max": ("m", f"max |e| {window}; without settle_after it is the band itself "
