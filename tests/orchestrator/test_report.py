@@ -335,3 +335,37 @@ def test_an_exported_experiment_keeps_its_metrics_and_plots(chain, tmp_path):
         assert manifest.plots.signals == ["src.y", "src.t_out", "gain.y", "gain2.y",
                                           "int.y"]  # Real outputs; not src.count
         assert manifest.metrics is None
+
+
+def test_sweep_metrics_mark_runs_without_a_value():
+    # b's run at k = 3 never settled (its settling time is empty), a's at k = 2 failed:
+    # each is an open triangle on the top edge in its line's colour, the panel says so
+    rows = [{"variant": v, "point": {"k": float(k)}, "status":
+             "failed" if (v, k) == ("a", 2) else "complete",
+             "metrics": {} if (v, k) == ("a", 2) else
+             {"lateral_error_settling_time": None if (v, k) == ("b", 3) else float(k)}}
+            for v in "ab" for k in (1, 2, 3)]
+    figure = sweep_metrics_figure(rows, "k", ["lateral_error_settling_time"], {})
+    ax = figure.axes[0]
+    marks = [line for line in ax.get_lines() if line.get_marker() == "v"]
+    assert [(list(m.get_xdata()), list(m.get_ydata())) for m in marks] == \
+        [([2.0], [1.0]), ([3.0], [1.0])]
+    lines = [line for line in ax.get_lines() if line.get_marker() == "o"]
+    assert [line.get_color() for line in lines] == [m.get_color() for m in marks]
+    assert marks[0].get_transform() == ax.get_xaxis_transform()
+    assert "did not settle" in ax.get_title(loc="right")
+
+
+def test_trajectory_without_path_scales_to_what_moved():
+    # 0.1 m of lateral deviation over 16 m of travel: with equal axes a flat line
+    t = np.linspace(0.0, 16.0, 161)
+    runs = [RunData("a", t, {"v.x": t - 8.0, "v.y": 0.1 * np.sin(t)})]
+    figure = trajectory_figure(runs, {"trajectory": {"x": "v.x", "y": "v.y"}})
+    ax = figure.axes[0]
+    assert ax.get_aspect() == "auto" and "not to scale" in ax.get_title(loc="right")
+    low, high = ax.get_ylim()
+    assert high - low < 0.3  # the deviation fills the panel's height
+    # a path that moves in both directions keeps equal axes
+    runs = [RunData("a", t, {"v.x": t - 8.0, "v.y": 3.0 * np.sin(t / 5)})]
+    figure = trajectory_figure(runs, {"trajectory": {"x": "v.x", "y": "v.y"}})
+    assert figure.axes[0].get_aspect() == 1.0
