@@ -369,3 +369,28 @@ def test_trajectory_without_path_scales_to_what_moved():
     runs = [RunData("a", t, {"v.x": t - 8.0, "v.y": 3.0 * np.sin(t / 5)})]
     figure = trajectory_figure(runs, {"trajectory": {"x": "v.x", "y": "v.y"}})
     assert figure.axes[0].get_aspect() == 1.0
+
+
+def test_a_run_that_never_settles_says_so():
+    """Terminal and page write "did not settle" for the settling metrics of a run whose
+    error never settled; another empty value is not called so."""
+    from agv_cosim.report.page import _metric_cell
+
+    never = {"lateral_error_max": 0.3, "lateral_error_settling_time": None,
+             "lateral_error_settled_rms": None, "lateral_error_overshoot": None}
+    settled = {"lateral_error_max": 0.1, "lateral_error_settling_time": 2.5,
+               "lateral_error_settled_rms": 0.01, "lateral_error_overshoot": None}
+    runs = [{"label": "never", "status": "complete", "metrics": never},
+            {"label": "settled", "status": "complete", "metrics": settled},
+            {"label": "failed", "status": "failed", "metrics": {}}]
+    lines = summary_table(runs, {"lateral_error_settling_time": "s"}, count=3,
+                          width=120).splitlines()
+    assert lines[0].split()[2:] == ["lateral_error_max", "lateral_error_settling_time",
+                                    "[s]", "lateral_error_overshoot"]
+    assert "did not settle" in lines[1] and "2.5" in lines[2]
+    assert "did not settle" not in lines[2] + lines[3]
+    assert "did not settle" in _metric_cell("lateral_error_settled_rms", never)
+    assert "did not settle" in _metric_cell("lateral_error_settling_time", never)
+    overshoot = _metric_cell("lateral_error_overshoot", settled)
+    assert "did not settle" not in overshoot and "e(t_0) = 0" in overshoot
+    assert _metric_cell("lateral_error_settling_time", {}) == "<td></td>"

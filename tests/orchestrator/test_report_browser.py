@@ -153,5 +153,6 @@ def test_montecarlo_report_in_chromium(chain, tmp_path):
                              _shots_dir(tmp_path) / "report_montecarlo_test.png")
         assert [src for src, _, _ in images] == ["signals.png", "montecarlo.png",
                                                 "montecarlo_scatter.png"]
+        _check_fits(driver)
     finally:
         driver.quit()
