@@ -73,8 +73,8 @@ MANIFEST_COPY = "manifest.toml"
 MAIN_METRICS = ("lateral_error_max", "lateral_error_rms", "lateral_error_settling_time",
                 "lateral_error_overshoot", "path_error_max", "path_error_rms",
                 "path_error_settling_time", "path_error_overshoot", "heading_error_max",
-                "steering_angle_peak", "steering_rate_peak", "control_peak",
-                "control_effort", "saturated_fraction")
+                "steering_angle_peak", "steering_rate_peak", "control_effort",
+                "control_peak", "saturated_fraction")
 #: Most key metrics in the runs table (so that it fits a 1280 px window).
 RUNS_TABLE_METRICS = 8
 #: What the page and the terminal write for a settling metric of a run that never settled.
