@@ -7,8 +7,11 @@ the folder when present, else the file run.json names when its SHA-256 is still 
 run) and writes into it:
 
 - ``index.html``: the manifest's description, the runs with their status, sweep values
-  and metrics (units in the headers; a table sorts by a click on its header), the
-  Monte Carlo statistics, every figure, the paths, hashes and versions from run.json, and
+  and key metrics (:func:`key_metrics`; units in the headers, which wrap and link to
+  the metric's definition; a table sorts by a click on its header; "did not settle"
+  where a run's error never settled), every metric in a folded table, the
+  definitions of the metrics shown (:data:`agv_cosim.report.metrics.METRICS`, as
+  docs/metrics.md), the Monte Carlo statistics, every figure, the paths, hashes and versions from run.json, and
   links to the raw files. One file with its style and script inline: it opens from disk
   with no network. It shows no timing (it links ``timings.csv``): the same folder
   contents give the same page, byte for byte.
@@ -84,7 +87,8 @@ CAPTIONS = {
     "signals.png": "The recorded signals of every run ([plots] signals).",
     "trajectory.png": "The runs' paths over the reference path, and their offset from "
                       "it along the path ([plots] trajectory).",
-    plots.SWEEP_FILE: "The main metrics against the swept value, one line per variant.",
+    plots.SWEEP_FILE: "The main metrics against the swept value, one line per variant "
+                      "(an open triangle on a panel's top edge: a run without a value).",
     "montecarlo.png": "Monte Carlo: box plots of the key metrics per group, and the "
                       "p5-p95 band of a signal over time.",
     plots.MONTECARLO_SCATTER_FILE: "Monte Carlo: each main metric per group (box "
