@@ -13,8 +13,8 @@ run) and writes into it:
   definitions of the metrics shown (:data:`agv_cosim.report.metrics.METRICS`, as
   docs/metrics.md), the Monte Carlo statistics, every figure, the paths, hashes and
   versions from run.json, and links to the raw files. One file with its style and
-  script inline: it opens from disk with no network. It shows no timing (it links ``timings.csv``): the same folder
-  contents give the same page, byte for byte.
+  script inline: it opens from disk with no network. It shows no timing (it links
+  ``timings.csv``): the same folder contents give the same page, byte for byte.
 - ``sweep_metrics.png`` (a sweep with a numeric swept value): the main metrics against
   it, one line per variant (:func:`agv_cosim.report.plots.sweep_metrics_figure`);
 - ``montecarlo_scatter.png`` (a Monte Carlo result): box plots of the main metrics per
