@@ -96,3 +96,9 @@ def test_every_agv_cosim_name_the_docs_and_manifests_give_exists():
              for name in re.findall(r"\bagv_cosim(?:\.[A-Za-z_]\w*)+", path.read_text())}
     assert ("example.toml", "agv_cosim.report.metrics.compute_metrics") in named
     assert [(f, n) for f, n in sorted(named) if not _resolves(n)] == []
+
+
+def test_the_key_metrics_are_the_pages():
+    text = DOC.read_text(encoding="utf-8")
+    section = text[text.index("## Key metrics"):text.index("(`MAIN_METRICS`")]
+    assert re.findall(r"`([a-z_]+)`", section) == list(MAIN_METRICS)

@@ -70,7 +70,7 @@ RECORD = ".agv-cosim-report.json"
 #: The manifest's copy in a result folder, when there is one.
 MANIFEST_COPY = "manifest.toml"
 #: The key metrics (docs/metrics.md, "Key metrics"): the report's runs table shows these
-#: (the others in its "All metrics" table); first in the figures and the terminal table,
+#: (every metric: its folded table); first in the figures and the terminal table,
 #: in this order within a signal's metrics. Not ``*_settled_max``: without
 #: ``settle_after`` it is the settling band whenever the error settles.
 MAIN_METRICS = ("lateral_error_max", "lateral_error_rms", "lateral_error_settling_time",
