@@ -57,6 +57,12 @@ _API = {
 __all__ = ["__version__", *sorted(_API)]
 
 
+def __dir__() -> list[str]:
+    """The module's names and the public API's (not imported yet): what ``dir()`` and a
+    notebook's tab completion show."""
+    return sorted(set(globals()) | set(_API))
+
+
 def __getattr__(name: str) -> Any:
     module = _API.get(name)
     if module is None:

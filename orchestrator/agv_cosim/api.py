@@ -176,7 +176,10 @@ class Results:
     def summary(self) -> "pandas.DataFrame":
         """summary.csv as a DataFrame (its floats read back exactly): one row per run
         (``run``, ``variant``, ``status``, the sweep values, the metrics), plus
-        ``message``: why a run is not complete."""
+        ``message``: why a run is not complete (from its run.json; not a column of the
+        file). ``attrs["units"]`` maps each column to its unit (None: none) and
+        ``attrs["descriptions"]`` to what it is (a metric's definition: docs/metrics.md),
+        as the report page shows them."""
         import pandas
 
         messages = {r.label: r.message for r in self.runs}
@@ -194,6 +197,8 @@ class Results:
                 except (TypeError, ValueError):  # text (a string parameter swept)
                     pass
         frame["message"] = [messages.get(label) for label in frame["run"]]
+        frame.attrs["units"], frame.attrs["descriptions"] = _summary_attrs(
+            self.folder, [str(name) for name in frame.columns])
         return frame
 
     def timeseries(self, label: str) -> "pandas.DataFrame":
@@ -316,6 +321,41 @@ def _units_from_models(info: dict[str, Any]) -> dict[str, str | None]:
         for vname, variable in model.variables.items():
             units[f"{cname}.{vname}"] = variable.unit
     return units
+
+
+#: What summary's columns other than the sweep values and the metrics are.
+_COLUMNS = {"run": "the run's label: its folder's name",
+            "variant": "the variant the run is of (empty: the base experiment)",
+            "status": "complete, partial, failed, timed out, interrupted or not run",
+            "message": "why the run is not complete (its run.json's error; empty when it "
+                       "is); not a column of summary.csv"}
+
+
+def _summary_attrs(folder: Path, columns: list[str]) -> tuple[dict[str, str | None],
+                                                              dict[str, str]]:
+    """Units and descriptions of summary's ``columns``: the report page's units (the FMUs'
+    for swept parameters, :mod:`agv_cosim.report.metrics` and the recorded signals' for
+    metrics) and the metrics' definitions."""
+    from .report.metrics import METRICS
+    from .report.page import collect_units, read_manifest, read_runs
+    from .report.plots import SAMPLE_KEY
+
+    runs = read_runs(folder)
+    manifest, _ = read_manifest(folder, runs) if runs else ({}, "")
+    known = collect_units(runs, manifest) if runs else {}
+    units = {name: known.get(name) for name in columns}
+    descriptions = {}
+    for name in columns:
+        if name in _COLUMNS:
+            descriptions[name] = _COLUMNS[name]
+        elif name in METRICS:
+            descriptions[name] = f"{METRICS[name].definition} (empty when: " \
+                                 f"{METRICS[name].empty})"
+        elif name == SAMPLE_KEY:
+            descriptions[name] = "the Monte Carlo sample's index"
+        else:
+            descriptions[name] = f"the value of {name} in the run (swept or sampled)"
+    return units, descriptions
 
 
 def open_results(folder: str | Path) -> Results:

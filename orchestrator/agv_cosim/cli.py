@@ -75,6 +75,9 @@ def _cmd_examples(args):
 
 
 def _warn(warnings: list[str], quiet: bool = False) -> None:
+    """The manifest's warnings on stderr (none with ``quiet``: ``run --quiet``)."""
+    if quiet:
+        return
     for warning in warnings:
         _say(f"agv-cosim: warning: {warning}")
 
@@ -136,7 +139,7 @@ def _cmd_run(args):
         return _error("--jobs: must be >= 1")
     manifest, jobs, warnings = prepare(args.manifest, args.variant, args.set,
                                        timeout=args.timeout)
-    _warn(warnings)
+    _warn(warnings, args.quiet)
     check_options(jobs, args.overwrite, args.dask, args.resume, args.real_time)
     from .errors import ClusterError
 
@@ -321,7 +324,10 @@ def make_parser() -> argparse.ArgumentParser:
                                 "docs/manifest.md.")
     run.add_argument("--out", metavar="DIR",
                      help="output folder (default: results/<manifest name>)")
-    run.add_argument("--quiet", action="store_true", help="no progress bars or summary")
+    run.add_argument("--quiet", action="store_true",
+                     help="print only errors, the runs that failed and a paced run's "
+                          "real-time line: no warnings (e.g. unconnected inputs), "
+                          "progress bars, metrics table or summary line")
     run.add_argument("--overwrite", action="store_true",
                      help="replace DIR even if it is not a result folder of agv-cosim "
                           "(without it such a folder is refused)")

@@ -105,6 +105,33 @@ def test_results(chain, tmp_path):
         results.timeseries("nope")
 
 
+def test_summary_units_descriptions_and_message(chain, tmp_path):
+    """summary.attrs: every column's unit and description (a metric's from
+    docs/metrics.md); ``message`` is the one column the API adds to summary.csv's, as
+    docs/api.md says."""
+    from agv_cosim.report.metrics import METRICS
+
+    manifest = chain(extra='[sweep]\n"gain.k" = [1.0, 2.0]\n[metrics]\nlateral_error = '
+                           '"int.y"\ncontrol = "gain.y"\n')
+    results = agv_cosim.run(manifest, out=tmp_path / "out", quiet=True)
+    summary = results.summary
+    header = (tmp_path / "out" / "summary.csv").read_text().splitlines()[0].split(",")
+    assert list(summary.columns) == header + ["message"] and "message" not in header
+    doc = (EXPERIMENTS.parent / "docs" / "api.md").read_text()
+    row = next(line for line in doc.splitlines() if line.startswith("| `summary` |"))
+    assert "Added from each run's `run.json` (not in the file): `message`" in row
+    units, descriptions = summary.attrs["units"], summary.attrs["descriptions"]
+    assert set(units) == set(descriptions) == set(summary.columns)
+    assert units["lateral_error_max"] == "1"  # int.y's unit
+    assert units["lateral_error_settling_time"] == "s"
+    assert units["control_effort"] == "(1)^2 s" and units["run"] is None
+    for name in summary.columns:
+        if name in METRICS:
+            assert descriptions[name].startswith(METRICS[name].definition), name
+    assert "not complete" in descriptions["message"]
+    assert "gain.k" in descriptions["gain.k"]
+
+
 def test_open_results(chain, tmp_path):
     """A folder written by the command reads back the same; a run.json without units
     (an older agv-cosim) takes them from its FMUs."""

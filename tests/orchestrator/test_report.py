@@ -220,7 +220,12 @@ def test_report_of_a_sweep(chain, tmp_path, capsys):
         assert html.escape(run["folder"]) in page
         value = run["metrics"]["lateral_error_max"]
         assert f'title="{value!r}"' in page
-    assert "lateral_error_max <span class=unit>[1]</span>" in page  # int.y is in [1]
+    # int.y is in [1]; the header wraps at its underscores and links to the definition
+    assert ("lateral_<wbr>error_<wbr>max <span class=unit>[1]</span> "
+            '<a class=def href="#metric-lateral_error_max"') in page
+    for name in runs[0]["metrics"]:  # every metric's column links to its definition
+        assert page.count(f'href="#metric-{name}"') >= 1
+        assert page.count(f'<tr id="metric-{name}">') == 1
     assert "<p class=\"description\">" not in page  # the chain has no description
     images = _images(page)
     assert images[:2] == ["signals.png", "sweep_metrics.png"]
@@ -330,3 +335,62 @@ def test_an_exported_experiment_keeps_its_metrics_and_plots(chain, tmp_path):
         assert manifest.plots.signals == ["src.y", "src.t_out", "gain.y", "gain2.y",
                                           "int.y"]  # Real outputs; not src.count
         assert manifest.metrics is None
+
+
+def test_sweep_metrics_mark_runs_without_a_value():
+    # b's run at k = 3 never settled (its settling time is empty), a's at k = 2 failed:
+    # each is an open triangle on the top edge in its line's colour, the panel says so
+    rows = [{"variant": v, "point": {"k": float(k)}, "status":
+             "failed" if (v, k) == ("a", 2) else "complete",
+             "metrics": {} if (v, k) == ("a", 2) else
+             {"lateral_error_settling_time": None if (v, k) == ("b", 3) else float(k)}}
+            for v in "ab" for k in (1, 2, 3)]
+    figure = sweep_metrics_figure(rows, "k", ["lateral_error_settling_time"], {})
+    ax = figure.axes[0]
+    marks = [line for line in ax.get_lines() if line.get_marker() == "v"]
+    assert [(list(m.get_xdata()), list(m.get_ydata())) for m in marks] == \
+        [([2.0], [1.0]), ([3.0], [1.0])]
+    lines = [line for line in ax.get_lines() if line.get_marker() == "o"]
+    assert [line.get_color() for line in lines] == [m.get_color() for m in marks]
+    assert marks[0].get_transform() == ax.get_xaxis_transform()
+    assert "did not settle" in ax.get_title(loc="right")
+
+
+def test_trajectory_without_path_scales_to_what_moved():
+    # 0.1 m of lateral deviation over 16 m of travel: with equal axes a flat line
+    t = np.linspace(0.0, 16.0, 161)
+    runs = [RunData("a", t, {"v.x": t - 8.0, "v.y": 0.1 * np.sin(t)})]
+    figure = trajectory_figure(runs, {"trajectory": {"x": "v.x", "y": "v.y"}})
+    ax = figure.axes[0]
+    assert ax.get_aspect() == "auto" and "not to scale" in ax.get_title(loc="right")
+    low, high = ax.get_ylim()
+    assert high - low < 0.3  # the deviation fills the panel's height
+    # a path that moves in both directions keeps equal axes
+    runs = [RunData("a", t, {"v.x": t - 8.0, "v.y": 3.0 * np.sin(t / 5)})]
+    figure = trajectory_figure(runs, {"trajectory": {"x": "v.x", "y": "v.y"}})
+    assert figure.axes[0].get_aspect() == 1.0
+
+
+def test_a_run_that_never_settles_says_so():
+    """Terminal and page write "did not settle" for the settling metrics of a run whose
+    error never settled; another empty value is not called so."""
+    from agv_cosim.report.page import _metric_cell
+
+    never = {"lateral_error_max": 0.3, "lateral_error_settling_time": None,
+             "lateral_error_settled_rms": None, "lateral_error_overshoot": None}
+    settled = {"lateral_error_max": 0.1, "lateral_error_settling_time": 2.5,
+               "lateral_error_settled_rms": 0.01, "lateral_error_overshoot": None}
+    runs = [{"label": "never", "status": "complete", "metrics": never},
+            {"label": "settled", "status": "complete", "metrics": settled},
+            {"label": "failed", "status": "failed", "metrics": {}}]
+    lines = summary_table(runs, {"lateral_error_settling_time": "s"}, count=3,
+                          width=120).splitlines()
+    assert lines[0].split()[2:] == ["lateral_error_max", "lateral_error_settling_time",
+                                    "[s]", "lateral_error_overshoot"]
+    assert "did not settle" in lines[1] and "2.5" in lines[2]
+    assert "did not settle" not in lines[2] + lines[3]
+    assert "did not settle" in _metric_cell("lateral_error_settled_rms", never)
+    assert "did not settle" in _metric_cell("lateral_error_settling_time", never)
+    overshoot = _metric_cell("lateral_error_overshoot", settled)
+    assert "did not settle" not in overshoot and "e(t_0) = 0" in overshoot
+    assert _metric_cell("lateral_error_settling_time", {}) == "<td></td>"

@@ -110,8 +110,37 @@ def test_sweep_report_in_chromium(chain, tmp_path):
         header.click()
         assert driver.execute_script(read) == sorted(ascending, reverse=True)
         assert [e for e in driver.get_log("browser") if e["level"] == "SEVERE"] == []
+        _check_fits(driver)
     finally:
         driver.quit()
+
+
+def _check_fits(driver):
+    """At 1280 px: the page does not scroll sideways, the runs table fits its box (no
+    hidden column), its key metrics are there, every metric header links to a definition
+    on the page, and a run that never settled says so."""
+    assert driver.execute_script("return window.innerWidth") <= 1280
+    page = driver.execute_script("return [document.documentElement.scrollWidth,"
+                                 " document.documentElement.clientWidth];")
+    assert page[0] <= page[1], page
+    box = driver.execute_script(
+        "var t = document.querySelector('table.runs'), b = t.parentElement;"
+        "return [b.scrollWidth, b.clientWidth, t.getBoundingClientRect().right,"
+        " document.documentElement.clientWidth];")
+    assert box[0] <= box[1] and box[2] <= box[3], box
+    heads = driver.execute_script(
+        "return Array.from(document.querySelectorAll('table.runs thead th.metric'))"
+        ".map(function (h) { var a = h.querySelector('a.def');"
+        " return [h.textContent, a ? a.getAttribute('href') : null,"
+        " a ? document.getElementById(a.getAttribute('href').slice(1)) !== null : false]; });")
+    assert heads and all(href and found for _, href, found in heads), heads
+    names = [text.split(" ")[0] for text, _, _ in heads]
+    assert names[:3] == ["lateral_error_max", "lateral_error_rms",
+                         "lateral_error_settling_time"], names
+    cells = driver.execute_script(
+        "return Array.from(document.querySelectorAll('table.runs td.empty'))"
+        ".map(function (c) { return c.textContent; });")
+    assert "did not settle" in cells
 
 
 def test_montecarlo_report_in_chromium(chain, tmp_path):
@@ -124,5 +153,6 @@ def test_montecarlo_report_in_chromium(chain, tmp_path):
                              _shots_dir(tmp_path) / "report_montecarlo_test.png")
         assert [src for src, _, _ in images] == ["signals.png", "montecarlo.png",
                                                 "montecarlo_scatter.png"]
+        _check_fits(driver)
     finally:
         driver.quit()

@@ -102,3 +102,18 @@ def test_the_console_script_runs_openblas_on_one_thread_unless_told(preset):
                           timeout=120, cwd=ROOT, env=env)
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == [preset or "1", "False"]
+
+
+def test_dir_shows_the_api_without_importing_it():
+    # a notebook's tab completion lists dir(agv_cosim): run, open_results, ... are there
+    # before their first use, and listing them imports none of their modules
+    modules = _modules_after(
+        "import agv_cosim\n"
+        "names = dir(agv_cosim)\n"
+        "missing = {'run', 'open_results', 'Results', 'load_manifest', 'AgvCosimError',\n"
+        "           '__version__'} - set(names)\n"
+        "assert not missing, missing\n"
+        "assert set(agv_cosim.__all__) <= set(names)\n"
+        "assert names == sorted(names)\n")
+    assert not modules & {*HEAVY, "numpy", "fmpy", "pydantic", "agv_cosim.api",
+                          "agv_cosim.manifest", "agv_cosim.pipeline"}

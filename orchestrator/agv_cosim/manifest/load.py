@@ -100,6 +100,8 @@ class Manifest:
     montecarlo: MonteCarlo | None = None
     #: wall-clock limit of each run [s] (``[simulation] timeout``), None: no limit
     timeout: float | None = None
+    #: inputs unconnected on purpose (``held``): ``"component.input"``, no warning
+    held: list[str] = field(default_factory=list)
     #: dotted key -> its line in the manifest file (:func:`key_lines`); empty for an SSP
     lines: dict[str, int] = field(default_factory=dict)
     #: the folder relative FMU, table and parameter file names are relative to (the
@@ -531,5 +533,5 @@ def manifest_from_data(data: dict[str, Any], path: str | Path, sha256: str,
                     metrics=table.metrics if data.get("metrics") else None,
                     plots=table.plots if data.get("plots") else None,
                     events=events, montecarlo=sampling, timeout=sim.timeout,
-                    base_dir=base_dir)
+                    base_dir=base_dir, held=list(table.held))
 

@@ -164,7 +164,7 @@ class Reference(_Table):
 
 
 class MetricsTable(_Table):
-    """``[metrics]`` (documented in :mod:`agv_cosim.metrics`)."""
+    """``[metrics]`` (documented in :mod:`agv_cosim.report.metrics` and docs/metrics.md)."""
 
     lateral_error: Signal | None = None
     heading_error: Signal | None = None
@@ -285,6 +285,9 @@ class ManifestTable(_Table):
     simulation: Simulation
     components: Annotated[dict[str, ComponentTable], Field(min_length=1)]
     connections: list[ConnectionTable] = []
+    #: inputs left unconnected on purpose ("component.input"): held at their start
+    #: values without the unconnected-inputs warning (checked in :mod:`agv_cosim.system`)
+    held: list[Dotted] = []
     variants: dict[str, VariantTable] = {}
     sweep: dict[str, Annotated[list[Any], Field(min_length=1)]] = {}
     record: RecordTable = RecordTable()

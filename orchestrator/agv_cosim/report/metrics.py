@@ -146,6 +146,7 @@ The result never holds NaN or inf: a metric that is undefined is reported as ``N
 import math
 import tempfile
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -155,6 +156,95 @@ from .. import timeseries
 from ..manifest import schema
 
 _SIGNAL_KEYS = ("lateral_error", "heading_error", "steering_angle", "steering_rate", "control")
+
+
+# --------------------------------------------------------------------------- reference
+
+@dataclass(frozen=True)
+class MetricDoc:
+    """What a metric is: the reference docs/metrics.md shows (a test keeps them equal)."""
+
+    #: the unit documented (the report uses the recorded signal's unit where it declares
+    #: one: ``unit(u)`` is the control signal's)
+    unit: str
+    #: the definition, with its formula
+    definition: str
+    #: when the value is empty (``None``: JSON null, an empty cell of summary.csv)
+    empty: str
+
+
+_NONFINITE = "the signal has a non-finite sample"
+_AVERAGE = f"T = 0 (one sample), or {_NONFINITE}"
+_UNSETTLED = ("e never settles (its last sample is outside the band; the report writes "
+              "\"did not settle\")")
+
+
+def _lateral_docs(prefix: str, what: str) -> dict[str, MetricDoc]:
+    window = ("over the settled window [t_0 + w, t_N], w = settle_after if given, else the "
+              "settling time; its first value interpolated")
+    settled_empty = (f"the window is empty: {_UNSETTLED} without settle_after, or "
+                     f"settle_after >= T; or {_NONFINITE}")
+    docs = {
+        "max": ("m", f"peak |e| of {what}: max |e|", _NONFINITE),
+        "mean": ("m", f"time-weighted mean of |e| of {what}: (1/T) integral |e| dt (exact "
+                 "for the piecewise-linear e)", _AVERAGE),
+        "rms": ("m", f"root mean square of {what}: sqrt((1/T) integral e^2 dt)", _AVERAGE),
+        "signed_mean": ("m", f"time-weighted mean of {what} with its sign: m = (1/T) "
+                        "integral e dt (positive: left of the path on average)", _AVERAGE),
+        "std": ("m", f"time-weighted standard deviation of {what} about its signed mean: "
+                "sqrt((1/T) integral (e - m)^2 dt)", _AVERAGE),
+        "settling_time": ("s", "t_s - t_0, t_s the first time after which |e| <= "
+                          "settle_band for good (interpolated between samples); 0 when "
+                          "|e| never leaves the band", f"{_UNSETTLED}; or {_NONFINITE}"),
+        "settled_max": ("m", f"max |e| {window}; without settle_after it is the band itself "
+                        "whenever e settles (the window starts on the band's edge)",
+                        settled_empty),
+        "settled_mean": ("m", f"time-weighted mean of |e| {window}", settled_empty),
+        "settled_rms": ("m", f"root mean square of e {window}", settled_empty),
+        "settled_signed_mean": ("m", f"time-weighted mean of e with its sign {window}: the "
+                                "steady offset", settled_empty),
+        "settled_std": ("m", f"standard deviation of e about its mean {window}",
+                        settled_empty),
+        "overshoot": ("m", "largest excursion past zero opposite to the initial error: "
+                      "max(0, max(-sign(e(t_0)) e))",
+                      f"e(t_0) = 0 (no initial sign); or {_NONFINITE}"),
+        "overshoot_ratio": ("1", "overshoot / |e(t_0)|; exp(-zeta pi / sqrt(1 - zeta^2)) "
+                            "for a second-order response of damping ratio zeta",
+                            f"e(t_0) = 0 (no initial sign); or {_NONFINITE}"),
+    }
+    return {f"{prefix}_{name}": MetricDoc(*text) for name, text in docs.items()}
+
+
+#: Every metric :func:`compute_metrics` can produce, in the order of docs/metrics.md: name
+#: -> :class:`MetricDoc`. e is the ``[metrics]`` signal, T = t_N - t_0, integrals over the
+#: recorded grid with the signal piecewise linear (trapezoidal rule).
+METRICS: dict[str, MetricDoc] = {
+    **_lateral_docs("lateral_error", "the lateral error e (the [metrics] lateral_error "
+                    "signal)"),
+    **_lateral_docs("path_error", "the path error e: the recorded point's signed offset "
+                    "from the [metrics] reference path"),
+    "heading_error_rms": MetricDoc("rad", "root mean square of the heading error: "
+                                   "sqrt((1/T) integral psi_e^2 dt)", _AVERAGE),
+    "heading_error_max": MetricDoc("rad", "peak |heading error|", _NONFINITE),
+    "steering_angle_peak": MetricDoc("rad", "peak |alpha| of the steering angle",
+                                     _NONFINITE),
+    "steering_angle_rms": MetricDoc("rad", "root mean square of the steering angle",
+                                    _AVERAGE),
+    "steering_rate_peak": MetricDoc("rad/s", "peak |steering rate| (the recorded rate "
+                                    "signal, never differentiated)", _NONFINITE),
+    "steering_rate_rms": MetricDoc("rad/s", "root mean square of the steering rate",
+                                   _AVERAGE),
+    "control_effort": MetricDoc("unit(u)^2 s", "integral u^2 dt of the control signal u "
+                                "(e.g. V^2 s for a voltage)", f"one sample, or {_NONFINITE}"),
+    "control_peak": MetricDoc("unit(u)", "peak |u| of the control signal", _NONFINITE),
+    "control_rms": MetricDoc("unit(u)", "root mean square of the control signal: "
+                             "sqrt((1/T) integral u^2 dt)", _AVERAGE),
+    "saturated_fraction": MetricDoc("1", "share of the time with |signal| >= limit - "
+                                    "tolerance (saturated_time / T)", _AVERAGE),
+    "saturated_time": MetricDoc("s", "time with |signal| >= limit - tolerance (exact for "
+                                "the piecewise-linear signal)", _NONFINITE),
+    "duration": MetricDoc("s", "T = t_N - t_0, the recorded span", "never empty"),
+}
 
 
 # --------------------------------------------------------------------------- validation

@@ -7,11 +7,14 @@ the folder when present, else the file run.json names when its SHA-256 is still 
 run) and writes into it:
 
 - ``index.html``: the manifest's description, the runs with their status, sweep values
-  and metrics (units in the headers; a table sorts by a click on its header), the
-  Monte Carlo statistics, every figure, the paths, hashes and versions from run.json, and
-  links to the raw files. One file with its style and script inline: it opens from disk
-  with no network. It shows no timing (it links ``timings.csv``): the same folder
-  contents give the same page, byte for byte.
+  and key metrics (:func:`key_metrics`; units in the headers, which wrap and link to
+  the metric's definition; a table sorts by a click on its header; "did not settle"
+  where a run's error never settled), every metric in a folded table, the
+  definitions of the metrics shown (:data:`agv_cosim.report.metrics.METRICS`, as
+  docs/metrics.md), the Monte Carlo statistics, every figure, the paths, hashes and
+  versions from run.json, and links to the raw files. One file with its style and
+  script inline: it opens from disk with no network. It shows no timing (it links
+  ``timings.csv``): the same folder contents give the same page, byte for byte.
 - ``sweep_metrics.png`` (a sweep with a numeric swept value): the main metrics against
   it, one line per variant (:func:`agv_cosim.report.plots.sweep_metrics_figure`);
 - ``montecarlo_scatter.png`` (a Monte Carlo result): box plots of the main metrics per
@@ -64,6 +67,7 @@ from ..files import (
 )
 from ..manifest.load import MAX_MANIFEST_BYTES
 from . import plots
+from .metrics import METRICS
 from .records import TIMINGS
 
 #: The page, at the top of the result folder.
@@ -72,18 +76,26 @@ REPORT_FILE = "index.html"
 RECORD = ".agv-cosim-report.json"
 #: The manifest's copy in a result folder, when there is one.
 MANIFEST_COPY = "manifest.toml"
-#: Metrics shown first (and in the figures and the terminal table), in this order.
-MAIN_METRICS = ("lateral_error_max", "lateral_error_rms", "lateral_error_settled_max",
-                "lateral_error_settled_signed_mean", "lateral_error_settling_time",
+#: The key metrics (docs/metrics.md, "Key metrics"): the report's runs table shows these
+#: (every metric: its folded table); first in the figures and the terminal table,
+#: in this order within a signal's metrics. Not ``*_settled_max``: without
+#: ``settle_after`` it is the settling band whenever the error settles.
+MAIN_METRICS = ("lateral_error_max", "lateral_error_rms", "lateral_error_settling_time",
                 "lateral_error_overshoot", "path_error_max", "path_error_rms",
-                "path_error_settled_max", "heading_error_max", "steering_angle_peak",
-                "steering_rate_peak", "control_peak", "control_effort")
+                "path_error_settling_time", "path_error_overshoot", "heading_error_max",
+                "steering_angle_peak", "steering_rate_peak", "control_effort",
+                "control_peak", "saturated_fraction")
+#: Most key metrics in the runs table (so that it fits a 1280 px window).
+RUNS_TABLE_METRICS = 8
+#: What the page and the terminal write for a settling metric of a run that never settled.
+NOT_SETTLED = "did not settle"
 #: Known figures of a result folder, with their captions (others are shown by name).
 CAPTIONS = {
     "signals.png": "The recorded signals of every run ([plots] signals).",
     "trajectory.png": "The runs' paths over the reference path, and their offset from "
                       "it along the path ([plots] trajectory).",
-    plots.SWEEP_FILE: "The main metrics against the swept value, one line per variant.",
+    plots.SWEEP_FILE: "The main metrics against the swept value, one line per variant "
+                      "(an open triangle on a panel's top edge: a run without a value).",
     "montecarlo.png": "Monte Carlo: box plots of the key metrics per group, and the "
                       "p5-p95 band of a signal over time.",
     plots.MONTECARLO_SCATTER_FILE: "Monte Carlo: each main metric per group (box "
@@ -236,17 +248,20 @@ def main_metrics(names: list[str], count: int = 6) -> list[str]:
 
 
 def _metric_names(runs, varying=False):
-    """Names of the runs' numeric metrics in first-seen order; ``varying``: only those
-    whose values differ between the runs (beyond 1e-9 of their size)."""
+    """Names of the runs' numeric metrics (empty ones too: a settling time of runs that
+    never settled) in first-seen order; ``varying``: only those whose values differ
+    between the runs (beyond 1e-9 of their size)."""
     names = []
     for run in runs:
         for name, value in run["metrics"].items():
-            if name not in names and plots.is_number(value):
+            if name not in names and (value is None or plots.is_number(value)):
                 names.append(name)
     if varying:
         def spread(name):
             values = [v for v in (r["metrics"].get(name) for r in runs) if plots.is_number(v)]
-            return max(values) - min(values) > 1e-9 * max(map(abs, values))
+            empty = any(name in r["metrics"] and r["metrics"][name] is None for r in runs)
+            return bool(values) and (empty or max(values) - min(values) >
+                                     1e-9 * max(map(abs, values)))
         names = [name for name in names if spread(name)]
     return names
 
@@ -346,13 +361,75 @@ def _cell(value):
     return f"<td{attrs}{title}{classes}>{_e(_fmt(value))}</td>"
 
 
+def not_settled(name: str, metrics: dict) -> bool:
+    """Whether the empty metric ``name`` is empty because the run's error never settled
+    (``*_settling_time`` empty while its ``*_max`` has a value): for ``*_settling_time``
+    and the ``*_settled_*`` metrics."""
+    for prefix in ("lateral_error_", "path_error_"):
+        tail = name.removeprefix(prefix)
+        if tail != name and (tail == "settling_time" or tail.startswith("settled_")):
+            return metrics.get(name) is None and prefix + "max" in metrics and \
+                metrics.get(prefix + "settling_time") is None and \
+                plots.is_number(metrics.get(prefix + "max"))
+    return False
+
+
+def _metric_cell(name, metrics):
+    """A metric's cell: its value, "did not settle", or an empty value marked with the
+    reason (docs/metrics.md); blank when the run has no such metric."""
+    if name in metrics and metrics[name] is None:
+        if not_settled(name, metrics):
+            return f'<td class=empty title="{_e(METRICS[name].empty)}">{NOT_SETTLED}</td>'
+        reason = METRICS[name].empty if name in METRICS else "undefined"
+        return f'<td class=empty title="{_e(reason)}">\u2014</td>'
+    return _cell(metrics.get(name))
+
+
+def _metric_th(name, units):
+    """A metric's header: its name (wrapping at the underscores), unit, and a link to its
+    definition in the page's metrics section (the definition also on hover)."""
+    unit = units.get(name)
+    doc = METRICS.get(name)
+    title = f' title="{_e(doc.definition)}"' if doc else ""
+    text = "_<wbr>".join(_e(part) for part in name.split("_"))
+    text += f" <span class=unit>[{_e(unit)}]</span>" if unit else ""
+    if doc:
+        text += f' <a class=def href="#metric-{_e(name)}" title="definition">?</a>'
+    return f"<th class=metric{title}>{text}</th>"
+
+
+def _metric_definitions(names, units):
+    """The page's metrics section: each metric shown, its unit, definition and what an
+    empty value means (docs/metrics.md, where they come from)."""
+    rows = "".join(
+        f'<tr id="metric-{_e(n)}"><td><code>{_e(n)}</code></td>'
+        f"<td>{_e(units.get(n) or METRICS[n].unit)}</td><td>{_e(METRICS[n].definition)}</td>"
+        f"<td>{_e(METRICS[n].empty)}</td></tr>" for n in names if n in METRICS)
+    return ("<p class=hint>From <code>docs/metrics.md</code> of agv-cosim: e is the "
+            "lateral (or path) error, t_0 ... t_N the recorded times, T = t_N - t_0.</p>"
+            "<table class=defs><thead><tr><th>metric</th><th>unit</th><th>definition</th>"
+            f"<th>empty when</th></tr></thead><tbody>{rows}</tbody></table>")
+
+
+def _all_metrics_table(runs, names, units):
+    """Every metric of every run (runs x metrics), folded: it may be wider than the
+    window (it scrolls within its box)."""
+    head = "<th>run</th>" + "".join(_metric_th(n, units) for n in names)
+    body = "".join("<tr>" + f"<td>{_e(run['folder'])}</td>" +
+                   "".join(_metric_cell(n, run["metrics"]) for n in names) + "</tr>"
+                   for run in runs)
+    return (f"<details><summary>Every metric of every run ({len(names)})</summary>"
+            '<div class=scroll><table class="sortable all"><thead><tr>'
+            f"{head}</tr></thead><tbody>{body}</tbody></table></div></details>")
+
+
 def _th(name, units):
     unit = units.get(name)
     text = _e(name) + (f" <span class=unit>[{_e(unit)}]</span>" if unit else "")
     return f"<th>{text}</th>"
 
 
-def _runs_table(runs, folder, units, sampled):
+def _runs_table(runs, folder, units, sampled, manifest=None):
     points = [run["sweep_point"] for run in runs]
     swept = plots.sweep_keys(points, sampled)
     if not swept:  # a single sweep value: still shown when there is one
@@ -360,9 +437,9 @@ def _runs_table(runs, folder, units, sampled):
                  if k != plots.SAMPLE_KEY and k not in sampled]
     mc_keys = ([plots.SAMPLE_KEY] if any(plots.SAMPLE_KEY in p for p in points) else []) + \
         [k for k in sampled if any(k in p for p in points)]
-    names = main_metrics(_metric_names(runs), 10 ** 6)
+    names = key_metrics(runs, manifest)
     head = ["<th>run</th>", "<th>variant</th>", "<th>status</th>"]
-    head += [_th(k, units) for k in swept + mc_keys + names]
+    head += [_th(k, units) for k in swept + mc_keys] + [_metric_th(k, units) for k in names]
     head.append("<th>files</th>")
     body = []
     for run in runs:
@@ -373,13 +450,21 @@ def _runs_table(runs, folder, units, sampled):
                  f"<td>{_e(run.get('variant') or '')}</td>",
                  f'<td class="status {_e(status.replace(" ", "-"))}"{error}>{_e(status)}</td>']
         cells += [_cell(run["sweep_point"].get(k)) for k in swept + mc_keys]
-        cells += [_cell(run["metrics"].get(k)) for k in names]
+        cells += [_metric_cell(k, run["metrics"]) for k in names]
         links = [f'<a href="{_href(label, name)}">{_e(name.split(".")[0])}</a>'
                  for name in _RUN_FILES if (Path(folder) / label / name).is_file()]
         cells.append(f"<td class=files>{' '.join(links)}</td>")
         body.append("<tr>" + "".join(cells) + "</tr>")
     return (f'<div class=scroll><table class="sortable runs"><thead><tr>{"".join(head)}'
             f'</tr></thead><tbody>{"".join(body)}</tbody></table></div>')
+
+
+def key_metrics(runs: list[dict], manifest: dict | None = None) -> list[str]:
+    """The runs table's metrics: those of :data:`MAIN_METRICS` the runs have, in the
+    terminal's order (:func:`_shown_metrics`), at most :data:`RUNS_TABLE_METRICS`; the
+    first of every metric when none is a key one."""
+    shown = _shown_metrics(runs, manifest)
+    return ([n for n in shown if n in MAIN_METRICS] or shown)[:RUNS_TABLE_METRICS]
 
 
 def _montecarlo_table(data, units, names):
@@ -497,16 +582,23 @@ def render(folder: str | Path, runs: list[dict], manifest: dict, manifest_source
     nav = "".join(f'<a href="#fig-{_e(n)}">{_e(n)}</a>' for n in ordered)
     body.append('<nav><a href="#runs">runs</a>'
                 + ('<a href="#montecarlo">Monte Carlo</a>' if sampled else "")
-                + f'{nav}<a href="#provenance">provenance</a><a href="#files">files</a></nav>')
+                + f'{nav}<a href="#metrics">metrics</a><a href="#provenance">provenance</a>'
+                '<a href="#files">files</a></nav>')
     body.append("<h2 id=runs>Runs</h2><p class=hint>Click a column's header to sort by it; "
-                "hover a number for its exact value.</p>")
-    body.append(_runs_table(runs, folder, units, sampled))
+                "hover a number for its exact value, a metric's name for its definition (? links "
+                "to it).</p>")
+    body.append(_runs_table(runs, folder, units, sampled, manifest))
+    every = _shown_metrics(runs, manifest)
+    if every:
+        body.append(_all_metrics_table(runs, every, units))
     mc = read_json_object(folder / "montecarlo.json")
     if mc:
         body.append("<h2 id=montecarlo>Monte Carlo</h2>")
         body.append(_montecarlo_table(mc, units, main_metrics(_metric_names(runs), 8)))
     if figures:
         body.append("<h2>Figures</h2>" + figures)
+    if every:
+        body.append("<h2 id=metrics>Metrics</h2>" + _metric_definitions(every, units))
     body.append("<h2 id=provenance>Provenance</h2>" + _provenance(runs, manifest_source))
     raw = [n for n in _RAW_FILES if (folder / n).is_file()]
     body.append("<h2 id=files>Files</h2><ul>" + "".join(
@@ -724,16 +816,23 @@ def _shown_metrics(runs, manifest=None):
     return sorted(_metric_names(runs), key=rank)
 
 
+def _metric_text(name, metrics):
+    """A metric's value as the terminal writes it: :data:`NOT_SETTLED` for a settling
+    metric of a run that never settled, blank for another empty value."""
+    return NOT_SETTLED if not_settled(name, metrics) else _fmt(metrics.get(name))
+
+
 def _headers(names, units):
     return [n + (f" [{units[n]}]" if units.get(n) else "") for n in names]
 
 
-def _fitting(names, units, label_width, width, cell=9):
-    """As many of ``names`` as fit ``width`` beside a label column of ``label_width``."""
+def _fitting(names, units, label_width, width, cell=9, cells=None):
+    """As many of ``names`` as fit ``width`` beside a label column of ``label_width``
+    (``cells``: the widest cell of a column by name, when wider than ``cell``)."""
     shown = []
     used = label_width + 2 + 8 + 2
     for header, name in zip(_headers(names, units), names):
-        need = max(len(header), cell) + 2
+        need = max(len(header), cell, (cells or {}).get(name, 0)) + 2
         if used + need > width and shown:
             break
         shown.append(name)
@@ -763,10 +862,12 @@ def summary_table(runs: list[dict], units: dict | None = None, count: int = 4,
     units = units or {}
     labels = [str(r.get("label", r.get("folder", ""))) for r in runs]
     names = _shown_metrics(runs, manifest)[:count]
-    names = _fitting(names, units, min(max(map(len, labels), default=3), 40), width)
-    rows = [[label, str(r.get("status", ""))] +
-            [_fmt((r.get("metrics") or {}).get(n)) for n in names]
-            for label, r in zip(labels, runs)]
+    texts = [{n: _metric_text(n, r.get("metrics") or {}) for n in names} for r in runs]
+    widest = {n: max((len(t[n]) for t in texts), default=0) for n in names}
+    names = _fitting(names, units, min(max(map(len, labels), default=3), 40), width,
+                     cells=widest)
+    rows = [[label, str(r.get("status", ""))] + [t[n] for n in names]
+            for label, r, t in zip(labels, runs, texts)]
     return _text_table(["run", "status"] + _headers(names, units), rows, width)
 
 

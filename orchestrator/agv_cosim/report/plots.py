@@ -24,7 +24,9 @@ Every key is optional; a figure is written only when its key is present.
     Title of every figure (the trajectory figure gets it too).
 ``trajectory`` : table
     ``{x = "<signal>", y = "<signal>", path = "<path string, optional>"}``: an x-y plot
-    ``trajectory.png`` of every run, with equal axis scales, over the reference path
+    ``trajectory.png`` of every run, with equal axis scales (without a path: unless the
+    runs' smaller extent is under 5 % of the larger, then each axis fits its data and
+    the panel says "axes not to scale"), over the reference path
     drawn from ``agv_core.numerics.paths.parse_path(path).polyline`` (the whole path when it is
     bounded, otherwise the stretch the runs cover); with a path, a second panel shows
     each run's signed offset from it against the arc length (equal axes hide a 0.3 m
@@ -769,6 +771,24 @@ def _offsets_along(geometry, x, y):
     return arcs, offsets
 
 
+#: Without a reference path the x-y panel has equal axis scales unless its data's smaller
+#: extent is below this share of the larger (a 0.1 m deviation over 16 m is 0.006).
+_EQUAL_AXES_MIN = 0.05
+
+
+def _spans(ax):
+    """(x extent, y extent) of the finite points drawn on ``ax``; None when it has none."""
+    xs = [np.asarray(line.get_xdata(), float) for line in ax.get_lines()]
+    ys = [np.asarray(line.get_ydata(), float) for line in ax.get_lines()]
+    x = np.concatenate(xs) if xs else np.empty(0)
+    y = np.concatenate(ys) if ys else np.empty(0)
+    keep = np.isfinite(x) & np.isfinite(y)
+    if not keep.any():
+        return None
+    x, y = x[keep], y[keep]
+    return float(x.max() - x.min()), float(y.max() - y.min())
+
+
 @plain_text
 def trajectory_figure(runs: Iterable["RunData"],
                       spec: "schema.PlotsTable | dict[str, Any] | None",
@@ -828,7 +848,13 @@ def trajectory_figure(runs: Iterable["RunData"],
             arcs, offsets = _offsets_along(geometry, np.asarray(x, float),
                                            np.asarray(y, float))
             offset_ax.plot(arcs, offsets, zorder=2, **dict(style, label=None))
-    ax.set_aspect("equal", adjustable="datalim")
+    spans = _spans(ax) if geometry is None else None
+    if spans is not None and min(spans) < _EQUAL_AXES_MIN * max(spans):
+        # equal axes would draw what moved as a flat line: each axis scaled to its data
+        ax.set_title(f"axes not to scale: x spans {spans[0]:.3g}, y {spans[1]:.3g}",
+                     fontsize="small", loc="right", color="0.3")
+    else:
+        ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(_label(traj["x"], units))
     ax.set_ylabel(_label(traj["y"], units))
     ax.grid(True, linewidth=0.4, alpha=0.6)
@@ -956,6 +982,11 @@ def _finite(value):
     return is_number(value)
 
 
+#: The note of a sweep panel with runs without a value (marked on its top edge).
+_MISSING_NOTE = {True: "\u25bd on the top edge: did not settle (or no value)",
+                 False: "\u25bd on the top edge: no value (docs/metrics.md)"}
+
+
 @plain_text
 def sweep_metrics_figure(rows: list, key: str, metrics: list, units: dict,
                          title: str | None = None) -> "Figure":
@@ -966,7 +997,9 @@ def sweep_metrics_figure(rows: list, key: str, metrics: list, units: dict,
     ----------
     rows : list of dict
         One per run: ``variant`` (str or None), ``point`` (sweep point), ``status``,
-        ``metrics`` (name -> value). Only complete runs with a finite value are drawn.
+        ``metrics`` (name -> value). Complete runs with a finite value are drawn on the
+        lines; the others (a settling time of a run that never settled, a run not
+        complete) as open triangles on the panel's top edge, noted in its title.
     key : str
         The swept key on the x axis (its values numbers).
     metrics : list of str
@@ -992,6 +1025,7 @@ def sweep_metrics_figure(rows: list, key: str, metrics: list, units: dict,
     for row in rows:
         groups.setdefault(_group_label(row["variant"], row["point"], others), []).append(row)
     for ax, metric in zip(axes, metrics):
+        any_missing = False
         for i, (name, members) in enumerate(groups.items()):
             pairs = sorted((row["point"][key], row["metrics"].get(metric))
                            for row in members if row["status"] == "complete"
@@ -1001,6 +1035,20 @@ def sweep_metrics_figure(rows: list, key: str, metrics: list, units: dict,
                 ax.plot([p[0] for p in pairs], [p[1] for p in pairs], marker="o",
                         markersize=4, linewidth=1.2, color=f"C{i % 10}",
                         linestyle=_LINESTYLES[(i // 10) % len(_LINESTYLES)], label=name)
+            missing = sorted(row["point"][key] for row in members
+                             if is_number(row["point"].get(key))
+                             and not (row["status"] == "complete"
+                                      and _finite(row["metrics"].get(metric))))
+            if missing:  # marked on the top edge, so a line does not just stop
+                any_missing = True
+                ax.plot(missing, [1.0] * len(missing), linestyle="none", marker="v",
+                        markersize=7, markerfacecolor="none", markeredgewidth=1.4,
+                        color=f"C{i % 10}", transform=ax.get_xaxis_transform(),
+                        clip_on=False)
+        if any_missing:
+            settling = metric.endswith("_settling_time") or "_settled_" in metric
+            ax.set_title(_MISSING_NOTE[settling],
+                         fontsize="x-small", loc="right", color="0.3")
         ax.set_ylabel(_label(metric, units), fontsize="small")
         ax.set_xlabel(_label(key, units), fontsize="small")
         ax.grid(True, linewidth=0.4, alpha=0.6)

@@ -407,13 +407,39 @@ def validate(manifest: Manifest, runs: list[RunSpec],
     raise_all([one for problem, having in found.values()
                for one in ([problem] if having == every and len(every) > 1 else
                            [_in_variant(manifest, variant, problem) for variant in having])])
+    held = _check_held(manifest, checked)
     warnings = []
     for inputs, variants in unconnected_by.items():
+        inputs = tuple(name for name in inputs if name not in held)
+        if not inputs:
+            continue
         where = "" if variants == every or variants == [None] else \
             " in variant(s) " + ", ".join(str(v) for v in variants)
         warnings.append(f"{manifest.path}: connections: unconnected inputs{where} (held at "
                         f"their start values): {', '.join(inputs)}")
     return Checked(runs=checked, warnings=warnings)
+
+
+def _check_held(manifest: Manifest, checked: list[CheckedRun]) -> set[str]:
+    """The manifest's ``held`` names, each checked to be an input of its component in
+    some run (a variant that rewires may connect it); raises a :class:`ManifestError`
+    naming the first that is not."""
+    problems = []
+    for index, name in enumerate(manifest.held):
+        cname, vname = split_name(name)
+        models = [one.models[cname] for one in checked if cname in one.models]
+        if not models:
+            known = sorted({c for one in checked for c in one.models})
+            problems.append(manifest.error(f"held[{index}]", f"'{name}': unknown component "
+                                           f"'{cname}'{did_you_mean(cname, known)}"))
+            continue
+        inputs = list(dict.fromkeys(v.name for info in models for v in info.inputs))
+        if vname not in inputs:
+            problems.append(manifest.error(
+                f"held[{index}]", f"'{name}' is not an input of '{cname}' (its inputs: "
+                f"{', '.join(inputs) or 'none'})"))
+    raise_all(problems)
+    return set(manifest.held)
 
 
 def _article(causality: str) -> str:
