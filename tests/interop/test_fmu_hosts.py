@@ -188,7 +188,7 @@ def test_a_python_on_path_without_the_packages_names_the_requirements(c_host, un
                 None)
     assert hint is not None, done.stderr[-2000:]
     assert f"{folder}/resources/requirements.txt" in hint
-    assert f"({venv / 'bin' / 'python3.{sys.version_info.minor}'})" in hint
+    assert f"({venv / 'bin' / f'python3.{sys.version_info.minor}'})" in hint
     assert "AGV_COSIM_PYTHON" in hint
     assert "status 4 logStatusFatal" in hint  # fmi2Fatal, as the import error itself
 
