@@ -150,3 +150,17 @@ def test_unlisted_inputs_leave_the_initial_unknowns_unchanged(component_fmus, na
     finally:
         slave.freeInstance()
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def _named_initial_dependencies(fmu):
+    by_key, _, initial, _ = _structure(fmu)
+    return {by_key[key].get("name"): (None if listed is None else
+                                       sorted(by_key[d].get("name") for d in listed))
+            for key, listed in initial.items()}
+
+
+def test_small_fmus_list_the_feedthrough_input_and_the_parameters(fmus):
+    """The fast tier's view (the small test FMUs of fmu_src/): a gain y = k u lists u and
+    k; an integrator (no feedthrough) only its parameter."""
+    assert _named_initial_dependencies(fmus["agv_test_gain"]) == {"y": ["k", "u"]}
+    assert _named_initial_dependencies(fmus["agv_test_integrator"]) == {"y": ["y0"]}
