@@ -45,6 +45,16 @@
  *    always written.
  *  - fmi3EnterInitializationMode calls setup_experiment(startTime) before
  *    enter_initialization_mode(), as fmi2SetupExperiment does in FMI 2.0.
+ *  - what FMI forbids is refused here, in C, before any Python runs, with the Error
+ *    status and a message through the host's logger (see "the state machine" below): a
+ *    call in a mode where FMI does not allow it, a step size <= 0 or not finite, a
+ *    GUID / instantiationToken other than the one the build wrote into
+ *    resources/agv_build.json, a get or set of a value reference that is not a variable
+ *    of the call's type, a set of an output, of the independent variable, or of a fixed
+ *    parameter after initialisation mode (the variables' types and causalities come from
+ *    the slave's _fmi_variables() at instantiation). The slave refuses the rest
+ *    (non-finite inputs, FMU states that are not its own) by raising an exception with
+ *    the attribute fmi_error (SlaveLogic's CallRefused): that is an Error, not Fatal.
  */
 #define _GNU_SOURCE
 #define PY_SSIZE_T_CLEAN
@@ -53,6 +63,7 @@
 #include <dlfcn.h>
 #include <libgen.h>
 #include <limits.h>
+#include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -128,6 +139,14 @@ typedef struct {
     PyObject *strings; /* the bytes behind the last fmi2GetString / fmi3GetString */
     double last_successful_time;
     int terminated;
+
+    int mode; /* where the instance is in the FMI state machine (MODE_*) */
+    /* the slave's variables by value reference (_fmi_variables()), for the checks of
+       every get and set; var_type NULL when the slave describes none */
+    size_t n_vars;
+    unsigned char *var_type; /* 1 + VAR_* code, 0 for no variable */
+    unsigned char *var_set;  /* SET_* code */
+    char **var_name;
 } Instance;
 
 /* ------------------------------------------------------------------ messages */
@@ -184,9 +203,40 @@ static void flush_log(Instance *inst)
     PyErr_Restore(saved_type, saved_value, saved_tb);
 }
 
-/* Log the pending Python exception as the failure of `what`; the fatal status. */
+/* A pending Python exception that is a refusal (SlaveLogic's CallRefused: it has
+   fmi_error): its message logged (the slave's own, queued, or else its text); 1. Else
+   0, the exception still pending. */
+static int refusal(Instance *inst)
+{
+    PyObject *type, *value, *tb;
+    PyErr_Fetch(&type, &value, &tb);
+    PyErr_NormalizeException(&type, &value, &tb);
+    if (value == NULL || !PyObject_HasAttrString(value, "fmi_error")) {
+        PyErr_Restore(type, value, tb);
+        return 0;
+    }
+    int queued = inst->log_queue && PyList_Check(inst->log_queue) &&
+                 PyList_GET_SIZE(inst->log_queue) > 0;
+    flush_log(inst);
+    if (!queued) {
+        PyObject *text = PyObject_Str(value);
+        const char *utf8 = text ? PyUnicode_AsUTF8(text) : NULL;
+        emit(inst, inst->fmi3 ? (int)fmi3Error : (int)fmi2Error, "logStatusError",
+             utf8 ? utf8 : "refused");
+        Py_XDECREF(text);
+    }
+    PyErr_Clear();
+    Py_XDECREF(type);
+    Py_XDECREF(value);
+    Py_XDECREF(tb);
+    return 1;
+}
+
+/* Log the pending Python exception as the failure of `what`; the fatal status (the
+   error status for a refusal, see refusal()). */
 static int failed(Instance *inst, const char *what)
 {
+    if (refusal(inst)) return inst->fmi3 ? (int)fmi3Error : (int)fmi2Error;
     PyObject *type, *value, *tb;
     PyErr_Fetch(&type, &value, &tb);
     PyErr_NormalizeException(&type, &value, &tb);
@@ -206,6 +256,190 @@ static int failed(Instance *inst, const char *what)
 
 #define OK_STATUS(inst) ((inst)->fmi3 ? (int)fmi3OK : (int)fmi2OK)
 #define ERROR_STATUS(inst) ((inst)->fmi3 ? (int)fmi3Error : (int)fmi2Error)
+
+/* ------------------------------------------------------------------ the state machine
+   The FMI 2.0 / 3.0 co-simulation state machine (without event mode). Every function
+   first checks that the instance is in a mode where FMI allows it; a call outside them
+   returns fmi2Error / fmi3Error with a message through the host's logger. A call that
+   returns Error leaves the instance in MODE_ERROR (then only getters, the FMU-state
+   functions, reset and free are allowed: FMI's "the simulation cannot be continued
+   with this instance" unless a saved state is restored or it is reset), one that
+   returns Fatal in MODE_FATAL (free only). A restored FMU state brings back the mode it
+   was saved in (SlaveLogic._get_fmu_state records it). */
+enum {
+    MODE_INSTANTIATED = 1, MODE_INITIALIZATION = 2, MODE_STEP = 4, MODE_STEP_FAILED = 8,
+    MODE_TERMINATED = 16, MODE_ERROR = 32, MODE_FATAL = 64
+};
+#define MODES_ALIVE (MODE_INSTANTIATED | MODE_INITIALIZATION | MODE_STEP | MODE_STEP_FAILED | \
+                     MODE_TERMINATED | MODE_ERROR)
+/* getters: FMI 2.0 not before initialisation mode; FMI 3.0 also in Instantiated (as the
+   Reference FMUs) */
+#define MODES_GET(inst) (((inst)->fmi3 ? MODE_INSTANTIATED : 0) | MODE_INITIALIZATION | \
+                         MODE_STEP | MODE_STEP_FAILED | MODE_TERMINATED | MODE_ERROR)
+#define MODES_SET (MODE_INSTANTIATED | MODE_INITIALIZATION | MODE_STEP)
+#define MODES_STATUS (MODE_STEP | MODE_STEP_FAILED | MODE_TERMINATED)
+
+/* codes of SlaveLogic._fmi_variables (agv_core/fmi/slave_base.py) */
+enum { SET_NEVER, SET_INPUT, SET_OUTPUT, SET_FIXED, SET_TUNABLE };
+
+static const char *mode_phrase(const Instance *inst)
+{
+    switch (inst->mode) {
+    case MODE_INSTANTIATED: return "before initialisation mode (instantiated)";
+    case MODE_INITIALIZATION: return "in initialisation mode";
+    case MODE_STEP: return "in step mode";
+    case MODE_STEP_FAILED:
+        return inst->fmi3 ? "after a discarded step" : "after a discarded step (fmi2Discard)";
+    case MODE_TERMINATED:
+        return inst->fmi3 ? "after fmi3Terminate (only fmi3Reset or fmi3FreeInstance go on)"
+                          : "after fmi2Terminate (only fmi2Reset or fmi2FreeInstance go on)";
+    case MODE_ERROR:
+        return inst->fmi3 ? "after an error (restore a saved state with fmi3SetFMUState, or "
+                            "fmi3Reset, or fmi3FreeInstance)"
+                          : "after an error (restore a saved state with fmi2SetFMUstate, or "
+                            "fmi2Reset, or fmi2FreeInstance)";
+    default:
+        return inst->fmi3 ? "after a fatal error (only fmi3FreeInstance)"
+                          : "after a fatal error (only fmi2FreeInstance)";
+    }
+}
+
+/* The status of a call that ended with `status`: Error and Fatal move the instance to
+   MODE_ERROR / MODE_FATAL. */
+static int settle(Instance *inst, int status)
+{
+    if (status == (int)fmi2Fatal) inst->mode = MODE_FATAL;
+    else if (status == (int)fmi2Error && inst->mode != MODE_FATAL) inst->mode = MODE_ERROR;
+    return status;
+}
+
+/* A call that moves the instance to `next` when it succeeds. */
+static int moved(Instance *inst, int status, int next)
+{
+    if (status == OK_STATUS(inst)) inst->mode = next;
+    return settle(inst, status);
+}
+
+/* Refuse `what` (logged, Error) with the reason `why`. */
+static int refuse(Instance *inst, const char *what, const char *why)
+{
+    emitf(inst, ERROR_STATUS(inst), "logStatusError", "%s: refused: %s", what, why);
+    return settle(inst, ERROR_STATUS(inst));
+}
+
+/* 0 when the instance is in one of `modes`, else the refusal of `what`. */
+static int not_in(Instance *inst, int modes, const char *what)
+{
+    if (inst->mode & modes) return 0;
+    char why[320];
+    snprintf(why, sizeof why, "not allowed %s", mode_phrase(inst));
+    return refuse(inst, what, why);
+}
+
+static const char *const TYPE_NAMES[2][4] = {{"Real", "Integer", "Boolean", "String"},
+                                             {"Float64", "Int32", "Boolean", "String"}};
+
+/* 0 when a get (set = 0) or set of `n` variables of type `kind` is allowed now: the
+   mode, each value reference a variable of that type, and for a set each variable one a
+   host may set in this mode (an input or a tunable parameter; a fixed parameter only
+   before initialisation mode ends; never an output or the independent variable). Else
+   the refusal of `what`, naming the variable. */
+static int check_values(Instance *inst, const char *what, int set, int kind,
+                        const unsigned int *vr, size_t n)
+{
+    int refused = not_in(inst, set ? MODES_SET : MODES_GET(inst), what);
+    if (refused || inst->var_type == NULL || n == 0) return refused;
+    if (vr == NULL) return refuse(inst, what, "no value references given");
+    const char *const *types = TYPE_NAMES[inst->fmi3 ? 1 : 0];
+    char why[512];
+    for (size_t i = 0; i < n; i++) {
+        unsigned int r = vr[i];
+        int type = r < inst->n_vars ? inst->var_type[r] : 0;
+        if (type != kind + 1) {
+            if (type == 0)
+                snprintf(why, sizeof why, "value reference %u is no variable of this FMU", r);
+            else
+                snprintf(why, sizeof why, "value reference %u is '%s', a %s, not a %s", r,
+                         inst->var_name[r], types[type - 1], types[kind]);
+            return refuse(inst, what, why);
+        }
+        if (!set) continue;
+        int access = inst->var_set[r];
+        if (access == SET_INPUT || access == SET_TUNABLE ||
+            (access == SET_FIXED && inst->mode != MODE_STEP))
+            continue;
+        if (access == SET_OUTPUT)
+            snprintf(why, sizeof why, "'%s' is an output: a host never sets it",
+                     inst->var_name[r]);
+        else if (access == SET_FIXED)
+            snprintf(why, sizeof why, "'%s' is a fixed parameter: it can be set only before "
+                     "%s, not %s (tunable parameters and inputs can)", inst->var_name[r],
+                     inst->fmi3 ? "fmi3ExitInitializationMode" : "fmi2ExitInitializationMode",
+                     mode_phrase(inst));
+        else
+            snprintf(why, sizeof why, "'%s' cannot be set (not an input or a parameter)",
+                     inst->var_name[r]);
+        return refuse(inst, what, why);
+    }
+    return 0;
+}
+
+#define CHECK_VALUES(inst, what, set, kind)                                               \
+    do {                                                                                  \
+        int refused_ = check_values(inst, what, set, kind, vr, n);                        \
+        if (refused_) return refused_;                                                    \
+    } while (0)
+
+/* 0 when a step from `t` of size `h` is allowed: in step mode, a finite time and a
+   finite step size > 0 (FMI: communicationStepSize > 0); else the refusal. */
+static int check_step(Instance *inst, const char *what, double t, double h)
+{
+    int refused = not_in(inst, MODE_STEP, what);
+    if (refused) return refused;
+    if (isfinite(t) && isfinite(h) && h > 0.0) return 0;
+    char why[256];
+    snprintf(why, sizeof why, "communicationStepSize %.17g from currentCommunicationPoint "
+             "%.17g: the step size must be a finite number > 0 and the time finite", h, t);
+    return refuse(inst, what, why);
+}
+
+/* The mode a restored FMU state was saved in (its "mode"; step mode if it names none). */
+static int saved_mode(PyObject *state)
+{
+    static const char *const names[] = {"instantiated", "initialization", "step",
+                                        "terminated"};
+    static const int modes[] = {MODE_INSTANTIATED, MODE_INITIALIZATION, MODE_STEP,
+                                MODE_TERMINATED};
+    PyObject *mode = PyDict_Check(state) ? PyDict_GetItemString(state, "mode") : NULL;
+    const char *text = mode && PyUnicode_Check(mode) ? PyUnicode_AsUTF8(mode) : NULL;
+    PyErr_Clear();
+    for (int i = 0; text && i < 4; i++) {
+        if (strcmp(text, names[i]) == 0) return modes[i];
+    }
+    return MODE_STEP;
+}
+
+/* The GUID (FMI 2.0) / instantiation token (FMI 3.0) the build wrote into the FMU's
+   resources/agv_build.json ("guid"); "" when it has none; NULL when out of memory. */
+static char *built_token(const char *resources)
+{
+    char path[PATH_MAX + 32], text[16384];
+    snprintf(path, sizeof path, "%s/agv_build.json", resources);
+    FILE *file = fopen(path, "rb");
+    if (file == NULL) return strdup("");
+    size_t size = fread(text, 1, sizeof text - 1, file);
+    fclose(file);
+    text[size] = '\0';
+    const char *p = strstr(text, "\"guid\"");
+    if (p == NULL) return strdup("");
+    p += 6;
+    while (*p == ' ' || *p == '\t' || *p == '\r' || *p == '\n') p++;
+    if (*p++ != ':') return strdup("");
+    while (*p == ' ' || *p == '\t' || *p == '\r' || *p == '\n') p++;
+    if (*p++ != '"') return strdup("");
+    const char *end = strchr(p, '"');
+    return end ? strndup(p, (size_t)(end - p)) : strdup("");
+}
 
 /* ------------------------------------------------------------------ Python helpers */
 static PyObject *call0(PyObject *callable)
@@ -380,8 +614,10 @@ static int get_reals(Instance *inst, const unsigned int *vr, size_t n, double *o
 static int set_reals(Instance *inst, const unsigned int *vr, size_t n, const double *in)
 {
     if (inst->real_names != NULL) {
+        /* a value that is not finite takes the slave's own setter, which refuses it
+           for an input (SlaveLogic._check_finite_inputs) */
         size_t i = 0;
-        while (i < n && real_name(inst, vr[i]) != NULL) i++;
+        while (i < n && real_name(inst, vr[i]) != NULL && isfinite(in[i])) i++;
         if (i == n) {
             int stale = 0;
             for (i = 0; i < n; i++) {
@@ -535,6 +771,13 @@ static void drop_slave(Instance *inst)
     free(inst->quiet);
     inst->quiet = NULL;
     inst->n_real_names = 0;
+    for (size_t i = 0; inst->var_name != NULL && i < inst->n_vars; i++) free(inst->var_name[i]);
+    free(inst->var_name);
+    free(inst->var_type);
+    free(inst->var_set);
+    inst->var_name = NULL;
+    inst->var_type = inst->var_set = NULL;
+    inst->n_vars = 0;
     Py_CLEAR(inst->log_queue);
     Py_CLEAR(inst->slave);
     Py_CLEAR(inst->strings);
@@ -628,6 +871,61 @@ static int step_access(Instance *inst)
     return 0;
 }
 
+/* The variables the slave describes through _fmi_variables(), if it does:
+   ((value reference, name, type code, set code), ...). 0, or -1 with an exception. */
+static int variables_table(Instance *inst)
+{
+    if (!PyObject_HasAttrString(inst->slave, "_fmi_variables")) return 0;
+    PyObject *rows = PyObject_CallMethod(inst->slave, "_fmi_variables", NULL);
+    PyObject *fast = rows ? PySequence_Fast(rows, "_fmi_variables() must return rows") : NULL;
+    Py_XDECREF(rows);
+    if (fast == NULL) return -1;
+    Py_ssize_t count = PySequence_Fast_GET_SIZE(fast);
+    size_t size = 0;
+    for (Py_ssize_t i = 0; i < count; i++) {
+        unsigned int vr;
+        const char *name;
+        int type, access;
+        if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(fast, i), "Isii", &vr, &name, &type,
+                              &access)) {
+            Py_DECREF(fast);
+            return -1;
+        }
+        if ((size_t)vr + 1 > size) size = (size_t)vr + 1;
+    }
+    if (size > (1u << 20)) { /* implausible: no checks */
+        Py_DECREF(fast);
+        return 0;
+    }
+    inst->var_type = calloc(size ? size : 1, 1);
+    inst->var_set = calloc(size ? size : 1, 1);
+    inst->var_name = calloc(size ? size : 1, sizeof(char *));
+    if (inst->var_type == NULL || inst->var_set == NULL || inst->var_name == NULL) {
+        Py_DECREF(fast);
+        PyErr_NoMemory();
+        return -1;
+    }
+    inst->n_vars = size;
+    for (Py_ssize_t i = 0; i < count; i++) {
+        unsigned int vr;
+        const char *name;
+        int type, access;
+        PyArg_ParseTuple(PySequence_Fast_GET_ITEM(fast, i), "Isii", &vr, &name, &type, &access);
+        if (type < 0 || type >= N_KINDS) continue;
+        inst->var_type[vr] = (unsigned char)(type + 1);
+        inst->var_set[vr] = (unsigned char)access;
+        free(inst->var_name[vr]);
+        inst->var_name[vr] = strdup(name);
+        if (inst->var_name[vr] == NULL) {
+            Py_DECREF(fast);
+            PyErr_NoMemory();
+            return -1;
+        }
+    }
+    Py_DECREF(fast);
+    return 0;
+}
+
 /* Create the slave object from inst->cls and look up its methods. */
 static int make_slave(Instance *inst)
 {
@@ -652,8 +950,9 @@ static int make_slave(Instance *inst)
         !inst->exit_init || !inst->log_queue) {
         return -1;
     }
-    if (real_access(inst) < 0) return -1;
-    return step_access(inst);
+    if (real_access(inst) < 0 || step_access(inst) < 0 || variables_table(inst) < 0) return -1;
+    inst->mode = MODE_INSTANTIATED;
+    return 0;
 }
 
 /* A file URI (file:///a%20b/resources) or a path, as a path; malloc'ed. */
@@ -883,13 +1182,15 @@ static int setup(Instance *inst, double start, const char *what)
 
 static int reset(Instance *inst, const char *what)
 {
+    int refused = not_in(inst, MODES_ALIVE, what);
+    if (refused) return refused;
     PyGILState_STATE gil = PyGILState_Ensure();
     drop_slave(inst);
     inst->terminated = 0;
     int status = make_slave(inst) == 0 ? OK_STATUS(inst) : failed(inst, what);
     if (status == OK_STATUS(inst)) flush_log(inst);
     PyGILState_Release(gil);
-    return status;
+    return settle(inst, status);
 }
 
 /* do_step(t, h): 1 for a true result, 0 for false, -1 on an exception; for FMI 3.0 a
@@ -957,6 +1258,8 @@ static int step(Instance *inst, double t, double h, int *status, int *terminate)
 
 static int state_get(Instance *inst, void **state, const char *what)
 {
+    int refused = not_in(inst, MODES_ALIVE, what);
+    if (refused) return refused;
     PyGILState_STATE gil = PyGILState_Ensure();
     int status = OK_STATUS(inst);
     PyObject *result = PyObject_CallMethod(inst->slave, "_get_fmu_state", NULL);
@@ -967,15 +1270,14 @@ static int state_get(Instance *inst, void **state, const char *what)
         flush_log(inst);
     }
     PyGILState_Release(gil);
-    return status;
+    return settle(inst, status);
 }
 
 static int state_set(Instance *inst, void *state, const char *what)
 {
-    if (state == NULL) {
-        emitf(inst, ERROR_STATUS(inst), "logStatusError", "%s: no FMU state given", what);
-        return ERROR_STATUS(inst);
-    }
+    int refused = not_in(inst, MODES_ALIVE, what);
+    if (refused) return refused;
+    if (state == NULL) return refuse(inst, what, "no FMU state given");
     PyGILState_STATE gil = PyGILState_Ensure();
     int status = OK_STATUS(inst);
     PyObject *result = PyObject_CallMethod(inst->slave, "_set_fmu_state", "O",
@@ -984,9 +1286,10 @@ static int state_set(Instance *inst, void *state, const char *what)
     else {
         Py_DECREF(result);
         flush_log(inst);
+        inst->mode = saved_mode((PyObject *)state);
     }
     PyGILState_Release(gil);
-    return status;
+    return settle(inst, status);
 }
 
 static int state_free(Instance *inst, void **state)
@@ -1018,6 +1321,8 @@ static PyObject *state_bytes(Instance *inst, void *state)
 
 static int state_size(Instance *inst, void *state, size_t *size, const char *what)
 {
+    int refused = not_in(inst, MODES_ALIVE, what);
+    if (refused) return refused;
     PyGILState_STATE gil = PyGILState_Ensure();
     int status = OK_STATUS(inst);
     PyObject *bytes = state_bytes(inst, state);
@@ -1027,12 +1332,14 @@ static int state_size(Instance *inst, void *state, size_t *size, const char *wha
         Py_DECREF(bytes);
     }
     PyGILState_Release(gil);
-    return status;
+    return settle(inst, status);
 }
 
 static int state_serialize(Instance *inst, void *state, char *out, size_t size,
                            const char *what)
 {
+    int refused = not_in(inst, MODES_ALIVE, what);
+    if (refused) return refused;
     PyGILState_STATE gil = PyGILState_Ensure();
     int status = OK_STATUS(inst);
     PyObject *bytes = state_bytes(inst, state);
@@ -1046,12 +1353,14 @@ static int state_serialize(Instance *inst, void *state, char *out, size_t size,
     }
     Py_XDECREF(bytes);
     PyGILState_Release(gil);
-    return status;
+    return settle(inst, status);
 }
 
 static int state_deserialize(Instance *inst, const char *in, size_t size, void **state,
                              const char *what)
 {
+    int refused = not_in(inst, MODES_ALIVE, what);
+    if (refused) return refused;
     PyGILState_STATE gil = PyGILState_Ensure();
     int status = OK_STATUS(inst);
     PyObject *result = PyObject_CallMethod(inst->cls, "_fmu_state_from_bytes", "y#", in,
@@ -1062,7 +1371,7 @@ static int state_deserialize(Instance *inst, const char *in, size_t size, void *
         *state = result;
     }
     PyGILState_Release(gil);
-    return status;
+    return settle(inst, status);
 }
 
 /* A get or set under the GIL: body returns 0 or -1 (Python exception). */
@@ -1071,7 +1380,7 @@ static int state_deserialize(Instance *inst, const char *in, size_t size, void *
         if (n == 0) return OK_STATUS(inst);                                               \
         PyGILState_STATE gil_ = PyGILState_Ensure();                                      \
         int status_ = OK_STATUS(inst);                                                    \
-        if ((body) < 0) status_ = failed(inst, what);                                     \
+        if ((body) < 0) status_ = settle(inst, failed(inst, what));                       \
         else if (inst->log_queue && PyList_GET_SIZE(inst->log_queue)) flush_log(inst);    \
         PyGILState_Release(gil_);                                                         \
         return status_;                                                                   \
@@ -1081,7 +1390,28 @@ static int unsupported(Instance *inst, const char *function)
 {
     emitf(inst, ERROR_STATUS(inst), "logStatusError", "%s is not supported by this FMU",
           function);
-    return ERROR_STATUS(inst);
+    return settle(inst, ERROR_STATUS(inst));
+}
+
+/* 1 when `token` is the GUID / instantiation token the FMU was built with (or it names
+   none); else 0 and the reason in `why`. */
+static int token_matches(const char *token, const char *location, const char *what,
+                         const char *argument, char *why, size_t size)
+{
+    char *resources = resource_path(location);
+    char *own = resources ? built_token(resources) : NULL;
+    free(resources);
+    if (own == NULL) {
+        snprintf(why, size, "%s: out of memory", what);
+        return 0;
+    }
+    int same = own[0] == '\0' || (token != NULL && strcmp(token, own) == 0);
+    if (!same)
+        snprintf(why, size, "%s: refused: %s \"%s\" is not this FMU's (\"%s\", in its "
+                 "modelDescription.xml): the host read another FMU's model description, or "
+                 "this FMU was rebuilt since", what, argument, token ? token : "(null)", own);
+    free(own);
+    return same;
 }
 
 /* ================================================================== FMI 2.0 */
@@ -1092,12 +1422,17 @@ fmi2Component EXPORT2(fmi2Instantiate)(fmi2String instanceName, fmi2Type fmuType
                               const fmi2CallbackFunctions *functions, fmi2Boolean visible,
                               fmi2Boolean loggingOn)
 {
-    (void)fmuGUID;
     fmi2CallbackLogger logger = functions ? functions->logger : NULL;
     void *env = functions ? functions->componentEnvironment : NULL;
     if (fmuType != fmi2CoSimulation) {
         if (logger) logger(env, instanceName, fmi2Error, "logStatusError",
                            "this FMU supports co-simulation only");
+        return NULL;
+    }
+    char why[512];
+    if (!token_matches(fmuGUID, fmuResourceLocation, "fmi2Instantiate", "fmuGUID", why,
+                       sizeof why)) {
+        if (logger) logger(env, instanceName, fmi2Error, "logStatusError", "%s", why);
         return NULL;
     }
     return instantiate(0, instanceName, fmuResourceLocation, visible, loggingOn, logger, env,
@@ -1123,26 +1458,39 @@ fmi2Status EXPORT2(fmi2SetupExperiment)(fmi2Component c, fmi2Boolean toleranceDe
     (void)tolerance;
     (void)stopTimeDefined;
     (void)stopTime;
+    int refused = not_in(I2, MODE_INSTANTIATED, "fmi2SetupExperiment");
+    if (refused) return (fmi2Status)refused;
+    if (!isfinite(startTime))
+        return (fmi2Status)refuse(I2, "fmi2SetupExperiment", "the start time is not finite");
     PyGILState_STATE gil = PyGILState_Ensure();
     int status = setup(I2, startTime, "fmi2SetupExperiment");
     if (status == fmi2OK) flush_log(I2);
     PyGILState_Release(gil);
-    return (fmi2Status)status;
+    return (fmi2Status)settle(I2, status);
 }
 
 fmi2Status EXPORT2(fmi2EnterInitializationMode)(fmi2Component c)
 {
-    return (fmi2Status)simple_call(I2, I2->enter_init, "fmi2EnterInitializationMode");
+    int refused = not_in(I2, MODE_INSTANTIATED, "fmi2EnterInitializationMode");
+    if (refused) return (fmi2Status)refused;
+    return (fmi2Status)moved(I2, simple_call(I2, I2->enter_init, "fmi2EnterInitializationMode"),
+                             MODE_INITIALIZATION);
 }
 
 fmi2Status EXPORT2(fmi2ExitInitializationMode)(fmi2Component c)
 {
-    return (fmi2Status)simple_call(I2, I2->exit_init, "fmi2ExitInitializationMode");
+    int refused = not_in(I2, MODE_INITIALIZATION, "fmi2ExitInitializationMode");
+    if (refused) return (fmi2Status)refused;
+    return (fmi2Status)moved(I2, simple_call(I2, I2->exit_init, "fmi2ExitInitializationMode"),
+                             MODE_STEP);
 }
 
 fmi2Status EXPORT2(fmi2Terminate)(fmi2Component c)
 {
-    return (fmi2Status)simple_call(I2, I2->terminate, "fmi2Terminate");
+    int refused = not_in(I2, MODE_STEP | MODE_STEP_FAILED, "fmi2Terminate");
+    if (refused) return (fmi2Status)refused;
+    return (fmi2Status)moved(I2, simple_call(I2, I2->terminate, "fmi2Terminate"),
+                             MODE_TERMINATED);
 }
 
 fmi2Status EXPORT2(fmi2Reset)(fmi2Component c) { return (fmi2Status)reset(I2, "fmi2Reset"); }
@@ -1150,48 +1498,56 @@ fmi2Status EXPORT2(fmi2Reset)(fmi2Component c) { return (fmi2Status)reset(I2, "f
 fmi2Status EXPORT2(fmi2GetReal)(fmi2Component c, const fmi2ValueReference vr[], size_t n,
                        fmi2Real value[])
 {
+    CHECK_VALUES(I2, "fmi2GetReal", 0, REAL);
     VALUES_CALL(I2, "fmi2GetReal", get_reals(I2, vr, n, value));
 }
 
 fmi2Status EXPORT2(fmi2SetReal)(fmi2Component c, const fmi2ValueReference vr[], size_t n,
                        const fmi2Real value[])
 {
+    CHECK_VALUES(I2, "fmi2SetReal", 1, REAL);
     VALUES_CALL(I2, "fmi2SetReal", set_reals(I2, vr, n, value));
 }
 
 fmi2Status EXPORT2(fmi2GetInteger)(fmi2Component c, const fmi2ValueReference vr[], size_t n,
                           fmi2Integer value[])
 {
+    CHECK_VALUES(I2, "fmi2GetInteger", 0, INTEGER);
     VALUES_CALL(I2, "fmi2GetInteger", get_ints(I2, vr, n, value));
 }
 
 fmi2Status EXPORT2(fmi2SetInteger)(fmi2Component c, const fmi2ValueReference vr[], size_t n,
                           const fmi2Integer value[])
 {
+    CHECK_VALUES(I2, "fmi2SetInteger", 1, INTEGER);
     VALUES_CALL(I2, "fmi2SetInteger", set_ints(I2, vr, n, value));
 }
 
 fmi2Status EXPORT2(fmi2GetBoolean)(fmi2Component c, const fmi2ValueReference vr[], size_t n,
                           fmi2Boolean value[])
 {
+    CHECK_VALUES(I2, "fmi2GetBoolean", 0, BOOLEAN);
     VALUES_CALL(I2, "fmi2GetBoolean", get_bools(I2, vr, n, value, 1));
 }
 
 fmi2Status EXPORT2(fmi2SetBoolean)(fmi2Component c, const fmi2ValueReference vr[], size_t n,
                           const fmi2Boolean value[])
 {
+    CHECK_VALUES(I2, "fmi2SetBoolean", 1, BOOLEAN);
     VALUES_CALL(I2, "fmi2SetBoolean", set_bools(I2, vr, n, value, 1));
 }
 
 fmi2Status EXPORT2(fmi2GetString)(fmi2Component c, const fmi2ValueReference vr[], size_t n,
                          fmi2String value[])
 {
+    CHECK_VALUES(I2, "fmi2GetString", 0, STRING);
     VALUES_CALL(I2, "fmi2GetString", get_strings(I2, vr, n, value));
 }
 
 fmi2Status EXPORT2(fmi2SetString)(fmi2Component c, const fmi2ValueReference vr[], size_t n,
                          const fmi2String value[])
 {
+    CHECK_VALUES(I2, "fmi2SetString", 1, STRING);
     VALUES_CALL(I2, "fmi2SetString", set_strings(I2, vr, n, value));
 }
 
@@ -1254,6 +1610,8 @@ fmi2Status EXPORT2(fmi2GetRealOutputDerivatives)(fmi2Component c, const fmi2Valu
 fmi2Status EXPORT2(fmi2DoStep)(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSetFMUStatePrior)
 {
     (void)noSetFMUStatePrior;
+    int refused = check_step(I2, "fmi2DoStep", t, h);
+    if (refused) return (fmi2Status)refused;
     PyGILState_STATE gil = PyGILState_Ensure();
     int code, terminate;
     int done = step(I2, t, h, &code, &terminate);
@@ -1266,9 +1624,10 @@ fmi2Status EXPORT2(fmi2DoStep)(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Bool
         I2->last_successful_time = t;
         I2->terminated = 1;
         status = fmi2Discard;
+        I2->mode = MODE_STEP_FAILED;
     }
     PyGILState_Release(gil);
-    return status;
+    return (fmi2Status)settle(I2, status);
 }
 
 fmi2Status EXPORT2(fmi2CancelStep)(fmi2Component c)
@@ -1278,6 +1637,8 @@ fmi2Status EXPORT2(fmi2CancelStep)(fmi2Component c)
 
 fmi2Status EXPORT2(fmi2GetStatus)(fmi2Component c, const fmi2StatusKind s, fmi2Status *value)
 {
+    int refused = not_in(I2, MODES_STATUS, "fmi2GetStatus");
+    if (refused) return (fmi2Status)refused;
     if (s == fmi2DoStepStatus) {
         *value = fmi2OK; /* steps are never asynchronous */
         return fmi2OK;
@@ -1287,6 +1648,8 @@ fmi2Status EXPORT2(fmi2GetStatus)(fmi2Component c, const fmi2StatusKind s, fmi2S
 
 fmi2Status EXPORT2(fmi2GetRealStatus)(fmi2Component c, const fmi2StatusKind s, fmi2Real *value)
 {
+    int refused = not_in(I2, MODES_STATUS, "fmi2GetRealStatus");
+    if (refused) return (fmi2Status)refused;
     if (s == fmi2LastSuccessfulTime) {
         *value = I2->last_successful_time;
         return fmi2OK;
@@ -1296,12 +1659,16 @@ fmi2Status EXPORT2(fmi2GetRealStatus)(fmi2Component c, const fmi2StatusKind s, f
 
 fmi2Status EXPORT2(fmi2GetIntegerStatus)(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value)
 {
+    int refused = not_in(I2, MODES_STATUS, "fmi2GetIntegerStatus");
+    if (refused) return (fmi2Status)refused;
     (void)s, (void)value;
     return (fmi2Status)unsupported(I2, "fmi2GetIntegerStatus");
 }
 
 fmi2Status EXPORT2(fmi2GetBooleanStatus)(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value)
 {
+    int refused = not_in(I2, MODES_STATUS, "fmi2GetBooleanStatus");
+    if (refused) return (fmi2Status)refused;
     if (s == fmi2Terminated) {
         *value = I2->terminated ? fmi2True : fmi2False;
         return fmi2OK;
@@ -1311,6 +1678,8 @@ fmi2Status EXPORT2(fmi2GetBooleanStatus)(fmi2Component c, const fmi2StatusKind s
 
 fmi2Status EXPORT2(fmi2GetStringStatus)(fmi2Component c, const fmi2StatusKind s, fmi2String *value)
 {
+    int refused = not_in(I2, MODES_STATUS, "fmi2GetStringStatus");
+    if (refused) return (fmi2Status)refused;
     (void)s, (void)value;
     return (fmi2Status)unsupported(I2, "fmi2GetStringStatus");
 }
@@ -1327,11 +1696,17 @@ fmi3Instance fmi3InstantiateCoSimulation(
     size_t nRequiredIntermediateVariables, fmi3InstanceEnvironment instanceEnvironment,
     fmi3LogMessageCallback logMessage, fmi3IntermediateUpdateCallback intermediateUpdate)
 {
-    (void)instantiationToken, (void)earlyReturnAllowed, (void)requiredIntermediateVariables;
+    (void)earlyReturnAllowed, (void)requiredIntermediateVariables;
     (void)nRequiredIntermediateVariables, (void)intermediateUpdate;
     if (eventModeUsed) {
         if (logMessage) logMessage(instanceEnvironment, fmi3Error, "logStatusError",
                                    "this FMU has no event mode");
+        return NULL;
+    }
+    char why[512];
+    if (!token_matches(instantiationToken, resourcePath, "fmi3InstantiateCoSimulation",
+                       "instantiationToken", why, sizeof why)) {
+        if (logMessage) logMessage(instanceEnvironment, fmi3Error, "logStatusError", why);
         return NULL;
     }
     return instantiate(1, instanceName, resourcePath, visible, loggingOn, NULL, NULL,
@@ -1367,27 +1742,41 @@ fmi3Status fmi3EnterInitializationMode(fmi3Instance instance, fmi3Boolean tolera
                                        fmi3Boolean stopTimeDefined, fmi3Float64 stopTime)
 {
     (void)toleranceDefined, (void)tolerance, (void)stopTimeDefined, (void)stopTime;
+    int refused = not_in(I3, MODE_INSTANTIATED, "fmi3EnterInitializationMode");
+    if (refused) return (fmi3Status)refused;
+    if (!isfinite(startTime))
+        return (fmi3Status)refuse(I3, "fmi3EnterInitializationMode", "the start time is not "
+                                  "finite");
     PyGILState_STATE gil = PyGILState_Ensure();
     int status = setup(I3, startTime, "fmi3EnterInitializationMode");
     PyGILState_Release(gil);
-    if (status != fmi3OK) return (fmi3Status)status;
-    return (fmi3Status)simple_call(I3, I3->enter_init, "fmi3EnterInitializationMode");
+    if (status != fmi3OK) return (fmi3Status)settle(I3, status);
+    return (fmi3Status)moved(I3, simple_call(I3, I3->enter_init, "fmi3EnterInitializationMode"),
+                             MODE_INITIALIZATION);
 }
 
 fmi3Status fmi3ExitInitializationMode(fmi3Instance instance)
 {
-    return (fmi3Status)simple_call(I3, I3->exit_init, "fmi3ExitInitializationMode");
+    int refused = not_in(I3, MODE_INITIALIZATION, "fmi3ExitInitializationMode");
+    if (refused) return (fmi3Status)refused;
+    return (fmi3Status)moved(I3, simple_call(I3, I3->exit_init, "fmi3ExitInitializationMode"),
+                             MODE_STEP);
 }
 
 fmi3Status fmi3EnterStepMode(fmi3Instance instance)
 {
-    (void)instance;
-    return fmi3OK; /* co-simulation without event mode is always in step mode */
+    /* FMI 3.0: Event Mode -> Step Mode only; this FMU has no event mode, it is in step
+       mode right after fmi3ExitInitializationMode */
+    return (fmi3Status)refuse(I3, "fmi3EnterStepMode", "this FMU has no event mode (it is "
+                              "in step mode after fmi3ExitInitializationMode)");
 }
 
 fmi3Status fmi3Terminate(fmi3Instance instance)
 {
-    return (fmi3Status)simple_call(I3, I3->terminate, "fmi3Terminate");
+    int refused = not_in(I3, MODE_STEP | MODE_STEP_FAILED, "fmi3Terminate");
+    if (refused) return (fmi3Status)refused;
+    return (fmi3Status)moved(I3, simple_call(I3, I3->terminate, "fmi3Terminate"),
+                             MODE_TERMINATED);
 }
 
 fmi3Status fmi3Reset(fmi3Instance instance) { return (fmi3Status)reset(I3, "fmi3Reset"); }
@@ -1396,13 +1785,14 @@ fmi3Status fmi3Reset(fmi3Instance instance) { return (fmi3Status)reset(I3, "fmi3
     if (nValues != n) {                                                                   \
         emitf(I3, fmi3Error, "logStatusError", "%s: %zu values for %zu value references "  \
               "(arrays are not supported)", what, nValues, n);                             \
-        return fmi3Error;                                                                 \
+        return (fmi3Status)settle(I3, fmi3Error);                                         \
     }
 
 fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference vr[], size_t n,
                           fmi3Float64 values[], size_t nValues)
 {
     N_VALUES_MATCH("fmi3GetFloat64")
+    CHECK_VALUES(I3, "fmi3GetFloat64", 0, REAL);
     VALUES_CALL(I3, "fmi3GetFloat64", get_reals(I3, vr, n, values));
 }
 
@@ -1410,6 +1800,7 @@ fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference vr[], 
                           const fmi3Float64 values[], size_t nValues)
 {
     N_VALUES_MATCH("fmi3SetFloat64")
+    CHECK_VALUES(I3, "fmi3SetFloat64", 1, REAL);
     VALUES_CALL(I3, "fmi3SetFloat64", set_reals(I3, vr, n, values));
 }
 
@@ -1417,6 +1808,7 @@ fmi3Status fmi3GetInt32(fmi3Instance instance, const fmi3ValueReference vr[], si
                         fmi3Int32 values[], size_t nValues)
 {
     N_VALUES_MATCH("fmi3GetInt32")
+    CHECK_VALUES(I3, "fmi3GetInt32", 0, INTEGER);
     VALUES_CALL(I3, "fmi3GetInt32", get_ints(I3, vr, n, values));
 }
 
@@ -1424,6 +1816,7 @@ fmi3Status fmi3SetInt32(fmi3Instance instance, const fmi3ValueReference vr[], si
                         const fmi3Int32 values[], size_t nValues)
 {
     N_VALUES_MATCH("fmi3SetInt32")
+    CHECK_VALUES(I3, "fmi3SetInt32", 1, INTEGER);
     VALUES_CALL(I3, "fmi3SetInt32", set_ints(I3, vr, n, values));
 }
 
@@ -1431,6 +1824,7 @@ fmi3Status fmi3GetBoolean(fmi3Instance instance, const fmi3ValueReference vr[], 
                           fmi3Boolean values[], size_t nValues)
 {
     N_VALUES_MATCH("fmi3GetBoolean")
+    CHECK_VALUES(I3, "fmi3GetBoolean", 0, BOOLEAN);
     VALUES_CALL(I3, "fmi3GetBoolean", get_bools(I3, vr, n, values, 0));
 }
 
@@ -1438,6 +1832,7 @@ fmi3Status fmi3SetBoolean(fmi3Instance instance, const fmi3ValueReference vr[], 
                           const fmi3Boolean values[], size_t nValues)
 {
     N_VALUES_MATCH("fmi3SetBoolean")
+    CHECK_VALUES(I3, "fmi3SetBoolean", 1, BOOLEAN);
     VALUES_CALL(I3, "fmi3SetBoolean", set_bools(I3, vr, n, values, 0));
 }
 
@@ -1445,6 +1840,7 @@ fmi3Status fmi3GetString(fmi3Instance instance, const fmi3ValueReference vr[], s
                          fmi3String values[], size_t nValues)
 {
     N_VALUES_MATCH("fmi3GetString")
+    CHECK_VALUES(I3, "fmi3GetString", 0, STRING);
     VALUES_CALL(I3, "fmi3GetString", get_strings(I3, vr, n, values));
 }
 
@@ -1452,6 +1848,7 @@ fmi3Status fmi3SetString(fmi3Instance instance, const fmi3ValueReference vr[], s
                          const fmi3String values[], size_t nValues)
 {
     N_VALUES_MATCH("fmi3SetString")
+    CHECK_VALUES(I3, "fmi3SetString", 1, STRING);
     VALUES_CALL(I3, "fmi3SetString", set_strings(I3, vr, n, values));
 }
 
@@ -1495,6 +1892,14 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 t, fmi3Float64 h,
                       fmi3Boolean *earlyReturn, fmi3Float64 *lastSuccessfulTime)
 {
     (void)noSetFMUStatePriorToCurrentPoint;
+    int refused = check_step(I3, "fmi3DoStep", t, h);
+    if (refused) {
+        if (eventHandlingNeeded) *eventHandlingNeeded = fmi3False;
+        if (earlyReturn) *earlyReturn = fmi3False;
+        if (terminateSimulation) *terminateSimulation = fmi3False;
+        if (lastSuccessfulTime) *lastSuccessfulTime = t;
+        return (fmi3Status)refused;
+    }
     PyGILState_STATE gil = PyGILState_Ensure();
     int code, terminate;
     int done = step(I3, t, h, &code, &terminate);
@@ -1507,6 +1912,8 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 t, fmi3Float64 h,
     } else {
         status = done ? fmi3OK : fmi3Discard;
     }
+    if (status == fmi3Discard) I3->mode = MODE_STEP_FAILED;
+    settle(I3, (int)status);
     PyGILState_Release(gil);
     if (eventHandlingNeeded) *eventHandlingNeeded = fmi3False;
     if (earlyReturn) *earlyReturn = fmi3False;

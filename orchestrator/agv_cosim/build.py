@@ -12,6 +12,12 @@ with unchanged sources is skipped (the FMU's GUID already matches, computed with
 requirement list the FMU ships as long as exactly those versions are installed), and a
 built FMU that ``fmpy.validation`` finds fault with fails the build.
 
+The out folder's ``build-index.json`` records each FMU this command wrote there and the
+hash of its bytes; only such an FMU, unchanged, is replaced (:func:`check_replaceable`):
+a user's file or a symbolic link at an FMU's place is refused (OutputError, before
+anything is built). Each FMU is written as a new file (O_EXCL | O_NOFOLLOW) beside its
+place and renamed onto it, as ``run`` writes its files.
+
 pythonfmu writes the model description; its Linux binary is not shipped. The build
 compiles ``components/fmu_loader/agv_fmu_loader.c`` (the loader: finds or starts a
 Python, no Python symbol of its own) and ``agv_fmu_bridge.c`` (the FMI 2.0 and 3.0 C API
@@ -33,16 +39,20 @@ same loader and bridge as the FMI 2.0 FMUs.
 """
 
 import ast
+import errno
 import functools
 import hashlib
 import json
+import os
 import shutil
+import stat
 import subprocess
 import sys
 import sysconfig
 import tempfile
 import uuid
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -52,7 +62,8 @@ import pythonfmu
 from pythonfmu.builder import FmuBuilder
 
 from .bundle import bundle_of, installed_requirements, requirements_text
-from .errors import BuildError, BundleError
+from .errors import BuildError, BundleError, OutputError, did_you_mean
+from .files import create_beside
 from .shipped import shipped_dir
 
 #: The folder in resources/ that holds the bundled part of agv_core (agv_boot.py).
@@ -530,6 +541,146 @@ def _fmi_version_of(fmu_path):
         return None
 
 
+# ------------------------------------------------------------------------ the build record
+#: What ``build`` keeps in its out folder (:data:`INDEX_FILE`): slave script name ->
+#: ``{"fmu": file name, "sha256": [hash of the FMU's bytes, ...]}``, one entry per FMU this
+#: command wrote there. During a replacement both the old and the new hash are listed, so
+#: a build killed between the rename and the record's update still knows its file. A
+#: record of an earlier format names the FMU only (``script -> file name``): the file is
+#: then taken as built here when it is an FMU of agv-cosim build of that script.
+RECORD_FORMAT = 2
+
+
+def _recorded_name(entry: Any) -> str | None:
+    if isinstance(entry, str):
+        return entry
+    if isinstance(entry, dict) and isinstance(entry.get("fmu"), str):
+        return str(entry["fmu"])
+    return None
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as stream:
+        for block in iter(lambda: stream.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _regular(path: Path) -> os.stat_result | None:
+    """``path``'s lstat if it is a regular file (not a symbolic link), else None."""
+    try:
+        info = os.lstat(path)
+    except FileNotFoundError:
+        return None
+    return info if stat.S_ISREG(info.st_mode) else None
+
+
+def _built_here(path: Path, script_name: str, entry: Any) -> bool:
+    """True when ``path`` is the regular file the record ``entry`` of ``script_name``
+    says this command wrote (its hash listed; for an entry of the earlier format: an
+    FMU of agv-cosim build of that script)."""
+    if _regular(path) is None or _recorded_name(entry) != path.name:
+        return False
+    if isinstance(entry, dict):
+        hashes = entry.get("sha256")
+        return isinstance(hashes, list) and _sha256(path) in hashes
+    try:
+        with zipfile.ZipFile(path) as archive:
+            info = json.loads(archive.read("resources/agv_build.json"))
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return False
+    return isinstance(info, dict) and info.get("script") == script_name
+
+
+def read_record(out_dir: str | Path) -> dict[str, Any]:
+    """The build record in ``out_dir`` (empty when there is none); OutputError when the
+    file at its place is a link, not a regular file, or not a record of this command."""
+    path = Path(out_dir) / INDEX_FILE
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        return {}
+    except OSError as error:
+        if error.errno == errno.ELOOP:
+            raise OutputError(f"{path}: is a symbolic link, not the build record of agv-cosim "
+                              "build; refusing to use it (choose another --out)") from None
+        raise OutputError(f"{path}: cannot read the build record: {error.strerror}") from None
+    try:
+        with os.fdopen(fd, "rb") as stream:
+            if not stat.S_ISREG(os.fstat(stream.fileno()).st_mode):
+                raise ValueError
+            data = json.loads(stream.read(1 << 22).decode("utf-8"))
+        if not isinstance(data, dict) or not all(
+                isinstance(k, str) and _recorded_name(v) is not None for k, v in data.items()):
+            raise ValueError
+    except (ValueError, OSError):
+        raise OutputError(f"{path}: not a build record of agv-cosim build; refusing to "
+                          "replace it (choose another --out)") from None
+    return data
+
+
+def _write_record(out_dir: Path, index: dict[str, Any]) -> None:
+    """Write the build record whole (a new file of ours renamed in); never through a
+    link or over a file that is not a record (read_record refused that first)."""
+    path = out_dir / INDEX_FILE
+    if os.path.lexists(path) and _regular(path) is None:
+        raise OutputError(f"{path}: is not a regular file; refusing to replace it")
+    temporary, stream = create_beside(path)
+    try:
+        with stream:
+            stream.write((json.dumps(index, indent=1, sort_keys=True) + "\n").encode())
+        os.replace(temporary, path)
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise
+
+
+def check_replaceable(target: Path, index: dict[str, Any]) -> None:
+    """OutputError (naming ``target``) unless ``target`` is missing or an FMU this
+    command wrote there (the record says so and the file is unchanged since)."""
+    if not os.path.lexists(target):
+        return
+    if os.path.islink(target):
+        raise OutputError(f"{target}: is a symbolic link, not an FMU agv-cosim build wrote "
+                          "here; refusing to replace it (move it away or choose another "
+                          "--out)")
+    if _regular(target) is None:
+        raise OutputError(f"{target}: exists and is not a file; refusing to replace it")
+    if not any(_built_here(target, script, entry) for script, entry in index.items()):
+        raise OutputError(f"{target}: exists and was not written by agv-cosim build (or was "
+                          "changed since); refusing to replace it (move it away or choose "
+                          "another --out)")
+
+
+def _install(built: Path, target: Path, script_name: str, index: dict[str, Any],
+             fmi_version: int) -> None:
+    """Put the FMU ``built`` at ``target``: a new file of ours beside it (O_EXCL |
+    O_NOFOLLOW), renamed onto it; only over a file this command wrote (the record), and
+    the record updated around the rename."""
+    if os.path.lexists(target) and not os.path.islink(target):
+        other = _fmi_version_of(target)
+        if other is not None and other != f"{fmi_version}.0":
+            raise BuildError(f"'{target}' is an FMI {other} FMU; build the FMI "
+                             f"{fmi_version}.0 twins into another folder")
+    check_replaceable(target, index)
+    old = [_sha256(target)] if os.path.lexists(target) else []
+    new = _sha256(built)
+    temporary, stream = create_beside(target, ".fmu.partial")
+    try:
+        with stream, open(built, "rb") as source:
+            shutil.copyfileobj(source, stream, 1 << 20)
+        index[script_name] = {"fmu": target.name, "sha256": [*old, new]}
+        _write_record(target.parent, index)
+        check_replaceable(target, index)  # again: nothing else took the place meanwhile
+        os.replace(temporary, target)
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise
+    index[script_name] = {"fmu": target.name, "sha256": [new]}
+    _write_record(target.parent, index)
+
+
 def build_one(script: str | Path, out_dir: str | Path, core_dir: str | Path | None = None,
               force: bool = False, index: dict[str, Any] | None = None,
               fmi_version: int = 2, standalone: bool = False) -> "BuildResult":
@@ -548,8 +699,11 @@ def build_one(script: str | Path, out_dir: str | Path, core_dir: str | Path | No
     boot = default_components_dir() / BOOT_SOURCE
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    index = {} if index is None else index
-    known: str | None = index.get(script.name)
+    index = read_record(out_dir) if index is None else index
+    entry = index.get(script.name)
+    known = _recorded_name(entry)
+    if known is not None and not _built_here(out_dir / known, script.name, entry):
+        known = None  # not the file this command wrote: rebuilt, and then refused
     # Up to date: the FMU there has the GUID of these sources with its own requirement
     # list, and that list is what this Python has installed (no child process needed).
     shipped = _shipped_requirements(out_dir / known) if known and not force else None
@@ -576,7 +730,7 @@ def build_one(script: str | Path, out_dir: str | Path, core_dir: str | Path | No
 
                 fmu_path = Fmu3Builder.build_FMU(
                     staged_script, dest=Path(tmp) / "out", project_files=project_files,
-                    needsExecutionTool=True, canGetAndSetFMUState=True,
+                    needsExecutionTool=not standalone, canGetAndSetFMUState=True,
                     canSerializeFMUState=True,
                     # pythonfmu3 0.3.4 writes another option's value here unless given
                     canHandleVariableCommunicationStepSize=True,
@@ -584,7 +738,7 @@ def build_one(script: str | Path, out_dir: str | Path, core_dir: str | Path | No
             else:
                 fmu_path = FmuBuilder.build_FMU(
                     staged_script, dest=Path(tmp) / "out", project_files=project_files,
-                    needsExecutionTool=True, canGetAndSetFMUstate=True,
+                    needsExecutionTool=not standalone, canGetAndSetFMUstate=True,
                     canSerializeFMUstate=True,
                 )
         except BuildError:
@@ -610,37 +764,62 @@ def build_one(script: str | Path, out_dir: str | Path, core_dir: str | Path | No
             except StandaloneError as error:
                 raise BuildError(f"{script.name}: standalone runtime: {error}") from None
         target = out_dir / fmu_path.name
-        other = _fmi_version_of(target) if target.exists() else None
-        if other is not None and other != f"{fmi_version}.0":
-            raise BuildError(f"'{target}' is an FMI {other} FMU; build the FMI "
-                             f"{fmi_version}.0 twins into another folder")
-        partial = target.with_suffix(".fmu.partial")
-        shutil.copy2(fmu_path, partial)
-        partial.replace(target)
-    index[script.name] = target.name
+        _install(fmu_path, target, script.name, index, fmi_version)
     return BuildResult(script, target, guid, rebuilt=True)
 
 
+def component_scripts(names: list[str], components_dir: str | Path | None = None
+                      ) -> list[Path]:
+    """The slave scripts of the components ``names`` (each a model identifier as in the
+    FMU's file name, ``AgvVehicle`` or ``AgvVehicle.fmu``, or a slave script's name,
+    ``agv_vehicle`` or ``agv_vehicle.py``), in the order given, each once; OutputError
+    naming an unknown one and listing the valid names."""
+    scripts = slave_scripts(components_dir or default_components_dir())
+    by_name: dict[str, Path] = {}
+    for script in scripts:
+        identifier = slave_class_name(script)
+        for name in (identifier, f"{identifier}.fmu", script.stem, script.name):
+            by_name[name] = script
+    chosen: list[Path] = []
+    for name in names:
+        if name not in by_name:
+            valid = sorted(slave_class_name(s) for s in scripts)
+            raise OutputError(f"build: no component '{name}'{did_you_mean(name, by_name)}; "
+                              f"valid names: {', '.join(valid)}")
+        if by_name[name] not in chosen:
+            chosen.append(by_name[name])
+    return chosen
+
+
 def build_fmus(out_dir: str | Path, scripts: list[Path] | None = None, force: bool = False,
-               fmi_version: int = 2, standalone: bool = False) -> list["BuildResult"]:
+               fmi_version: int = 2, standalone: bool = False,
+               progress: Callable[[int, int, Path, "BuildResult | None"], None] | None = None
+               ) -> list["BuildResult"]:
     """Build every slave script (or ``scripts``) into ``out_dir``; return the results.
 
     ``fmi_version`` 3 builds the FMI 3.0 twins (see the module docstring); ``standalone``
-    FMUs carry their own Python runtime (:func:`build_one`).
+    FMUs carry their own Python runtime (:func:`build_one`). ``progress(k, n, script,
+    result)`` is called before the k-th of n scripts is built (``result`` None) and after
+    (its result). Every FMU's place in ``out_dir`` is checked before anything is built:
+    only FMUs this command wrote there are replaced (:func:`check_replaceable`).
     """
     out_dir = Path(out_dir)
     scripts = slave_scripts(default_components_dir()) if scripts is None else scripts
-    index_path = out_dir / INDEX_FILE
-    try:
-        index = json.loads(index_path.read_text())
-    except (OSError, ValueError):
-        index = {}
+    index = read_record(out_dir)
+    for script in scripts:  # refused before anything is built
+        check_replaceable(out_dir / f"{slave_class_name(script)}.fmu", index)
     results = []
     try:
-        for script in scripts:
+        for k, script in enumerate(scripts, 1):
+            if progress is not None:
+                progress(k, len(scripts), script, None)
             results.append(build_one(script, out_dir, force=force, index=index,
                                      fmi_version=fmi_version, standalone=standalone))
+            if progress is not None:
+                progress(k, len(scripts), script, results[-1])
     finally:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        index_path.write_text(json.dumps(index, indent=1, sort_keys=True) + "\n")
+        if standalone:
+            from .standalone import discard_runtimes
+
+            discard_runtimes()
     return results

@@ -34,18 +34,28 @@ def _error(text: str) -> int:
 
 
 def _cmd_build(args: argparse.Namespace) -> int:
-    from .build import build_fmus
+    from .build import build_fmus, component_scripts
     from .errors import BuildError
 
+    scripts = component_scripts(args.names) if args.names else None
+    started = [0.0]
+
+    def progress(k, n, script, result):
+        import time
+
+        if result is None:
+            started[0] = time.monotonic()
+            _say(f"agv-cosim build: [{k}/{n}] {script.name} ...")
+            return
+        state = "built" if result.rebuilt else "up to date"
+        print(f"{result.fmu}  {state} ({time.monotonic() - started[0]:.1f} s)", flush=True)
+
     try:
-        results = build_fmus(args.out, force=args.force, fmi_version=args.fmi,
-                             standalone=args.standalone)
+        build_fmus(args.out, scripts, force=args.force, fmi_version=args.fmi,
+                   standalone=args.standalone, progress=progress)
     except BuildError as error:
         print(f"agv-cosim build: error: {error}", file=sys.stderr)
         return 1
-    for result in results:
-        state = "built" if result.rebuilt else "up to date"
-        print(f"{result.fmu}  {state}")
     return 0
 
 
@@ -224,19 +234,42 @@ def _cmd_list(args):
     return status
 
 
+class _Parser(argparse.ArgumentParser):
+    """The top-level parser: arguments left over after a subcommand's are that
+    subcommand's error (its usage line, not the top-level one)."""
+
+    commands: dict[str, argparse.ArgumentParser] = {}
+
+    def parse_args(self, args=None, namespace=None):
+        parsed, extra = self.parse_known_args(args, namespace)
+        if extra:
+            command = self.commands.get(getattr(parsed, "command", None) or "", self)
+            command.error(f"unrecognized arguments: {' '.join(extra)}")
+        return parsed
+
+
+def _plain(text: str | None) -> str:
+    """A docstring as ``--help`` shows it: reST's double backquotes as single ones."""
+    return (text or "").replace("``", "`")
+
+
 def make_parser() -> argparse.ArgumentParser:
     """The argument parser of ``agv-cosim`` with all its subcommands."""
-    parser = argparse.ArgumentParser(prog="agv-cosim", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = _Parser(prog="agv-cosim", description=_plain(__doc__),
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"agv-cosim {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     debug = argparse.ArgumentParser(add_help=False)
     debug.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                        help="show tracebacks on errors")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True,
+                                parser_class=argparse.ArgumentParser)
 
     build = sub.add_parser("build", help="build the component FMUs (only what changed)",
                            parents=[debug])
+    build.add_argument("names", nargs="*", metavar="NAME",
+                       help="build only these components (AgvVehicle or agv_vehicle; "
+                            "default: all)")
     build.add_argument("--out", default="fmus", help="output folder (default: fmus)")
     build.add_argument("--force", action="store_true", help="rebuild every FMU")
     build.add_argument("--fmi", type=int, choices=(2, 3), default=2,
@@ -365,6 +398,7 @@ def make_parser() -> argparse.ArgumentParser:
     export.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                         help="show tracebacks on errors")
     export.set_defaults(func=_cmd_export_ssp)
+    parser.commands = dict(sub.choices)
     return parser
 
 

@@ -6,7 +6,9 @@ the repository's ``experiments/`` beside ``fmus/``). A copy names the same file 
 folder ``fmus`` given here (default ``fmus``, relative to the current folder: where
 ``agv-cosim build`` writes by default; ``agv-cosim build --out X`` pairs with ``--fmus X``),
 written relative to DIR so that DIR and the FMU folder can move together (an absolute
-``--fmus`` is written as it is). Files the
+``--fmus`` is written as it is). The relative path is computed between the real paths of
+the two folders (symbolic links resolved), since that is where the system resolves it
+from. Files the
 manifests reference beside themselves (``table = "x.csv"``, a path
 ``"waypoints:file=x.csv"``) are copied along, at the same place relative to the manifest.
 
@@ -148,8 +150,11 @@ def copy_examples(folder: str | Path, fmus: str = "fmus") -> list[Path]:
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise ExamplesError(f"{folder}: exists and is not a folder")
+    # from the real paths: the system resolves a relative path from the folder the
+    # manifest is really in, whatever links the names given here go through
     fmu_folder = (Path(fmus).as_posix() if Path(fmus).is_absolute() else
-                  Path(os.path.relpath(Path(fmus).absolute(), folder.absolute())).as_posix())
+                  Path(os.path.relpath(os.path.realpath(fmus),
+                                       os.path.realpath(folder))).as_posix())
     files = example_files(fmu_folder)
     record = _record_of(folder) if folder.is_dir() else {}
     in_the_way = []

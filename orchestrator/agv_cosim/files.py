@@ -38,6 +38,21 @@ def create_file(path: str | Path, binary: bool = False) -> IO[Any]:
     return os.fdopen(fd, "w", encoding="utf-8", newline="")
 
 
+def create_beside(target: str | Path, suffix: str = ".partial") -> tuple[Path, IO[Any]]:
+    """A new file beside ``target`` under a temporary name of ours
+    (``.<name>.<random><suffix>``, :func:`create_file`: never an existing file, never
+    through a symbolic link), opened for writing bytes; ``(its path, the stream)``. To be
+    renamed onto ``target`` once complete."""
+    target = Path(target)
+    for _ in range(100):
+        path = target.parent / f".{target.stem}.{os.urandom(4).hex()}{suffix}"
+        try:
+            return path, create_file(path, binary=True)
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, "no free temporary name", str(target))
+
+
 def open_output(path: str | Path) -> BinaryIO:
     """``path`` opened for writing bytes, created or truncated, never through a
     symbolic link (``O_NOFOLLOW``): for files a library call may write again (figures)."""

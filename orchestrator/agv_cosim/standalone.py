@@ -6,24 +6,31 @@ The runtime goes into the FMU beside its binary, as ``binaries/<platform>/python
     the building Python's shared library (it must be built with ``--enable-shared``),
     stripped, its run path ``$ORIGIN``;
 ``lib/*.so.*``
-    the shared libraries that it and the bundled extension modules need beyond the C
+    the shared libraries that it and the shipped extension modules need beyond the C
     library (libffi, zlib, liblzma, ...; found with ``ldd``), stripped;
 ``lib/python3.X/``
-    the standard library without what an FMU cannot use (tests, IDLE, Tk, curses,
-    readline, dbm, sqlite, ssl, ensurepip, lib2to3, the static library and Makefile of
-    ``config-*``), its extension modules in ``lib-dynload`` with run path ``$ORIGIN/../..``;
+    the standard-library modules the FMU's slave loads (and the ``encodings`` package),
+    its extension modules in ``lib-dynload`` with run path ``$ORIGIN/../..``;
 ``lib/python3.X/site-packages/``
-    the distributions of every module the FMU's slave imports (found by importing the slave
-    and running a few steps of its default experiment in a child process of the building
-    Python: the modules loaded from site-packages, mapped to their distributions), each as
-    its installed files without tests, type stubs, C headers and Cython declarations
-    (compiled files as the wheels installed them).
+    of every distribution the FMU's slave imports, the files it loads, opens or maps
+    (compiled files as the wheels installed them) and the distribution's metadata.
 
-No ``__pycache__`` is shipped (Python compiles on first import, and writes the cache into
-the extracted FMU when it may). The FMU loader (components/fmu_loader/agv_fmu_loader.c)
-starts this runtime, with ``home`` set to the folder, when the host process has no
-Python; a host that has one (fmpy) runs the FMU in its own interpreter, with this
-``site-packages`` appended to ``sys.path`` for what the host lacks.
+What the slave uses is found by importing it and running a few steps of its default
+experiment in a child process of the building Python (:data:`_PROBE`): the files of the
+modules loaded, the files opened (an audit hook) and the shared libraries mapped; every
+standard-library module an import statement of the FMU's own sources names is imported
+there first, so that an import inside a function the probe does not call is shipped too.
+
+Every Python source shipped (the runtime's and the FMU's ``resources/``) comes with its
+bytecode in ``__pycache__``, hash-based and checked (PEP 552: valid whatever time stamps
+the extraction gives the files; the runtime is the building Python's version), so that a
+run does not compile them first. The FMU declares ``needsExecutionTool="false"`` and holds
+no binary of another platform than the runtime's. The FMU loader
+(components/fmu_loader/agv_fmu_loader.c) starts this runtime, with ``home`` set to the
+folder, when the host process has no Python; a host that has one (fmpy) runs the FMU in
+its own interpreter, with this ``site-packages`` appended to ``sys.path`` for what the
+host lacks. The runtime is assembled once per build in a temporary folder, removed when
+the build ends.
 
 Paths of the building machine are kept out: the run paths are rewritten (patchelf), the
 libraries are stripped of debug information, and the building Python's prefix, which
@@ -31,8 +38,9 @@ libraries are stripped of debug information, and the building Python's prefix, w
 same length (a compiled-in fallback that the loader never uses, since it sets ``home``).
 """
 
-import functools
+import atexit
 import importlib.metadata
+import importlib.util
 import json
 import os
 import re
@@ -43,6 +51,7 @@ import sysconfig
 import tempfile
 import zipfile
 from collections.abc import Iterable
+from importlib import _bootstrap_external
 from pathlib import Path
 from typing import Any
 
@@ -70,14 +79,44 @@ SYSTEM_LIBRARIES = re.compile(r"^(libc|libm|libpthread|libdl|librt|libutil|ld-li
 
 # ------------------------------------------------------------------------ what to ship
 #: Run in a child of the building Python: import the slave from an extracted FMU's
-#: resources the way the bridge does, step its default experiment a little, print the
-#: files of the modules it loaded.
+#: resources the way the bridge does, step its default experiment a little, print every
+#: file the process used: the files of the modules loaded (those of the interpreter's own
+#: start too), the files opened (an audit hook: data files a package reads) and the
+#: shared libraries mapped (/proc/self/maps: those an extension module links), with the
+#: extension modules the runtime leaves out blocked (argv[2]). Besides,
+#: every standard-library module that an import statement of the FMU's own sources names
+#: (anywhere, a function's import too) is imported first, so that a call this probe does
+#: not make still finds its module.
 _PROBE = r"""
-import json, sys
+import ast, importlib, json, sys
 from pathlib import Path
+used = set()
+def hook(event, args):
+    if event in ("open", "ctypes.dlopen") and args and isinstance(args[0], str):
+        used.add(args[0])
+sys.addaudithook(hook)
 resources = Path(sys.argv[1])
-before = set(sys.modules)
+for blocked in json.loads(sys.argv[2]):  # not in the runtime: its fallbacks load instead
+    sys.modules[blocked] = None
 sys.path.insert(0, str(resources))
+for source in sorted(resources.rglob("*.py")):
+    try:
+        tree = ast.parse(source.read_bytes())
+    except (SyntaxError, ValueError):
+        continue
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names = [node.module]
+        else:
+            continue
+        for name in names:
+            if name.partition(".")[0] in sys.stdlib_module_names:
+                try:
+                    importlib.import_module(name)
+                except Exception:
+                    pass
 name = (resources / "slavemodule.txt").read_text().strip()
 module = __import__(name)
 classes = [v for v in vars(module).values()
@@ -90,18 +129,25 @@ slave.enter_initialization_mode()
 slave.exit_initialization_mode()
 for k in range(20):
     slave.do_step(k * h, h)
-files = sorted({getattr(m, "__file__", None) or "" for n, m in list(sys.modules.items())
-                if n not in before})
-print(json.dumps([f for f in files if f]))
+files = {getattr(m, "__file__", None) or "" for m in list(sys.modules.values())}
+with open("/proc/self/maps") as maps:
+    for line in maps:
+        parts = line.split(None, 5)
+        if len(parts) == 6 and parts[5].startswith("/"):
+            files.add(parts[5].strip())
+files |= used
+print(json.dumps(sorted(f for f in files if f)))
 """
 
 
 def imported_files(fmu_path: str | Path) -> list[Path]:
-    """Files of the modules the FMU's slave imports (a child process of this Python)."""
+    """Files the FMU's slave uses when it runs: its modules, the files they open and the
+    shared libraries they map (:data:`_PROBE`, a child process of this Python)."""
     with tempfile.TemporaryDirectory(prefix="agv_probe_") as tmp:
         with zipfile.ZipFile(fmu_path) as archive:
             archive.extractall(tmp)
-        done = subprocess.run([sys.executable, "-c", _PROBE, str(Path(tmp) / "resources")],
+        done = subprocess.run([sys.executable, "-c", _PROBE, str(Path(tmp) / "resources"),
+                               json.dumps(_left_out_modules())],
                               capture_output=True, text=True, timeout=600)
     if done.returncode != 0:
         last = (done.stderr.strip().splitlines() or [f"exit code {done.returncode}"])[-1]
@@ -110,17 +156,29 @@ def imported_files(fmu_path: str | Path) -> list[Path]:
     return [Path(f) for f in json.loads(done.stdout.strip().splitlines()[-1])]
 
 
+def _left_out_modules() -> list[str]:
+    """Names of the extension modules of lib-dynload that the runtime leaves out
+    (:data:`DYNLOAD_EXCLUDED`): the probe runs without them, so that the modules that
+    stand in for them are found (hashlib's own md5, sha1, ... without OpenSSL's
+    ``_hashlib``)."""
+    dynload = Path(sysconfig.get_paths()["stdlib"]) / "lib-dynload"
+    return sorted(path.name.split(".")[0] for path in dynload.glob("*.so")
+                  if DYNLOAD_EXCLUDED.match(path.name))
+
+
 def _site_packages():
     """The building environment's site-packages folders."""
     return [Path(p).resolve() for p in {sysconfig.get_paths()["purelib"],
                                         sysconfig.get_paths()["platlib"]}]
 
 
-def needed_distributions(fmu_path: str | Path) -> list[str]:
-    """Names of the installed distributions whose modules the FMU's slave imports."""
+def needed_distributions(fmu_path: str | Path,
+                         used: Iterable[Path] | None = None) -> list[str]:
+    """Names of the installed distributions whose modules the FMU's slave imports
+    (``used``: :func:`imported_files`, found again when not given)."""
     sites = _site_packages()
     top_names = set()
-    for path in imported_files(fmu_path):
+    for path in (imported_files(fmu_path) if used is None else used):
         path = path.resolve()
         for site in sites:
             if site in path.parents:
@@ -233,13 +291,39 @@ def _scrub(path: Path, prefixes: Iterable[str]) -> None:
         path.write_bytes(changed)
 
 
-@functools.lru_cache(maxsize=2)
+#: The runtime folders assembled by this process (platform folder -> temporary folder).
+_RUNTIMES: dict[str, Path] = {}
+
+
+def discard_runtimes() -> None:
+    """Remove the temporary runtime folders of :func:`runtime_base` (also at exit)."""
+    while _RUNTIMES:
+        _, root = _RUNTIMES.popitem()
+        shutil.rmtree(root, ignore_errors=True)
+
+
+atexit.register(discard_runtimes)
+
+
 def runtime_base(platform_dir: str) -> Path:
-    """A temporary folder with the runtime less its packages (cached per process):
+    """A temporary folder with the runtime less its packages, assembled once per process
+    (removed by :func:`discard_runtimes`, which ``build_fmus`` calls when done):
     ``{relative path: absolute file}`` to put under ``binaries/<platform>/python/``."""
+    if platform_dir in _RUNTIMES and _RUNTIMES[platform_dir].is_dir():
+        return _RUNTIMES[platform_dir]
     version, libpython, stdlib = _python_facts()
     patchelf, strip = _tool("patchelf"), _tool("strip")
     root = Path(tempfile.mkdtemp(prefix="agv_runtime_"))
+    try:
+        _assemble_runtime(root, version, libpython, stdlib, patchelf, strip)
+    except BaseException:
+        shutil.rmtree(root, ignore_errors=True)
+        raise
+    _RUNTIMES[platform_dir] = root
+    return root
+
+
+def _assemble_runtime(root, version, libpython, stdlib, patchelf, strip):
     lib = root / "lib"
     target_stdlib = lib / f"python{version}"
     excluded = {stdlib / part for part in STDLIB_EXCLUDED}
@@ -275,19 +359,46 @@ def runtime_base(platform_dir: str) -> Path:
 
 def runtime_files(fmu_path: str | Path, platform_dir: str) -> tuple[dict[str, Path], Any]:
     """``{path inside the FMU: file}`` of the standalone runtime for ``fmu_path``, and the
-    distributions shipped (name==version)."""
+    distributions shipped (name==version).
+
+    Only what the slave uses (:func:`imported_files`): the standard-library modules it
+    loads (and the whole ``encodings`` package: the interpreter picks its codecs from the
+    locale when it starts), the extension modules of lib-dynload it loads, libpython and
+    the libraries these link; of each distribution it imports, the files it loads, opens
+    or maps, and the distribution's metadata (``*.dist-info``, less RECORD).
+    """
     base = runtime_base(platform_dir)
     prefix = f"binaries/{platform_dir}/{RUNTIME_FOLDER}/"
-    files = {prefix + p.relative_to(base).as_posix(): p
-             for p in sorted(base.rglob("*")) if p.is_file()}
     version = sysconfig.get_python_version()
+    _, libpython, stdlib = _python_facts()
+    stdlib = stdlib.resolve()
+    base_stdlib = base / "lib" / f"python{version}"
+    used = {Path(p).resolve() for p in imported_files(fmu_path)}
+    chosen = {p for p in (base_stdlib / "encodings").rglob("*") if p.is_file()}
+    dynload = []
+    for path in used:
+        if not path.is_relative_to(stdlib):
+            continue
+        relative = path.relative_to(stdlib)
+        copy = base_stdlib / relative
+        if relative.parts[0] != "site-packages" and copy.is_file():
+            chosen.add(copy)
+            if relative.parts[0] == "lib-dynload":
+                dynload.append(path)
+    chosen.add(base / "lib" / libpython.name)
+    for name in _shared_dependencies([libpython, *dynload]):
+        if (base / "lib" / name).is_file():
+            chosen.add(base / "lib" / name)
+    files = {prefix + p.relative_to(base).as_posix(): p for p in sorted(chosen)}
     site = f"{prefix}lib/python{version}/site-packages/"
     shipped = []
-    for name in needed_distributions(fmu_path):
+    for name in needed_distributions(fmu_path, used):
         dist = importlib.metadata.distribution(name)
         shipped.append(f"{dist.metadata['Name']}=={dist.version}")
-        for path, relative in distribution_files(name):
-            files[site + relative] = path
+        for installed, inside in distribution_files(name):
+            metadata = ".dist-info/" in inside and not inside.endswith("/RECORD")
+            if metadata or installed.resolve() in used:
+                files[site + inside] = installed
     return files, shipped
 
 
@@ -302,23 +413,70 @@ def _packaged_bytes(path, prefixes):
 SHIPPED_LIST = "distributions.txt"
 
 
-def add_runtime(fmu_path: str | Path, platform_dir: str) -> None:
-    """Add the standalone runtime to the FMU at ``fmu_path`` (appended to the archive); the
-    distributions shipped (name==version), also listed in the runtime's distributions.txt."""
+def _bytecode(source: bytes, name: str) -> bytes | None:
+    """The ``.pyc`` of ``source`` (compiled by this Python, which is the runtime's):
+    hash-based and checked (PEP 552), so that it stays valid whatever time stamps the
+    extracted files get; None when it does not compile. ``name`` (the file's path inside
+    the FMU) is the code's file name until the import system sets the real one."""
+    try:
+        code = compile(source, name, "exec", dont_inherit=True, optimize=0)
+    except (SyntaxError, ValueError):
+        return None
+    return bytes(_bootstrap_external._code_to_hash_pyc(  # type: ignore[attr-defined]
+        code, importlib.util.source_hash(source), checked=True))
+
+
+def _cached_name(name: str) -> str:
+    """Where the import system looks for the bytecode of the source ``name``."""
+    folder, _, file = name.rpartition("/")
+    cached = f"__pycache__/{file[:-3]}.{sys.implementation.cache_tag}.pyc"
+    return f"{folder}/{cached}" if folder else cached
+
+
+def add_runtime(fmu_path: str | Path, platform_dir: str) -> list[str]:
+    """Make the FMU at ``fmu_path`` standalone: add the runtime (:func:`runtime_files`)
+    and the bytecode of every Python source it holds (the runtime's and the FMU's own
+    resources), drop the binaries of other platforms (the runtime is this platform's) and
+    declare ``needsExecutionTool="false"`` (the build passes that to pythonfmu). Returns
+    the distributions shipped (name==version), also listed in the runtime's
+    distributions.txt."""
     files, shipped = runtime_files(fmu_path, platform_dir)
     prefixes = build_prefixes()
-    with zipfile.ZipFile(fmu_path, "a", zipfile.ZIP_DEFLATED) as archive:
-        present = set(archive.namelist())
+    rewritten = Path(fmu_path).with_suffix(".standalone")
+    with zipfile.ZipFile(fmu_path) as source, \
+            zipfile.ZipFile(rewritten, "w", zipfile.ZIP_DEFLATED) as archive:
+        for info in source.infolist():
+            if info.filename.startswith("binaries/") and \
+                    not info.filename.startswith(f"binaries/{platform_dir}/"):
+                continue
+            data = source.read(info)
+            archive.writestr(info, data)
+            if info.filename.startswith("resources/") and info.filename.endswith(".py"):
+                compiled = _bytecode(data, info.filename)
+                if compiled is not None:
+                    _write_member(archive, _cached_name(info.filename), compiled, 0o644)
+        present = set(source.namelist())
         for name in sorted(files):
             if name in present:
                 continue
-            info = zipfile.ZipInfo(name, date_time=(2020, 1, 1, 0, 0, 0))
-            info.compress_type = zipfile.ZIP_DEFLATED
-            info.external_attr = (0o755 if os.access(files[name], os.X_OK) else 0o644) << 16
-            archive.writestr(info, _packaged_bytes(files[name], prefixes))
+            data = _packaged_bytes(files[name], prefixes)
+            mode = 0o755 if os.access(files[name], os.X_OK) else 0o644
+            _write_member(archive, name, data, mode)
+            if name.endswith(".py"):
+                compiled = _bytecode(data, name)
+                if compiled is not None:
+                    _write_member(archive, _cached_name(name), compiled, 0o644)
         archive.writestr(f"binaries/{platform_dir}/{RUNTIME_FOLDER}/{SHIPPED_LIST}",
                          "".join(f"{line}\n" for line in shipped))
+    rewritten.replace(fmu_path)
     return shipped
+
+
+def _write_member(archive: zipfile.ZipFile, name: str, data: bytes, mode: int) -> None:
+    info = zipfile.ZipInfo(name, date_time=(2020, 1, 1, 0, 0, 0))
+    info.compress_type = zipfile.ZIP_DEFLATED
+    info.external_attr = mode << 16
+    archive.writestr(info, data)
 
 
 def environment_tag() -> str:

@@ -7,6 +7,7 @@ so any FMI variable name (commas, quotes, line breaks) reads back exactly.
 """
 
 import csv
+import hashlib
 import itertools
 import os
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -28,7 +29,8 @@ class CsvSink:
     The header is written by the csv module, so any FMI variable name (commas, quotes,
     line breaks) reads back exactly (:func:`timeseries_columns`). Each row goes to the
     file in one ``write`` call, unbuffered: a run whose process dies keeps every row it
-    recorded (the kernel holds what was written). ``bytes`` counts what was written.
+    recorded (the kernel holds what was written). ``bytes`` counts what was written,
+    :meth:`sha256` is the SHA-256 of it (run.json's ``timeseries_sha256``).
 
     Parameters
     ----------
@@ -45,6 +47,7 @@ class CsvSink:
         self.path = Path(path)
         self.fd: int | None = os.open(self.path, CREATE_FLAGS, 0o666)
         self.bytes = 0
+        self._digest = hashlib.sha256()
         #: rows written
         self.rows = 0
         # formats: one callable per column (value -> text, fmitypes.record_format);
@@ -58,6 +61,7 @@ class CsvSink:
         view = memoryview(data)
         while view:
             done = os.write(fd, view)
+            self._digest.update(view[:done])
             view = view[done:]
             self.bytes += done
 
@@ -69,6 +73,10 @@ class CsvSink:
             text = ",".join([f(v) for f, v in zip(self.formats, row)])
         self._write((text + "\n").encode("utf-8"))
         self.rows += 1
+
+    def sha256(self) -> str:
+        """SHA-256 (hex) of the bytes written so far."""
+        return self._digest.hexdigest()
 
     def close(self) -> None:
         if self.fd is not None:

@@ -213,3 +213,28 @@ def test_malformed_waypoint_file(tmp_path):
     (tmp_path / "nohead.csv").write_text("0,0\n1,1\n")
     with pytest.raises(ParameterError, match="header"):
         parse_path("waypoints:file=nohead.csv", base_dir=tmp_path)
+
+
+def test_path_files_and_rebase_path(tmp_path, monkeypatch):
+    """The file a path string names, and the string with it made absolute: parsed from
+    any working folder, it reads the file parse_path(spec, base_dir) reads."""
+    from agv_core.numerics.paths import path_files, rebase_path
+
+    assert path_files(" Waypoints: file = wp.csv ") == ["wp.csv"]
+    assert path_files("waypoints:file=/abs/wp.csv") == ["/abs/wp.csv"]
+    assert path_files("line:x0=1") == path_files("file=wp.csv") == path_files(3.0) == []
+    assert rebase_path("line:x0=1,y0=2", tmp_path) == "line:x0=1,y0=2"
+    assert rebase_path("waypoints:file=/abs/wp.csv", tmp_path) == "waypoints:file=/abs/wp.csv"
+    spec = rebase_path("waypoints: file = sub/wp.csv", tmp_path)
+    assert spec == f"waypoints:file={tmp_path / 'sub/wp.csv'}"
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "wp.csv").write_text("x,y\n0,0\n1,0\n3,1\n")
+    elsewhere = tmp_path / "elsewhere"
+    (elsewhere / "sub").mkdir(parents=True)
+    (elsewhere / "sub" / "wp.csv").write_text("x,y\n0,5\n1,5\n")
+    monkeypatch.chdir(elsewhere)
+    ours = parse_path("waypoints:file=sub/wp.csv", base_dir=tmp_path).project(2.0, 0.0)
+    assert parse_path(spec).project(2.0, 0.0) == ours
+    assert parse_path("waypoints:file=sub/wp.csv").project(2.0, 0.0) != ours
+    with pytest.raises(ParameterError, match="cannot be written in a path string"):
+        rebase_path("waypoints:file=wp.csv", tmp_path / "a,b")

@@ -107,6 +107,31 @@ def test_vision_repeated_reads_and_state_round_trip():
     assert other.measure(0.22, *pose(0.22)) == after
 
 
+def test_instant_sensor_state_carries_its_start_time():
+    """The drift runs from the start time t0, which the FMU takes from its clock when it
+    builds the core: a state restored into a core built at another time (a fresh FMU
+    instance, or one rebuilt from the state's parameters) reads as the saved one."""
+    sensor = InstantSensor(drift=GYRO_DRIFT * 1e4, noise=0.01, seed=4, t0=0.0)
+    for k in range(5):
+        sensor.measure(0.1 * k, 0.2)
+        sensor.step(0.1 * k, 0.1)
+    saved = json.loads(json.dumps(sensor.get_state()))
+    other = InstantSensor(drift=GYRO_DRIFT * 1e4, noise=0.01, seed=4, t0=0.5)
+    other.set_state(saved)
+    assert other.measure(0.5, 0.2) == sensor.measure(0.5, 0.2)
+    assert other.get_state() == sensor.get_state()
+
+
+def test_vision_state_carries_its_start_time():
+    path = parse_path("circle:radius=4")
+    sensor = VisionSensor(path, frame_period=0.1, latency=0.05, seed=3, t0=0.0)
+    saved = json.loads(json.dumps(sensor.get_state()))
+    other = VisionSensor(path, frame_period=0.1, latency=0.05, seed=3, t0=0.7)
+    other.set_state(saved)
+    assert other.t0 == 0.0  # the first frame's time, the reading before the first sample
+    assert other.get_state() == sensor.get_state()
+
+
 def run_station(station, h, n, xy=lambda t: (t, -t)):
     return np.array([(station.step(i * h, h, *xy(i * h)),
                       station.measure((i + 1) * h, *xy((i + 1) * h)))[1] for i in range(n)])

@@ -1,6 +1,6 @@
 """Integration tier: the FMUs run in hosts that are not Python, and every host exits cleanly.
 
-A small FMI 2.0 host in C (tests/c_host/fmi2_host.c, compiled here with gcc against fmpy's
+A small FMI 2.0 host in C (tests/interop/c_host/fmi2_host.c, compiled here with gcc against fmpy's
 FMI headers) loads each FMU's binary with dlopen, no LD_PRELOAD, and a minimal
 environment. The FMU's loader (components/fmu_loader) must find a Python on this machine
 the way its C source documents (here: the virtual environment named in VIRTUAL_ENV, as
@@ -9,6 +9,7 @@ the host exit with status 0.
 """
 
 import math
+import re
 import os
 import shutil
 import subprocess
@@ -217,3 +218,41 @@ def test_python_hosts_that_exit_normally_never_abort(component_fmus, tmp_path):
         answers.add(done.stdout.strip())
     assert codes == [0] * 30, codes
     assert len(answers) == 1
+
+
+DOCS = Path(__file__).resolve().parents[2] / "docs" / "using-the-fmus.md"
+
+
+def _doc_recipe():
+    """The shell lines of docs/using-the-fmus.md's "A C host, in full"."""
+    text = DOCS.read_text()
+    section = text[text.index("### A C host, in full"):]
+    start = section.index("```sh\n") + len("```sh\n")
+    return section[start:section.index("```", start)]
+
+
+def test_the_docs_c_host_recipe_runs_as_written(component_fmus, tmp_path):
+    """The recipe's value references are those `agv-cosim list` shows, and its lines,
+    run in a folder laid out like the checkout (.venv, tests/, fmus/), build the host,
+    run the vehicle one second with alpha = 0.2 and print x, y, heading per step."""
+    from agv_cosim.system.model import describe, read_model
+
+    recipe = _doc_recipe()
+    listing = describe(read_model(component_fmus["agv_vehicle"]))
+    vr = {name: vr for vr, name in re.findall(r"vr=(\d+)\s+\S+\s+(\w+)", listing)}
+    said = re.search(r"# value references: alpha = (\d+), x/y/heading = (\d+),(\d+),(\d+) "
+                     r"\(`agv-cosim list fmus/AgvVehicle.fmu`", recipe)
+    assert said is not None, recipe
+    assert said.groups() == (vr["alpha"], vr["x"], vr["y"], vr["heading"])
+    assert f" {vr['x']},{vr['y']},{vr['heading']} {vr['alpha']}=0.2" in recipe
+    (tmp_path / ".venv").symlink_to(sys.prefix)
+    (tmp_path / "tests").symlink_to(Path(__file__).resolve().parents[1])
+    (tmp_path / "fmus").mkdir()
+    shutil.copy2(component_fmus["agv_vehicle"], tmp_path / "fmus" / "AgvVehicle.fmu")
+    done = subprocess.run(["bash", "-e", "-c", recipe], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    rows = [[float(x) for x in line.split()] for line in done.stdout.splitlines()
+            if line.strip()]
+    assert len(rows) >= 10 and {len(r) for r in rows} == {4}
+    assert rows[-1][0] == pytest.approx(1.0) and rows[-1][3] > 0.0  # turned left

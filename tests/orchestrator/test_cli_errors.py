@@ -168,3 +168,26 @@ def test_many_problems_are_capped(chain, capsys):
     assert len(err) == 20
     assert err[0] == f"agv-cosim: error: {path}:29: components.c0.fmu: 0 is not a string"
     assert err[-1] == f"agv-cosim: error: {path}: 6 more problem(s) not shown"
+
+
+@pytest.mark.parametrize("command", [[], ["build"], ["examples"], ["run"], ["validate"],
+                                     ["report"], ["list"], ["export-ssp"]])
+def test_help_shows_no_rest_markup(capsys, command):
+    with pytest.raises(SystemExit) as stop:
+        cli.main([*command, "--help"])
+    assert stop.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"usage: agv-cosim {command[0] if command else ''}".rstrip())
+    assert "``" not in out
+
+
+def test_an_argument_left_over_is_the_subcommands_error(capsys):
+    """``run M --set x 2.5`` (a value given apart from its name): run's usage and error,
+    not the top-level usage."""
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["run", "m.toml", "--set", "x", "2.5"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("usage: agv-cosim run ")
+    assert err.strip().splitlines()[-1] == ("agv-cosim run: error: unrecognized arguments: "
+                                            "2.5")

@@ -45,9 +45,12 @@ def test_our_folder_and_empty_folder_are_replaced(chain, tmp_path):
     out = tmp_path / "res"
     assert _run(chain(), out) == 0
     assert (out / MARKER).is_file()
-    (out / "base" / "stale.txt").write_text("from an earlier run of ours")
+    first = (out / "base" / "run.json").stat().st_ino
+    (out / "base" / "stale.txt").write_text("a file agv-cosim did not write")
     assert _run(chain(), out) == 0  # ours: replaced
-    assert not (out / "base" / "stale.txt").exists()
+    assert (out / "base" / "run.json").stat().st_ino != first  # written anew
+    # a file this tool did not write is never deleted (test_resume_hostile.py)
+    assert (out / "base" / "stale.txt").read_text() == "a file agv-cosim did not write"
     empty = tmp_path / "empty"
     empty.mkdir()
     assert _run(chain(), empty) == 0

@@ -167,6 +167,30 @@ def test_summary_table():
     assert max(map(len, lines)) <= 70 and "…" in lines[1]
 
 
+
+def test_summary_columns_are_the_same_whatever_values_differ():
+    """The terminal's columns depend on the metrics' names only: one run, two runs that
+    differ in one metric or in another, all show the same columns in the same order (the
+    manifest's [metrics] signals first, in its order; then MAIN_METRICS)."""
+    base = {"heading_error_max": 0.2, "lateral_error_rms": 0.05, "steering_angle_peak": 0.3,
+            "lateral_error_max": 0.1}
+
+    def columns(*changes, manifest=None):
+        runs = [{"label": f"r{k}", "status": "complete", "metrics": {**base, **change}}
+                for k, change in enumerate(changes)]
+        return summary_table(runs, width=200, manifest=manifest).splitlines()[0].split()
+
+    expected = ["run", "status", "lateral_error_max", "lateral_error_rms",
+                "heading_error_max", "steering_angle_peak"]
+    assert columns({}) == expected
+    assert columns({}, {"lateral_error_max": 0.2}) == expected
+    assert columns({}, {"steering_angle_peak": 0.4}) == expected
+    spec = {"metrics": {"steering_angle": "act.alpha", "lateral_error": "sensor.e",
+                        "settle_band": 0.05}}
+    assert columns({}, {"heading_error_max": 1.0}, manifest=spec) == [
+        "run", "status", "steering_angle_peak", "lateral_error_max", "lateral_error_rms",
+        "heading_error_max"]
+
 # --------------------------------------------------------------------------- the page
 
 def _images(page):

@@ -60,10 +60,17 @@ def test_set_override_and_variant_selection(chain, tmp_path):
 
 
 def test_list(fmus, capsys):
+    """Each variable with its causality, value reference (what a host passes to
+    fmi2GetReal and the like), type, name, start, unit, description."""
+    from fmpy import read_model_description
+
     assert cli.main(["list", str(fmus["agv_test_gain"])]) == 0
     out = capsys.readouterr().out
-    assert "output    Real    y [1]  k * u  (feedthrough from u)" in out
-    assert "parameter Real    k = 1.0 [1]  Gain" in out or "parameter Real    k = 1 [1]" in out
+    vr = {v.name: f"vr={v.valueReference}"
+          for v in read_model_description(str(fmus["agv_test_gain"])).modelVariables}
+    assert f"output    {vr['y']:<6} Real    y [1]  k * u  (feedthrough from u)" in out
+    assert f"input     {vr['u']:<6} Real    u = 0.0 [1]  Input" in out
+    assert f"parameter {vr['k']:<6} Real    k = 1.0 [1]  Gain" in out
     assert "tunable" not in out  # AgvTestGain's k is a fixed parameter
 
 
@@ -75,7 +82,7 @@ def test_list_marks_tunable_parameters(tmp_path, capsys):
     fmu = build_one(source, tmp_path).fmu
     assert cli.main(["list", str(fmu)]) == 0
     lines = capsys.readouterr().out.splitlines()
-    tunable = [line.split()[2] for line in lines if "(tunable" in line]
+    tunable = [line.split()[3] for line in lines if "(tunable" in line]
     assert tunable == ["available"]
     assert all(line.split()[0] == "parameter" for line in lines if "(tunable" in line)
 

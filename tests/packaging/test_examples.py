@@ -136,3 +136,23 @@ def test_a_manifest_whose_fmu_paths_cannot_be_rewritten_is_refused(tmp_path, mon
     monkeypatch.chdir(tmp_path)
     with pytest.raises(ExamplesError, match="cannot be rewritten safely"):
         copy_examples("ex", "elsewhere")
+
+
+def test_a_folder_reached_through_a_link_gets_paths_from_its_real_place(tmp_path,
+                                                                       monkeypatch):
+    """``examples lnk/sub`` with lnk a link to a folder at another depth: the FMU path is
+    computed between real folders (the system resolves ``..`` from where the manifest
+    really is), so the copy names the FMU folder given; also a --fmus through a link."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "a" / "b" / "real").mkdir(parents=True)
+    (tmp_path / "lnk").symlink_to(tmp_path / "a" / "b" / "real")
+    (tmp_path / "fmus").mkdir()
+    copy_examples("lnk/sub", "fmus")
+    manifest = load_manifest(tmp_path / "lnk" / "sub" / "example.toml")
+    assert manifest.components["vehicle"].fmu.resolve() == tmp_path / "fmus" / "AgvVehicle.fmu"
+    (tmp_path / "deep" / "er").mkdir(parents=True)
+    (tmp_path / "fl").symlink_to(tmp_path / "deep" / "er")
+    copy_examples("ex", "fl/built")
+    manifest = load_manifest(tmp_path / "ex" / "example.toml")
+    assert (manifest.components["vehicle"].fmu.resolve()
+            == tmp_path / "deep" / "er" / "built" / "AgvVehicle.fmu")

@@ -64,6 +64,24 @@ def user(tmp_path_factory):
     return bin_, work
 
 
+def test_the_package_builds_without_a_deprecation_warning(tmp_path):
+    """``make venv`` and ``pip wheel`` print no setuptools deprecation banner: the license
+    is an SPDX expression (setuptools >= 77, the build requirement)."""
+    source = tmp_path / "agv-cosim"
+    shutil.copytree(REPO, source, ignore=NOT_SOURCES)
+    done = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps",
+                           "--disable-pip-version-check", "-w", str(tmp_path / "dist"),
+                           str(source)], capture_output=True, text=True, timeout=600,
+                          env={k: v for k, v in os.environ.items()
+                               if k not in ("PYTHONPATH", "VIRTUAL_ENV")})
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "deprecat" not in (done.stdout + done.stderr).lower(), done.stderr[-3000:]
+    (wheel,) = (tmp_path / "dist").glob("agv_cosim-*.whl")
+    with zipfile.ZipFile(wheel) as archive:
+        metadata = archive.read("agv_cosim-0.1.0.dist-info/METADATA").decode()
+    assert "License-Expression: MIT" in metadata.splitlines()
+
+
 @pytest.fixture(scope="module")
 def built(user):
     """``agv-cosim build`` (into fmus/) and ``--fmi 3 --out fmus3`` in the work folder."""

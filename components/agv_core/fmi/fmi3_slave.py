@@ -34,6 +34,7 @@ wrappers' double release of a failed slave (pythonfmu3 0.3.4 has pythonfmu 0.7's
 :mod:`agv_core.fmi.pythonfmu_workarounds`, which lists every wrapper work-around).
 """
 
+from math import isfinite
 from xml.etree.ElementTree import Element
 
 from pythonfmu3 import Boolean, Fmi3Causality, Fmi3Slave, Fmi3Variability, Float64, Int32, String
@@ -90,6 +91,8 @@ class AgvSlave(SlaveLogic, Fmi3Slave):
 
     # ------------------------------------------------------------------ FMI calls
     def set_float64(self, vrs, values):
+        if not isfinite(sum(values)):
+            self._check_finite_inputs(vrs, values)  # refuses a non-finite input
         self._inputs_set(super().set_float64, vrs, values)
 
     def set_int32(self, vrs, values):

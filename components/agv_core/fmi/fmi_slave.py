@@ -32,6 +32,7 @@ header. State save/restore covers the variables and the core's ``get_state()`` /
 failed slave is in :mod:`agv_core.fmi.slave_base`.
 """
 
+from math import isfinite
 from xml.etree.ElementTree import Element, SubElement
 
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real, String
@@ -63,6 +64,8 @@ class AgvSlave(SlaveLogic, Fmi2Slave):
         # hot path (every input, every step): attribute names by value reference, looked
         # up once; pythonfmu's own setter (one isinstance and one lambda per variable)
         # only for what is not a plain Real attribute, which raises its own error
+        if not isfinite(sum(values)):
+            self._check_finite_inputs(vrs, values)  # refuses a non-finite input
         names = self._real_names or self._map_real_names()
         try:
             for vr, value in zip(vrs, values):

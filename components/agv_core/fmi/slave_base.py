@@ -27,6 +27,51 @@ BUILD_INFO = "agv_build.json"
 #: Tool name (FMI 2.0) / annotation type (FMI 3.0) that carries ``reference_inputs``.
 REFERENCE_TOOL = "org.agv-cosim"
 
+#: The modes a saved FMU state records (the state machine's, as the slave sees it):
+#: before initialisation, in initialisation mode (no core yet in either), stepping,
+#: terminated. Restoring a state restores its mode (the FMU bridge reads it).
+STATE_MODES = ("instantiated", "initialization", "step", "terminated")
+#: The keys of a saved state, exactly.
+STATE_KEYS = frozenset(("mode", "variables", "time", "core"))
+
+#: ``_fmi_variables`` codes: the variable's type (FMI 2.0 / FMI 3.0 name) ...
+VAR_REAL, VAR_INTEGER, VAR_BOOLEAN, VAR_STRING = range(4)
+#: ... and what a host may set: nothing (independent variable, constants), an input, an
+#: output (never), a fixed parameter (until initialisation mode ends), a tunable one.
+SET_NEVER, SET_INPUT, SET_OUTPUT, SET_FIXED, SET_TUNABLE = range(5)
+
+
+class CallRefused(Exception):
+    """A call the FMU refuses because FMI forbids it (a non-finite input, a state that
+    is not this FMU's): the host gets fmi2Error / fmi3Error, not Fatal, and the message
+    through its logger; the instance is left as it was. The FMU bridge
+    (components/fmu_loader/agv_fmu_bridge.c) recognises it by ``fmi_error``."""
+
+    fmi_error = True
+
+
+def _canonical(value):
+    """``value`` as canonical JSON text (sorted keys, exact floats, NaN spelt out)."""
+    return json.dumps(value, sort_keys=True, allow_nan=True)
+
+
+def _first_not_finite(value, where="core"):
+    """Where the first number in ``value`` (nested lists and dicts) is NaN or infinite,
+    or None."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return where
+    if isinstance(value, dict):
+        items = value.items()
+    elif isinstance(value, (list, tuple)):
+        items = enumerate(value)
+    else:
+        return None
+    for key, item in items:
+        found = _first_not_finite(item, f"{where}[{key!r}]")
+        if found is not None:
+            return found
+    return None
+
 
 
 class SlaveLogic:
@@ -79,6 +124,9 @@ class SlaveLogic:
         self._parameter_names = []
         self._stale = False
         self._initializing = False
+        self._terminated = False
+        #: value reference -> name of every Real input (the finite check of a set)
+        self._real_inputs = None
         #: publish after a step at the next read (set at exit from initialisation)
         self._lazy_step = False
         self._real_names = None  # value reference -> attribute (the adapter's fast get/set)
@@ -197,6 +245,9 @@ class SlaveLogic:
             self._fail(f"initialisation failed: {type(error).__name__}: {error}")
         self._stale = False
 
+    def terminate(self):
+        self._terminated = True
+
     def do_step(self, current_time, step_size):
         t, h = float(current_time), float(step_size)
         try:
@@ -269,6 +320,35 @@ class SlaveLogic:
         self._keep_for_pythonfmu()
         raise RuntimeError(text)
 
+    def _refusal(self, message):
+        """The :class:`CallRefused` for ``message``, logged with error status."""
+        text = f"{self.modelName} '{self.instance_name}': {message}"
+        self.log(text, self._ERROR)
+        return CallRefused(text)
+
+    def _refuse(self, message):
+        """Refuse the call under way: log ``message`` and raise :class:`CallRefused`."""
+        error = self._refusal(message)
+        self._keep_for_pythonfmu()
+        raise error
+
+    # ------------------------------------------------------------------ input checks
+    def _check_finite_inputs(self, vrs, values):
+        """Refuse a set that gives a Real input a value that is not finite (NaN, inf),
+        naming the input; nothing of the set is applied. Called by the adapters' Real
+        setters when the values' sum is not finite (a sum is finite when every term is;
+        an overflowed sum of finite values lands here and finds nothing)."""
+        inputs = self._real_inputs
+        if inputs is None:
+            inputs = self._real_inputs = {
+                vr: v.name for vr, v in self.vars.items()
+                if isinstance(v, self._REAL) and v.name in self._input_names}
+        for vr, value in zip(vrs, values):
+            name = inputs.get(vr)
+            if name is not None and not math.isfinite(value):
+                self._refuse(f"input '{name}' set to {value!r}: an input must be a finite "
+                             f"number; refused, '{name}' keeps {getattr(self, name)!r}")
+
     def _keep_for_pythonfmu(self):
         """Balance the wrapper's double release before an exception leaves (see
         pythonfmu_workarounds.py, entry 1)."""
@@ -310,26 +390,165 @@ class SlaveLogic:
         overrides ``do_step``."""
         return type(self).do_step is SlaveLogic.do_step
 
+    def _fmi_variables(self):
+        """For the FMU bridge's checks of every get and set: ``((value reference, name,
+        type code, set code), ...)`` of every variable (the ``VAR_*`` and ``SET_*``
+        codes above). The bridge refuses a value reference that is not a variable of
+        the call's type, a set of an output, of the independent variable, of a fixed
+        parameter after initialisation mode, and every set after initialisation in
+        anything but an input or a tunable parameter."""
+        types = {float: VAR_REAL, int: VAR_INTEGER, bool: VAR_BOOLEAN, str: VAR_STRING}
+        rows = []
+        for vr, v in self.vars.items():
+            kind = types.get(self._PYTYPE.get(type(v)))
+            if kind is None:
+                continue
+            causality = getattr(v.causality, "name", None)
+            variability = getattr(v.variability, "name", None)
+            if causality == "input":
+                access = SET_INPUT
+            elif causality == "output":
+                access = SET_OUTPUT
+            elif causality == "parameter" and variability == "fixed":
+                access = SET_FIXED
+            elif causality == "parameter" and variability == "tunable":
+                access = SET_TUNABLE
+            else:
+                access = SET_NEVER
+            rows.append((vr, v.name, kind, access))
+        return tuple(rows)
+
     # ------------------------------------------------------------------ state
+    def _mode(self):
+        """The state-machine mode a saved state records (one of STATE_MODES)."""
+        if self._terminated:
+            return "terminated"
+        if self.core is not None:
+            return "step"
+        return "initialization" if self._initializing else "instantiated"
+
     def _get_fmu_state(self):
         if self.core is not None and self._stale:
             self._fresh_outputs()  # the outputs the state holds are those a read shows
         variables = {v.name: v.getter() for v in self.vars.values()}
         core_state = self.core.get_state() if self.core is not None else None
-        return {"variables": variables, "time": self.time, "core": core_state}
+        return {"mode": self._mode(), "variables": variables, "time": self.time,
+                "core": core_state}
+
+    @staticmethod
+    def _fmu_state_from_bytes(data):
+        try:
+            return json.loads(bytes(data).decode("utf-8"))
+        except ValueError as error:  # UnicodeDecodeError is one
+            raise CallRefused(f"a state that does not belong to this FMU: not a serialised "
+                              f"state ({type(error).__name__}: {error})") from None
 
     def _set_fmu_state(self, state):
         self._guarded(self._restore, state)
 
     def _restore(self, state):
-        for name, value in state["variables"].items():
+        """Restore ``state`` (from ``_get_fmu_state``), or refuse it whole.
+
+        A state belongs to this FMU when it has exactly the keys of STATE_KEYS, a known
+        mode, every variable of this FMU and no other, each value of its variable's type
+        (Reals finite), a finite time, a core state (finite numbers) exactly when the
+        mode has a core, and when the core built from its parameters (valid ones: the
+        core's own checks) takes its core state as given (after
+        ``set_state``, ``get_state`` returns the same: unknown keys and values a core
+        would not keep are refused). The core is rebuilt from the state's parameters.
+        """
+        new_core, variables, mode = self._checked_state(state)
+        self.core = new_core
+        for name, value in variables.items():
             setattr(self, name, value)
-        self.time = state["time"]
-        if state["core"] is not None:
-            if self.core is None:
-                self.core = self.make_core()
-            self.core.set_state(state["core"])
+        self.time = float(state["time"])
+        self._initializing = mode == "initialization"
+        self._terminated = mode == "terminated"
+        self._lazy_step = self.lazy_publish and any(self._dependencies.values())
         self._stale = False
+
+    def _checked_state(self, state):
+        """``(core, variables, mode)`` of a state that belongs to this FMU; else
+        CallRefused saying why. The slave's attributes are as they were either way."""
+        def refuse(why):
+            return self._refusal(f"a state that does not belong to this FMU: {why}")
+
+        if not isinstance(state, dict):
+            raise refuse(f"a {type(state).__name__}, not a dict")
+        keys = set(state)
+        if keys != STATE_KEYS:
+            unknown = sorted(str(k) for k in keys - STATE_KEYS)
+            missing = sorted(STATE_KEYS - keys)
+            raise refuse("; ".join(
+                ([f"unknown keys {unknown}"] if unknown else [])
+                + ([f"missing keys {missing}"] if missing else [])))
+        mode = state["mode"]
+        if mode not in STATE_MODES:
+            raise refuse(f"mode {mode!r} is not one of {list(STATE_MODES)}")
+        variables = state["variables"]
+        if not isinstance(variables, dict):
+            raise refuse("'variables' is not a dict")
+        declared = {v.name: v for v in self.vars.values()}
+        unknown = sorted(str(k) for k in set(variables) - set(declared))
+        missing = sorted(set(declared) - set(variables))
+        if unknown or missing:
+            raise refuse("; ".join(
+                ([f"unknown variables {unknown}"] if unknown else [])
+                + ([f"missing variables {missing}"] if missing else [])))
+        for name, value in variables.items():
+            expected = self._PYTYPE.get(type(declared[name]))
+            if expected is float:
+                good = (isinstance(value, (int, float)) and not isinstance(value, bool)
+                        and math.isfinite(value))
+            elif expected is int:
+                good = (isinstance(value, int) and not isinstance(value, bool)
+                        and -2**31 <= value < 2**31)
+            else:
+                good = expected is None or type(value) is expected
+            if not good:
+                raise refuse(f"variable '{name}' = {value!r} is not a "
+                             f"{'finite ' if expected is float else ''}"
+                             f"{getattr(expected, '__name__', '?')}")
+        time = state["time"]
+        if not (isinstance(time, (int, float)) and not isinstance(time, bool)
+                and math.isfinite(time)):
+            raise refuse(f"time {time!r} is not a finite number")
+        core_state = state["core"]
+        has_core = mode in ("step", "terminated")
+        if (core_state is not None) != has_core:
+            raise refuse(f"mode '{mode}' {'needs' if has_core else 'has no'} core state")
+        if not has_core:
+            return None, variables, mode
+        try:
+            given = _canonical(core_state)
+        except (TypeError, ValueError) as error:
+            raise refuse(f"its core state is not JSON data ({error})") from None
+        bad = _first_not_finite(core_state)
+        if bad is not None:
+            raise refuse(f"{bad} is not a finite number")
+        names = list(variables)
+        saved = [getattr(self, name) for name in names]
+        try:
+            for name in names:  # the core is built from the state's parameters
+                setattr(self, name, variables[name])
+            try:
+                core = self.make_core()
+            except Exception as error:  # noqa: BLE001 - the state's parameters are bad
+                raise refuse(f"its parameters build no core: {type(error).__name__}: "
+                             f"{error}") from None
+            try:
+                core.set_state(core_state)
+                kept = _canonical(core.get_state())
+            except Exception as error:  # noqa: BLE001 - a malformed core state
+                raise refuse(f"its core state is malformed: {type(error).__name__}: "
+                             f"{error}") from None
+            if kept != given:
+                raise refuse("its core state holds keys or values the core does not take "
+                             "as given (unknown keys or out-of-range values)")
+        finally:
+            for name, value in zip(names, saved):
+                setattr(self, name, value)
+        return core, variables, mode
 
     # ------------------------------------------------------------------ model description
     def _build_info(self):

@@ -22,7 +22,8 @@ Every path kind derives from :class:`ReferencePath` and is built from a path str
     curvature is continuous there (0 on both sides).
 ``waypoints:file=path.csv``
     Polyline through the vertices of a CSV file with header ``x,y`` (relative to
-    ``base_dir``), extended straight beyond both end vertices.
+    ``base_dir``; :func:`path_files` names it, :func:`rebase_path` makes it absolute),
+    extended straight beyond both end vertices.
 
 Arc length of the sine pieces is closed form: with u = x - x0, k = 2 pi / W, m = A k,
 s(u) = sqrt(1 + m^2) / k * E(k u | m^2 / (1 + m^2)), E the incomplete elliptic integral
@@ -550,6 +551,59 @@ _KINDS = {
     "waypoints": (("file",), {}),
 }
 _TEXT_KEYS = {"direction", "file"}
+#: kind -> the keys whose value names a file, read relative to ``base_dir``
+FILE_KEYS = {"waypoints": ("file",)}
+
+
+def _file_items(spec):
+    """``(head, items, keys)`` of a path string naming files: the text before its ``:``,
+    its ``key=value`` items as written, the keys of its kind that name a file; None for
+    any other value. Nothing is read."""
+    if not isinstance(spec, str):
+        return None
+    head, colon, body = spec.strip().partition(":")
+    keys = FILE_KEYS.get(head.strip().lower())
+    if not colon or not keys:
+        return None
+    return head, body.split(","), keys
+
+
+def path_files(spec):
+    """The file names the path string ``spec`` names (a ``waypoints`` file), as written,
+    in order; empty for a path string of another kind or any other value. Nothing is
+    read: :func:`parse_path` reads them (relative to its ``base_dir``)."""
+    found = _file_items(spec)
+    if found is None:
+        return []
+    names = []
+    for item in found[1]:
+        key, eq, text = item.partition("=")
+        if eq and key.strip() in found[2] and text.strip():
+            names.append(text.strip())
+    return names
+
+
+def rebase_path(spec, base_dir):
+    """``spec`` with each relative file name it names (:func:`path_files`) joined to
+    ``base_dir``, its other items as written: ``parse_path(rebase_path(spec, d))``
+    reads the files ``parse_path(spec, d)`` reads, from any working folder. A value that
+    names no file is returned as it is. Raises ParameterError("path", ...) when a joined
+    name holds a ``,``, which a path string cannot carry."""
+    found = _file_items(spec)
+    if found is None:
+        return spec
+    head, items, keys = found
+    out = []
+    for item in items:
+        key, eq, text = item.partition("=")
+        if eq and key.strip() in keys and text.strip():
+            name = str(Path(base_dir) / text.strip())
+            if "," in name:
+                raise ParameterError("path", f"file '{name}': a ',' in the folder's name "
+                                             "cannot be written in a path string")
+            item = f"{key.strip()}={name}"
+        out.append(item)
+    return f"{head}:{','.join(out)}"
 
 
 def parse_items(spec, kind, body, required, optional, text_keys=_TEXT_KEYS):

@@ -194,7 +194,7 @@ class _Sampled:
             ahead = None if drawn is None else list(drawn[2])
         else:
             rng = drawn[1]
-        return {"rng": rng, "ahead": ahead,
+        return {"rng": rng, "ahead": ahead, "t0": self.t0,
                 "pending": [[a, c, list(v)] for a, c, v in self.pending],
                 "current": None if self.current is None else [self.current[0],
                                                               list(self.current[1])],
@@ -204,6 +204,7 @@ class _Sampled:
     def set_state(self, state):
         """Restore a snapshot from :meth:`get_state`."""
         self.rng.bit_generator.state = state["rng"]
+        self.t0 = float(state["t0"])
         ahead = state.get("ahead")
         self._drawn = None if ahead is None else (math.nan, None, tuple(ahead))
         self.pending = deque((a, c, tuple(v)) for a, c, v in state["pending"])
@@ -452,12 +453,14 @@ class InstantSensor:
 
     def get_state(self):
         """JSON-safe snapshot of the internal state (a draw a reading took is kept)."""
-        return {"rng": self.rng.bit_generator.state, "next_normal": self._next_normal}
+        return {"rng": self.rng.bit_generator.state, "next_normal": self._next_normal,
+                "t0": self.t0}
 
     def set_state(self, state):
         """Restore a snapshot from :meth:`get_state`."""
         self.rng.bit_generator.state = state["rng"]
         self._next_normal = state.get("next_normal")
+        self.t0 = float(state["t0"])
 
 
 #: Defaults of the seed-004 fibre-optic gyro: drift 0.5 deg/h, resolution 0.01 deg.

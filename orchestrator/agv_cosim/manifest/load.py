@@ -104,10 +104,19 @@ class Manifest:
     timeout: float | None = None
     #: dotted key -> its line in the manifest file (:func:`key_lines`); empty for an SSP
     lines: dict[str, int] = field(default_factory=dict)
+    #: the folder relative FMU, table and parameter file names are relative to (the
+    #: manifest file's, links resolved; of an SSP package, its unpacked SSD's); None:
+    #: ``path``'s (:attr:`files_dir`)
+    base_dir: Path | None = None
 
     def error(self, key: str, problem: str) -> ManifestError:
         """A :class:`ManifestError` of ``key``, with its line when known."""
         return ManifestError(self.path, key, problem, line_of(self.lines, key))
+
+    @property
+    def files_dir(self) -> Path:
+        """The folder relative file names of this manifest are relative to."""
+        return self.base_dir if self.base_dir is not None else self.path.resolve().parent
 
     def step_index(self, at: float) -> int:
         """k of the communication point ``at`` = start + k step [s] (``at`` checked to
@@ -539,5 +548,6 @@ def manifest_from_data(data: dict[str, Any], path: str | Path, sha256: str,
                     record=variables, record_interval=interval,
                     metrics=table.metrics if data.get("metrics") else None,
                     plots=table.plots if data.get("plots") else None,
-                    events=events, montecarlo=sampling, timeout=sim.timeout)
+                    events=events, montecarlo=sampling, timeout=sim.timeout,
+                    base_dir=base_dir)
 

@@ -63,7 +63,7 @@ def run_job(job: Job, run_dir: str | Path, progress: Callable[[int], None] | Non
     status = "complete" if error is None else ("partial" if rows else "failed")
     values, metrics_error = run_metrics(job, run_dir, rows)
     result = write_run_files(job, run_dir, rows, status, error, values, metrics_error,
-                             ended_by)
+                             ended_by, sink.sha256())
     result["csv_bytes"] = sink.bytes
     result["wall_time_s"] = wall
     if pace is not None:

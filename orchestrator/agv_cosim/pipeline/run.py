@@ -26,7 +26,8 @@ Each run is independent and deterministic, and no file but ``timings.csv`` holds
 measurement of time, a date or anything else of the machine's timing: every other file
 is byte-identical between two runs of the same manifest, FMUs and seeds, parallel or
 serial. With ``resume`` the complete runs of an earlier ``DIR`` whose inputs are
-unchanged are kept instead of run again (:mod:`.resume`); with ``real_time`` the one run
+unchanged are kept instead of run again, and what the command does not write (other
+variants' runs, a user's files) is kept as it is (:mod:`.resume`); with ``real_time`` the one run
 is paced to the wall clock (:class:`~agv_cosim.execution.Pacer`; its row of timings.csv
 says how it went). ``DIR`` is assembled under a temporary name and
 renamed into place; on SIGINT, SIGTERM or SIGHUP it is renamed into place marked partial
@@ -52,7 +53,7 @@ from .distributed import run_on_dask
 from .initcheck import plan_checks
 from .pool import call_concurrently, run_isolated
 from .prepare import prepare
-from .resume import check_resumable, reuse_runs
+from .resume import check_resumable, keep_others, keep_users, listed, reuse_runs
 
 __all__ = ["check_options", "default_out_dir", "execute", "progress_bar", "run_manifest"]
 
@@ -88,9 +89,11 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         then unused. Raises :class:`~agv_cosim.distributed.ClusterError`.
     resume : bool
         Keep every complete run of the result folder ``out_dir`` whose inputs are
-        unchanged, run the others (:mod:`.resume`); the folder written is the one a
-        run without ``resume`` writes but for timings.csv (whose rows of the reused runs
-        are the earlier ones). Raises
+        unchanged, run the others, keep the runs of variants not in ``jobs`` and every
+        file this tool does not write as they are (:mod:`.resume`); with every variant
+        run, the folder written is the one a run without ``resume`` writes but for
+        timings.csv (whose rows of the reused runs are the earlier ones) and the user's
+        files kept. Raises
         :class:`~agv_cosim.errors.OutputError` when ``out_dir`` is not ours or of
         another manifest, or with ``overwrite``.
     real_time : float, optional
@@ -124,11 +127,19 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         written = folder.path
         assert written is not None
         reused = reuse_runs(folder.target, manifest, jobs, written) if resume else {}
+        kept, users = keep_others(folder.target, manifest, jobs, written) if resume \
+            else ([], keep_users(folder.target, jobs, written))
         todo = [job for i, job in enumerate(jobs) if i not in reused]
         if resume and not quiet:
             print(printable(f"agv-cosim: resume: reused {len(reused)} of {len(jobs)} "
-                            f"run(s) of {folder.target}; running {len(todo)}"),
-                  file=sys.stderr)
+                            f"run(s) of {folder.target}; running {len(todo)}"
+                            + (f"; kept {len(kept)} run(s) of other variants as they "
+                               "are" if kept else "")), file=sys.stderr)
+        if users and not quiet:
+            shown = ", ".join(users[:5]) + (f" and {len(users) - 5} more"
+                                             if len(users) > 5 else "")
+            print(printable(f"agv-cosim: kept {len(users)} file(s) not written by "
+                            f"agv-cosim: {shown}"), file=sys.stderr)
         workers_asked = max(1, workers or os.cpu_count() or 1)
         workers = min(workers_asked, max(1, len(todo)))
         total = sum(job.plan.steps for job in todo)
@@ -163,14 +174,14 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
             if reused and so_far is not None:
                 setattr(stop, "results",  # noqa: B010 - read by _keep_partial, the CLI
                         _merged(len(jobs), reused, so_far))
-            _keep_partial(manifest, jobs, folder, stop)
+            _keep_partial(manifest, jobs, folder, stop, kept)
             raise
         bar.close()
         results = _merged(len(jobs), reused, ran)
         folder.check_intact()
         results = [_checked_files(job, result, written)
                    for job, result in zip(jobs, results)]
-        _write_summary(folder, results)
+        _write_summary(folder, listed(manifest, results, kept))
         _finish(manifest, jobs, results, written, workers_asked)
         target = folder.commit()
     return target, results
@@ -282,10 +293,11 @@ def _checked_files(job: Job, result: RunResult, root: str | Path) -> RunResult:
 
 
 def _keep_partial(manifest: Manifest, jobs: list[Job], folder: AtomicDir,
-                  stop: BaseException) -> None:
+                  stop: BaseException, kept: list[RunResult] | None = None) -> None:
     """After an interruption (or a cluster that went away), commit the folder marked
     partial when a run has results (``stop.results``, one per job); ``stop.kept`` is
-    then the folder. Termination signals stay ignored meanwhile (``stop.restore``)."""
+    then the folder. ``kept``: the runs of other variants ``--resume`` kept (listed in
+    summary.csv too). Termination signals stay ignored meanwhile (``stop.restore``)."""
     restore = getattr(stop, "restore", None)
     try:
         results = getattr(stop, "results", None)
@@ -299,7 +311,7 @@ def _keep_partial(manifest: Manifest, jobs: list[Job], folder: AtomicDir,
         reason = getattr(stop, "reason", None) or (
             f"interrupted by {getattr(stop, 'name', 'SIGINT')}")
         try:
-            _write_summary(folder, results)
+            _write_summary(folder, listed(manifest, results, kept or []))
             folder.mark_partial(reason, complete, len(results))
             setattr(stop, "kept", folder.commit())  # noqa: B010 - read by the CLI
         except (OSError, FolderLost):  # nothing to keep: the first error is the story
@@ -370,8 +382,7 @@ def _plots(manifest: Manifest, jobs: list[Job], results: list[RunResult],
             run.events = [(event.at, event.name) for event in job.plan.events]
             runs.append(run)
         if runs:
-            plots.plot_runs(runs, manifest.plots, out_dir,
-                            base_dir=Path(manifest.path).parent)
+            plots.plot_runs(runs, manifest.plots, out_dir, base_dir=manifest.files_dir)
     except Exception as failure:  # noqa: BLE001 - a plot must not lose the results
         return f"{type(failure).__name__}: {failure}"
     return None

@@ -634,11 +634,24 @@ def _text_table(head, rows, width, shrink=0):
     return "\n".join(lines)
 
 
-def _shown_metrics(runs):
-    """The runs' numeric metrics, only those that differ between them when some do."""
+def _shown_metrics(runs, manifest=None):
+    """The runs' numeric metrics in an order that depends on their names only (the same
+    columns for every run of a manifest, whatever values differ): the metrics of the
+    signals of the manifest's ``[metrics]`` table in its order (``reference``: the
+    ``path_error_*`` metrics), within each and then :data:`MAIN_METRICS` in theirs, then
+    by name."""
     runs = [{"metrics": r.get("metrics") or {}} for r in runs]
-    return (_metric_names(runs, varying=True) if len(runs) > 1 else []) or \
-        _metric_names(runs)
+    spec = (manifest or {}).get("metrics") or {}
+    families = ["path_error" if key == "reference" else key for key, value in spec.items()
+                if isinstance(value, (str, dict))]
+
+    def rank(name):
+        family = next((k for k, f in enumerate(families) if name.startswith(f + "_")),
+                      len(families))
+        main = MAIN_METRICS.index(name) if name in MAIN_METRICS else len(MAIN_METRICS)
+        return family, main, name
+
+    return sorted(_metric_names(runs), key=rank)
 
 
 def _headers(names, units):
@@ -659,7 +672,7 @@ def _fitting(names, units, label_width, width, cell=9):
 
 
 def summary_table(runs: list[dict], units: dict | None = None, count: int = 4,
-                  width: int = 100) -> str:
+                  width: int = 100, manifest: dict | None = None) -> str:
     """A compact text table of the main metrics per run (for the terminal).
 
     Parameters
@@ -673,10 +686,13 @@ def summary_table(runs: list[dict], units: dict | None = None, count: int = 4,
         fit ``width`` beside the run labels).
     width : int
         Longest line; a long run label is cut with an ellipsis.
+    manifest : dict, optional
+        The manifest's tables: its ``[metrics]`` sets the order of the metrics
+        (:func:`_shown_metrics`).
     """
     units = units or {}
     labels = [str(r.get("label", r.get("folder", ""))) for r in runs]
-    names = main_metrics(_shown_metrics(runs), count)
+    names = _shown_metrics(runs, manifest)[:count]
     names = _fitting(names, units, min(max(map(len, labels), default=3), 40), width)
     rows = [[label, str(r.get("status", ""))] +
             [_fmt((r.get("metrics") or {}).get(n)) for n in names]
@@ -685,7 +701,7 @@ def summary_table(runs: list[dict], units: dict | None = None, count: int = 4,
 
 
 def group_table(runs: list[dict], units: dict | None = None, count: int = 3,
-                width: int = 100) -> str:
+                width: int = 100, manifest: dict | None = None) -> str:
     """Many runs (Monte Carlo samples) in one line per group (a run's ``group``, else its
     ``variant``): runs complete, and the median (min - max) of each main metric over the
     complete runs."""
@@ -693,7 +709,7 @@ def group_table(runs: list[dict], units: dict | None = None, count: int = 3,
     groups: dict[str, list[dict]] = {}
     for run in runs:
         groups.setdefault(run.get("group") or run.get("variant") or "base", []).append(run)
-    names = main_metrics(_shown_metrics(runs), count)
+    names = _shown_metrics(runs, manifest)[:count]
     names = _fitting(names, units, min(max(map(len, groups), default=5), 30), width, 24)
     rows = []
     for key, members in groups.items():
@@ -728,8 +744,8 @@ def terminal_summary(folder: str | Path, width: int = 100, most_runs: int = 20) 
     for run in runs:
         run["label"] = run["folder"]
     if len(runs) <= most_runs:
-        return summary_table(runs, units, width=width)
+        return summary_table(runs, units, width=width, manifest=manifest)
     sampled = plots.sampled_names(folder)
     for run in runs:
         run["group"] = _group(run, sampled)
-    return group_table(runs, units, width=width)
+    return group_table(runs, units, width=width, manifest=manifest)

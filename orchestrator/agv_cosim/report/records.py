@@ -91,13 +91,18 @@ def versions() -> dict[str, str | None]:
 def run_inputs(job: Job) -> dict[str, Any]:
     """Everything a run's result depends on, as plain data (``run.json``'s ``inputs``):
     the manifest's hash, the run's variant, sweep point (and Monte Carlo sample),
-    parameters (seeds included), FMU hashes, simulation settings, connections, events
+    parameters (seeds included), FMU and time-table hashes, each table's interpolation
+    per column (``tables``), the SHA-256 of every file a parameter or event names
+    (``files``, :mod:`agv_cosim.system.files`), simulation settings, connections, events
     and package versions. Equal inputs (:func:`inputs_sha256`) give an equal result."""
     plan = job.plan
     return {
         "manifest_sha256": job.manifest_sha256, "label": job.label,
         "variant": job.variant, "point": job.point, "parameters": job.parameters,
         "fmu_sha256": job.fmu_sha256,
+        "tables": {cname: {"interpolation": dict(zip(info.table.names, info.table.modes))}
+                   for cname, info in plan.models.items() if info.table is not None},
+        "files": job.files,
         "simulation": {"start": plan.start, "stop": plan.stop, "step": plan.step,
                        "algorithm": plan.algorithm, "record_every": plan.record_every,
                        "record": list(plan.record), "order": list(plan.order)},
@@ -148,9 +153,12 @@ def _exact(value: Any) -> Any:
 
 def write_run_files(job: Job, run_dir: Path, rows: int, status: str, error: str | None,
                     values: dict[str, Any], metrics_error: str | None,
-                    ended_by: str | None = None) -> RunResult:
+                    ended_by: str | None = None,
+                    timeseries_sha256: str | None = None) -> RunResult:
     """Write metrics.json and run.json of a run (replacing ours); return its result.
-    Neither file holds a timing: they are the same for the same inputs."""
+    Neither file holds a timing: they are the same for the same inputs.
+    ``timeseries_sha256``: the SHA-256 of the run's timeseries.csv as written (run.json's
+    ``timeseries_sha256``, which ``--resume`` checks the file against)."""
     write_json(run_dir / "metrics.json", values, replace=True)
     inputs = run_inputs(job)
     digest = inputs_sha256(inputs)
@@ -163,6 +171,7 @@ def write_run_files(job: Job, run_dir: Path, rows: int, status: str, error: str 
         "parameters": _exact(job.parameters), "algorithm": job.plan.algorithm,
         "start": job.plan.start, "stop": job.plan.stop, "step": job.plan.step,
         "record_every": job.plan.record_every, "rows": rows,
+        "timeseries_sha256": timeseries_sha256,
         "versions": inputs["versions"], "status": status,
         "error": error, "metrics_error": metrics_error, "partial": status != "complete",
         "ended_by": ended_by or ("stop time" if status == "complete" else None),

@@ -18,6 +18,7 @@ from ..errors import ManifestError, ModelError, TableError, did_you_mean
 from ..manifest import Component, Connection, Manifest, split_name, whole_multiple
 from ..plan import RunSpec
 from .checked import Checked, CheckedRun, Event
+from .files import file_problem
 from .model import ModelInfo, read_model
 from .order import feedthrough_order
 from .table import read_table
@@ -104,6 +105,9 @@ def check_events(manifest: Manifest, run: RunSpec, models: dict[str, ModelInfo],
                 sets.append((cname, vname, fmitypes.parse(var.ftype, value, var)))
             except ValueError as error:
                 raise err(vkey, f"'{target}' {error}") from None
+            problem = file_problem(sets[-1][2], manifest.files_dir)
+            if problem:
+                raise err(vkey, f"'{target}': {problem}")
         resolved.append(Event(k=k, at=at, name=name, sets=tuple(sets)))
     position = {name: i for i, name in enumerate(run.events)}
     resolved.sort(key=lambda e: (e.k, position[e.name]))
@@ -169,6 +173,10 @@ def check_parameters(manifest: Manifest, run: RunSpec,
                 else:
                     problem = f"'{cname}.{pname}' {problem}"
                 problems.append(err(key, problem))
+                continue
+            unreadable = file_problem(values[pname], manifest.files_dir)
+            if unreadable:
+                problems.append(err(key, f"'{cname}.{pname}': {unreadable}"))
         parsed[cname] = values
     raise_all(problems)
     return parsed

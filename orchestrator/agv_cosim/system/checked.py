@@ -103,7 +103,16 @@ class Job:
     #: real-time factor the run's steps are paced at (``--real-time``); None: unpaced.
     #: Pacing does not change the results, so it is not one of the run's inputs.
     real_time: float | None = None
+    #: the folder relative file names are relative to
+    #: (:attr:`agv_cosim.manifest.Manifest.files_dir`); None: the manifest's
+    base_dir: Path | None = None
+    #: the files the run's parameters and events name (:mod:`.files`):
+    #: ``{"component.parameter" or "events.<name>.component.variable": {name as written:
+    #: SHA-256}}``; ``plan`` holds the values with the names absolute
+    files: dict[str, dict[str, str]] = field(default_factory=dict)
 
     @property
     def manifest_dir(self) -> Path:
-        return Path(self.manifest_path).parent
+        """The folder relative file names are relative to (the metrics' path strings,
+        the files parameters name)."""
+        return self.base_dir if self.base_dir is not None else Path(self.manifest_path).parent

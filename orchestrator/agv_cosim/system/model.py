@@ -321,8 +321,9 @@ def find_fmus(path: str | Path) -> list[Path]:
 
 
 def describe(info: ModelInfo) -> str:
-    """Human-readable listing of an FMU's variables (``agv-cosim list``); a tunable
-    parameter is marked as such."""
+    """Human-readable listing of an FMU's variables (``agv-cosim list``): causality, value
+    reference (``vr=N``, what a host passes to fmi2GetReal/fmi3GetFloat64 and the like),
+    type, name, start value, unit, description; a tunable parameter is marked as such."""
     lines = [f"{info.path.name}  ({info.model_name}): {info.description}"]
     order = {"parameter": 0, "input": 1, "output": 2}
     variables = sorted((v for v in info.variables.values() if v.element is None),
@@ -339,6 +340,6 @@ def describe(info: ModelInfo) -> str:
         vtype = v.type
         if v.dims:  # an FMI 3.0 array: its shape (elements recorded as name[i])
             vtype += f"[{'x'.join(map(str, v.shape)) if v.shape else '?'}]"
-        lines.append(f"  {v.causality:<9} {vtype:<7} {v.name}{start} {unit}  "
-                     f"{v.description}{extra}")
+        lines.append(f"  {v.causality:<9} {f'vr={v.vr}':<6} {vtype:<7} {v.name}{start} "
+                     f"{unit}  {v.description}{extra}")
     return "\n".join(lines)
