@@ -10,10 +10,10 @@ JOBS   ?= 2
 .PHONY: run test test-fast test-deps fmus venv clean
 
 # Debian packages the interop tests build and run their hosts with (fmusim: libxml2,
-# minizip, sundials; valgrind) and the browser the report page is tested in (chromium,
+# minizip, sundials; valgrind; ecospy's libtbb12) and the browser the report page is tested in (chromium,
 # driven by Selenium through chromium-driver), installed with apt-get when missing (as
 # root; otherwise the missing ones are named, and those tests skip on a developer machine).
-TEST_DEBS := libxml2-dev libminizip-dev libsundials-dev valgrind chromium chromium-driver
+TEST_DEBS := libxml2-dev libminizip-dev libsundials-dev valgrind chromium chromium-driver libtbb12
 
 # The venv holds the versions of constraints.txt (the results depend on them).
 $(STAMP): pyproject.toml setup.py constraints.txt

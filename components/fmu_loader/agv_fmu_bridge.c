@@ -1079,6 +1079,22 @@ static PyObject *slave_class(const char *resources)
     return found;
 }
 
+/* After an import error at instantiation (logged by failed()): name the FMU's requirement
+   list and the Python that lacks it, and how to run the FMU with another. */
+static void missing_packages(Instance *inst, const char *resources)
+{
+    PyObject *executable = PySys_GetObject("executable"); /* borrowed */
+    const char *python = executable && PyUnicode_Check(executable)
+                             ? PyUnicode_AsUTF8(executable) : NULL;
+    PyErr_Clear();
+    emitf(inst, inst->fmi3 ? (int)fmi3Fatal : (int)fmi2Fatal, "logStatusFatal",
+          "the Python that runs this FMU (%s) lacks packages of the FMU's %s/requirements.txt: "
+          "install them there (pip install -r %s/requirements.txt), or name a Python that "
+          "has them with AGV_COSIM_PYTHON (hosts that are not Python programs; see "
+          "docs/using-the-fmus.md)", python && *python ? python : "unknown", resources,
+          resources);
+}
+
 static Instance *instantiate(int fmi3, const char *name, const char *location, int visible,
                              int logging_on, fmi2CallbackLogger log2,
                              fmi2ComponentEnvironment env2, fmi3LogMessageCallback log3,
@@ -1106,8 +1122,11 @@ static Instance *instantiate(int fmi3, const char *name, const char *location, i
         ok = inst->kwargs != NULL && make_slave(inst) == 0;
     }
     if (!ok) {
-        if (PyErr_Occurred()) failed(inst, "instantiation");
-        else emit(inst, fmi3 ? (int)fmi3Fatal : (int)fmi2Fatal, "logStatusFatal",
+        if (PyErr_Occurred()) {
+            int import_error = PyErr_ExceptionMatches(PyExc_ImportError);
+            failed(inst, "instantiation");
+            if (import_error) missing_packages(inst, resources);
+        } else emit(inst, fmi3 ? (int)fmi3Fatal : (int)fmi2Fatal, "logStatusFatal",
                   "instantiation failed: out of memory");
         drop_slave(inst);
         Py_CLEAR(inst->cls);

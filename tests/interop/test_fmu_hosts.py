@@ -166,6 +166,32 @@ def test_a_python_without_the_packages_is_reported(c_host, unzipped, tmp_path):
     assert done.returncode == 1, done.stderr[-2000:]
     assert "No module named" in done.stderr
     assert "fmi2Instantiate failed" in done.stderr
+    # and what to do about it: the FMU's requirement list, the Python, the variable
+    assert f"{folder}/resources/requirements.txt" in done.stderr, done.stderr[-2000:]
+    assert f"({venv / 'bin' / 'python'})" in done.stderr
+    assert "AGV_COSIM_PYTHON" in done.stderr
+
+
+def test_a_python_on_path_without_the_packages_names_the_requirements(c_host, unzipped,
+                                                                      tmp_path):
+    """A clean environment whose first python3 on PATH lacks the FMU's packages (a venv
+    without any): fmi2Instantiate fails with the import error, then one message naming
+    that Python, the FMU's resources/requirements.txt and AGV_COSIM_PYTHON."""
+    venv = tmp_path / "bare"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
+    folder, md = unzipped["agv_preview_lq"]
+    env = {**BARE_ENV, "PATH": f"{venv / 'bin'}:/usr/bin:/bin"}
+    done, _ = run_c_host(c_host, folder, md, 0.1, 0.1, {}, env=env)
+    assert done.returncode == 1, done.stderr[-2000:]
+    assert "on PATH)" in done.stderr  # the rule that chose the Python (loggingOn)
+    assert "ModuleNotFoundError: No module named" in done.stderr
+    hint = next((line for line in done.stderr.splitlines() if "requirements.txt" in line),
+                None)
+    assert hint is not None, done.stderr[-2000:]
+    assert f"{folder}/resources/requirements.txt" in hint
+    assert f"({venv / 'bin' / f'python3.{sys.version_info.minor}'})" in hint
+    assert "AGV_COSIM_PYTHON" in hint
+    assert "status 4 logStatusFatal" in hint  # fmi2Fatal, as the import error itself
 
 
 PYTHON_HOST = """

@@ -32,16 +32,16 @@ class AgvDynamicTrain(core.fmi.fmi_slave.AgvSlave):
         super().__init__(**kwargs)
         S = core.fmi.fmi_slave.String
         self.input("dv", 0.0, "m/s", "Speed added to v0 (a speed profile; with v0 = 0 the "
-                   "head car's longitudinal speed u1, body x velocity)")
+                   "head car's longitudinal speed u1, body x velocity)", builds_core=True)
         for i in _AXLES:
             self.input(f"delta{i}", 0.0, "rad",
                        f"Axle-equivalent steering angle of axle {i}, positive left "
-                       "(steering_input 'axle')")
+                       "(steering_input 'axle')", builds_core=True)
         for i in _AXLES:
             for side in _SIDES:
                 self.input(f"delta{i}_{side}", 0.0, "rad",
                            f"{side.capitalize()} wheel angle of axle {i}, positive left "
-                           "(steering_input 'wheels')")
+                           "(steering_input 'wheels')", builds_core=True)
         self.parameter("L1", DEFAULTS["L1"], "m",
                        "Axle spacing of each powered car (head-car wheelbase)")
         self.parameter("L2", DEFAULTS["L2"], "m",

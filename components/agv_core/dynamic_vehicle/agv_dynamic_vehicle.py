@@ -28,9 +28,10 @@ class AgvDynamicVehicle(core.fmi.fmi_slave.AgvSlave):
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         S, B = core.fmi.fmi_slave.String, core.fmi.fmi_slave.Boolean
-        self.input("alpha", 0.0, "rad", "Steered-wheel angle, positive turns left")
+        self.input("alpha", 0.0, "rad", "Steered-wheel angle, positive turns left",
+                   builds_core=True)
         self.input("dv", 0.0, "m/s", "Speed added to v0 (a speed profile; with v0 = 0 the "
-                   "longitudinal speed)")
+                   "longitudinal speed)", builds_core=True)
         self.parameter("v0", 1.0, "m/s", "Constant part of the body's longitudinal speed "
                        "(held by the drive); the speed is v0 + dv")
         self.parameter("wheelbase", DEFAULTS["wheelbase"], "m",

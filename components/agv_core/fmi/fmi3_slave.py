@@ -17,7 +17,8 @@ same slave class body runs as an FMI 3.0 co-simulation FMU:
 - FMI 3.0's independent variable ``time`` [s] is the adapter's clock ``self.time``.
 - The model description gets what pythonfmu3 does not write by itself: the unit
   definitions and ``unit`` of every Float64, output ``dependencies`` (value references of
-  the inputs an output depends on directly, empty when none), a deterministic header
+  the inputs an output depends on directly, empty when none), ``InitialUnknown``
+  ``dependencies`` (those inputs, every parameter and ``time``), a deterministic header
   (no clock, ``instantiationToken`` from ``resources/agv_build.json``) and
   ``reference_inputs`` as an ``org.agv-cosim`` annotation.
 - The behaviour is the FMI 2.0 adapter's: the core is built at
@@ -78,6 +79,11 @@ class AgvSlave(SlaveLogic, Fmi3Slave):
         if self.resources is not None:
             finalize_at_exit(self.resources, self.modelName)
 
+    def _initial_dependencies(self, name):
+        # the independent variable is a known in Initialization Mode too (its start time);
+        # conservatively, every initial output depends on it
+        return (*super()._initial_dependencies(name), "time")
+
     def _variable(self, kind, name, causality, variability, description, unit):
         extra = {"unit": unit} if kind is Float64 else {}
         return kind(name, causality=causality, variability=variability,
@@ -134,6 +140,10 @@ class AgvSlave(SlaveLogic, Fmi3Slave):
             name = self.vars[int(unknown.get("valueReference"))].name
             unknown.set("dependencies",
                         " ".join(str(reference[d]) for d in self._dependencies[name]))
+        for unknown in root.find("ModelStructure").iterfind("InitialUnknown"):
+            name = self.vars[int(unknown.get("valueReference"))].name
+            deps = sorted(reference[d] for d in self._initial_dependencies(name))
+            unknown.set("dependencies", " ".join(map(str, deps)))
         table = self._reference_inputs_element()
         if table is not None:  # an annotation (the build reads it), last in FMI 3.0
             annotation = Element("Annotation", type=REFERENCE_TOOL)

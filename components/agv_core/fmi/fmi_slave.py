@@ -24,7 +24,8 @@ implements three hooks:
 
 The behaviour shared with the FMI 3.0 twins is in :mod:`agv_core.fmi.slave_base`. This
 adapter also writes what pythonfmu leaves out of ``modelDescription.xml``: units and
-their definitions, output dependencies, ``InitialUnknowns``, a GUID derived from the
+their definitions, output dependencies, ``InitialUnknowns`` with their dependencies (see
+``SlaveLogic._initial_dependencies``), a GUID derived from the
 sources (written by the build into ``resources/agv_build.json``), and a deterministic
 header. State save/restore covers the variables and the core's ``get_state()`` /
 ``set_state()`` (JSON-safe dicts). The workaround for pythonfmu 0.7's double release of a
@@ -152,5 +153,8 @@ class AgvSlave(SlaveLogic, Fmi2Slave):
                 unknown.set("dependencies", deps)
             initial = SubElement(structure, "InitialUnknowns")
             for unknown in outputs:
-                SubElement(initial, "Unknown", index=unknown.get("index"))
+                name = self.vars[int(unknown.get("index")) - 1].name
+                deps = sorted(index[d] for d in self._initial_dependencies(name))
+                SubElement(initial, "Unknown", index=unknown.get("index"),
+                           dependencies=" ".join(map(str, deps)))
         return root

@@ -47,7 +47,8 @@ with where they are.
 6. Model-description fixes (in the adapters' ``to_xml``): no ``generationDateAndTime``
    (a rebuild must not differ by clock), Real start values with repr's 17 digits
    (pythonfmu writes 16, which do not round-trip every double), units, output
-   dependencies and ``InitialUnknowns`` (pythonfmu writes none).
+   dependencies and ``InitialUnknowns`` (pythonfmu writes none), and the dependencies of
+   the initial unknowns (pythonfmu3 writes none).
 """
 
 import atexit

@@ -119,6 +119,7 @@ class SlaveLogic:
         self._units = {}
         self._dependencies = {}
         self._input_names = []
+        self._core_inputs = set()
         self._output_names = []
         self._parameter_names = []
         self._stale = False
@@ -174,12 +175,15 @@ class SlaveLogic:
         self.register_variable(self._variable(kind, name, causality, variability,
                                               description, unit))
 
-    def input(self, name, start, unit, description, kind=None):
-        """Declare an input (a continuous Real by default) with its start value."""
+    def input(self, name, start, unit, description, kind=None, builds_core=False):
+        """Declare an input (a continuous Real by default) with its start value;
+        ``builds_core`` when ``make_core`` reads it (the core starts from its value)."""
         kind = kind or self._REAL
         variability = self._CONTINUOUS if kind is self._REAL else self._DISCRETE
         self._declare(kind, name, self._INPUT, variability, start, unit, description)
         self._input_names.append(name)
+        if builds_core:
+            self._core_inputs.add(name)
 
     def output(self, name, unit, description, depends_on=(), kind=None, start=0.0):
         """Declare an output; ``depends_on`` names the inputs it depends on directly."""
@@ -567,6 +571,23 @@ class SlaveLogic:
             if attributes:
                 SubElement(node, "BaseUnit", attributes)
         root.insert(list(root).index(root.find("CoSimulation")) + 1, unit_defs)
+
+    def _initial_dependencies(self, name):
+        """Names of the knowns that output ``name`` depends on in initialisation mode: the
+        ``dependencies`` of its InitialUnknown.
+
+        FMI 2.0 (2.2.8) and FMI 3.0 (2.4.8) list as knowns in Initialization Mode the
+        inputs, the variables with initial="exact" (every parameter here) and the
+        independent variable. An output read then comes from a core built from the
+        parameters and the inputs set so far, published with those inputs
+        (``_initial_outputs``): it depends on the inputs its declaration names
+        (``depends_on``, the same as at a communication point) and, conservatively, on
+        every input declared ``builds_core`` and every parameter. The FMI 3.0 adapter
+        adds its declared independent variable.
+        """
+        direct = set(self._dependencies[name])
+        inputs = [n for n in self._input_names if n in direct or n in self._core_inputs]
+        return (*inputs, *self._parameter_names)
 
     def _reference_inputs_element(self):
         """``<ReferenceInputs>`` of ``reference_inputs`` (None if there are none)."""

@@ -31,7 +31,7 @@ class AgvTrain(core.fmi.fmi_slave.AgvSlave):
         super().__init__(**kwargs)
         S = core.fmi.fmi_slave.String
         self.input("dv", 0.0, "m/s", "Speed added to v0 (a speed profile; with v0 = 0 the "
-                   "head car's longitudinal speed u1, body x velocity)")
+                   "head car's longitudinal speed u1, body x velocity)", builds_core=True)
         for i in _AXLES:
             self.input(f"delta{i}", 0.0, "rad",
                        f"Axle-equivalent steering angle of axle {i}, positive left "
