@@ -33,15 +33,15 @@ class Pacer:
         self.overruns = 0
         self.max_lateness = 0.0
 
-    def wrap(self, step: Callable[[float], None], h: float) -> Callable[[float], None]:
-        """``step`` (from ``t`` to ``t + h``) followed by the wait for ``t + h``'s
-        deadline."""
+    def wrap(self, step: Callable[[float, float], None]) -> Callable[[float, float], None]:
+        """``step(t, h)`` (from the communication point ``t`` to ``t + h``, the next one)
+        followed by the wait for ``t + h``'s deadline."""
         clock, sleep, factor, start = time.monotonic, time.sleep, self.factor, self.start
 
-        def paced(t: float) -> None:
+        def paced(t: float, h: float) -> None:
             if self.wall_start is None:
                 self.wall_start = clock()
-            step(t)
+            step(t, h)
             reached = t + h
             deadline = self.wall_start + (reached - start) / factor
             now = clock()
