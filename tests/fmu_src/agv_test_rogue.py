@@ -6,6 +6,8 @@ parameter, all off by default):
 - ``message``: logs this text as a warning through the FMI logger each step (e.g. with
   terminal escape sequences); from ``fail_time`` on [s] (< 0: never) doStep fails with
   it as the error;
+- ``log_count``: logs that many messages a step through the FMI logger (info, the last
+  of each step a warning);
 - ``garbage_time``: from this time on [s] (< 0: never), writes garbage into every open
   file descriptor above 2 that is a pipe (those it inherited from its host);
 - ``fork_seconds``: at initialisation forks a helper process that sleeps this long [s]
@@ -45,6 +47,7 @@ class AgvTestRogue(core.fmi.fmi_slave.AgvSlave):
         self.parameter("stdout_bytes", 0, None, "Bytes written to fds 1 and 2 a step",
                        kind=fs.Integer)
         self.parameter("message", "", None, "Warning logged every step", kind=fs.String)
+        self.parameter("log_count", 0, None, "Messages logged a step", kind=fs.Integer)
         self.parameter("fail_time", -1.0, "s", "From then on, doStep fails with message")
         self.parameter("garbage_time", -1.0, "s", "From then on, garbage into pipes")
         self.parameter("fork_seconds", 0.0, "s", "Life of a forked helper (0: none)")
@@ -75,6 +78,13 @@ class AgvTestRogue(core.fmi.fmi_slave.AgvSlave):
             from pythonfmu.enums import Fmi2Status
 
             self.log(str(self.message), Fmi2Status.warning)
+        count = int(self.log_count)
+        if count > 0:
+            from pythonfmu.enums import Fmi2Status
+
+            for i in range(count - 1):
+                self.log(f"chatter {i} at t = {t}", Fmi2Status.ok)
+            self.log(f"the last of {count} messages at t = {t}", Fmi2Status.warning)
         if 0.0 <= self.fail_time <= t + 1e-12:
             raise RuntimeError(str(self.message))
         if 0.0 <= self.garbage_time <= t + 1e-12:
