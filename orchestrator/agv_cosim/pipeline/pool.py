@@ -35,6 +35,7 @@ from ..execution.pacing import FIGURES, WALL, report_of
 from ..execution.track import Track, describe_track
 from ..lifetime import (
     TERMINATION_SIGNALS,
+    Orphans,
     ignore_termination,
     kill_group,
     scratch_dir,
@@ -362,6 +363,9 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
     #: checking: True while it does the initialisation check, then ``checked``: the
     #: index of the check item under way)
     pool: list[dict[str, Any]] = []
+    # a process a run started that outlives its worker (it left the worker's group) is
+    # handed to this process, which ends it when that worker ends and at the end
+    orphans = Orphans()
     # closes when this process ends, however: each worker's guard then ends its group
     if idle is not None and idle.life is not None:
         life_reader, life_writer = idle.life
@@ -420,6 +424,7 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         process = worker["process"]
         kill_group(process)
         process.join()
+        orphans.sweep()
         worker["output"].read()
         worker["output"].detach()  # output.txt whole on disk: _ended reads its last line
         index = worker["index"]
@@ -558,6 +563,7 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         if idle is None:
             life_reader.close()
             life_writer.close()
+        orphans.close()
     done = [r for r in results if r is not None]
     assert len(done) == len(results), "a run ended without a result"
     return done
