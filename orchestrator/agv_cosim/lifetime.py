@@ -186,14 +186,16 @@ def descendants(pid: int, table: dict[int, tuple[int, str]] | None = None) -> li
 
 def _kill_tree(pid: int) -> None:
     """Stop process ``pid`` (still alive, a child subreaper: see
-    :func:`own_process_group`) and SIGKILL every process below it, again until none is
-    left (a killed process's children are handed to ``pid``, which stays stopped)."""
+    :func:`own_process_group`) and SIGKILL every process below it but the caller, again
+    until none is left (a killed process's children are handed to ``pid``, which stays
+    stopped)."""
     try:
         os.kill(pid, signal.SIGSTOP)
     except OSError:
         return
+    me = os.getpid()  # the guard, itself below ``pid``, kills the group after this
     for _ in range(200):
-        below = descendants(pid)
+        below = [p for p in descendants(pid) if p != me]
         if not below:
             return
         for child in below:
