@@ -218,8 +218,9 @@ def own_process_group(life: int | None = None) -> None:
     Every process an FMU forks (and that does not leave the group) is then in this
     group, so a parent can end the run with ``os.killpg`` (:func:`kill_group`). The
     guard, a forked child that holds no file of ours but ``life``, kills the whole
-    group (and every process below this one, also those that left the group) as soon
-    as this process ends (``PR_SET_PDEATHSIG``, and a check every half second) or
+    group (and every process below this one, also those that left the group; if this
+    process went first, those it saw below this one at its last look, every half
+    second) as soon as this process ends (``PR_SET_PDEATHSIG``, and a check every half second) or
     ``life`` reads as closed: ``life`` is the reading end of a pipe whose
     writing end only the command's own process holds, so it closes when that process
     ends, however (a SIGKILL included). The FMU's processes thus end with the run
@@ -246,14 +247,25 @@ def own_process_group(life: int | None = None) -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGHUP, signal.SIG_IGN)
         _prctl_pdeathsig(signal.SIGTERM)
+        me = os.getpid()
+        seen: dict[int, int | None] = {}  # below the leader at the last look: start time
         try:
             while os.getppid() == leader:
                 if select.select(keep, [], [], 0.5)[0]:
                     break  # the command's process ended: its pipe reads as closed
+                below = {p: _start_time(p) for p in descendants(leader) if p != me}
+                if os.getppid() == leader:  # the leader lived through the look: valid
+                    seen = below
         except (_Wake, OSError):
             pass
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
         if os.getppid() == leader:  # the processes that left the group, then the group
             _kill_tree(leader)
+        # those seen below the leader that left the group, if the leader went first
+        for pid, start in seen.items():
+            if start is not None and _start_time(pid) == start:
+                with contextlib.suppress(OSError):
+                    os.kill(pid, signal.SIGKILL)
         os.killpg(0, signal.SIGKILL)
     finally:
         os._exit(0)

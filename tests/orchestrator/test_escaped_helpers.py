@@ -115,3 +115,46 @@ def test_orphans_handed_to_the_command_are_ended_and_the_others_spared():
         os.close(writer)
         os.kill(before, signal.SIGKILL)
         os.waitpid(before, 0)
+
+
+@pytest.mark.slow  # seconds: a command SIGKILLed while its run hangs
+def test_a_helper_that_left_the_group_ends_with_a_sigkilled_command(fmus, tmp_path):
+    """The command is SIGKILLed while its run hangs: the worker dies with it (and may go
+    before its guard looks), and the setsid() helper, outside every group of ours, is
+    ended by the guard from what it saw below the worker."""
+    import subprocess
+    import sys
+
+    from processes import wait_until
+
+    path = tmp_path / "helpers.toml"
+    path.write_text(ROGUE.format(rogue=fmus["agv_test_rogue"], leave=1,
+                                 extra=HANG.format(hang=fmus["agv_test_hang"])))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    process = subprocess.Popen([sys.executable, "-m", "agv_cosim.cli", "run", str(path),
+                                "--out", str(tmp_path / "out"), "--quiet", "--no-init"],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                               start_new_session=True, env=env)
+    helper = 0
+    try:
+        def helper_started():
+            if process.poll() is not None:
+                raise AssertionError("the command ended")
+            for series in tmp_path.glob(".out.incomplete-*/base/timeseries.csv"):
+                rows = series.read_text().split("\n")
+                if len(rows) > 2:
+                    return int(rows[1].split(",")[rows[0].split(",").index("r.helper")])
+            return 0
+
+        helper = wait_until(helper_started, "the FMU's helper started")
+        assert os.getsid(helper) == helper  # it left our session
+        time.sleep(1.5)  # the guard looks below the worker every 0.5 s
+        process.kill()
+        process.wait()
+        assert ended(helper, guard=30), "the helper outlived a SIGKILLed command"
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        if helper:
+            _kill_if_alive(helper)
