@@ -12,15 +12,18 @@ An unpaced run does not go through here at all.
 The factor is a finite number in [:data:`MIN_FACTOR`, :data:`MAX_FACTOR`], and a run's
 paced wall duration, (stop - start) / factor, at most :data:`MAX_WALL_S` (every deadline
 and every wait is then a number of seconds the clock and ``time.sleep`` represent):
-:func:`factor_problem`. A failure of the pacing itself (the clock, the wait) raises
-:class:`PacingFailed`, never an error of the FMU that stepped last.
+:func:`factor_problem`. A failure of the pacing itself (the clock, the wait) raises a
+:class:`~agv_cosim.errors.SimulationError` that names the pacing, never the FMU that
+stepped last.
 """
 
 import time
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["FIGURES", "MAX_FACTOR", "MAX_WALL_S", "MIN_FACTOR", "Pacer", "PacingFailed",
+from ..errors import SimulationError
+
+__all__ = ["FIGURES", "MAX_FACTOR", "MAX_WALL_S", "MIN_FACTOR", "Pacer",
            "factor_problem", "report_of"]
 
 #: Smallest real-time factor (1 s simulated in 11.6 days of wall time).
@@ -43,16 +46,6 @@ def factor_problem(factor: float, span: float | None = None) -> str | None:
         return (f"{factor!r} would pace the run's {span!r} s over {span / factor:.3g} s of "
                 f"wall time; at most {MAX_WALL_S:g} s")
     return None
-
-
-class PacingFailed(Exception):
-    """The pacing itself failed (the clock or the wait) after the step that reached
-    ``at`` [s]: ``error`` is its exception."""
-
-    def __init__(self, error: Exception, at: float) -> None:
-        super().__init__(f"{type(error).__name__}: {error}")
-        self.error = error
-        self.at = at
 
 
 #: The pacing figures of a run, each a position in :attr:`Pacer.figures`: steps done,
@@ -104,7 +97,8 @@ class Pacer:
                     sleep(deadline - now)
                     now = clock()
             except Exception as error:  # noqa: BLE001 - the pacing's, not the FMUs'
-                raise PacingFailed(error, reached) from None
+                raise SimulationError(f"real-time pacing failed at t={reached!r} s: "
+                                      f"{type(error).__name__}: {error}") from None
             figures[REACHED] = reached
             figures[WALL] = now - wall_start
             figures[STEPS] += 1

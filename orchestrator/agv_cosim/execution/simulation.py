@@ -26,7 +26,7 @@ from .algorithm import Algorithm, Stepper, StopRequest, algorithm_for
 from .grid import Grid
 from .instance import FmuInstance, extract_ahead
 from .observers import Observer
-from .pacing import Pacer, PacingFailed
+from .pacing import Pacer
 from .scenario import Scenario
 from .track import INITIALISATION, INSTANTIATION, PHASES, PROPAGATION, Track
 from .units import Unit, build_units, enter_initialisation
@@ -221,9 +221,6 @@ def simulate(system: System, observers: Iterable[Observer] = (), *,
         raise
     except _WriteFailed as failed:  # not the FMU's fault: the caller's own error
         raise failed.error from None
-    except PacingFailed as failed:  # not the FMU's fault: the pacing's own
-        raise SimulationError(f"real-time pacing failed at t={failed.at!r} s: "
-                              f"{failed}") from None
     except Exception as error:  # noqa: BLE001 - e.g. a failed instantiation
         raise _failed_otherwise(error, system, instances, track) from None
     finally:
