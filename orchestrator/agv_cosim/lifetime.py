@@ -17,6 +17,14 @@
 - :func:`own_process_group` (called in every child process that runs FMUs) makes the
   child the leader of a process group of its own, with a guard process in it that kills
   the whole group when the child ends: processes an FMU forks end with its run.
+- A process that leaves the group (``setsid()``, ``setpgid()``) is still ended: the
+  child that runs FMUs is a child subreaper (``PR_SET_CHILD_SUBREAPER``), so every process
+  started under it stays in its tree of descendants while it lives, whatever group or
+  session it moves to, and :func:`kill_group` stops the child, kills that whole tree,
+  then the group. The command's process is a subreaper too while its runs go on
+  (:class:`Orphans`): a process left behind by a child that ended is handed to it, and
+  :func:`end_orphans` kills it. Linux (the tree is read from ``/proc``);
+  elsewhere only the group.
 - :func:`use_own_scratch_for_multiprocessing` puts multiprocessing's sockets in such a
   scratch folder and stops its fork server and resource tracker at exit
   (:func:`stop_helpers`), so no process of ours outlives the command.
@@ -30,6 +38,7 @@ import shutil
 import signal
 import stat
 import tempfile
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -110,6 +119,91 @@ def _prctl_pdeathsig(signum):
         return False
 
 
+#: prctl options (linux/prctl.h)
+_PR_SET_CHILD_SUBREAPER = 36
+_PR_GET_CHILD_SUBREAPER = 37
+
+
+def _prctl(option: int, value: int = 0) -> int | None:
+    """``prctl(option, value)``'s result, or None where it is not available."""
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        return int(libc.prctl(option, value, 0, 0, 0))
+    except (OSError, AttributeError):
+        return None
+
+
+def _subreaper() -> int:
+    """This process's child-subreaper setting (0 off, also where unknown)."""
+    import ctypes
+
+    value = ctypes.c_int(0)
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(_PR_GET_CHILD_SUBREAPER, ctypes.byref(value), 0, 0, 0) != 0:
+            return 0
+    except (OSError, AttributeError):
+        return 0
+    return value.value
+
+
+def _process_table() -> dict[int, tuple[int, str]]:
+    """Every visible process: pid -> (parent pid, state letter) from ``/proc``."""
+    table: dict[int, tuple[int, str]] = {}
+    try:
+        names = os.listdir("/proc")
+    except OSError:
+        return table
+    for name in names:
+        if not name.isdigit():
+            continue
+        try:
+            with open(f"/proc/{name}/stat", "rb") as stream:
+                fields = stream.read().rsplit(b")", 1)[1].split()
+            table[int(name)] = (int(fields[1]), fields[0].decode("ascii", "replace"))
+        except (OSError, IndexError, ValueError):
+            continue
+    return table
+
+
+def descendants(pid: int, table: dict[int, tuple[int, str]] | None = None) -> list[int]:
+    """The processes below ``pid`` (children, their children, ...) that have not ended
+    (zombies left out), from ``/proc``; empty where it cannot be read."""
+    table = _process_table() if table is None else table
+    children: dict[int, list[int]] = {}
+    for child, (parent, _) in table.items():
+        children.setdefault(parent, []).append(child)
+    found, todo = [], [pid]
+    while todo:
+        for child in children.get(todo.pop(), ()):
+            if child != pid and child not in found:
+                found.append(child)
+                todo.append(child)
+    return [p for p in found if table[p][1] != "Z"]
+
+
+def _kill_tree(pid: int) -> None:
+    """Stop process ``pid`` (still alive, a child subreaper: see
+    :func:`own_process_group`) and SIGKILL every process below it but the caller, again
+    until none is left (a killed process's children are handed to ``pid``, which stays
+    stopped)."""
+    try:
+        os.kill(pid, signal.SIGSTOP)
+    except OSError:
+        return
+    me = os.getpid()  # the guard, itself below ``pid``, kills the group after this
+    for _ in range(200):
+        below = [p for p in descendants(pid) if p != me]
+        if not below:
+            return
+        for child in below:
+            with contextlib.suppress(OSError):
+                os.kill(child, signal.SIGKILL)
+        time.sleep(0.005)  # the killed ones exit; their children move to ``pid``
+
+
 class _Wake(Exception):
     pass
 
@@ -124,8 +218,10 @@ def own_process_group(life: int | None = None) -> None:
     Every process an FMU forks (and that does not leave the group) is then in this
     group, so a parent can end the run with ``os.killpg`` (:func:`kill_group`). The
     guard, a forked child that holds no file of ours but ``life``, kills the whole
-    group as soon as this process ends (``PR_SET_PDEATHSIG``, and a check every half
-    second) or ``life`` reads as closed: ``life`` is the reading end of a pipe whose
+    group (and every process below this one, also those that left the group; if this
+    process went first, those it saw below this one at its last look, every half
+    second) as soon as this process ends (``PR_SET_PDEATHSIG``, and a check every half second) or
+    ``life`` reads as closed: ``life`` is the reading end of a pipe whose
     writing end only the command's own process holds, so it closes when that process
     ends, however (a SIGKILL included). The FMU's processes thus end with the run
     however it ends, and none keeps one of our pipes open. Linux; elsewhere only the
@@ -134,6 +230,7 @@ def own_process_group(life: int | None = None) -> None:
     import select
 
     os.setpgid(0, 0)
+    _prctl(_PR_SET_CHILD_SUBREAPER, 1)  # what leaves the group stays below this process
     leader = os.getpid()
     try:
         guard = os.fork()
@@ -150,12 +247,25 @@ def own_process_group(life: int | None = None) -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGHUP, signal.SIG_IGN)
         _prctl_pdeathsig(signal.SIGTERM)
+        me = os.getpid()
+        seen: dict[int, int | None] = {}  # below the leader at the last look: start time
         try:
             while os.getppid() == leader:
                 if select.select(keep, [], [], 0.5)[0]:
                     break  # the command's process ended: its pipe reads as closed
+                below = {p: _start_time(p) for p in descendants(leader) if p != me}
+                if os.getppid() == leader:  # the leader lived through the look: valid
+                    seen = below
         except (_Wake, OSError):
             pass
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        if os.getppid() == leader:  # the processes that left the group, then the group
+            _kill_tree(leader)
+        # those seen below the leader that left the group, if the leader went first
+        for pid, start in seen.items():
+            if start is not None and _start_time(pid) == start:
+                with contextlib.suppress(OSError):
+                    os.kill(pid, signal.SIGKILL)
         os.killpg(0, signal.SIGKILL)
     finally:
         os._exit(0)
@@ -206,10 +316,17 @@ def close_inherited(fds: list[int], keep: set[int]) -> None:
 
 def kill_group(process: Any) -> None:
     """SIGKILL the process group led by ``process`` (a multiprocessing Process started
-    with :func:`own_process_group`), else the process alone."""
+    with :func:`own_process_group`), else the process alone; while ``process`` runs,
+    first every process below it (:func:`_kill_tree`: those that left its group too)."""
     pid = process.pid
     if pid is None:
         return
+    try:
+        alive = process.is_alive()  # not reaped: ``pid`` is still its own
+    except (OSError, ValueError, AssertionError):
+        alive = False
+    if alive:
+        _kill_tree(pid)
     try:
         os.killpg(pid, signal.SIGKILL)
     except (ProcessLookupError, PermissionError):
@@ -217,6 +334,68 @@ def kill_group(process: Any) -> None:
             process.kill()
         except (OSError, ValueError, AttributeError):
             pass
+
+
+class Orphans:
+    """While it is open, this process is a child subreaper: a process left behind by a
+    process of ours that ended (its parent gone) is handed to this one, and
+    :meth:`sweep` ends those handed over so far (:func:`end_orphans`, sparing the
+    children this process had when it opened). :meth:`close` sweeps once more and puts
+    the setting back. Linux; elsewhere :meth:`sweep` finds nothing."""
+
+    def __init__(self) -> None:
+        self._before = _subreaper()
+        self._known = frozenset(_children())  # from before: no orphans of ours
+        self._set = not self._before and _prctl(_PR_SET_CHILD_SUBREAPER, 1) == 0
+
+    def sweep(self) -> list[int]:
+        """End the orphans handed over so far; their pids."""
+        return end_orphans(self._known) if self._set or self._before else []
+
+    def close(self) -> None:
+        try:
+            self.sweep()
+        finally:
+            if self._set:
+                _prctl(_PR_SET_CHILD_SUBREAPER, 0)
+                self._set = False
+
+
+def _children() -> list[int]:
+    """This process's children that have not ended (from ``/proc``)."""
+    me = os.getpid()
+    return [pid for pid, (parent, state) in _process_table().items()
+            if parent == me and state != "Z"]
+
+
+def end_orphans(known: frozenset[int] = frozenset()) -> list[int]:
+    """SIGKILL (and reap) the children of this process that it did not start, with
+    everything below them: those handed to it as a child subreaper
+    (:class:`Orphans`). Spared: ``known`` and the processes multiprocessing
+    started (workers, figure processes, its fork server and resource tracker). Returns
+    the pids ended."""
+    import multiprocessing
+
+    ours = set(known)
+    ours.update(p.pid for p in multiprocessing.active_children() if p.pid is not None)
+    try:
+        from multiprocessing import forkserver, resource_tracker
+
+        ours.add(getattr(forkserver._forkserver, "_forkserver_pid", None) or 0)
+        ours.add(getattr(resource_tracker._resource_tracker, "_pid", None) or 0)
+    except ImportError:  # pragma: no cover
+        pass
+    ended = []
+    for pid in _children():
+        if pid in ours:
+            continue
+        for below in [*descendants(pid), pid]:
+            with contextlib.suppress(OSError):
+                os.kill(below, signal.SIGKILL)
+        with contextlib.suppress(ChildProcessError, OSError):
+            os.waitpid(pid, 0)
+        ended.append(pid)
+    return ended
 
 
 def die_with_parent() -> None:

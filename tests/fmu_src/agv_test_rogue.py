@@ -6,10 +6,15 @@ parameter, all off by default):
 - ``message``: logs this text as a warning through the FMI logger each step (e.g. with
   terminal escape sequences); from ``fail_time`` on [s] (< 0: never) doStep fails with
   it as the error;
+- ``log_count``: logs that many messages a step through the FMI logger (info, the last
+  of each step a warning);
 - ``garbage_time``: from this time on [s] (< 0: never), writes garbage into every open
   file descriptor above 2 that is a pipe (those it inherited from its host);
 - ``fork_seconds``: at initialisation forks a helper process that sleeps this long [s]
-  holding every descriptor it inherited (0: none); its pid is the output ``helper``.
+  holding every descriptor it inherited (0: none); its pid is the output ``helper``;
+  with ``leave`` 1 the helper leaves our session and process group (``setsid()``), with
+  2 the FMU forks a child that forks the helper (which calls ``setsid()``) and exits at
+  once (a daemon's double fork: the helper's parent is gone).
 """
 
 import os
@@ -45,9 +50,12 @@ class AgvTestRogue(core.fmi.fmi_slave.AgvSlave):
         self.parameter("stdout_bytes", 0, None, "Bytes written to fds 1 and 2 a step",
                        kind=fs.Integer)
         self.parameter("message", "", None, "Warning logged every step", kind=fs.String)
+        self.parameter("log_count", 0, None, "Messages logged a step", kind=fs.Integer)
         self.parameter("fail_time", -1.0, "s", "From then on, doStep fails with message")
         self.parameter("garbage_time", -1.0, "s", "From then on, garbage into pipes")
         self.parameter("fork_seconds", 0.0, "s", "Life of a forked helper (0: none)")
+        self.parameter("leave", 0, None, "The helper: 0 stays, 1 setsid, 2 double fork",
+                       kind=fs.Integer)
         self.output("t_out", "s", "Current time")
         self.output("helper", None, "pid of the forked helper (0: none)", kind=fs.Integer,
                     start=0)
@@ -55,14 +63,32 @@ class AgvTestRogue(core.fmi.fmi_slave.AgvSlave):
     def make_core(self):
         # once per instance (a provisional core is also made in initialisation mode)
         if self.fork_seconds > 0.0 and not getattr(self, "_helper", 0):
-            pid = os.fork()
-            if pid == 0:  # the helper: sleeps holding what it inherited
-                import time
-
-                time.sleep(float(self.fork_seconds))
-                os._exit(0)
-            self._helper = pid
+            self._helper = self._fork_helper(float(self.fork_seconds), int(self.leave))
         return {"helper": getattr(self, "_helper", 0)}
+
+    @staticmethod
+    def _fork_helper(seconds, leave):
+        """The pid of a helper that sleeps ``seconds`` holding what it inherited."""
+        import time
+
+        reader, writer = os.pipe()
+        pid = os.fork()
+        if pid == 0:
+            try:
+                if leave == 2 and os.fork() != 0:
+                    os._exit(0)  # the middle process: gone at once
+                if leave:
+                    os.setsid()
+                os.write(writer, str(os.getpid()).encode() + b"\n")
+                time.sleep(seconds)
+            finally:
+                os._exit(0)
+        os.close(writer)
+        with os.fdopen(reader, "rb") as stream:
+            helper = int(stream.readline())
+        if leave == 2:
+            os.waitpid(pid, 0)  # the middle process
+        return helper
 
     def advance(self, t, h):
         n = int(self.stdout_bytes)
@@ -75,6 +101,13 @@ class AgvTestRogue(core.fmi.fmi_slave.AgvSlave):
             from pythonfmu.enums import Fmi2Status
 
             self.log(str(self.message), Fmi2Status.warning)
+        count = int(self.log_count)
+        if count > 0:
+            from pythonfmu.enums import Fmi2Status
+
+            for i in range(count - 1):
+                self.log(f"chatter {i} at t = {t}", Fmi2Status.ok)
+            self.log(f"the last of {count} messages at t = {t}", Fmi2Status.warning)
         if 0.0 <= self.fail_time <= t + 1e-12:
             raise RuntimeError(str(self.message))
         if 0.0 <= self.garbage_time <= t + 1e-12:

@@ -56,14 +56,14 @@ def test_pacer_deadlines_are_absolute():
     pacer = Pacer(1.0, start=0.0)
     done = []
 
-    def step(t):
+    def step(t, h):
         done.append(t)
         if len(done) == 3:
             time.sleep(0.3)  # this step's deadline is 0.15 s after the start
 
-    paced = pacer.wrap(step, 0.05)
+    paced = pacer.wrap(step)
     for k in range(10):
-        paced(k * 0.05)
+        paced(k * 0.05, 0.05)
     report = pacer.report()
     assert tuple(report) == REAL_TIME_FIELDS  # timings.csv's columns
     assert done == [k * 0.05 for k in range(10)]

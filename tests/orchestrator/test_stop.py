@@ -33,7 +33,7 @@ fmu = "{fmus['agv_test_source']}"
     # the step 0.3 -> 0.4 was refused: the FMU's last successful time is 0.3 s, so the
     # run ends there, with the rows 0 .. 0.3 (no row at 0.4, which d never reached)
     assert info["status"] == "complete" and info["error"] is None
-    assert info["ended_by"] == "d requested stop at t=0.30000000000000004 s"
+    assert info["ended_by"] == "d requested stop at t=0.3 s"
     with open(out / "base" / "timeseries.csv", newline="") as stream:
         rows = list(csv.reader(stream))[1:]
     assert [float(r[0]) for r in rows] == pytest.approx([0.0, 0.1, 0.2, 0.3], abs=1e-12)

@@ -223,20 +223,21 @@ def fmi3_stepped(unit: FmuUnit, status: int, requests: list[StopRequest]) -> Non
 class Stepper:
     """Every FMU steps from t to t + h in turn (tables are not stepped); an FMU that asks
     to end the run (FMI 2.0 ``fmi2Discard`` with ``fmi2Terminated``, FMI 3.0
-    ``terminateSimulation``) is added to :attr:`requests`, and the others still step."""
+    ``terminateSimulation``) is added to :attr:`requests`, and the others still step.
+    :attr:`step` is ``step(t, h)``: t the communication point t_k, h the step size to
+    t_{k+1} (:meth:`.grid.Grid.step_size`)."""
 
-    def __init__(self, units: Iterable[Unit], h: float, track: Track, fast: bool) -> None:
+    def __init__(self, units: Iterable[Unit], track: Track, fast: bool) -> None:
         self.units = [u for u in units if isinstance(u, FmuUnit)]
-        self.h = h
         self.track = track
         self.requests: list[StopRequest] = []
-        self.step: Callable[[float], None] = (
-            fastpath.step_all(self.units, h, track, DO_STEP, fmi2_stepped, fmi3_stepped,
+        self.step: Callable[[float, float], None] = (
+            fastpath.step_all(self.units, track, DO_STEP, fmi2_stepped, fmi3_stepped,
                               self.requests) if fast else self.step_reference)
 
-    def step_reference(self, t: float) -> None:
-        """The step from ``t`` [s], the reference loop."""
-        track, h, requests = self.track, self.h, self.requests
+    def step_reference(self, t: float, h: float) -> None:
+        """The step from ``t`` to ``t + h`` [s], the reference loop."""
+        track, requests = self.track, self.requests
         track[2] = t
         track[1] = DO_STEP
         for unit in self.units:

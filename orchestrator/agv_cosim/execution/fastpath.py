@@ -242,20 +242,21 @@ def jacobi_set(units: list[Unit], track: Any) -> Callable[[], None]:
     return code.function("jacobi_set", "")
 
 
-def step_all(units: list[FmuUnit], h: float, track: Any, phase: int,
+def step_all(units: list[FmuUnit], track: Any, phase: int,
              fmi2_stepped: Callable[..., None],
              fmi3_stepped: Callable[..., None],
-             requests: list[tuple[str, float | None]]) -> Callable[[float], None]:
-    """``step_all(t)``: every unit steps from ``t`` to ``t + h`` [s] in turn
+             requests: list[tuple[str, float | None]]) -> Callable[[float, float], None]:
+    """``step_all(t, h)``: every unit steps from ``t`` to ``t + h`` [s] in turn
     (:meth:`agv_cosim.execution.algorithm.Stepper.step_reference`), generated."""
     # FMI 2.0: the time and step size pass as two C doubles shared by every doStep of the
-    # macro step (the time's value stored once a step), the component and the flag
-    # converted once (bare_call): no per-call argument conversion
-    t_c, h_c = ctypes.c_double(0.0), ctypes.c_double(h)
-    code = Code(track=track, h=h, stops=requests, t_c=t_c, h_c=h_c)
+    # macro step (their values stored once a step), the component and the flag converted
+    # once (bare_call): no per-call argument conversion
+    t_c, h_c = ctypes.c_double(0.0), ctypes.c_double(0.0)
+    code = Code(track=track, stops=requests, t_c=t_c, h_c=h_c)
     code.line("track[2] = t")
     code.line(f"track[1] = {int(phase)}")
     code.line("t_c.value = t")
+    code.line("h_c.value = h")
     for unit in units:
         d, c, u = code.bind(unit.do_step, "f"), code.bind(unit.component, "a"), \
             code.bind(unit, "u")
@@ -273,4 +274,4 @@ def step_all(units: list[FmuUnit], h: float, track: Any, phase: int,
             code.line(f"s = {d}({c}, t, h, True, {extra})")
             code.line(f"if s > 1 or {code.bind(unit.flags[1], 'a')}.value: "
                       f"{code.bind(fmi3_stepped, 'g')}({u}, s, stops)")
-    return code.function("step_all", "t")
+    return code.function("step_all", "t, h")

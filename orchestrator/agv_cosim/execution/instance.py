@@ -1,6 +1,8 @@
 """An FMU instantiated for a run: extracted into a private folder, loaded with fmpy's
 ``FMU2Slave`` or ``FMU3Slave`` (fmpy passes the resources location: a ``file:`` URI for
-FMI 2.0, a path for FMI 3.0), its log messages collected per instance (:func:`_logger`).
+FMI 2.0, a path for FMI 3.0), its log messages routed per instance (:func:`_logger`):
+an instance holds none of them but its last error and last fatal message (each at most
+:data:`MAX_MESSAGE` characters) and the count per status, however much the FMU logs.
 :meth:`FmuInstance.close` frees it and removes the folder, also after a failure.
 
 What an FMU declares (its model description) is read apart from this, by
@@ -21,7 +23,10 @@ from typing import Any
 
 from ..system.model import IDENTIFIER, ModelInfo
 
-__all__ = ["FmuInstance", "extract_ahead", "keep_extractions"]
+__all__ = ["MAX_MESSAGE", "FmuInstance", "extract_ahead", "keep_extractions"]
+
+#: Most characters of one FMU message passed on or held (the rest cut, marked).
+MAX_MESSAGE = 4096
 
 
 #: Instance key -> message list of that instance (see :func:`_logger`).
@@ -38,7 +43,17 @@ def _route(environment: Any, instance_name: bytes | None, status: int, category:
         name = instance_name.decode("utf-8", "replace") if instance_name else ""
         receive = _ROUTES.get(name)
     if receive is not None:
-        receive(int(status), message.decode("utf-8", "replace") if message else "")
+        receive(int(status), _text(message))
+
+
+def _text(message: bytes | None) -> str:
+    """A logged message as text, at most :data:`MAX_MESSAGE` characters."""
+    if not message:
+        return ""
+    if len(message) <= MAX_MESSAGE:
+        return message.decode("utf-8", "replace")
+    return (message[:MAX_MESSAGE].decode("utf-8", "ignore")
+            + f" [... {len(message) - MAX_MESSAGE} more bytes]")
 
 
 def _logger() -> Any:
@@ -62,7 +77,7 @@ def _route3(environment: Any, status: int, category: bytes | None,
             message: bytes | None) -> None:
     receive = _ROUTES.get(environment or 0)
     if receive is not None:
-        receive(int(status), message.decode("utf-8", "replace") if message else "")
+        receive(int(status), _text(message))
 
 
 def _logger3() -> Any:
@@ -226,7 +241,10 @@ class FmuInstance:
 
         self.info = info
         self.name = instance_name
-        self.messages: list[tuple[int, str]] = []
+        #: messages logged, per status (0 OK .. 5 Pending; other values counted as 5)
+        self.logged = [0] * 6
+        #: the last message logged with status Error, and with a status above Error
+        self._last: dict[int, str] = {}
         #: fmpy's FMU2Slave or FMU3Slave (None once closed)
         self.slave: Any = None
         self._key = next(_KEYS)
@@ -313,7 +331,9 @@ class FmuInstance:
             raise RuntimeError("fmi3InstantiateCoSimulation failed")
 
     def _receive(self, status: int, text: str) -> None:
-        self.messages.append((status, text))
+        self.logged[min(max(status, 0), 5)] += 1
+        if status >= 3:  # held: the last of each kind only
+            self._last[3 if status == 3 else 4] = text
         if self._on_message is not None:
             self._on_message(self.name, status, text)
 
@@ -321,12 +341,11 @@ class FmuInstance:
         """The FMU's own error message, one line ('' if none was logged).
 
         pythonfmu logs the slave's message with status error, then a generic fatal
-        "PyObject_CallMethod" line; the first error-status message is the useful one.
+        "PyObject_CallMethod" line; the last error-status message is the useful one, else
+        the last message of a status above it.
         """
-        errors = [text for status, text in self.messages if status == 3]
-        if not errors:
-            errors = [text for status, text in self.messages if status > 3]
-        return " ".join(errors[-1].split()) if errors else ""
+        text = self._last.get(3, self._last.get(4, ""))
+        return " ".join(text.split())
 
     def close(self) -> None:
         """Terminate and free the instance, then delete the extraction folder."""

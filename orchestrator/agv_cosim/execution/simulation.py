@@ -4,9 +4,10 @@ FMI 2.0 and 3.0 co-simulation FMUs may be mixed. :func:`simulate` instantiates t
 (:mod:`.instance`), wires their value buffers (:mod:`.units`), initialises them
 (``fmi2SetupExperiment``, parameters, enter / exit initialisation; for FMI 3.0 the
 parameters before ``fmi3EnterInitializationMode``), then at every communication point
-lets the :mod:`scenario <.scenario>` apply its events, the :mod:`algorithm <.algorithm>`
-exchange the values, the observers (:mod:`.observers`) take the recorded row, and the
-stepper step every FMU; an FMU's stop request ends the run after that macro step.
+(t_k = start + k step, :mod:`.grid`) lets the :mod:`scenario <.scenario>` apply its
+events, the :mod:`algorithm <.algorithm>` exchange the values, the observers
+(:mod:`.observers`) take the recorded row, and the stepper step every FMU; an FMU's
+stop request ends the run after that macro step.
 
 A non-OK FMI status or a NaN/inf output stops the run with a
 :class:`~agv_cosim.errors.SimulationError` naming component, variable (or FMI call) and
@@ -22,6 +23,7 @@ from ..errors import SimulationError
 from ..system import System
 from ..system.model import ModelInfo
 from .algorithm import Algorithm, Stepper, StopRequest, algorithm_for
+from .grid import Grid
 from .instance import FmuInstance, extract_ahead
 from .observers import Observer
 from .pacing import Pacer
@@ -105,15 +107,20 @@ def _reached(request: StopRequest, t: float) -> bool:
 def _loop(system: System, algorithm: Algorithm, stepper: Stepper, scenario: Scenario,
           record: Callable[[float], None], progress: list[Callable[[int], None]],
           track: Track, pace: Pacer | None = None) -> Outcome:
-    """The communication points after the first: step, events, exchange, record."""
-    h, start, steps, every = system.step, system.start, system.steps, system.record_every
+    """The communication points after the first (t_k of :class:`.grid.Grid`): step,
+    events, exchange, record."""
+    steps, every = system.steps, system.record_every
+    grid = Grid(system.start, system.stop, steps, system.step)
+    time, step_size = grid.time, grid.step_size
     requests = stepper.requests
-    step = stepper.step if pace is None else pace.wrap(stepper.step, h)
+    step = stepper.step if pace is None else pace.wrap(stepper.step)
     done = 0
     outcome = Outcome(rows=0)
+    t = system.start
     for k in range(steps):
-        step(start + k * h)
-        t_next = start + (k + 1) * h
+        t_next = time(k + 1)
+        step(t, step_size(t, t_next))
+        t = t_next
         track[2] = t_next
         if k + 1 == scenario.next_step and not requests:
             scenario.apply(k + 1)
@@ -178,7 +185,8 @@ def simulate(system: System, observers: Iterable[Observer] = (), *,
     Raises
     ------
     SimulationError
-        An FMU returned a non-OK status or an output became NaN/inf.
+        An FMU returned a non-OK status or an output became NaN/inf, or the pacing
+        itself failed (the message then names no component).
     Exception
         Whatever an observer raised (e.g. OSError for a full disk), unchanged.
     """
@@ -198,7 +206,7 @@ def simulate(system: System, observers: Iterable[Observer] = (), *,
         _initialise(system, instances, algorithm, track)
         recorder = _Recorder(system, units, observers)
         scenario = Scenario(system.events, instances, system.models)
-        stepper = Stepper(units.values(), system.step, track, fast)
+        stepper = Stepper(units.values(), track, fast)
         track[1] = PROPAGATION
         if scenario.next_step == 0:
             scenario.apply(0)

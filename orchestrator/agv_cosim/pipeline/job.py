@@ -21,7 +21,7 @@ __all__ = ["run_job", "run_metrics"]
 def run_job(job: Job, run_dir: str | Path, progress: Callable[[int], None] | None = None,
             track: Track | None = None,
             on_message: Callable[[str, int, str], None] | None = None,
-            fast: bool = True) -> RunResult:
+            fast: bool = True, pacing: Any = None) -> RunResult:
     """Run one job into ``run_dir`` (created; its parent must exist); return its result.
 
     Never raises for a simulation failure: the status is ``complete``, ``partial`` (some
@@ -31,7 +31,10 @@ def run_job(job: Job, run_dir: str | Path, progress: Callable[[int], None] | Non
     size of the ``timeseries.csv`` written, ``wall_time_s`` the run's wall time (of the
     simulation with its time series written). A job with ``real_time`` is paced at
     that factor (:class:`~agv_cosim.execution.Pacer`); ``real_time`` in the result is then
-    the pacer's report. The timings are in the result only, never in the run's files.
+    the pacer's report; its figures are kept in ``pacing`` when given (a sequence of
+    :data:`~agv_cosim.execution.pacing.FIGURES` floats, e.g. shared with the process
+    that may have to end this one). The timings are in the result only, never in the
+    run's files.
     """
     run_dir = Path(run_dir)
     run_dir.mkdir(exist_ok=True)  # never its parents: a removed result folder stays gone
@@ -43,7 +46,7 @@ def run_job(job: Job, run_dir: str | Path, progress: Callable[[int], None] | Non
     if progress is not None:
         observers.append(ProgressObserver(progress))
     error, ended_by = None, None
-    pace = None if job.real_time is None else Pacer(job.real_time, job.plan.start)
+    pace = None if job.real_time is None else Pacer(job.real_time, job.plan.start, pacing)
     begin = time.perf_counter()
     try:
         outcome = simulate(job.plan, observers, track=track, on_message=on_message,

@@ -31,9 +31,11 @@ from typing import Any
 
 from ..errors import Interrupted
 from ..execution.instance import keep_extractions
+from ..execution.pacing import FIGURES, WALL, report_of
 from ..execution.track import Track, describe_track
 from ..lifetime import (
     TERMINATION_SIGNALS,
+    Orphans,
     ignore_termination,
     kill_group,
     scratch_dir,
@@ -131,7 +133,7 @@ def _exit_fd(pid: int | None) -> int | None:
 
 def _worker(jobs: Connection, channel: Connection, output: Connection, life: Connection,
             scratch: str, track: Track, inherited: list[int] | None = None,
-            checks: list[Any] | None = None) -> None:
+            checks: list[Any] | None = None, pacing: Any = None) -> None:
     """Body of a worker process: run the jobs the parent sends, one at a time; with
     ``checks`` (:attr:`~agv_cosim.pipeline.initcheck.InitChecks.items`), first the
     initialisation check (:func:`~agv_cosim.pipeline.initcheck.run_checks`:
@@ -141,9 +143,10 @@ def _worker(jobs: Connection, channel: Connection, output: Connection, life: Con
     ``jobs`` is the reading end of a pipe that brings ``(job, run_dir)`` or None (stop);
     ``channel`` (frames, see above) carries progress, FMU messages and each result back;
     ``output`` receives the process's stdout and stderr; ``life`` closes when the
-    command's process ends (see :func:`child_setup`). A worker runs the next job
-    only after a run that ended ``complete``: any other ending (a failed or partial
-    run, an FMU error) may have left the process damaged (pythonfmu, see
+    command's process ends (see :func:`child_setup`); ``pacing`` (shared with the
+    parent) holds a paced run's figures as they are (:class:`~agv_cosim.execution.Pacer`).
+    A worker runs the next job only after a run that ended ``complete``: any other
+    ending (a failed or partial run, an FMU error) may have left the process damaged (pythonfmu, see
     agv_core/fmi/pythonfmu_workarounds.py), so the worker then exits and the parent
     starts a fresh one. Reusing a worker spares each later run the process start and the
     import of the FMUs' bundled cores (benchmarks/bench_runs.py).
@@ -192,7 +195,7 @@ def _worker(jobs: Connection, channel: Connection, output: Connection, life: Con
                 send(("message", f"{component}: {' '.join(text.split())}"))
 
         try:
-            result = run_job(job, run_dir, progress, track, message)
+            result = run_job(job, run_dir, progress, track, message, pacing=pacing)
         except Exception as failure:  # noqa: BLE001 - e.g. a full disk: report, no traceback
             result = run_result(job, "failed", error=f"{type(failure).__name__}: {failure}")
         flush_c_stdio()  # the run's output is in the pipe before its result
@@ -203,11 +206,21 @@ def _worker(jobs: Connection, channel: Connection, output: Connection, life: Con
 
 
 def _ended(job: Job, run_dir: str | Path, status: str | None, how: str, track: Track,
-           last_message: str | None) -> RunResult:
+           last_message: str | None, pacing: Any = None) -> RunResult:
     """The summary of a run whose process ended before it reported: ``how`` says what
     happened; ``track`` (shared with the process) names the component, call and time;
     ``last_message`` is the last message an FMU of the run logged (or None). ``status``
-    None means ``partial`` with rows recorded, else ``failed``."""
+    None means ``partial`` with rows recorded, else ``failed``. A paced run's pacing
+    figures up to its end are read from ``pacing`` (shared with the process)."""
+    result = _ended_result(job, run_dir, status, how, track, last_message)
+    if job.real_time is not None and pacing is not None:
+        result["real_time"] = report_of(job.real_time, job.plan.start, pacing)
+    return result
+
+
+def _ended_result(job: Job, run_dir: str | Path, status: str | None, how: str,
+                  track: Track, last_message: str | None) -> RunResult:
+    """:func:`_ended` but for the pacing."""
     run_dir = Path(run_dir)
     csv_file = run_dir / "timeseries.csv"
     rows = count_rows(csv_file) if csv_file.is_file() else 0
@@ -350,6 +363,9 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
     #: checking: True while it does the initialisation check, then ``checked``: the
     #: index of the check item under way)
     pool: list[dict[str, Any]] = []
+    # a process a run started that outlives its worker (it left the worker's group) is
+    # handed to this process, which ends it when that worker ends and at the end
+    orphans = Orphans()
     # closes when this process ends, however: each worker's guard then ends its group
     if idle is not None and idle.life is not None:
         life_reader, life_writer = idle.life
@@ -365,10 +381,13 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         scratch = scratch_dir("run")
         track = context.RawArray("d", 3)  # where the worker is (master.simulate)
         track[0] = -1.0  # no component yet
+        pacing = context.RawArray("d", FIGURES)  # a paced run's figures (Pacer)
+        pacing[WALL] = float("nan")
         process = context.Process(target=_worker, name="agv-cosim worker",
                                   args=(job_reader, writer, out_writer, life_reader, scratch,
                                         track, inherited_fds(context),
-                                        check.items if check is not None else None))
+                                        check.items if check is not None else None,
+                                        pacing))
         start_process(process, context)
         for end in (job_reader, writer, out_writer):
             end.close()
@@ -377,6 +396,7 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
                   "exited": process.sentinel if pidfd is None else pidfd,
                   "send": job_writer, "frames": Frames(reader),
                   "output": OutputLog(out_reader), "scratch": scratch, "track": track,
+                  "pacing": pacing,
                   "index": None, "deadline": None, "started": None, "leaving": False,
                   "checking": check is not None, "checked": None}
         if check is not None:
@@ -391,6 +411,8 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         worker["started"] = time.monotonic()
         worker["deadline"] = worker["started"] + job.timeout if job.timeout else None
         worker["output"].attach(root / job.label)
+        worker["pacing"][:] = [0.0] * FIGURES  # no step paced yet
+        worker["pacing"][WALL] = float("nan")
         try:
             worker["send"].send((job, root / job.label))
         except OSError:  # the worker is already gone: its end is seen below
@@ -402,6 +424,7 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         process = worker["process"]
         kill_group(process)
         process.join()
+        orphans.sweep()
         worker["output"].read()
         worker["output"].detach()  # output.txt whole on disk: _ended reads its last line
         index = worker["index"]
@@ -409,7 +432,8 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
             job = jobs[index]
             results[index] = _ended(job, root / job.label, status,
                                     how or _process_end(process.exitcode),
-                                    worker["track"], last_message[index])
+                                    worker["track"], last_message[index],
+                                    worker["pacing"])
             results[index]["wall_time_s"] = time.monotonic() - worker["started"]
             on_done()
         worker["output"].close()
@@ -539,6 +563,7 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         if idle is None:
             life_reader.close()
             life_writer.close()
+        orphans.close()
     done = [r for r in results if r is not None]
     assert len(done) == len(results), "a run ended without a result"
     return done

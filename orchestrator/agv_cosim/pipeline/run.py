@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import FolderLost, OutputError, ReportError
+from ..execution.pacing import factor_problem
 from ..files import AtomicDir, printable, write_summary, write_text
 from ..manifest import Manifest
 from ..report import montecarlo, plots
@@ -204,6 +205,10 @@ def check_options(jobs: list[Job], overwrite: bool = False, dask: str | None = N
         return
     if not (real_time > 0 and real_time != float("inf")):
         raise OutputError(f"--real-time: {real_time!r} must be a positive, finite factor")
+    span = max((job.plan.stop - job.plan.start for job in jobs), default=None)
+    problem = factor_problem(real_time, span)
+    if problem is not None:
+        raise OutputError(f"--real-time: {problem}")
     if len(jobs) != 1:
         raise OutputError(f"--real-time: paces one run; the manifest has {len(jobs)} "
                           "(choose one with --variant, or a manifest without a sweep)")
@@ -300,9 +305,10 @@ def _checked_files(job: Job, result: RunResult, root: str | Path) -> RunResult:
 def _keep_partial(manifest: Manifest, jobs: list[Job], folder: AtomicDir,
                   stop: BaseException, kept: list[RunResult] | None = None) -> None:
     """After an interruption (or a cluster that went away), commit the folder marked
-    partial when a run has results (``stop.results``, one per job); ``stop.kept`` is
-    then the folder. ``kept``: the runs of other variants ``--resume`` kept (listed in
-    summary.csv too). Termination signals stay ignored meanwhile (``stop.restore``)."""
+    partial, with its summary, timings and report (index.html), when a run has results
+    (``stop.results``, one per job); ``stop.kept`` is then the folder. ``kept``: the
+    runs of other variants ``--resume`` kept (listed in summary.csv too). Termination
+    signals stay ignored meanwhile (``stop.restore``)."""
     restore = getattr(stop, "restore", None)
     try:
         results = getattr(stop, "results", None)
@@ -318,6 +324,11 @@ def _keep_partial(manifest: Manifest, jobs: list[Job], folder: AtomicDir,
         try:
             _write_summary(folder, listed(manifest, results, kept or []))
             folder.mark_partial(reason, complete, len(results))
+            # the page of what was kept, partial.txt shown on it
+            report_error = write_report_quietly(str(folder.path))
+            if report_error:
+                print(printable(f"agv-cosim: warning: {manifest.path}: report: "
+                                f"{report_error}"), file=sys.stderr)
             setattr(stop, "kept", folder.commit())  # noqa: B010 - read by the CLI
         except (OSError, FolderLost):  # nothing to keep: the first error is the story
             return
