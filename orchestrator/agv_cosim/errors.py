@@ -11,7 +11,7 @@ from collections.abc import Iterable
 
 __all__ = [
     "MAX_REPORTED", "AgvCosimError", "BuildError", "BundleError", "ClusterError", "ExamplesError",
-    "FolderLost", "Interrupted", "ManifestError", "ModelError", "OutputError",
+    "FolderLost", "IdentifyError", "Interrupted", "ManifestError", "ModelError", "OutputError",
     "SamplingError", "SchemaError", "SimulationError", "SspError", "StandaloneError",
     "TableError", "WorkerUnfit", "closest", "did_you_mean", "kept_summary",
 ]
@@ -132,6 +132,12 @@ class AgvCosimError(Exception):
         self.lines = list(lines) if lines else [message]
         self.exit_code = exit_code
         self.kept = kept
+
+
+class IdentifyError(AgvCosimError):
+    """A record ``agv-cosim identify`` cannot identify from (a file that is not CSV, a
+    missing column, a value that is not a finite number, time not increasing, data too
+    short or without excitation): one line naming the culprit, exit 2."""
 
 
 class Interrupted(BaseException):
