@@ -228,7 +228,7 @@ def _cmd_identify(args):
     import time
 
     from .errors import IdentifyError
-    from .identify import identify_file
+    from .identification import identify_file
 
     start = time.perf_counter()
     try:

@@ -22,8 +22,10 @@ The procedure (seed 000 section 2.3):
    is applied to the residual ``y - y_hat`` (the same as filtering the measured and the
    simulated output alike), so noise-free data are fitted exactly whatever the filter
    does at the record's ends;
-2. initial values removed: ``u`` and ``y`` minus their mean before the command first
-   changes (the first sample when it changes at once);
+2. initial values removed: ``u`` minus its first value, ``y`` minus its mean before the
+   command first changes; what is left of the output's initial value (the noise of that
+   mean) is fitted with each model's parameters, so that its uncertainty is in their
+   standard errors;
 3. dead time: a first estimate from model a on a grid of whole steps (K by linear least
    squares for each), then refined by the fits of a and c (parameter ``tau``);
 4. output-error fits (eq 5) by ``scipy.optimize.least_squares`` (trust-region
@@ -108,6 +110,8 @@ class ModelFit:
     #: the solver's cost (half the sum of squared filtered residuals), evaluations
     cost: float = math.nan
     evaluations: int = 0
+    #: the output's initial value [rad], fitted with the parameters
+    initial: float = math.nan
 
     def as_json(self) -> dict[str, Any]:
         return {"parameters": self.parameters, "fit_percent": self.fit_percent}
@@ -127,12 +131,12 @@ def check_record(t: np.ndarray, u: np.ndarray, y: np.ndarray, names: tuple[str, 
     if not np.all(steps > 0):
         k = int(np.argmax(~(steps > 0)))
         raise IdentifyError(f"column '{time_name}': not increasing at sample {k + 2} "
-                            f"({t[k + 1]!r} after {t[k]!r})")
+                            f"({float(t[k + 1])!r} after {float(t[k])!r})")
     h = float(np.median(steps))
     worst = int(np.argmax(np.abs(steps - h)))
     if abs(steps[worst] - h) > UNIFORM_TOLERANCE * h:
         raise IdentifyError(f"column '{time_name}': not uniformly sampled (step "
-                            f"{steps[worst]!r} s at sample {worst + 2}, median {h!r} s); "
+                            f"{float(steps[worst])!r} s at sample {worst + 2}, median {h!r} s); "
                             "the pre-filter needs a uniform sampling: resample first")
     if not (math.isfinite(cutoff) and cutoff > 0):
         raise IdentifyError(f"--cutoff {cutoff!r}: must be a positive number of Hz")
@@ -143,7 +147,7 @@ def check_record(t: np.ndarray, u: np.ndarray, y: np.ndarray, names: tuple[str, 
         raise IdentifyError(f"--order {order}: must be 1 to 8")
     changes = np.flatnonzero(u != u[0])
     if changes.size == 0:
-        raise IdentifyError(f"column '{input_name}': constant ({u[0]!r}): no step or "
+        raise IdentifyError(f"column '{input_name}': constant ({float(u[0])!r}): no step or "
                             "excitation to identify from")
     if n - changes[0] < MIN_AFTER_CHANGE:
         raise IdentifyError(f"too short: {n - changes[0]} sample(s) after "
@@ -325,28 +329,39 @@ def _solve(model: str, prep: Prepared, start: dict[str, float], fix_tau: bool = 
     import scipy.optimize
 
     names = PARAMETERS[model]
+    offset0 = start.get("offset", 0.0)
     if model == "c":
         full = _c_to_search(start)
         free = [0, 1, 2, 3] if fix_tau else [0, 1, 2, 3, 4]
 
         def unpack(x):
             z = full.copy()
-            z[free] = x
-            return _c_from_search(z)
+            z[free] = x[:-1]
+            return dict(_c_from_search(z), offset=float(x[-1]))
 
-        x0 = full[free]
+        x0 = np.append(full[free], offset0)
     else:
-        free_names = [n for n in names if not (fix_tau and n == "tau")]
+        free_names = [n for n in names if not (fix_tau and n == "tau")] + ["offset"]
 
         def unpack(x):
-            values = dict(start)
+            values = dict(start, offset=offset0)
             values.update(zip(free_names, (float(v) for v in x)))
-            return {n: values[n] for n in names}
+            return {n: values[n] for n in (*names, "offset")}
 
-        x0 = np.array([start[n] for n in free_names])
+        x0 = np.array([start.get(n, offset0) for n in free_names])
+
+    penalty = np.full(len(prep.y), 1e3 * (float(np.ptp(prep.y)) + 1.0))
 
     def residual(x):
-        return prep.filtered(prep.y - response(model, prep, unpack(x)))
+        # a point where the model has no finite response (an exponent that overflows
+        # far from the data) is a large residual: the solver steps back from it
+        try:
+            with np.errstate(all="ignore"):
+                values = unpack(x)
+                out = prep.filtered(prep.y - values["offset"] - response(model, prep, values))
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError):
+            return penalty
+        return out if np.all(np.isfinite(out)) else penalty
 
     result = scipy.optimize.least_squares(residual, x0, method="lm", x_scale="jac",
                                           xtol=1e-13, ftol=1e-13, gtol=1e-13,
@@ -381,6 +396,7 @@ def _jacobian(model: str, prep: Prepared, values: dict[str, float]) -> np.ndarra
         else:
             down, width = dict(values, **{name: x - step}), 2 * step
         columns.append((response(model, prep, up) - response(model, prep, down)) / width)
+    columns.append(np.ones_like(prep.y))  # the initial value, fitted with the rest
     return np.column_stack(columns)
 
 
@@ -418,9 +434,10 @@ def fit_model(model: str, prep: Prepared, tau_a: float, k_a: float) -> ModelFit:
         evaluations += count
         if result.cost <= best.cost:
             best, values = result, found
-    y_hat = response(model, prep, values)
+    offset = values.pop("offset")
+    y_hat = response(model, prep, values) + offset
     raw = prep.y - y_hat
-    n, p = len(raw), len(names)
+    n, p = len(raw), len(names) + 1
     sigma2 = float(raw @ raw) / max(n - p, 1)
     jac = _jacobian(model, prep, values)
     parameters = _uncertainties(names, values, jac, sigma2)
@@ -431,7 +448,7 @@ def fit_model(model: str, prep: Prepared, tau_a: float, k_a: float) -> ModelFit:
         else math.nan
     return ModelFit(model=model, parameters=parameters, fit_percent=fit,
                     response=y_hat + prep.y0, values=values, cost=float(best.cost),
-                    evaluations=evaluations)
+                    evaluations=evaluations, initial=prep.y0 + offset)
 
 
 def _covariance(jac: np.ndarray, sigma2: float) -> tuple[np.ndarray, list[int]]:
@@ -487,7 +504,7 @@ def _with_gain(parameters, values, jac, sigma2):
     cov, _ = _covariance(jac, sigma2)
     num0, den0 = values["num0"], values["den0"]
     k = num0 / den0
-    grad = np.zeros(len(PARAMETERS["c"]))
+    grad = np.zeros(cov.shape[0])
     grad[PARAMETERS["c"].index("num0")] = 1.0 / den0
     grad[PARAMETERS["c"].index("den0")] = -num0 / den0 ** 2
     var = float(grad @ cov @ grad)

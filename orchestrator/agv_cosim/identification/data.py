@@ -97,4 +97,4 @@ def check_time(path: str | Path, time: np.ndarray, name: str, lines: list[int]) 
         k = int(bad[0])
         raise IdentifyError(f"{path}: column '{name}': time not increasing at line "
                             f"{lines[k + 1]} "
-                            f"({time[k + 1]!r} after {time[k]!r})")
+                            f"({float(time[k + 1])!r} after {float(time[k])!r})")

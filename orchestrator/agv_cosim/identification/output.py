@@ -157,21 +157,19 @@ def render(record: dict[str, Any], result: dict[str, Any]) -> str:
     return template.substitute(title=_e(title), body="\n".join(body))
 
 
-def write_folder(out: str | Path, overwrite: bool, prep: Prepared,
-                 fits: dict[str, ModelFit], record: dict[str, Any],
-                 labels: tuple[str, str, str]) -> Path:
-    """Assemble the result folder under a temporary name and rename it to ``out``."""
+def write_folder(folder: AtomicDir, prep: Prepared, fits: dict[str, ModelFit],
+                 record: dict[str, Any], labels: tuple[str, str, str]) -> Path:
+    """Write the files into ``folder`` (an AtomicDir, made before the fit so that a
+    folder we must not replace is refused at once) and rename it into place."""
     result = result_json(fits)
-    with AtomicDir(out, overwrite=overwrite, about={"command": "identify"}) as folder:
-        assert folder.path is not None
-        path = folder.path
-        write_json(path / RESULT, result)
-        write_json(path / RECORD, record)
-        write_text(path / FRAGMENT, fragment(fits, Path(record["data"]).name))
-        draw(path / FIGURE, prep, fits, labels)
-        write_text(path / PAGE, render(record, result))
-        folder.check_intact()
-        return folder.commit()
+    assert folder.path is not None
+    path = folder.path
+    write_json(path / RESULT, result)
+    write_json(path / RECORD, record)
+    write_text(path / FRAGMENT, fragment(fits, Path(record["data"]).name))
+    draw(path / FIGURE, prep, fits, labels)
+    write_text(path / PAGE, render(record, result))
+    return folder.commit()
 
 
 def responses_table(prep: Prepared, fits: dict[str, ModelFit]) -> dict[str, np.ndarray]:

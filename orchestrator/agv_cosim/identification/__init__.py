@@ -1,5 +1,6 @@
-"""``agv-cosim identify``: seed 000's identification of the steering actuator (models a,
-b, c) from a measured input/output record.
+"""``agv-cosim identify`` and :func:`agv_cosim.identify`: seed 000's identification of
+the steering actuator (models a, b, c) from a measured input/output record. (The package
+is ``identification`` so that ``agv_cosim.identify`` stays the function.)
 
 :mod:`.numerics` is the procedure on arrays (no files); :mod:`.data` reads the CSV
 record; :mod:`.output` writes the result folder. :func:`identify_file` runs the three.
@@ -14,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import IdentifyError
+from ..files import AtomicDir
 from ..version import __version__
 
 __all__ = ["Identification", "identify_file", "parse_models"]
@@ -61,24 +63,31 @@ def identify_file(data: str | Path, input: str, output: str, *, time: str = "tim
     path = Path(data)
     (t, u, y), lines = read_columns(path, names)
     check_time(path, t, time, lines)
+    folder = AtomicDir(out, overwrite=overwrite, about={"command": "identify"}) \
+        if out is not None else None
     try:
-        prep, settings, fits = identify_arrays(t, u, y, chosen, cutoff, order,
-                                               (time, input, output))
-    except IdentifyError as error:
-        raise IdentifyError(f"{path}: {error}") from None
-    record = {"tool": "agv-cosim identify", "version": __version__,
-              "data": path.name, "data_path": str(path.resolve()),
-              "data_sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
-              "time": time, "input": input, "output": output, "models": list(chosen),
-              "settings": settings,
-              "fits": {m: {"values": f.values, "cost": f.cost,
-                           "evaluations": f.evaluations} for m, f in fits.items()},
-              "versions": _versions()}
-    folder = None
-    if out is not None:
-        folder = write_folder(out, overwrite, prep, fits, record, (time, input, output))
+        try:
+            prep, settings, fits = identify_arrays(t, u, y, chosen, cutoff, order,
+                                                   (time, input, output))
+        except IdentifyError as error:
+            raise IdentifyError(f"{path}: {error}") from None
+        record = {"tool": "agv-cosim identify", "version": __version__,
+                  "data": path.name, "data_path": str(path.resolve()),
+                  "data_sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
+                  "time": time, "input": input, "output": output, "models": list(chosen),
+                  "settings": settings,
+                  "fits": {m: {"values": f.values, "initial_output": f.initial,
+                               "cost": f.cost, "evaluations": f.evaluations}
+                           for m, f in fits.items()},
+                  "versions": _versions()}
+        written = None
+        if folder is not None:
+            written = write_folder(folder, prep, fits, record, (time, input, output))
+    finally:
+        if folder is not None:
+            folder.discard()  # nothing left after a commit; the temporary folder otherwise
     return Identification(result=result_json(fits), record=record,
-                          responses=responses_table(prep, fits), folder=folder)
+                          responses=responses_table(prep, fits), folder=written)
 
 
 def _versions() -> dict[str, str]:
