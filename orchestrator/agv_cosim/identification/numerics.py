@@ -23,9 +23,7 @@ The procedure (seed 000 section 2.3):
    simulated output alike), so noise-free data are fitted exactly whatever the filter
    does at the record's ends;
 2. initial values removed: ``u`` minus its first value, ``y`` minus its mean before the
-   command first changes; what is left of the output's initial value (the noise of that
-   mean) is fitted with each model's parameters, so that its uncertainty is in their
-   standard errors;
+   command first changes (the first sample when it changes at once);
 3. dead time: a first estimate from model a on a grid of whole steps (K by linear least
    squares for each), then refined by the fits of a and c (parameter ``tau``);
 4. output-error fits (eq 5) by ``scipy.optimize.least_squares`` (trust-region
@@ -33,7 +31,9 @@ The procedure (seed 000 section 2.3):
    starts (natural frequencies 5 to 150 rad/s), the best kept;
 5. standard errors ``sqrt(diag(sigma^2 (J^T J)^-1))``: J the Jacobian of the model's
    output with respect to its parameters (central differences), sigma^2 the variance of
-   the unfiltered residual (``n - p`` degrees of freedom);
+   the unfiltered residual (``n - p`` degrees of freedom); plus the share of the initial
+   value removed (the mean of the samples before the command changes has variance
+   sigma^2 / n_before and moves the parameters by ``(J^T J)^-1 J^T 1`` per unit);
 6. ``fit_percent = 100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` on the unfiltered output.
 
 A parameter the data do not determine gets no number: value and standard error None and
@@ -110,7 +110,7 @@ class ModelFit:
     #: the solver's cost (half the sum of squared filtered residuals), evaluations
     cost: float = math.nan
     evaluations: int = 0
-    #: the output's initial value [rad], fitted with the parameters
+    #: the output's initial value removed [rad]
     initial: float = math.nan
 
     def as_json(self) -> dict[str, Any]:
@@ -329,26 +329,25 @@ def _solve(model: str, prep: Prepared, start: dict[str, float], fix_tau: bool = 
     import scipy.optimize
 
     names = PARAMETERS[model]
-    offset0 = start.get("offset", 0.0)
     if model == "c":
         full = _c_to_search(start)
         free = [0, 1, 2, 3] if fix_tau else [0, 1, 2, 3, 4]
 
         def unpack(x):
             z = full.copy()
-            z[free] = x[:-1]
-            return dict(_c_from_search(z), offset=float(x[-1]))
+            z[free] = x
+            return _c_from_search(z)
 
-        x0 = np.append(full[free], offset0)
+        x0 = full[free]
     else:
-        free_names = [n for n in names if not (fix_tau and n == "tau")] + ["offset"]
+        free_names = [n for n in names if not (fix_tau and n == "tau")]
 
         def unpack(x):
-            values = dict(start, offset=offset0)
+            values = dict(start)
             values.update(zip(free_names, (float(v) for v in x)))
-            return {n: values[n] for n in (*names, "offset")}
+            return {n: values[n] for n in names}
 
-        x0 = np.array([start.get(n, offset0) for n in free_names])
+        x0 = np.array([start[n] for n in free_names])
 
     penalty = np.full(len(prep.y), 1e3 * (float(np.ptp(prep.y)) + 1.0))
 
@@ -358,7 +357,7 @@ def _solve(model: str, prep: Prepared, start: dict[str, float], fix_tau: bool = 
         try:
             with np.errstate(all="ignore"):
                 values = unpack(x)
-                out = prep.filtered(prep.y - values["offset"] - response(model, prep, values))
+                out = prep.filtered(prep.y - response(model, prep, values))
         except (ArithmeticError, ValueError, np.linalg.LinAlgError):
             return penalty
         return out if np.all(np.isfinite(out)) else penalty
@@ -396,7 +395,6 @@ def _jacobian(model: str, prep: Prepared, values: dict[str, float]) -> np.ndarra
         else:
             down, width = dict(values, **{name: x - step}), 2 * step
         columns.append((response(model, prep, up) - response(model, prep, down)) / width)
-    columns.append(np.ones_like(prep.y))  # the initial value, fitted with the rest
     return np.column_stack(columns)
 
 
@@ -434,25 +432,28 @@ def fit_model(model: str, prep: Prepared, tau_a: float, k_a: float) -> ModelFit:
         evaluations += count
         if result.cost <= best.cost:
             best, values = result, found
-    offset = values.pop("offset")
-    y_hat = response(model, prep, values) + offset
+    y_hat = response(model, prep, values)
     raw = prep.y - y_hat
-    n, p = len(raw), len(names) + 1
+    n, p = len(raw), len(names)
     sigma2 = float(raw @ raw) / max(n - p, 1)
     jac = _jacobian(model, prep, values)
-    parameters = _uncertainties(names, values, jac, sigma2)
+    parameters = _uncertainties(names, values, jac, sigma2, prep.change)
     if model == "c":
-        parameters = _with_gain(parameters, values, jac, sigma2)
+        parameters = _with_gain(parameters, values, jac, sigma2, prep.change)
     denominator = float(np.linalg.norm(prep.y + prep.y0 - np.mean(prep.y + prep.y0)))
     fit = 100.0 * (1.0 - float(np.linalg.norm(raw)) / denominator) if denominator > 0 \
         else math.nan
     return ModelFit(model=model, parameters=parameters, fit_percent=fit,
                     response=y_hat + prep.y0, values=values, cost=float(best.cost),
-                    evaluations=evaluations, initial=prep.y0 + offset)
+                    evaluations=evaluations, initial=prep.y0)
 
 
-def _covariance(jac: np.ndarray, sigma2: float) -> tuple[np.ndarray, list[int]]:
-    """``sigma^2 (J^T J)^-1`` (pseudo-inverse) and the columns in J's null space."""
+def _covariance(jac: np.ndarray, sigma2: float,
+                before: int = 0) -> tuple[np.ndarray, list[int]]:
+    """``sigma^2 (J^T J)^-1`` (pseudo-inverse), plus the share of the initial value
+    removed when it is the mean of ``before`` samples (its error ``delta``, variance
+    ``sigma^2 / before``, moves the parameters by ``(J^T J)^-1 J^T 1 delta``); and the
+    columns in J's null space."""
     norms = np.linalg.norm(jac, axis=0)
     scale = np.where(norms > 0, norms, 1.0)
     scaled = jac / scale
@@ -463,11 +464,15 @@ def _covariance(jac: np.ndarray, sigma2: float) -> tuple[np.ndarray, list[int]]:
         if s <= rank_tol:
             null += [int(i) for i in np.flatnonzero(np.abs(v) > 0.1) if i not in null]
     inverse = np.linalg.pinv(scaled.T @ scaled)
-    return sigma2 * inverse / np.outer(scale, scale), sorted(set(int(i) for i in null))
+    cov = sigma2 * inverse / np.outer(scale, scale)
+    if before > 0:
+        shift = (inverse @ (scaled.T @ np.ones(jac.shape[0]))) / scale
+        cov = cov + (sigma2 / before) * np.outer(shift, shift)
+    return cov, sorted(set(int(i) for i in null))
 
 
-def _uncertainties(names, values, jac, sigma2):
-    cov, null = _covariance(jac, sigma2)
+def _uncertainties(names, values, jac, sigma2, before):
+    cov, null = _covariance(jac, sigma2, before)
     out: dict[str, dict[str, Any]] = {}
     for i, name in enumerate(names):
         value = values[name]
@@ -498,10 +503,10 @@ def _uncertainties(names, values, jac, sigma2):
     return out
 
 
-def _with_gain(parameters, values, jac, sigma2):
+def _with_gain(parameters, values, jac, sigma2, before):
     """Model c's parameters and its steady rate gain ``K = num0 / den0`` (the FMU's K,
     so that the FMU's scale K den0 / num0 is 1), standard error by the delta method."""
-    cov, _ = _covariance(jac, sigma2)
+    cov, _ = _covariance(jac, sigma2, before)
     num0, den0 = values["num0"], values["den0"]
     k = num0 / den0
     grad = np.zeros(cov.shape[0])
