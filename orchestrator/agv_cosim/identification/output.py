@@ -107,6 +107,14 @@ def _number(value: float | None) -> str:
     return f"{value:.6g}"
 
 
+def _num_cell(value: float | None) -> str:
+    """A table cell of a number (sortable by value; exact value in its title)."""
+    if value is None or not math.isfinite(value):
+        return "<td></td>"
+    return (f'<td class=num data-v="{_e(repr(float(value)))}" title="{_e(repr(value))}">'
+            f"{_number(value)}</td>")
+
+
 def render(record: dict[str, Any], result: dict[str, Any]) -> str:
     """The page's HTML (the run page's template and style)."""
     title = f"identify {record['data']}"
@@ -138,10 +146,9 @@ def render(record: dict[str, Any], result: dict[str, Any]) -> str:
         for name, p in entry["parameters"].items():
             body.append(f"<tr><td>{_e(model)}</td><td>{_e(FMUS[model])}</td>"
                         f"<td><code>{_e(name)}</code></td><td>{_e(UNITS.get(name, ''))}</td>"
-                        f'<td class=num title="{_e(repr(p["value"]))}">{_number(p["value"])}'
-                        f'</td><td class=num>{_number(p["stderr"])}</td>'
+                        f"{_num_cell(p['value'])}{_num_cell(p['stderr'])}"
                         f"<td>{_e(p.get('reason', ''))}</td>"
-                        f"<td class=num>{_number(entry['fit_percent'])}</td></tr>")
+                        f"{_num_cell(entry['fit_percent'])}</tr>")
     body.append("</tbody></table>")
     body.append(f'<h2>Figure</h2><figure id="fig-{FIGURE}"><a href="{quote(FIGURE)}">'
                 f'<img src="{quote(FIGURE)}" alt="{FIGURE}" loading="eager"></a>'
