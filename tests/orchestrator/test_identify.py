@@ -58,6 +58,28 @@ def test_noise_free_record_gives_the_parameters_within_1e_6(model):
     assert fit.fit_percent > 99.9999
 
 
+@pytest.mark.parametrize("model", ["a", "b", "c"])
+def test_noise_free_richer_command_gives_the_parameters_within_1e_6(model):
+    # not a step: a command that holds random levels (-1, 0.5, 1 V) for 0.1 s each
+    kwargs = dict(TRUE[model])
+    if model == "c":
+        kwargs["K"] = kwargs["num0"] / kwargs["den0"]
+    act = make_actuator(model, **kwargs)
+    h, n = 0.002, 751
+    levels = np.random.default_rng(5).choice([-1.0, 0.5, 1.0], size=n // 50 + 1)
+    levels[0] = 0.0
+    u = np.repeat(levels, 50)[:n]
+    t = h * np.arange(n)
+    y = np.empty(n)
+    y[0] = act.alpha
+    for k in range(n - 1):
+        act.step(t[k], h, u[k])
+        y[k + 1] = act.alpha
+    fit = fitted(model, t, u, y)
+    for name in PARAMETERS[model]:
+        assert fit.values[name] == pytest.approx(TRUE[model][name], rel=1e-6), name
+
+
 def test_noise_free_model_c_of_eq6_gives_eq6_and_no_dead_time():
     # the shipped model c (eq 6 scaled to K = 0.6, no dead time): coefficients within
     # 1e-6, the dead time at its bound 0 (no standard error, said so), K = num0/den0
