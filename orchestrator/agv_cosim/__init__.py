@@ -52,6 +52,7 @@ _API = {
     "run_manifest": "agv_cosim.pipeline",
     "Results": "agv_cosim.api", "Run": "agv_cosim.api", "open_results": "agv_cosim.api",
     "run": "agv_cosim.api",
+    "identify": "agv_cosim.api", "IdentifyError": "agv_cosim.errors",
 }
 
 __all__ = ["__version__", *sorted(_API)]

@@ -37,7 +37,7 @@ from .files import CSV_LIMIT, JSON_LIMIT, open_regular, printable, read_bytes, r
 if TYPE_CHECKING:
     import pandas
 
-__all__ = ["Results", "Run", "open_results", "run"]
+__all__ = ["Results", "Run", "identify", "open_results", "run"]
 
 _SUMMARY = "summary.csv"
 _PARTIAL = "partial.txt"
@@ -530,3 +530,48 @@ def _run(manifest: str | Path, out: str | Path | None, variants: list[str] | Non
         target, results = execute(loaded, planned, out, jobs, quiet, overwrite=overwrite,
                                   dask=dask, init_limit=limit)
     return target, list(results), warnings
+
+
+def identify(data: str | Path, *, input: str, output: str, out: str | Path | None = None,
+             time: str = "time", models: str | Iterable[str] = "a,b,c",
+             cutoff: float = 30.0, order: int = 3,
+             overwrite: bool = False) -> dict[str, Any]:
+    """Identify the steering-actuator models from a measured record, as ``agv-cosim
+    identify`` does (docs/identify.md).
+
+    Returns a dict: ``"models"``, identified.json's content (``{model: {"parameters":
+    {name: {"value", "stderr"[, "reason"]}}, "fit_percent"}}``); ``"parameters"``, a
+    DataFrame with one row per model and parameter (``model``, ``parameter``, ``unit``,
+    ``value``, ``stderr``, ``reason``); ``"responses"``, a DataFrame indexed by time
+    (relative to the record's first sample) with the input, the measured output and
+    each model's response; ``"settings"``, what the procedure used and found (sampling
+    step, filter, initial values, dead-time estimate); ``"folder"``, the folder written
+    (None without ``out``).
+
+    Raises
+    ------
+    AgvCosimError
+        (:class:`~agv_cosim.errors.IdentifyError`) for a record that cannot be
+        identified from, one line naming the culprit; also for an output folder that is
+        not ours.
+    """
+    import pandas
+
+    from .identification import identify_file
+    from .identification.numerics import UNITS
+
+    chosen = models if isinstance(models, str) else tuple(models)
+    try:
+        found = identify_file(data, input, output, time=time, models=chosen,
+                              cutoff=cutoff, order=order, out=out, overwrite=overwrite)
+    except OutputError as error:
+        raise AgvCosimError(str(error), exit_code=2) from error
+    rows = [{"model": model, "parameter": name, "unit": UNITS.get(name),
+             "value": entry["value"], "stderr": entry["stderr"],
+             "reason": entry.get("reason")}
+            for model, fit in found.result.items()
+            for name, entry in fit["parameters"].items()]
+    responses = pandas.DataFrame(found.responses).set_index("time")
+    return {"models": found.result, "parameters": pandas.DataFrame(rows),
+            "responses": responses, "settings": found.record["settings"],
+            "folder": found.folder}

@@ -256,6 +256,49 @@ def _plain(text: str | None) -> str:
     return (text or "").replace("``", "`")
 
 
+def _cmd_identify(args):
+    import time
+
+    from .errors import IdentifyError
+    from .identification import identify_file
+
+    start = time.perf_counter()
+    try:
+        found = identify_file(args.data, args.input, args.output, time=args.time,
+                              models=args.models, cutoff=args.cutoff, order=args.order,
+                              out=args.out, overwrite=args.overwrite)
+    except IdentifyError as error:
+        return _error(str(error))
+    for model, entry in found.result.items():
+        parts = []
+        for name, p in entry["parameters"].items():
+            if p["value"] is None:
+                parts.append(f"{name} not identified ({p['reason']})")
+            elif p["stderr"] is None:
+                parts.append(f"{name} = {p['value']:.6g} ({p.get('reason', '')})")
+            else:
+                parts.append(f"{name} = {p['value']:.6g} +- {p['stderr']:.2g}")
+        print(printable(f"model {model}: fit {entry['fit_percent']:.2f} %: "
+                        + "; ".join(parts)))
+    print(printable(f"{found.folder}: identified.json, identify.png, "
+                    f"identified_variants.toml, index.html "
+                    f"({time.perf_counter() - start:.1f} s)"))
+    return 0
+
+
+def _cutoff(text):
+    """``--cutoff``: a positive, finite frequency [Hz]."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of Hz") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive, finite number of Hz")
+    return value
+
+
 def make_parser() -> argparse.ArgumentParser:
     """The argument parser of ``agv-cosim`` with all its subcommands."""
     parser = _Parser(prog="agv-cosim", description=_plain(__doc__),
@@ -404,6 +447,37 @@ def make_parser() -> argparse.ArgumentParser:
     export.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                         help="show tracebacks on errors")
     export.set_defaults(func=_cmd_export_ssp)
+
+    ident = sub.add_parser(
+        "identify", help="identify the steering-actuator models a, b, c from a measured "
+                         "input/output record (seed 000's procedure)", parents=[debug],
+        description="Seed 000's identification on a measured record (CSV: a time column "
+                    "and the actuator's command [V] and wheel angle [rad]): the eq 4 "
+                    "Butterworth pre-filter (zero-phase), initial values removed, dead "
+                    "time estimated, then an output-error fit of each model's FMU "
+                    "parameters (a: K, tau; b: K; c: num1, num0, den1, den0, tau) with "
+                    "standard errors. Writes DIR/identified.json, identify.png, "
+                    "identified_variants.toml (variants ready to run), identify_run.json "
+                    "and index.html. Exit 2, one line, for a record that cannot be "
+                    "identified from. docs/identify.md.")
+    ident.add_argument("data", metavar="DATA.csv", help="the measured record (CSV with a "
+                                                        "header row)")
+    ident.add_argument("--input", required=True, metavar="COL",
+                       help="the command column (motor voltage u [V])")
+    ident.add_argument("--output", required=True, metavar="COL",
+                       help="the response column (wheel angle alpha [rad])")
+    ident.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    ident.add_argument("--time", default="time", metavar="COL",
+                       help="the time column [s], uniformly sampled (default: time)")
+    ident.add_argument("--models", default="a,b,c", metavar="a,b,c",
+                       help="the models to fit (default: a,b,c)")
+    ident.add_argument("--cutoff", type=_cutoff, default=30.0, metavar="HZ",
+                       help="pre-filter cut-off [Hz] (default: 30, seed 000 eq 4)")
+    ident.add_argument("--order", type=int, default=3, metavar="N",
+                       help="pre-filter order (default: 3, seed 000 eq 4)")
+    ident.add_argument("--overwrite", action="store_true",
+                       help="replace DIR even if it is not a result folder of agv-cosim")
+    ident.set_defaults(func=_cmd_identify)
     parser.commands = dict(sub.choices)
     return parser
 

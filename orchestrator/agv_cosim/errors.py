@@ -11,10 +11,10 @@ from collections.abc import Iterable
 
 __all__ = [
     "MAX_REPORTED", "AgvCosimError", "BuildError", "BundleError", "ClusterError", "ExamplesError",
-    "FolderLost", "Interrupted", "ManifestError", "ModelError", "OutputError",
-    "ReportError", "SamplingError", "SchemaError", "SimulationError", "SspError", "StandaloneError",
-    "TableError", "UnreadableFile", "WorkerUnfit", "closest", "did_you_mean",
-    "kept_summary",
+    "FolderLost", "IdentifyError", "Interrupted", "ManifestError", "ModelError",
+    "OutputError", "ReportError", "SamplingError", "SchemaError", "SimulationError",
+    "SspError", "StandaloneError", "TableError", "UnreadableFile", "WorkerUnfit", "closest",
+    "did_you_mean", "kept_summary",
 ]
 
 #: Most problems of one manifest reported at once (one line each).
@@ -148,6 +148,12 @@ class AgvCosimError(Exception):
         self.lines = list(lines) if lines else [message]
         self.exit_code = exit_code
         self.kept = kept
+
+
+class IdentifyError(AgvCosimError):
+    """A record ``agv-cosim identify`` cannot identify from (a file that is not CSV, a
+    missing column, a value that is not a finite number, time not increasing, data too
+    short or without excitation): one line naming the culprit, exit 2."""
 
 
 class Interrupted(BaseException):

@@ -103,6 +103,65 @@ def test_c_steady_rate_is_K_u():
     assert act.rate() == pytest.approx(0.9, abs=1e-9)
 
 
+def test_c_defaults_are_eq6_in_si_units_scaled_to_K():
+    # the coefficients' defaults: eq 6's numerator times 0.6 / G0, its denominator as
+    # printed; their DC gain is K = 0.6, so the scale K den0 / num0 is exactly 1
+    act = IdentifiedActuator()
+    assert (act.num1, act.num0) == (0.6 / EQ6_DC_GAIN * EQ6_NUM[0],
+                                    0.6 / EQ6_DC_GAIN * EQ6_NUM[1])
+    assert (act.den1, act.den0, act.tau) == (EQ6_DEN[1], EQ6_DEN[2], 0.0)
+    assert act.K * act.den0 / act.num0 == 1.0
+    assert act.num1 == pytest.approx(2.0614, abs=1e-4)
+    assert act.num0 == pytest.approx(117.138, abs=1e-3)
+
+
+def test_c_coefficients_and_dead_time_give_their_step_response():
+    # other coefficients, K = num0/den0 (scale 1) and a dead time that the step does not
+    # divide: the angle is the delayed step response of (num1 s + num0)/(s (s^2 + den1 s
+    # + den0)) (scipy.signal.step, exact for a step)
+    num1, num0, den1, den0, tau, h = 1.5, 90.0, 30.0, 400.0, 0.0237, 0.005
+    act = IdentifiedActuator(K=num0 / den0, num1=num1, num0=num0, den1=den1, den0=den0,
+                             tau=tau)
+    n = 200
+    alphas = run(act, h, n, u=1.0)
+    # the step response on a 0.1 ms grid, read at t - tau = k h - tau (a grid point)
+    fine = 1e-4 * np.arange(int(n * h / 1e-4) + 1)
+    _, y = scipy.signal.step(([num1, num0], [1.0, den1, den0, 0.0]), T=fine)
+    ks = np.arange(1, n + 1)
+    index = np.rint((ks * h - tau) / 1e-4).astype(int)
+    expected = np.where(index >= 0, y[np.clip(index, 0, None)], 0.0)
+    np.testing.assert_allclose(alphas, expected, rtol=0, atol=1e-10)
+    assert alphas[3] == 0.0 and alphas[4] > 0.0  # at rest at 0.02 s, moving at 0.025 s
+    assert act.rate() == pytest.approx(float(act._c @ act.x), abs=0)
+
+
+def test_c_scales_to_K():
+    # K scales the transfer function to steady rate gain K whatever the coefficients
+    act = IdentifiedActuator(K=0.9, num1=1.5, num0=90.0, den1=30.0, den0=400.0)
+    run(act, 0.01, 500, u=2.0)
+    assert act.rate() == pytest.approx(1.8, abs=1e-9)
+
+
+def test_c_with_dead_time_state_round_trip():
+    act = IdentifiedActuator(tau=0.013)
+    run(act, 0.007, 5, u=1.0)
+    saved = json.loads(json.dumps(act.get_state()))
+    ref = run(act, 0.007, 10, u=-1.0, t0=0.035)
+    act2 = IdentifiedActuator(tau=0.013)
+    act2.set_state(saved)
+    np.testing.assert_array_equal(run(act2, 0.007, 10, u=-1.0, t0=0.035), ref)
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    ({"num0": 0.0}, "num0"), ({"den1": -1.0}, "den1"), ({"den0": 0.0}, "den0"),
+    ({"num1": float("inf")}, "num1"), ({"tau": -0.01}, "tau"),
+])
+def test_c_bad_parameters(kwargs, name):
+    with pytest.raises(ParameterError) as info:
+        IdentifiedActuator(**kwargs)
+    assert info.value.name == name
+
+
 # ---------------------------------------------------------------------- limits
 @pytest.mark.parametrize("model", ["a", "b", "c"])
 def test_limits_hold(model):
@@ -252,7 +311,7 @@ def test_fmus_declare_truthful_dependencies(component_fmus):
         assert outputs == {"alpha": set(), "alpha_rate": rate_deps}, stem
         names = {v.name: v for v in md.modelVariables}
         assert names["u"].unit == "V" and names["alpha_rate"].unit == "rad/s"
-        assert ("tau" in names) == (stem == "agv_steering_a")
+        assert ("tau" in names) == (stem in ("agv_steering_a", "agv_steering_c"))
 
 
 @pytest.mark.slow  # seconds: builds or runs FMUs in processes

@@ -51,6 +51,9 @@ EQ6_NUM = (100.0 * 8.91, 100.0 * 506.3)
 EQ6_DEN = (1.0, 15.7926, 195.23)
 #: DC gain of eq 6 [rig units], used to scale model c to gain K.
 EQ6_DC_GAIN = EQ6_NUM[1] / EQ6_DEN[2]
+#: Eq 6's numerator in SI units [rad/(V.s^2), rad/(V.s^3)]: scaled to the steady rate gain
+#: K = 0.6 rad/(V.s) of eq 8 (the denominator is the same in both: time is in s).
+EQ6_SI_NUM = (0.6 / EQ6_DC_GAIN * EQ6_NUM[0], 0.6 / EQ6_DC_GAIN * EQ6_NUM[1])
 
 
 class SteeringActuator:
@@ -181,6 +184,82 @@ class IntegratorActuator(SteeringActuator):
         return self._limit_rate(self.K * self.command(u, alpha_ref), self.alpha)
 
 
+class DeadTime:
+    """The dead time of models a and c: the command held over each step, delayed by
+    ``tau`` [s], as a piecewise-constant signal (exact for held commands).
+
+    Keeps a history of ``[time, command]`` breakpoints (the command before the first
+    step is 0); :meth:`pieces` cuts a step where the delayed command changes, at
+    ``t_i + tau``, whether or not the step divides tau.
+    """
+
+    def __init__(self, tau):
+        self.tau = tau
+        #: breakpoints [[time [s], command [V]], ...], ascending; command 0 before the first
+        self.history = []
+
+    @staticmethod
+    def eps(h):
+        return 1e-12 + 1e-9 * h
+
+    def delayed(self, s):
+        """Command that was applied at time ``s`` (right-continuous) [V]."""
+        value = 0.0
+        for time, u in self.history:
+            if time <= s:
+                value = u
+            else:
+                break
+        return value
+
+    def pieces(self, t, h, u):
+        """Record command ``u`` [V] held from ``t`` [s]; return the step ``(t, t + h)``
+        as ``[(duration [s], delayed command [V]), ...]``, in order."""
+        eps = self.eps(h)
+        u = float(u)
+        history = self.history
+        if history and history[-1][0] >= t - eps:
+            last = history[-1]
+            last[0], last[1] = t, u
+            if len(history) > 1 and history[-2][1] == u:
+                history.pop()
+        elif not history or history[-1][1] != u:
+            history.append([t, u])
+        t_end = t + h
+        tau = self.tau
+        # pieces: the delayed command changes at t_i + tau inside (t, t_end). The times
+        # ascend, so t_i + tau does too: the cuts are one run near the front (after
+        # prune only the breakpoint in force and the newer ones are left).
+        lower, upper = t + eps, t_end - eps
+        start = t
+        out = []
+        for time, _ in history:
+            cut = time + tau
+            if cut >= upper:
+                break
+            if cut > lower:
+                out.append((cut - start, self.delayed(start - tau + eps)))
+                start = cut
+        out.append((t_end - start, self.delayed(start - tau + eps)))
+        self.prune(t_end - tau + eps)
+        return out
+
+    def prune(self, s):
+        """Drop breakpoints no longer needed after delayed time ``s``: keep the newest at
+        or before ``s`` (the command in force) and all later ones."""
+        keep = 0
+        for i, (time, _) in enumerate(self.history):
+            if time > s:
+                break
+            keep = i
+        if keep:
+            del self.history[:keep]
+
+    def now(self, time):
+        """The delayed command in force at ``time`` [s] (applied at least tau earlier)."""
+        return self.delayed(time - self.tau + self.eps(self.tau))
+
+
 class DelayedIntegratorActuator(SteeringActuator):
     """Model a: ``alpha'(t) = K u(t - tau)`` (seed 000 eq 8), exact for held commands.
 
@@ -198,96 +277,87 @@ class DelayedIntegratorActuator(SteeringActuator):
         if tau <= 0.0:
             raise ParameterError("tau", f"must be > 0 s, got {tau}")
         self.tau = tau
-        #: breakpoints [[time [s], command [V]], ...], ascending; command 0 before the first
-        self.history = []
+        self.delay = DeadTime(tau)
 
-    def _eps(self, h):
-        return 1e-12 + 1e-9 * h
-
-    def _delayed(self, s):
-        """Command that was applied at time ``s`` (right-continuous) [V]."""
-        value = 0.0
-        for time, u in self.history:
-            if time <= s:
-                value = u
-            else:
-                break
-        return value
+    @property
+    def history(self):
+        """The dead time's breakpoints [[time [s], command [V]], ...]."""
+        return self.delay.history
 
     def _step_command(self, t, h, u):
-        eps = self._eps(h)
-        u = float(u)
-        history = self.history
-        if history and history[-1][0] >= t - eps:
-            last = history[-1]
-            last[0], last[1] = t, u
-            if len(history) > 1 and history[-2][1] == u:
-                history.pop()
-        elif not history or history[-1][1] != u:
-            history.append([t, u])
-        t_end = t + h
-        tau = self.tau
-        # pieces: the delayed command changes at t_i + tau inside (t, t_end). The times
-        # ascend, so t_i + tau does too: the cuts are one run near the front (after
-        # _prune only the breakpoint in force and the newer ones are left).
-        lower, upper = t + eps, t_end - eps
-        start = t
-        for time, _ in history:
-            cut = time + tau
-            if cut >= upper:
-                break
-            if cut > lower:
-                self._advance_constant_rate(self.K * self._delayed(start - tau + eps),
-                                            cut - start)
-                start = cut
-        self._advance_constant_rate(self.K * self._delayed(start - tau + eps),
-                                    t_end - start)
-        self._prune(t_end - tau + eps)
-
-    def _prune(self, s):
-        """Drop breakpoints no longer needed after delayed time ``s``: keep the newest at
-        or before ``s`` (the command in force) and all later ones."""
-        keep = 0
-        for i, (time, _) in enumerate(self.history):
-            if time > s:
-                break
-            keep = i
-        if keep:
-            del self.history[:keep]
+        for duration, delayed in self.delay.pieces(t, h, u):
+            self._advance_constant_rate(self.K * delayed, duration)
 
     def rate(self, u=0.0, alpha_ref=0.0):
         # the delayed command at the current time was applied at least tau earlier: it is
         # in the history already and never depends on the present u / alpha_ref
-        s = self.time - self.tau + self._eps(self.tau)
-        return self._limit_rate(self.K * self._delayed(s), self.alpha)
+        return self._limit_rate(self.K * self.delay.now(self.time), self.alpha)
 
     def get_state(self):
         state = super().get_state()
-        state["history"] = [list(p) for p in self.history]
+        state["history"] = [list(p) for p in self.delay.history]
         return state
 
     def set_state(self, state):
         super().set_state(state)
-        self.history = [[float(t), float(u)] for t, u in state["history"]]
+        self.delay.history = [[float(t), float(u)] for t, u in state["history"]]
 
 
 class IdentifiedActuator(SteeringActuator):
-    """Model c: seed 000 eq 7 scaled to steady rate gain K, exact zero-order hold.
+    """Model c: a second-order rate transfer function (seed 000 eq 6) and a dead time,
+    exact for held commands.
 
-    The wheel rate is ``G_r(s) u`` with ``G_r(s) = (K / G0) * 100 (8.91 s + 506.3) /
-    (s^2 + 15.7926 s + 195.23)``, ``G0 = 259.335`` (:data:`EQ6_DC_GAIN`), and alpha is its
-    integral. The rate starts at rest. See :class:`SteeringActuator` for the parameters.
+    The wheel rate is ``G_r(s) u(t - tau)`` with
+
+        G_r(s) = (K den0 / num0) (num1 s + num0) / (s^2 + den1 s + den0),
+
+    alpha its integral (eq 7 with the delay). The coefficients are in SI units (u in V,
+    the rate in rad/s); ``K den0 / num0`` scales the transfer function to steady rate
+    gain K, and is exactly 1 when ``K = num0 / den0``, as with the defaults: seed 000
+    eq 6 scaled from the rig's units (DC gain :data:`EQ6_DC_GAIN`) to K = 0.6, so
+    ``num1 = 0.6 / G0 * 891``, ``num0 = 0.6 / G0 * 50630``. The rate starts at rest and
+    the command before the first step is 0.
+
+    Parameters
+    ----------
+    num1 : float
+        Numerator coefficient of s [rad/(V.s^2)], finite.
+    num0 : float
+        Numerator constant [rad/(V.s^3)], > 0.
+    den1 : float
+        Denominator coefficient of s [1/s], > 0.
+    den0 : float
+        Denominator constant [1/s^2], > 0 (den1 > 0 and den0 > 0: the rate is stable).
+    tau : float
+        Dead time [s], >= 0 (0: none; seed 000's eq 6 was fitted after removing it).
+    **kwargs
+        See :class:`SteeringActuator`.
     """
 
-    def __init__(self, **kwargs):
+    def __init__(self, num1=EQ6_SI_NUM[0], num0=EQ6_SI_NUM[1], den1=EQ6_DEN[1],
+                 den0=EQ6_DEN[2], tau=0.0, **kwargs):
         super().__init__(**kwargs)
         import scipy.signal  # model c only: the other models do not import scipy
 
-        scale = self.K / EQ6_DC_GAIN
-        a, b, c, d = scipy.signal.tf2ss([scale * n for n in EQ6_NUM], EQ6_DEN)
+        num1 = _finite("num1", num1)
+        num0 = _finite("num0", num0)
+        den1 = _finite("den1", den1)
+        den0 = _finite("den0", den0)
+        tau = _finite("tau", tau)
+        for name, value, unit in (("num0", num0, "rad/(V.s3)"), ("den1", den1, "1/s"),
+                                  ("den0", den0, "1/s2")):
+            if value <= 0.0:
+                raise ParameterError(name, f"must be > 0 {unit}, got {value}")
+        if tau < 0.0:
+            raise ParameterError("tau", f"must be >= 0 s, got {tau}")
+        self.num1, self.num0, self.den1, self.den0, self.tau = num1, num0, den1, den0, tau
+        scale = self.K / (num0 / den0)
+        a, b, c, d = scipy.signal.tf2ss([scale * num1, scale * num0], [1.0, den1, den0])
         self._a, self._b, self._c = a, b.ravel(), c.ravel()
         self.x = np.zeros(len(self._b))
         self._cache = {}
+        #: the dead time (None when tau = 0)
+        self.delay = DeadTime(tau) if tau > 0.0 else None
 
     def _discrete(self, h):
         """Exact ZOH maps of [x; alpha]: (Ad [n+1 x n+1], Bd [n+1]) for step ``h``."""
@@ -311,6 +381,14 @@ class IdentifiedActuator(SteeringActuator):
         return self.alpha_max > 0.0 or self.rate_max > 0.0
 
     def _step_command(self, t, h, u):
+        if self.delay is None:
+            self._advance(h, u)
+            return
+        for duration, delayed in self.delay.pieces(t, h, u):
+            self._advance(duration, delayed)
+
+    def _advance(self, h, u):
+        """Advance by ``h`` [s] with command ``u`` [V] held (exact)."""
         ad, bd = self._discrete(h)
         z = ad @ np.append(self.x, 0.0) + bd * u
         self.x = z[:-1]
@@ -325,11 +403,15 @@ class IdentifiedActuator(SteeringActuator):
     def get_state(self):
         state = super().get_state()
         state["x"] = [float(v) for v in self.x]
+        if self.delay is not None:
+            state["history"] = [list(p) for p in self.delay.history]
         return state
 
     def set_state(self, state):
         super().set_state(state)
         self.x = np.array(state["x"], dtype=float)
+        if self.delay is not None:
+            self.delay.history = [[float(t), float(u)] for t, u in state["history"]]
 
 
 #: model letter (seed 000) -> actuator class
