@@ -492,7 +492,7 @@ def test_friction_circle_limit_on_a_steady_circle_with_the_drive_force_spent():
     car = DynamicVehicle(p, reference_point="rear", alpha0=0.3, speed0=u)
     x = [car.vy, car.r]
     for delta in (0.3, 0.35, 0.38, 0.4, 0.45, 0.5):
-        x = fsolve(lambda z: car.lateral(delta, u, z[0], z[1])[4:6], x, xtol=1e-14)
+        x = fsolve(lambda z, d=delta: car.lateral(d, u, z[0], z[1])[4:6], x, xtol=1e-14)
         car.vy, car.r, car.alpha, car.u = float(x[0]), float(x[1]), delta, u
     state = car.tyre_state()
     ay, ax = car.lateral_acceleration(), -car.r * car.vy

@@ -16,16 +16,28 @@ Slip angles (velocity direction minus wheel angle, agv_core.dynamic_vehicle.tyre
 
     alpha_f = atan2(vy + a r, u) - delta,     alpha_r = atan2(vy - b r, u)
 
-Lateral forces F_f = tyre(alpha_f), F_r = tyre(alpha_r) (Fiala or linear, static loads
-Fz_f = m g b / L, Fz_r = m g a / L), and the planar equations of motion with u held:
+Lateral forces F_f, F_r: the sum over each axle's two wheels of tyre(alpha) (Fiala or
+linear) with the wheel's load, and the planar equations of motion with u held:
 
-    m (vy' + u r) = F_f cos(delta) + F_r        Iz r' = a F_f cos(delta) - b F_r
+    m (vy' + u r) = F_xf sin(delta) + F_f cos(delta) + F_r
+    Iz r' = a (F_xf sin(delta) + F_f cos(delta)) - b F_r + (t/2) (F_fl - F_fr) sin(delta)
     X' = u cos(psi) - (vy - b r) sin(psi)       Y' = u sin(psi) + (vy - b r) cos(psi)
     psi' = r                                    distance' = |velocity of R|
 
-The lateral acceleration output is a_y = vy' + u r = (F_f cos(delta) + F_r) / m (body
-frame, the centre of gravity). Not modelled: the drive force that holds u (and its
-lateral component at a driven steered wheel), load transfer, combined slip, tyre lag.
+Drive force, combined slip and load transfer (README): the driven axle (``drive``)
+supplies the force that holds u, m a_x = -m r vy plus the front tyres' drag
+F_f sin(delta), shared equally by its wheels; each wheel's lateral limit is what its
+friction circle leaves, sqrt((mu Fz)^2 - F_x^2) (the Fiala law with a derated limit,
+agv_core.dynamic_vehicle.tyres.combined_limit); the wheel loads carry the longitudinal
+and lateral load transfer m a_x h / L and m a_y h / t (``cg_height`` h, ``track`` t,
+``layout`` four or three wheels); a_y and the loads are solved to a fixed point. A wheel
+whose load falls to 0 fails the step (WheelLiftError), and so does a drive force beyond
+the driven wheels' friction (DriveLimitError). ``cg_height = 0`` with ``drive =
+"ideal"`` is the model without load transfer and combined slip, exactly (one tyre per
+axle at its static load, F_xf = 0).
+
+The lateral acceleration output is a_y = vy' + u r (body frame, the centre of gravity).
+Not modelled: longitudinal slip, tyre lag, roll and suspension.
 
 Integration for inputs held over a step: RK4 with step doubling to a stated tolerance
 (agv_core.numerics.ode). ``linear = True`` is the linear single-track model (linear tyres
@@ -461,7 +473,7 @@ class DynamicVehicle:
             ff = fr = 0.0
             shares = None
         use = []
-        for i, (load, static) in enumerate(zip(loads, half)):
+        for i, load in enumerate(loads):
             front = i < 2
             if shares is None:
                 slip = slip_f if front else slip_r
