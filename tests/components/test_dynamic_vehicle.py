@@ -523,3 +523,37 @@ def test_rear_drive_cannot_hold_the_speed_beyond_the_friction_circle():
             uses.append(car.tyre_state()["friction_rear"])
     assert max(uses) <= 1.0 + 1e-12
     assert max(uses) > 0.95
+
+
+TIP = """
+name = "tip"
+[simulation]
+stop = 5.0
+step = 0.01
+[components.act]
+fmu = "{act}"
+parameters = {{ alpha0 = 0.45 }}
+[components.vehicle]
+fmu = "{vehicle}"
+parameters = {{ v0 = 4.0, layout = "three", drive = "front", reference_point = "rear" }}
+[[connections]]
+from = "act.alpha"
+to = "vehicle.alpha"
+"""
+
+
+def test_fmu_run_fails_naming_the_lifting_wheel_and_the_time(component_fmus, tmp_path):
+    """The FMU: a three-wheel AgvDynamicVehicle at 4 m/s with the wheel held at 0.45 rad
+    (kinematic a_y 7.7 m/s^2 > its tip-over limit 6.54 m/s^2): fmi2DoStep fails and the
+    run's error names the component, the time and the lifting wheel."""
+    import json
+
+    from agv_cosim import cli
+    path = tmp_path / "tip.toml"
+    path.write_text(TIP.format(act=component_fmus["agv_steering_b"],
+                               vehicle=component_fmus["agv_dynamic_vehicle"]))
+    cli.main(["run", str(path), "--quiet", "--out", str(tmp_path / "o")])
+    error = json.loads((tmp_path / "o" / "base" / "run.json").read_text())["error"]
+    assert "component 'vehicle'" in error
+    assert "step at t=0.44 s failed: WheelLiftError: the rear left wheel lifts" in error
+    assert "tip-over limit 6.540 m/s2" in error
