@@ -429,20 +429,20 @@ def test_tip_over_acceleration_symmetric_and_three_wheel():
     d_y = t * a / (2.0 * L)
     assert three.lateral_tip_acceleration() == pytest.approx(G * d_y / h, rel=1e-14)
     assert three.wheel_loads(0.0, G * d_y / h)[2] == pytest.approx(0.0, abs=1e-9)
-    # normal to the axis from the front wheel (a, 0) to the right rear wheel (-b, -t/2),
-    # pointing from the axis towards the inside (where G and the left rear wheel lie)
+    # unit normal n of the axis from the front wheel (a, 0) to the right rear wheel
+    # (-b, -t/2), pointing from G towards the axis; G's distance d from the axis
     ex, ey = -L, -0.5 * t
     norm = math.hypot(ex, ey)
     nx, ny = -ey / norm, ex / norm
-    if nx * 0.0 + ny * 0.0 - (nx * a) > 0.0:   # orient the normal towards G
-        nx, ny = -nx, -ny
-    d = abs((0.0 - a) * ey - (0.0 - 0.0) * ex) / norm
+    assert nx * a + ny * 0.0 > 0.0            # n . (front wheel - G) > 0
+    d = abs(-a * ey) / norm
     assert d == pytest.approx(0.5 * t * a / math.hypot(L, 0.5 * t), rel=1e-14)
-    for sign in (1.0,):
-        acc = sign * G * d / h
-        loads = three.wheel_loads(-acc * nx, acc * abs(ny))
-        assert loads[2] == pytest.approx(0.0, abs=1e-9)
-        assert min(loads[0], loads[3]) > 0.0
+    # the resultant of weight and inertia meets the ground at -(a_x, a_y) h / g from G:
+    # on the axis when the acceleration is -(g d / h) n
+    acc = G * d / h
+    loads = three.wheel_loads(-acc * nx, -acc * ny)
+    assert loads[2] == pytest.approx(0.0, abs=1e-9)
+    assert min(loads[0], loads[3]) > 0.0
     assert G * d_y / h < G * 0.5 * t / h        # the three-wheeler tips earlier
 
 
