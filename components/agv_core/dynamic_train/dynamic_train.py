@@ -37,16 +37,25 @@ Equations of motion by Kane's method (virtual power of the free speeds), M(q) w'
            + m3 Lm g3 r3^2 sin(psi3 - psi2)
     h_r3 = m3 g3 (u1 r1 cos(psi1 - psi3) - v1 r1 sin(psi1 - psi3) + Lm r2^2 sin(psi2 - psi3))
 
-(m1 = m3 = m_e, m2 = m_f). Tyres: one lumped tyre per axle at the axle centre, turned by
-the axle-equivalent angle delta_i, slip alpha_i = atan2(vy_i, u_c) - delta_i with the
-axle centre's velocity (u_c, vy_i) in its car's frame (head: (u1, v1 + a_i r1); tail:
-(u3, v3 + a_i r3), u3 = e3 . J2', v3 = n3 . J2'), lateral force F_i = tyre(alpha_i)
-perpendicular to the axle's wheels (Fiala or linear, agv_core.dynamic_vehicle.tyres).
-Axle i's force F_i n(psi_c + delta_i) gives the generalised forces
+(m1 = m3 = m_e, m2 = m_f). Tyres (default): two per axle, at the wheel centres
+(a_i, +-d/2) of the car frame, each turned by its own wheel angle delta_w (the wheel
+inputs, or the Ackermann angles of the axle angle about the car's hinge baseline), slip
+alpha_w = atan2(v_c + r_c a_i, u_c - r_c y) - delta_w with the car's hinge velocity
+(head: (u1, v1, r1); tail: (u3, v3, r3), u3 = e3 . J2', v3 = n3 . J2'), lateral force
+F_w = tyre(alpha_w) with the wheel's load (cornering stiffness c Fz_w, limit mu Fz_w),
+perpendicular to the wheel (Fiala or linear, agv_core.dynamic_vehicle.tyres). A wheel's
+force F_w n(psi_c + delta_w) at (a_i, y) gives the generalised forces
 
-    head axles:  Q_v1 += F_i cos(delta_i),   Q_r1 += a_i F_i cos(delta_i)
-    tail axles:  Q_v1 += F_i cos(psi3 + delta_i - psi1),
-                 Q_r2 -= Lm F_i cos(psi3 + delta_i - psi2),   Q_r3 += a_i F_i cos(delta_i)
+    head wheels:  Q_v1 += F_w cos(delta_w),   Q_r1 += F_w (a_i cos(delta_w) + y sin(delta_w))
+    tail wheels:  Q_v1 += F_w cos(psi3 + delta_w - psi1),
+                  Q_r2 -= Lm F_w cos(psi3 + delta_w - psi2),
+                  Q_r3 += F_w (a_i cos(delta_w) + y sin(delta_w))
+
+Wheel loads: half the static axle load -+ Fz_i a_y h / (g d) (left -, right +; h =
+``cg_height``, a_y the lateral acceleration of the car's centre of gravity), solved with
+the forces to a fixed point. ``lumped_axles``: one tyre per axle at its centre, turned by
+the axle angle, at the static axle load (slip alpha_i = atan2(vy_i, u_c) - delta_i of the
+axle centre; Q as above with y = 0 and delta_w = delta_i).
 
 Static axle loads: each end car carries its own weight at its centre of gravity and half
 the floating car's at its hinge; cornering stiffness C_i = c Fz_i (c =
