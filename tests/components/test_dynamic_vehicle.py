@@ -130,13 +130,15 @@ def test_fiala_tyre_law():
 
 
 def test_front_saturation_limits_the_lateral_acceleration():
-    """Fiala tyres at 6 m/s, held steering: the steady lateral acceleration never exceeds
-    mu g; once the front axle slides (delta = 0.8, 1.0 rad here) its force is mu Fz_f =
-    m g mu b / L, which carries the share b / L of m a_y through cos(delta), so the
-    closed form is a_y = mu g cos(delta) (1e-9 relative). The tyre loads are static and
-    proportional to b and a, so both axles reach their limits at a_y = mu g together:
-    below the front's sliding the rear is short of its limit by the factor cos(delta)."""
-    p = SingleTrackParameters(1.5, 400.0, 120.0, 0.9, 11000.0, 16000.0, 0.8, "fiala")
+    """The model without load transfer and with a free drive force (cg_height = 0,
+    drive = 'ideal'). Fiala tyres at 6 m/s, held steering: the steady lateral acceleration
+    never exceeds mu g; once the front axle slides (delta = 0.8, 1.0 rad here) its force
+    is mu Fz_f = m g mu b / L, which carries the share b / L of m a_y through cos(delta),
+    so the closed form is a_y = mu g cos(delta) (1e-9 relative). The tyre loads are
+    static and proportional to b and a, so both axles reach their limits at a_y = mu g
+    together: below the front's sliding the rear is short of its limit by cos(delta)."""
+    p = SingleTrackParameters(1.5, 400.0, 120.0, 0.9, 11000.0, 16000.0, 0.8, "fiala",
+                              cg_height=0.0, drive="ideal")
     for delta in (0.1, 0.3, 0.5, 0.8, 1.0):
         car = DynamicVehicle(p)
         for _ in range(3000):
@@ -293,6 +295,8 @@ def test_reverse_faster_than_the_switch_speed_is_refused():
                                           "cornering_stiffness_front"),
     ({"cornering_stiffness_rear": float("inf")}, "cornering_stiffness_rear"),
     ({"mu": 0.0}, "mu"), ({"tyre": "magic"}, "tyre"),
+    ({"cg_height": -0.1}, "cg_height"), ({"cg_height": float("nan")}, "cg_height"),
+    ({"track": 0.0}, "track"), ({"layout": "two"}, "layout"), ({"drive": "all"}, "drive"),
 ])
 def test_bad_parameters(kwargs, name):
     with pytest.raises(ParameterError) as info:
@@ -329,3 +333,227 @@ def test_seed000_loop_poles_with_the_single_track_plant():
         p = SingleTrackParameters(L, 400.0, 167.0, L / 2, c, c, 0.8, "linear")
         gaps.append(kin - loop_poles(PAPER_GAINS, 3.0, L, 0.6, p)["dominant_damping"])
     assert gaps[0] > 0 and 7 < gaps[0] / gaps[1] < 13 and 7 < gaps[1] / gaps[2] < 13
+
+
+# ------------------------------------------------------------------ combined slip, load transfer
+def _old_lateral(p, alpha, u, vy, r):
+    """The model without load transfer and combined slip, written out: static axle loads,
+    one Fiala tyre per axle, the drive force free."""
+    slip_f = math.atan2(vy + p.a * r, u) - alpha
+    slip_r = math.atan2(vy - p.b * r, u)
+    ff = fiala_force(slip_f, p.Cf, p.mu * (p.m * G * p.b / p.L))
+    fr = fiala_force(slip_r, p.Cr, p.mu * (p.m * G * p.a / p.L))
+    ffc = ff * math.cos(alpha)
+    return slip_f, slip_r, ff, fr, (ffc + fr) / p.m - u * r, (p.a * ffc - p.b * fr) / p.Iz
+
+
+@pytest.mark.parametrize("layout", ["four", "three"])
+def test_old_model_is_recovered_exactly_with_cg_height_0_and_the_ideal_drive(layout):
+    """cg_height = 0 and drive = 'ideal' (the documented defaults of the old model): the
+    tyre forces and accelerations equal the old equations bit for bit at 200 random
+    states, and the general path (load transfer, per-wheel forces) gives them within
+    1e-12 relative (each wheel carries exactly half its axle's load and stiffness)."""
+    rng = np.random.default_rng(5)
+    p = SingleTrackParameters(1.5, 400.0, 120.0, 0.9, 11000.0, 16000.0, 0.8, "fiala",
+                              cg_height=0.0, drive="ideal", layout=layout)
+    assert p.static
+    car = DynamicVehicle(p)
+    for _ in range(200):
+        alpha, u = rng.uniform(-0.5, 0.5), rng.uniform(0.5, 15.0)
+        vy, r = rng.uniform(-2.0, 2.0), rng.uniform(-2.0, 2.0)
+        old = _old_lateral(p, alpha, u, vy, r)
+        assert car.lateral(alpha, u, vy, r) == old
+        general = car._tyres(alpha, u, vy, r, old[0], old[1])
+        assert general[:4] == pytest.approx(old[2:], rel=1e-12, abs=1e-9)
+
+
+def test_wheel_loads_sum_to_the_weight_and_transfer_m_ay_h_over_track():
+    """Static and dynamic loads: the four loads sum to m g for any accelerations; the
+    longitudinal transfer is m a_x h / L from front to rear; the lateral transfer (each
+    right wheel's gain, summed over the axles) is m a_y h / t, split between the axles in
+    proportion to their static loads (four wheels) or all on the rear pair (three)."""
+    for layout in ("four", "three"):
+        p = SingleTrackParameters(1.5, 400.0, 120.0, 0.9, 11000.0, 16000.0, 0.8, "fiala",
+                                  cg_height=0.45, track=0.9, layout=layout)
+        for ax, ay in ((0.0, 0.0), (1.3, 0.0), (0.0, 2.7), (-0.8, -3.1)):
+            fl, fr, rl, rr = p.wheel_loads(ax, ay)
+            assert fl + fr + rl + rr == pytest.approx(p.m * G, rel=1e-14)
+            assert fl + fr == pytest.approx(p.m * G * p.b / p.L - p.m * ax * p.h / p.L,
+                                            rel=1e-14)
+            transfer = 0.5 * ((fr - fl) + (rr - rl))
+            assert transfer == pytest.approx(p.m * ay * p.h / p.track, rel=1e-14, abs=1e-12)
+            if layout == "four":
+                assert 0.5 * (fr - fl) == pytest.approx(p.b / p.L * p.m * ay * p.h / p.track,
+                                                        rel=1e-14, abs=1e-12)
+            else:
+                assert fr == fl
+
+
+def test_lateral_load_transfer_in_a_steady_turn_is_m_ay_h_over_track():
+    """Simulated steady turn (rear drive, h = 0.3 m, t = 0.8 m, 5 m/s, delta = 0.1 rad):
+    the loads the model uses transfer m a_y h / t with the model's own a_y (the fixed
+    point of load transfer and forces, 1e-9 relative), sum to m g, and the tip margin is
+    1 - a_y / (g (t/2) / h) up to the longitudinal term (a_x = -r vy)."""
+    p = SingleTrackParameters()
+    car = DynamicVehicle(p, reference_point="rear", alpha0=0.1, speed0=5.0)
+    for _ in range(1000):
+        car.step(0.1, 5.0, 0.005)
+    ay = car.lateral_acceleration()
+    loads = car.tyre_state()["loads"]
+    assert sum(loads) == pytest.approx(p.m * G, rel=1e-14)
+    transfer = 0.5 * ((loads[1] - loads[0]) + (loads[3] - loads[2]))
+    assert ay > 2.0
+    assert transfer == pytest.approx(p.m * ay * p.h / p.track, rel=1e-9)
+    ax = -car.r * car.vy
+    fzr = p.Fzr + p.m * ax * p.h / p.L
+    margin = (0.5 * fzr - p.share_r * p.m * ay * p.h / p.track) / (0.5 * p.Fzr)
+    assert car.tyre_state()["tip_margin"] == pytest.approx(margin, rel=1e-12)
+
+
+def test_tip_over_acceleration_symmetric_and_three_wheel():
+    """Four wheels: the inner wheels lift at a_y = g (t/2) / h. Three wheels (one front
+    wheel at (a, 0) from G, rear wheels at (-b, +-t/2)): the triangle's edge from the
+    front wheel to the outer rear wheel is the tipping axis; G's ground projection lies
+    d = (t/2) a / sqrt(L^2 + t^2/4) from it, and the inner rear wheel's load is zero when
+    the acceleration component normal to that axis is g d / h (any direction of the
+    acceleration; 1e-12). For a purely lateral acceleration the limit is g d_y / h with
+    d_y = t a / (2 L) the lateral distance from G to the axis."""
+    h, t = 0.5, 0.9
+    four = SingleTrackParameters(1.5, 400.0, 120.0, 0.9, cg_height=h, track=t)
+    assert four.lateral_tip_acceleration() == pytest.approx(G * 0.5 * t / h, rel=1e-14)
+    fl, fr, rl, rr = four.wheel_loads(0.0, G * 0.5 * t / h)
+    assert (fl, rl) == pytest.approx((0.0, 0.0), abs=1e-9)
+    three = SingleTrackParameters(1.5, 400.0, 120.0, 0.9, cg_height=h, track=t,
+                                  layout="three")
+    a, L = three.a, three.L
+    d_y = t * a / (2.0 * L)
+    assert three.lateral_tip_acceleration() == pytest.approx(G * d_y / h, rel=1e-14)
+    assert three.wheel_loads(0.0, G * d_y / h)[2] == pytest.approx(0.0, abs=1e-9)
+    # unit normal n of the axis from the front wheel (a, 0) to the right rear wheel
+    # (-b, -t/2), pointing from G towards the axis; G's distance d from the axis
+    ex, ey = -L, -0.5 * t
+    norm = math.hypot(ex, ey)
+    nx, ny = -ey / norm, ex / norm
+    assert nx * a + ny * 0.0 > 0.0            # n . (front wheel - G) > 0
+    d = abs(-a * ey) / norm
+    assert d == pytest.approx(0.5 * t * a / math.hypot(L, 0.5 * t), rel=1e-14)
+    # the resultant of weight and inertia meets the ground at -(a_x, a_y) h / g from G:
+    # on the axis when the acceleration is -(g d / h) n
+    acc = G * d / h
+    loads = three.wheel_loads(-acc * nx, -acc * ny)
+    assert loads[2] == pytest.approx(0.0, abs=1e-9)
+    assert min(loads[0], loads[3]) > 0.0
+    assert G * d_y / h < G * 0.5 * t / h        # the three-wheeler tips earlier
+
+
+def test_three_wheeler_fails_naming_the_lifting_wheel():
+    """A three-wheel AGV (h = 0.3 m, t = 0.8 m: tip-over at g d_y / h = 6.54 m/s^2 below
+    its sliding limit mu g = 7.85 m/s^2) on a tightening left turn at 4 m/s: the margin
+    falls towards 0 and the step where the rear left wheel's load reaches 0 raises
+    WheelLiftError naming it: the lateral acceleration crosses the closed form
+    t (g a + a_x h) / (2 L h) (the triangle's limit g d_y / h moved by the longitudinal
+    transfer of a_x = -r vy) between the last good step and the failing one, within 4 %
+    of g d_y / h."""
+    from agv_core.dynamic_vehicle.dynamic_vehicle import WheelLiftError
+    p = SingleTrackParameters(layout="three", drive="front")
+    limit = p.lateral_tip_acceleration()
+    assert limit == pytest.approx(G * (0.4 * 0.5 / 1.0) / 0.3, rel=1e-14)
+    car = DynamicVehicle(p, reference_point="rear", speed0=4.0)
+    margins = []
+
+    def crossing():
+        ax = -car.r * car.vy
+        return car.lateral_acceleration() - p.track * (G * p.a + ax * p.h) / (2 * p.L * p.h)
+
+    with pytest.raises(WheelLiftError, match="rear left wheel lifts") as info:
+        for k in range(4000):
+            car.step(min(0.5, 0.0004 * k), 4.0, 0.002)
+            margins.append((car.lateral_acceleration(), car.tyre_state()["tip_margin"],
+                            crossing()))
+    assert 0.0 < margins[-1][1] < 0.05
+    assert margins[-1][2] < 0.0 <= crossing()
+    assert margins[-1][0] == pytest.approx(limit, rel=0.04)
+    assert "tip-over limit 6.540" in str(info.value)
+
+
+def test_friction_circle_limit_on_a_steady_circle_with_the_drive_force_spent():
+    """Steady circles at 8 m/s (h = 0, front drive, understeering vehicle), solved for
+    (vy, r) with vy' = r' = 0 by fsolve: once the driven front axle slides, its force
+    vector (drive along the wheel plus lateral) has the length mu Fz_f and its body-x
+    component is the force that holds the speed, m a_x = -m r vy, its body-y component
+    m a_y b / L; so the largest steady lateral acceleration is the closed form
+    a_y = (L / b) sqrt((mu g b / L)^2 - a_x^2) (1e-9 relative), below mu g and below the
+    free-drive model's mu g cos(delta) at the same steering only when a_x matters. The
+    friction use of the front wheels is 1, the rear's below."""
+    from scipy.optimize import fsolve
+    p = SingleTrackParameters(1.5, 400.0, 120.0, 0.9, 11000.0, 16000.0, 0.8, "fiala",
+                              cg_height=0.0, drive="front")
+    u = 8.0
+    car = DynamicVehicle(p, reference_point="rear", alpha0=0.3, speed0=u)
+    x = [car.vy, car.r]
+    for delta in (0.3, 0.35, 0.38, 0.4, 0.45, 0.5):
+        x = fsolve(lambda z, d=delta: car.lateral(d, u, z[0], z[1])[4:6], x, xtol=1e-14)
+        car.vy, car.r, car.alpha, car.u = float(x[0]), float(x[1]), delta, u
+    state = car.tyre_state()
+    ay, ax = car.lateral_acceleration(), -car.r * car.vy
+    assert state["friction_front"] == pytest.approx(1.0, abs=1e-12)
+    assert state["friction_rear"] < 1.0
+    assert state["drive_front"] * math.cos(delta) - car.lateral()[2] * math.sin(delta) == \
+        pytest.approx(p.m * ax, rel=1e-9)
+    closed = p.L / p.b * math.sqrt((p.mu * G * p.b / p.L) ** 2 - ax * ax)
+    assert ay == pytest.approx(closed, rel=1e-9)
+    assert ay < p.mu * G
+
+
+def test_rear_drive_cannot_hold_the_speed_beyond_the_friction_circle():
+    """The held-out case of issue 37: 12 m/s, mu 0.7, a left circle tightening towards
+    the friction limit, rear drive, h = 0. The drive force that holds the speed grows
+    with the turn (drag of the front tyre and the sideslip); the rear wheels' friction
+    use never exceeds 1 (the lateral force gets only what the drive leaves), and when the
+    drive needs more than 2 mu Fz_r / 2 per wheel the step fails with DriveLimitError.
+    The free-drive model at the same inputs reaches a_y > 0.95 mu g where the rear drive
+    force it ignores would exceed the rear wheels' friction."""
+    from agv_core.dynamic_vehicle.dynamic_vehicle import DriveLimitError
+    p = SingleTrackParameters(mu=0.7, cg_height=0.0, drive="rear")
+    car = DynamicVehicle(p, reference_point="rear", speed0=12.0)
+    uses = []
+    with pytest.raises(DriveLimitError, match="rear axle's drive needs"):
+        for k in range(5000):
+            car.step(min(0.08, 2e-5 * k), 12.0, 0.002)
+            uses.append(car.tyre_state()["friction_rear"])
+    assert max(uses) <= 1.0 + 1e-12
+    assert max(uses) > 0.95
+
+
+TIP = """
+name = "tip"
+[simulation]
+stop = 5.0
+step = 0.01
+[components.act]
+fmu = "{act}"
+parameters = {{ alpha0 = 0.45 }}
+[components.vehicle]
+fmu = "{vehicle}"
+parameters = {{ v0 = 4.0, layout = "three", drive = "front", reference_point = "rear" }}
+[[connections]]
+from = "act.alpha"
+to = "vehicle.alpha"
+"""
+
+
+def test_fmu_run_fails_naming_the_lifting_wheel_and_the_time(component_fmus, tmp_path):
+    """The FMU: a three-wheel AgvDynamicVehicle at 4 m/s with the wheel held at 0.45 rad
+    (kinematic a_y 7.7 m/s^2 > its tip-over limit 6.54 m/s^2): fmi2DoStep fails and the
+    run's error names the component, the time and the lifting wheel."""
+    import json
+
+    from agv_cosim import cli
+    path = tmp_path / "tip.toml"
+    path.write_text(TIP.format(act=component_fmus["agv_steering_b"],
+                               vehicle=component_fmus["agv_dynamic_vehicle"]))
+    cli.main(["run", str(path), "--quiet", "--out", str(tmp_path / "o")])
+    error = json.loads((tmp_path / "o" / "base" / "run.json").read_text())["error"]
+    assert "component 'vehicle'" in error
+    assert "step at t=0.44 s failed: WheelLiftError: the rear left wheel lifts" in error
+    assert "tip-over limit 6.540 m/s2" in error

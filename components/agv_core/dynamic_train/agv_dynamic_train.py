@@ -18,8 +18,9 @@ class AgvDynamicTrain(core.fmi.fmi_slave.AgvSlave):
     axle; AgvTrain's interface plus yaw rates, axle slips, tyre forces and accelerations."""
 
     description = ("Seed 003 three-car virtual-rail train, planar multibody dynamics: "
-                   "rigid head, floating and tail cars, ideal hinges, lateral tyre force on "
-                   "each of the four steered axles (Fiala or linear); drop-in for AgvTrain")
+                   "rigid head, floating and tail cars, ideal hinges, lateral tyre forces on "
+                   "the two wheels of each of the four steered axles (Fiala or linear, "
+                   "Ackermann wheel angles, lateral load transfer); drop-in for AgvTrain")
 
     #: Reference: AgvTrain's reference inputs (axle 1 held at 0.05 rad, axles 2-4
     #: straight, 14 km/h, dv = +1 m/s from 5 s): the head car turns with tyre slip, the
@@ -73,6 +74,13 @@ class AgvDynamicTrain(core.fmi.fmi_slave.AgvSlave):
                        "tyre: an axle's force saturates at mu times its static load)")
         self.parameter("tyre", DEFAULTS["tyre"], None,
                        "Tyre law: 'fiala' (brush model, saturating) or 'linear'", kind=S)
+        self.parameter("cg_height", DEFAULTS["cg_height"], "m",
+                       "Height of the cars' centres of gravity (lateral load transfer "
+                       "between each axle's wheels; 0: static wheel loads)")
+        self.parameter("lumped_axles", DEFAULTS["lumped_axles"], None,
+                       "One tyre per axle at its centre, turned by the axle angle, at the "
+                       "static axle load (instead of two tyres per axle with their own "
+                       "wheel angles and loads)", kind=core.fmi.fmi_slave.Boolean)
         self.parameter("kinematic_below", DEFAULTS["kinematic_below"], "m/s",
                        "Below this head-car speed the kinematic train runs (the dynamic one "
                        "is singular at standstill)")
@@ -101,17 +109,22 @@ class AgvDynamicTrain(core.fmi.fmi_slave.AgvSlave):
             for side in _SIDES:
                 self.output(f"slip{i}_{side}", "rad",
                             f"Slip angle of axle {i}'s {side} wheel over the last step: "
-                            "velocity direction minus wheel angle")
+                            "velocity direction minus wheel angle (its tyre's input)")
                 self.output(f"speed{i}_{side}", "m/s",
                             f"Ground speed of axle {i}'s {side} wheel over the last step")
         for k, car in ((1, "head car"), (2, "floating car"), (3, "tail car")):
             self.output(f"yaw_rate{k}", "rad/s", f"Yaw rate of the {car}")
         for i in _AXLES:
-            self.output(f"axle_slip{i}", "rad", f"Slip angle of axle {i}'s centre (the tyre "
-                        "law's input) over the last step (0 in the kinematic regime)")
-            self.output(f"lateral_force{i}", "N", f"Lateral tyre force of axle {i}, "
-                        "perpendicular to its wheels, positive left (0 in the kinematic "
-                        "regime)")
+            self.output(f"axle_slip{i}", "rad", f"Slip angle of axle {i}'s centre against "
+                        "the axle angle over the last step (the tyre law's input with "
+                        "lumped_axles; 0 in the kinematic regime)")
+            self.output(f"lateral_force{i}", "N", f"Lateral tyre force of axle {i} (sum of "
+                        "its wheels' forces, each perpendicular to its wheel), positive "
+                        "left (0 in the kinematic regime)")
+        for i in _AXLES:
+            for side in _SIDES:
+                self.output(f"load{i}_{side}", "N", f"Vertical load of axle {i}'s {side} "
+                            "wheel over the last step")
         for k, car in ((1, "head"), (3, "tail")):
             self.output(f"lateral_acceleration{k}", "m/s2",
                         f"Lateral acceleration of the {car} car's centre of gravity in its "
@@ -124,7 +137,8 @@ class AgvDynamicTrain(core.fmi.fmi_slave.AgvSlave):
         geometry = _MODULE.TrainGeometry(self.L1, self.L2, self.d, self.Lm)
         dynamics = _MODULE.TrainDynamics(geometry, self.mass_end, self.mass_float,
                                          self.inertia_end, self.inertia_float, self.cg_end,
-                                         self.cornering_coefficient, self.mu, self.tyre)
+                                         self.cornering_coefficient, self.mu, self.tyre,
+                                         self.cg_height, self.lumped_axles)
         train = _MODULE.DynamicTrain.straight(dynamics, self.x0, self.y0, self.heading0,
                                               self.kinematic_below, self.tolerance)
         deltas, pairs = self._steering()
@@ -166,5 +180,9 @@ class AgvDynamicTrain(core.fmi.fmi_slave.AgvSlave):
             setattr(self, f"axle_slip{i}", slip)
             setattr(self, f"lateral_force{i}", force)
         self.lateral_acceleration1, self.lateral_acceleration3 = c.lateral_accelerations()
+        loads = iter(c.wheel_loads())
+        for i in _AXLES:
+            for side in _SIDES:
+                setattr(self, f"load{i}_{side}", next(loads))
         self.finite_or_fail(x_J1=self.x_J1, y_J1=self.y_J1, heading2=self.heading2,
                             heading3=self.heading3, yaw_rate1=self.yaw_rate1)

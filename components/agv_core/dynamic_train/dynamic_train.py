@@ -37,16 +37,25 @@ Equations of motion by Kane's method (virtual power of the free speeds), M(q) w'
            + m3 Lm g3 r3^2 sin(psi3 - psi2)
     h_r3 = m3 g3 (u1 r1 cos(psi1 - psi3) - v1 r1 sin(psi1 - psi3) + Lm r2^2 sin(psi2 - psi3))
 
-(m1 = m3 = m_e, m2 = m_f). Tyres: one lumped tyre per axle at the axle centre, turned by
-the axle-equivalent angle delta_i, slip alpha_i = atan2(vy_i, u_c) - delta_i with the
-axle centre's velocity (u_c, vy_i) in its car's frame (head: (u1, v1 + a_i r1); tail:
-(u3, v3 + a_i r3), u3 = e3 . J2', v3 = n3 . J2'), lateral force F_i = tyre(alpha_i)
-perpendicular to the axle's wheels (Fiala or linear, agv_core.dynamic_vehicle.tyres).
-Axle i's force F_i n(psi_c + delta_i) gives the generalised forces
+(m1 = m3 = m_e, m2 = m_f). Tyres (default): two per axle, at the wheel centres
+(a_i, +-d/2) of the car frame, each turned by its own wheel angle delta_w (the wheel
+inputs, or the Ackermann angles of the axle angle about the car's hinge baseline), slip
+alpha_w = atan2(v_c + r_c a_i, u_c - r_c y) - delta_w with the car's hinge velocity
+(head: (u1, v1, r1); tail: (u3, v3, r3), u3 = e3 . J2', v3 = n3 . J2'), lateral force
+F_w = tyre(alpha_w) with the wheel's load (cornering stiffness c Fz_w, limit mu Fz_w),
+perpendicular to the wheel (Fiala or linear, agv_core.dynamic_vehicle.tyres). A wheel's
+force F_w n(psi_c + delta_w) at (a_i, y) gives the generalised forces
 
-    head axles:  Q_v1 += F_i cos(delta_i),   Q_r1 += a_i F_i cos(delta_i)
-    tail axles:  Q_v1 += F_i cos(psi3 + delta_i - psi1),
-                 Q_r2 -= Lm F_i cos(psi3 + delta_i - psi2),   Q_r3 += a_i F_i cos(delta_i)
+    head wheels:  Q_v1 += F_w cos(delta_w),   Q_r1 += F_w (a_i cos(delta_w) + y sin(delta_w))
+    tail wheels:  Q_v1 += F_w cos(psi3 + delta_w - psi1),
+                  Q_r2 -= Lm F_w cos(psi3 + delta_w - psi2),
+                  Q_r3 += F_w (a_i cos(delta_w) + y sin(delta_w))
+
+Wheel loads: half the static axle load -+ Fz_i a_y h / (g d) (left -, right +; h =
+``cg_height``, a_y the lateral acceleration of the car's centre of gravity), solved with
+the forces to a fixed point. ``lumped_axles``: one tyre per axle at its centre, turned by
+the axle angle, at the static axle load (slip alpha_i = atan2(vy_i, u_c) - delta_i of the
+axle centre; Q as above with y = 0 and delta_w = delta_i).
 
 Static axle loads: each end car carries its own weight at its centre of gravity and half
 the floating car's at its hinge; cornering stiffness C_i = c Fz_i (c =
@@ -63,6 +72,7 @@ rates), as in the dynamic single-track vehicle.
 import math
 
 from ..ackermann.ackermann import wheel_angles
+from ..dynamic_vehicle.dynamic_vehicle import WheelLiftError
 from ..dynamic_vehicle.dynamic_vehicle import positive as _positive
 from ..dynamic_vehicle.tyres import TYRES, fiala_force, linear_force
 from ..errors import ParameterError
@@ -91,11 +101,18 @@ class TrainDynamics:
     mu : float
         Friction coefficient [-], > 0 (Fiala tyre).
     tyre : {"fiala", "linear"}
+    cg_height : float
+        Height of the cars' centres of gravity above the ground [m], >= 0 (lateral load
+        transfer between the left and right wheels; two-tyre axles only).
+    lumped_axles : bool
+        One tyre per axle at its centre, turned by the axle angle, at the static axle
+        load (the model without per-wheel tyres); default: two tyres per axle at
+        (a_i, +-d/2) with their own wheel angles and loads.
     """
 
     def __init__(self, geometry, mass_end=12000.0, mass_float=6000.0, inertia_end=120000.0,
                  inertia_float=44000.0, cg_end=6.5, cornering_coefficient=6.875, mu=0.8,
-                 tyre="fiala"):
+                 tyre="fiala", cg_height=1.2, lumped_axles=False):
         self.g = geometry
         self.m_e = _positive("mass_end", mass_end)
         self.m_f = _positive("mass_float", mass_float)
@@ -120,6 +137,35 @@ class TrainDynamics:
         self.loads = (f_front, f_rear, f_rear, f_front)
         self.stiffness = tuple(self.c_alpha * f for f in self.loads)
         self.limits = tuple(self.mu * f for f in self.loads)
+        if not (math.isfinite(cg_height) and cg_height >= 0.0):
+            raise ParameterError("cg_height", f"must be a finite height >= 0 m, got {cg_height}")
+        self.h = float(cg_height)
+        self.lumped = bool(lumped_axles)
+        #: lateral load transfer of axle i per unit lateral acceleration of its car [N s^2/m]
+        self.transfer = tuple(f * self.h / (G * geometry.d) if geometry.d > 0.0 else 0.0
+                              for f in self.loads)
+        if self.h > 0.0 and not geometry.d > 0.0 and not self.lumped:
+            raise ParameterError("cg_height", "needs a track d > 0 for the load transfer")
+
+    def wheel_loads(self, ay_head, ay_tail):
+        """Vertical loads [N] of the eight wheels (axle 1 left, 1 right, ..., 4 right) for
+        the lateral accelerations [m/s^2] of the head and tail cars' centres of gravity:
+        half the static axle load -+ Fz_i a_y h / (g d) (left -, right +)."""
+        out = []
+        for i in range(AXLES):
+            shift = self.transfer[i] * (ay_head if i < 2 else ay_tail)
+            half = 0.5 * self.loads[i]
+            out.extend((half - shift, half + shift))
+        return out
+
+    def wheel_force(self, slip, load):
+        """Lateral force [N] of one wheel at ``slip`` [rad] with vertical ``load`` [N]:
+        cornering stiffness c Fz, friction limit mu Fz (0 for a lifted wheel)."""
+        if not load > 0.0:
+            return 0.0
+        if self.tyre == "fiala":
+            return fiala_force(slip, self.c_alpha * load, self.mu * load)
+        return linear_force(slip, self.c_alpha * load)
 
     def force(self, i, slip):
         """Lateral force [N] of axle ``i`` (0-3) at ``slip`` [rad]."""
@@ -165,6 +211,8 @@ class DynamicTrain:
         self.deltas = (0.0, 0.0, 0.0, 0.0)
         self.wheels = None
         self.substeps = 1
+        self._pairs, self._pairs_key = None, None
+        self._current_key, self._current_value = None, None
 
     @classmethod
     def straight(cls, dynamics, x_front=0.0, y_front=0.0, heading=0.0, kinematic_below=0.1,
@@ -223,27 +271,147 @@ class DynamicTrain:
                  math.atan2(v3 + a[2] * r3, u3) - dl[2], math.atan2(v3 + a[3] * r3, u3) - dl[3]),
                 u3, v3)
 
+    def wheel_pairs(self):
+        """(left, right) wheel angles [rad] of axles 1-4: the recorded wheel inputs, else
+        the Ackermann angles of the axle angles about the car's hinge baseline."""
+        if self.wheels is not None:
+            return self.wheels
+        key = self.deltas
+        if self._pairs_key != key:
+            a, d = self.g.axle_offsets, self.g.d
+            self._pairs = tuple(wheel_angles(key[i], a[i], d) for i in range(AXLES))
+            self._pairs_key = key
+        return self._pairs
+
+    def wheel_slips(self, state):
+        """Slip angles [rad] of the eight wheels (axle 1 left, 1 right, ...): wheel at body
+        (a_i, +-d/2), velocity (u_c - r_c y, v_c + r_c a_i) in its car's frame, minus the
+        wheel's angle; and (u3, v3)."""
+        _, _, psi1, psi2, psi3, v1, r1, r2, r3 = state
+        u1, a, half = self.u1, self.g.axle_offsets, 0.5 * self.g.d
+        u3, v3 = self.tail_velocity(psi1, psi2, psi3, v1, r2, u1)
+        if not u3 > 0.0:
+            raise FloatingPointError(f"the tail car moves backwards (u3 = {u3:.6g} m/s): "
+                                     "jack-knife")
+        slips = []
+        for i, (left, right) in enumerate(self.wheel_pairs()):
+            u, v, r = (u1, v1, r1) if i < 2 else (u3, v3, r3)
+            vy = v + r * a[i]
+            slips.append(math.atan2(vy, u - r * half) - left)
+            slips.append(math.atan2(vy, u + r * half) - right)
+        return slips, u3, v3
+
     def accelerations(self, state):
-        """w' = (v1', r1', r2', r3') and the axle forces [N] for the state vector
+        """w' = (v1', r1', r2', r3') and the axle forces [N] (the sum of each axle's
+        wheel forces, or the lumped axle force) for the state vector
         (X, Y, psi1, psi2, psi3, v1, r1, r2, r3), with the held inputs."""
+        if self.d.lumped:
+            return self._lumped_accelerations(state)
+        return self._wheel_accelerations(state)[:2]
+
+    def _wheel_accelerations(self, state):
+        """Two tyres per axle: (w', axle forces, wheel loads, wheel forces). The loads
+        depend on the cars' lateral accelerations, which depend on the forces: iterated
+        to a fixed point (1e-12 relative; one pass for cg_height = 0)."""
         _, _, p1, p2, p3, v1, r1, r2, r3 = state
-        d, g, u1 = self.d, self.g, self.u1
-        a, dl, lm = g.axle_offsets, self.deltas, g.Lm
+        d, a, lm = self.d, self.g.axle_offsets, self.g.Lm
+        slips, u3, _ = self.wheel_slips(state)
+        pairs = self.wheel_pairs()
+        half = 0.5 * self.g.d
+        def evaluate(ayh, ayt):
+            loads = d.wheel_loads(ayh, ayt)
+            forces = [d.wheel_force(s, fz) for s, fz in zip(slips, loads)]
+            q1 = q2 = q3 = q4 = 0.0
+            for i in range(AXLES):
+                for k, y in ((0, half), (1, -half)):
+                    f, ang = forces[2 * i + k], pairs[i][k]
+                    moment = f * (a[i] * math.cos(ang) + y * math.sin(ang))
+                    if i < 2:
+                        q1 += f * math.cos(ang)
+                        q2 += moment
+                    else:
+                        q1 += f * math.cos(p3 + ang - p1)
+                        q3 -= lm * f * math.cos(p3 + ang - p2)
+                        q4 += moment
+            wdot = self._solve(state, (q1, q2, q3, q4))
+            return wdot, loads, forces
+
+        ayh, ayt = self.u1 * r1, u3 * r3
+        wdot, loads, forces = evaluate(ayh, ayt)
+        if d.h > 0.0:
+            ayh, ayt = self._fixed_point(state, evaluate, ayh, ayt, wdot)
+            wdot, loads, forces = evaluate(ayh, ayt)
+        axle = tuple(forces[2 * i] + forces[2 * i + 1] for i in range(AXLES))
+        return wdot, axle, loads, forces
+
+    def _fixed_point(self, state, evaluate, ayh, ayt, wdot):
+        """(a_y head, a_y tail) [m/s^2] with evaluate(a_y) giving back the same lateral
+        accelerations (1e-12 relative): fixed-point iteration, then Newton's method with a
+        difference Jacobian where it does not contract (the map is linear in the loads)."""
+        def tol(x):
+            return 1e-12 * (1.0 + abs(x))
+
+        for _ in range(8):
+            new_h, new_t = self._car_lateral(state, wdot)
+            if abs(new_h - ayh) <= tol(ayh) and abs(new_t - ayt) <= tol(ayt):
+                return new_h, new_t
+            ayh, ayt = new_h, new_t
+            wdot = evaluate(ayh, ayt)[0]
+        for _ in range(30):
+            gh, gt = (x - y for x, y in zip(self._car_lateral(state, wdot), (ayh, ayt)))
+            if abs(gh) <= tol(ayh) and abs(gt) <= tol(ayt):
+                return ayh, ayt
+            step = 1e-6 * (1.0 + abs(ayh) + abs(ayt))
+            jac = []
+            for dh, dt in ((step, 0.0), (0.0, step)):
+                w = evaluate(ayh + dh, ayt + dt)[0]
+                fh, ft = self._car_lateral(state, w)
+                jac.append(((fh - ayh - dh - gh) / step, (ft - ayt - dt - gt) / step))
+            (j11, j21), (j12, j22) = jac
+            det = j11 * j22 - j12 * j21
+            if det == 0.0:
+                break
+            ayh -= (j22 * gh - j12 * gt) / det
+            ayt -= (-j21 * gh + j11 * gt) / det
+            wdot = evaluate(ayh, ayt)[0]
+        raise FloatingPointError("lateral load transfer found no fixed point")
+
+    def _car_lateral(self, state, wdot):
+        """Lateral accelerations [m/s^2] of the head and tail cars' centres of gravity in
+        their frames for the state and w' (u1 held)."""
+        _, _, p1, p2, p3, v1, r1, r2, r3 = state
+        dv1, dr1, dr2, dr3 = wdot
+        g1, g3, lm, u1 = self.d.cg, -self.d.cg, self.g.Lm, self.u1
+        head = u1 * r1 + dv1 + g1 * dr1
+        c13, s13 = math.cos(p1 - p3), math.sin(p1 - p3)
+        tail = ((u1 * r1 + dv1) * c13 - v1 * r1 * s13 - lm * dr2 * math.cos(p2 - p3)
+                + lm * r2 * r2 * math.sin(p2 - p3) + g3 * dr3)
+        return head, tail
+
+    def _lumped_accelerations(self, state):
+        d, dl, a, lm = self.d, self.deltas, self.g.axle_offsets, self.g.Lm
+        _, _, p1, p2, p3, _, _, _, _ = state
         slips, _, _ = self.axle_slips(state)
         forces = [d.force(i, s) for i, s in enumerate(slips)]
-        m1 = m3 = d.m_e
-        m2 = d.m_f
-        g1, g3 = d.cg, -d.cg
-        c12, s12 = math.cos(p1 - p2), math.sin(p1 - p2)
-        c13, s13 = math.cos(p1 - p3), math.sin(p1 - p3)
-        c23, s23 = math.cos(p2 - p3), math.sin(p2 - p3)
-        # generalised forces of the four axle forces
         f0, f1, f2, f3 = forces
         k0, k1, k2, k3 = (math.cos(x) for x in dl)
         q1 = f0 * k0 + f1 * k1 + f2 * math.cos(p3 + dl[2] - p1) + f3 * math.cos(p3 + dl[3] - p1)
         q2 = a[0] * f0 * k0 + a[1] * f1 * k1
         q3 = -lm * (f2 * math.cos(p3 + dl[2] - p2) + f3 * math.cos(p3 + dl[3] - p2))
         q4 = a[2] * f2 * k2 + a[3] * f3 * k3
+        return self._solve(state, (q1, q2, q3, q4)), forces
+
+    def _solve(self, state, q):
+        """w' from M(q) w' = Q - h for the generalised forces ``q`` (u1 held)."""
+        _, _, p1, p2, p3, v1, r1, r2, r3 = state
+        d, u1, lm = self.d, self.u1, self.g.Lm
+        q1, q2, q3, q4 = q
+        m1 = m3 = d.m_e
+        m2 = d.m_f
+        g1, g3 = d.cg, -d.cg
+        c12, s12 = math.cos(p1 - p2), math.sin(p1 - p2)
+        c13, s13 = math.cos(p1 - p3), math.sin(p1 - p3)
+        c23, s23 = math.cos(p2 - p3), math.sin(p2 - p3)
         # velocity-product (centripetal and Coriolis) terms
         half = 0.5 * m2 + m3
         h1 = (m1 + m2 + m3) * u1 * r1 - half * lm * r2 * r2 * s12 + m3 * g3 * r3 * r3 * s13
@@ -278,7 +446,7 @@ class DynamicTrain:
         x3 = (B3 - S34 * x4) / S33
         x1 = (B1 - M13 * x3 - M14 * x4) / A11
         x2 = (b2 - M12 * x1) / M22
-        return (x1, x2, x3, x4), forces
+        return (x1, x2, x3, x4)
 
     def rates(self, state):
         """Right-hand side of the ODE for the state vector, inputs held."""
@@ -319,7 +487,18 @@ class DynamicTrain:
                                             start=max(1, self.substeps // 2))
             (self.x1, self.y1, self.psi1, self.psi2, self.psi3,
              self.v1, self.r1, self.r2, self.r3) = y
+            if not self.d.lumped and self.d.h > 0.0:
+                self.check_contact()
         self.distance += abs(u1) * h
+
+    def check_contact(self):
+        """Raise :class:`~agv_core.dynamic_vehicle.dynamic_vehicle.WheelLiftError` naming
+        the wheel when a wheel's load is <= 0 (the car starts to tip over)."""
+        for k, load in enumerate(self.wheel_loads()):
+            if not load > 0.0:
+                side = "left" if k % 2 == 0 else "right"
+                raise WheelLiftError(f"axle {k // 2 + 1}'s {side} wheel lifts (vertical "
+                                     f"load {load:.1f} N): the car tips over")
 
     # ------------------------------------------------------------------ outputs
     def hinge2(self):
@@ -338,28 +517,45 @@ class DynamicTrain:
         return self.u1, self.v1, self.r1, u3, v3, self.r3
 
     def axle_forces(self):
-        """(slips [rad], forces [N]) of axles 1-4 for the last inputs and current state;
-        zero in the kinematic regime."""
+        """(slips [rad], forces [N]) of axles 1-4 for the last inputs and current state:
+        the axle centre's slip against the axle angle, and the lumped axle force or the
+        sum of the axle's two wheel forces; zero in the kinematic regime."""
         if self.is_kinematic():
             return (0.0,) * AXLES, (0.0,) * AXLES
         slips, _, _ = self.axle_slips()
-        return slips, tuple(self.d.force(i, s) for i, s in enumerate(slips))
+        if self.d.lumped:
+            return slips, tuple(self.d.force(i, s) for i, s in enumerate(slips))
+        return slips, self._current()[1]
+
+    def _current(self):
+        """_wheel_accelerations for the current state and inputs (kept until they change:
+        the outputs read it several times per step)."""
+        key = (tuple(self.state_vector()), self.u1, self.deltas, self.wheels)
+        if self._current_key != key:
+            self._current_value = self._wheel_accelerations(list(key[0]))
+            self._current_key = key
+        return self._current_value
+
+    def wheel_loads(self):
+        """Vertical loads [N] of the eight wheels (axle 1 left, 1 right, ..., 4 right) for
+        the last inputs and the current state (static in the kinematic regime and with
+        lumped axles)."""
+        if self.is_kinematic() or self.d.lumped:
+            return self.d.wheel_loads(0.0, 0.0)
+        return self._current()[2]
 
     def lateral_accelerations(self):
         """Lateral accelerations [m/s^2] of the head and tail cars' centres of gravity,
         each in its car's frame, positive left (kinematic regime: w' taken as 0)."""
-        u1, v1, r1, r2, r3 = self.u1, self.v1, self.r1, self.r2, self.r3
+        v1, r1, r2, r3 = self.v1, self.r1, self.r2, self.r3
         if self.is_kinematic():
-            dv1 = dr1 = dr2 = dr3 = 0.0
+            wdot = (0.0, 0.0, 0.0, 0.0)
+        elif self.d.lumped:
+            wdot, _ = self.accelerations(self.state_vector())
         else:
-            (dv1, dr1, dr2, dr3), _ = self.accelerations(self.state_vector())
-        p1, p2, p3 = self.psi1, self.psi2, self.psi3
-        g1, g3, lm = self.d.cg, -self.d.cg, self.g.Lm
-        head = u1 * r1 + dv1 + g1 * dr1
-        c13, s13 = math.cos(p1 - p3), math.sin(p1 - p3)
-        tail = ((u1 * r1 + dv1) * c13 - v1 * r1 * s13 - lm * dr2 * math.cos(p2 - p3)
-                + lm * r2 * r2 * math.sin(p2 - p3) + g3 * dr3)
-        return head, tail
+            wdot = self._current()[0]
+        return self._car_lateral([0.0, 0.0, self.psi1, self.psi2, self.psi3, v1, r1, r2, r3],
+                                 wdot)
 
     def wheel_states(self):
         """Per wheel (axle 1 left, 1 right, ..., 4 right): (speed [m/s], slip [rad]) as the
@@ -505,11 +701,80 @@ def steady_circle(dynamics, radius, u1, phi=0.0, iterations=60):
         deltas = new
         if change < 1e-15:
             break
-    return {"deltas": tuple(deltas), "kinematic_deltas": tuple(theta),
-            "slips": tuple(slips), "forces": tuple(forces),
-            "hinge_forces": ((float(x[4]), float(x[5])), (float(x[6]), float(x[7]))),
-            "drive": float(x[8]), "omega": omega,
-            "state": (x1, y1, p1, p2, p3, v1, omega, omega, omega)}
+    result = {"deltas": tuple(deltas), "kinematic_deltas": tuple(theta),
+              "slips": tuple(slips), "forces": tuple(forces),
+              "hinge_forces": ((float(x[4]), float(x[5])), (float(x[6]), float(x[7]))),
+              "drive": float(x[8]), "omega": omega,
+              "state": (x1, y1, p1, p2, p3, v1, omega, omega, omega)}
+    if d.lumped:
+        return result
+    # two tyres per axle: the lumped solution is the start of a Newton solve of the nine
+    # balance equations for the four axle angles, hinge forces and drive; the wheels turn
+    # by the Ackermann angles of their axle angle, their loads follow from the cars'
+    # (known) centripetal accelerations
+    from scipy.optimize import fsolve
+
+    from ..ackermann.ackermann import wheel_angles as _wheel_angles
+    half = 0.5 * g.d
+    acc = [(-omega * omega * c[0], -omega * omega * c[1]) for c in cgs]
+    ay_head = acc[0][0] * n[0][0] + acc[0][1] * n[0][1]
+    ay_tail = acc[2][0] * n[2][0] + acc[2][1] * n[2][1]
+    loads = d.wheel_loads(ay_head, ay_tail)
+    heading = (p1, p1, p3, p3)
+
+    def wheels(dl):
+        """World force vectors, points and slips of the eight wheels for axle angles."""
+        out = []
+        for i in range(AXLES):
+            c = cars[i]
+            pair = _wheel_angles(dl[i], a[i], g.d)
+            for k, y in ((0, half), (1, -half)):
+                px = axles[i][0] + y * n[c][0]
+                py = axles[i][1] + y * n[c][1]
+                vx, vy = -omega * py, omega * px
+                ang = heading[i] + pair[k]
+                slip = math.atan2(vx * n[c][0] + vy * n[c][1],
+                                  vx * e[c][0] + vy * e[c][1]) - pair[k]
+                f = d.wheel_force(slip, loads[2 * i + k])
+                out.append(((-f * math.sin(ang), f * math.cos(ang)), (px, py), slip, f))
+        return out
+
+    def residual(z):
+        dl, lam1, lam2, drive = z[:4], z[4:6], z[6:8], z[8]
+        force = [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]
+        moment = [0.0, 0.0, 0.0]
+        for k, (f, p, _, _) in enumerate(wheels(dl)):
+            b = cars[k // 2]
+            force[b][0] += f[0]
+            force[b][1] += f[1]
+            moment[b] += _cross((p[0] - cgs[b][0], p[1] - cgs[b][1]), f)
+        for b, f, point in ((0, (-lam1[0], -lam1[1]), j1), (1, (lam1[0], lam1[1]), j1),
+                            (1, (-lam2[0], -lam2[1]), j2), (2, (lam2[0], lam2[1]), j2),
+                            (0, (drive * e[0][0], drive * e[0][1]), j1)):
+            force[b][0] += f[0]
+            force[b][1] += f[1]
+            moment[b] += _cross((point[0] - cgs[b][0], point[1] - cgs[b][1]), f)
+        out = []
+        for b in range(3):
+            out += [force[b][0] - masses[b] * acc[b][0], force[b][1] - masses[b] * acc[b][1],
+                    moment[b]]
+        return out
+
+    start = list(deltas) + [float(v) for v in x[4:9]]
+    z, info, ier, msg = fsolve(residual, start, xtol=1e-15, full_output=True)
+    scale = sum(masses) * omega * omega * R + 1.0
+    if ier != 1 and max(abs(v) for v in residual(z)) > 1e-9 * scale:
+        raise ValueError(f"no steady turn with two tyres per axle: {msg}")
+    dl = [float(v) for v in z[:4]]
+    found = wheels(dl)
+    result.update({
+        "deltas": tuple(dl), "slips": tuple(t - q for t, q in zip(theta, dl)),
+        "forces": tuple(found[2 * i][3] + found[2 * i + 1][3] for i in range(AXLES)),
+        "wheel_slips": tuple(w[2] for w in found), "wheel_forces": tuple(w[3] for w in found),
+        "wheel_loads": tuple(loads),
+        "hinge_forces": ((float(z[4]), float(z[5])), (float(z[6]), float(z[7]))),
+        "drive": float(z[8])})
+    return result
 
 
 __all__ = ["DynamicTrain", "TrainDynamics", "TrainGeometry", "steady_circle"]

@@ -14,7 +14,8 @@ class AgvDynamicVehicle(core.fmi.fmi_slave.AgvSlave):
     """Single-track vehicle with lateral tyre forces; AgvVehicle's interface plus slip
     angles, lateral acceleration and yaw rate."""
 
-    description = ("Dynamic single-track AGV (bicycle model with Fiala or linear tyres): "
+    description = ("Dynamic single-track AGV (bicycle model with Fiala or linear tyres, "
+                   "combined slip of the driven wheels, load transfer, tip-over check): "
                    "steered-wheel angle and speed in, pose and lateral dynamics out; "
                    "drop-in for AgvVehicle")
 
@@ -56,10 +57,23 @@ class AgvDynamicVehicle(core.fmi.fmi_slave.AgvSlave):
         self.parameter("cornering_stiffness_rear", DEFAULTS["cornering_stiffness_rear"],
                        "N/rad", "Cornering stiffness C_r of the rear axle (its tyres together)")
         self.parameter("mu", DEFAULTS["mu"], "1", "Tyre-ground friction coefficient (Fiala "
-                       "tyre: the lateral force saturates at mu times the static axle load)")
+                       "tyre: a wheel's force saturates at mu times its load, less what its "
+                       "drive force takes)")
         self.parameter("tyre", DEFAULTS["tyre"], None,
                        "Tyre law of the nonlinear model: 'fiala' (brush model, saturating) "
                        "or 'linear'", kind=S)
+        self.parameter("cg_height", DEFAULTS["cg_height"], "m",
+                       "Height h of the centre of gravity above the ground (load transfer; "
+                       "0: static loads)")
+        self.parameter("track", DEFAULTS["track"], "m",
+                       "Track t: distance between the left and right wheels of an axle")
+        self.parameter("layout", DEFAULTS["layout"], None,
+                       "'four' (two wheels per axle) or 'three' (one front wheel on the "
+                       "centre line, two rear wheels)", kind=S)
+        self.parameter("drive", DEFAULTS["drive"], None,
+                       "Axle whose wheels carry the drive force that holds the speed: "
+                       "'rear', 'front', or 'ideal' (the drive force costs no friction)",
+                       kind=S)
         self.parameter("kinematic_below", DEFAULTS["kinematic_below"], "m/s",
                        "Below this speed the kinematic model runs (the dynamic one is "
                        "singular at standstill)")
@@ -89,11 +103,27 @@ class AgvDynamicVehicle(core.fmi.fmi_slave.AgvSlave):
                     "to the wheel, positive left (0 in the kinematic regime)")
         self.output("lateral_force_rear", "N", "Rear axle lateral tyre force, positive left "
                     "(0 in the kinematic regime)")
+        for axle in ("front", "rear"):
+            for side in ("left", "right"):
+                self.output(f"load_{axle}_{side}", "N",
+                            f"Vertical load of the {axle} {side} wheel over the last step "
+                            "(layout 'three': each holds half the front wheel's load)")
+        self.output("drive_force_front", "N", "Longitudinal force of the front wheels that "
+                    "holds the speed, along the wheels (0 unless drive = 'front')")
+        self.output("drive_force_rear", "N", "Longitudinal force of the rear wheels that "
+                    "holds the speed (0 unless drive = 'rear')")
+        self.output("friction_use_front", "1", "Largest sqrt(Fx^2 + Fy^2) / (mu Fz) of the "
+                    "front wheels: 1 at the friction limit")
+        self.output("friction_use_rear", "1", "Largest sqrt(Fx^2 + Fy^2) / (mu Fz) of the "
+                    "rear wheels")
+        self.output("tip_margin", "1", "Smallest wheel load over its static load: 1 at rest, "
+                    "0 when a wheel lifts (the step then fails naming the wheel)")
 
     def make_core(self):
         params = _MODULE.SingleTrackParameters(
             self.wheelbase, self.mass, self.yaw_inertia, self.cg_to_rear,
-            self.cornering_stiffness_front, self.cornering_stiffness_rear, self.mu, self.tyre)
+            self.cornering_stiffness_front, self.cornering_stiffness_rear, self.mu, self.tyre,
+            self.cg_height, self.track, self.layout, self.drive)
         return _MODULE.DynamicVehicle(params, self.x0, self.y0, self.heading0,
                                       self.reference_point, self.linear, self.kinematic_below,
                                       self.tolerance, self.alpha, self.v0 + self.dv)
@@ -117,6 +147,13 @@ class AgvDynamicVehicle(core.fmi.fmi_slave.AgvSlave):
         self.slip_front, self.slip_rear = slip_f, slip_r
         self.lateral_force_front, self.lateral_force_rear = ff, fr
         self.lateral_acceleration = c.lateral_acceleration(dvy)
+        tyres = c.tyre_state()
+        (self.load_front_left, self.load_front_right, self.load_rear_left,
+         self.load_rear_right) = tyres["loads"]
+        self.drive_force_front, self.drive_force_rear = tyres["drive_front"], tyres["drive_rear"]
+        self.friction_use_front = tyres["friction_front"]
+        self.friction_use_rear = tyres["friction_rear"]
+        self.tip_margin = tyres["tip_margin"]
         if not isfinite(self.x + self.y + self.heading + self.yaw_rate + self.lateral_velocity):
             self.finite_or_fail(x=self.x, y=self.y, heading=self.heading,
                                 yaw_rate=self.yaw_rate, lateral_velocity=self.lateral_velocity)

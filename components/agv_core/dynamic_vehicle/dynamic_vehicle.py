@@ -16,16 +16,28 @@ Slip angles (velocity direction minus wheel angle, agv_core.dynamic_vehicle.tyre
 
     alpha_f = atan2(vy + a r, u) - delta,     alpha_r = atan2(vy - b r, u)
 
-Lateral forces F_f = tyre(alpha_f), F_r = tyre(alpha_r) (Fiala or linear, static loads
-Fz_f = m g b / L, Fz_r = m g a / L), and the planar equations of motion with u held:
+Lateral forces F_f, F_r: the sum over each axle's two wheels of tyre(alpha) (Fiala or
+linear) with the wheel's load, and the planar equations of motion with u held:
 
-    m (vy' + u r) = F_f cos(delta) + F_r        Iz r' = a F_f cos(delta) - b F_r
+    m (vy' + u r) = F_xf sin(delta) + F_f cos(delta) + F_r
+    Iz r' = a (F_xf sin(delta) + F_f cos(delta)) - b F_r + (t/2) (F_fl - F_fr) sin(delta)
     X' = u cos(psi) - (vy - b r) sin(psi)       Y' = u sin(psi) + (vy - b r) cos(psi)
     psi' = r                                    distance' = |velocity of R|
 
-The lateral acceleration output is a_y = vy' + u r = (F_f cos(delta) + F_r) / m (body
-frame, the centre of gravity). Not modelled: the drive force that holds u (and its
-lateral component at a driven steered wheel), load transfer, combined slip, tyre lag.
+Drive force, combined slip and load transfer (README): the driven axle (``drive``)
+supplies the force that holds u, m a_x = -m r vy plus the front tyres' drag
+F_f sin(delta), shared equally by its wheels; each wheel's lateral limit is what its
+friction circle leaves, sqrt((mu Fz)^2 - F_x^2) (the Fiala law with a derated limit,
+agv_core.dynamic_vehicle.tyres.combined_limit); the wheel loads carry the longitudinal
+and lateral load transfer m a_x h / L and m a_y h / t (``cg_height`` h, ``track`` t,
+``layout`` four or three wheels); a_y and the loads are solved to a fixed point. A wheel
+whose load falls to 0 fails the step (WheelLiftError), and so does a drive force beyond
+the driven wheels' friction (DriveLimitError). ``cg_height = 0`` with ``drive =
+"ideal"`` is the model without load transfer and combined slip, exactly (one tyre per
+axle at its static load, F_xf = 0).
+
+The lateral acceleration output is a_y = vy' + u r (body frame, the centre of gravity).
+Not modelled: longitudinal slip, tyre lag, roll and suspension.
 
 Integration for inputs held over a step: RK4 with step doubling to a stated tolerance
 (agv_core.numerics.ode). ``linear = True`` is the linear single-track model (linear tyres
@@ -51,10 +63,21 @@ from scipy.linalg import expm
 from ..errors import ParameterError
 from ..numerics.arc import sinc
 from ..numerics.ode import rk4_doubling
-from .tyres import TYRES, fiala_force, linear_force
+from .tyres import TYRES, combined_limit, fiala_force, linear_force
 
 REFERENCE_POINTS = ("front", "rear")
+LAYOUTS = ("four", "three")
+DRIVES = ("rear", "front", "ideal")
+
+
+class WheelLiftError(RuntimeError):
+    """A wheel's vertical load fell to zero: the vehicle starts to tip over."""
+
+
+class DriveLimitError(RuntimeError):
+    """The driven wheels cannot transmit the force that holds the speed."""
 G = 9.81  # [m/s^2] gravity
+ITERATIONS = 100  # bound on the fixed-point iterations of load transfer and drive force
 
 
 def positive(name, value):
@@ -83,11 +106,22 @@ class SingleTrackParameters:
         Tyre-road friction coefficient [-], > 0 (Fiala tyre only).
     tyre : {"fiala", "linear"}
         Tyre law of the nonlinear model.
+    cg_height : float
+        h [m] >= 0, height of G above the ground (load transfer; 0: static loads).
+    track : float
+        t [m] > 0, distance between the left and right wheels of a two-wheel axle.
+    layout : {"four", "three"}
+        Wheels: two per axle, or one front wheel on the centre line and two rear wheels.
+    drive : {"rear", "front", "ideal"}
+        Axle whose wheels carry the drive force that holds the speed (split equally
+        between its wheels: an open differential); "ideal": the drive force costs no
+        friction (the model without combined slip).
     """
 
     def __init__(self, wheelbase=1.0, mass=400.0, yaw_inertia=120.0, cg_to_rear=0.5,
                  cornering_stiffness_front=13500.0, cornering_stiffness_rear=13500.0,
-                 mu=0.8, tyre="fiala"):
+                 mu=0.8, tyre="fiala", cg_height=0.3, track=0.8, layout="four",
+                 drive="rear"):
         self.L = positive("wheelbase", wheelbase)
         self.m = positive("mass", mass)
         self.Iz = positive("yaw_inertia", yaw_inertia)
@@ -107,6 +141,58 @@ class SingleTrackParameters:
         self.Fzr = self.m * G * self.a / self.L
         self.limit_f = self.mu * self.Fzf
         self.limit_r = self.mu * self.Fzr
+        if not (math.isfinite(cg_height) and cg_height >= 0.0):
+            raise ParameterError("cg_height", f"must be a finite height >= 0 m, got {cg_height}")
+        self.h = float(cg_height)
+        self.track = positive("track", track)
+        if layout not in LAYOUTS:
+            raise ParameterError("layout", f"must be one of {LAYOUTS}, got '{layout}'")
+        if drive not in DRIVES:
+            raise ParameterError("drive", f"must be one of {DRIVES}, got '{drive}'")
+        self.layout, self.drive = layout, drive
+        #: share of the roll moment m a_y h carried by each axle: in proportion to the
+        #: static axle loads (four wheels), all on the rear pair (one front wheel)
+        if layout == "four":
+            self.share_f, self.share_r = self.b / self.L, self.a / self.L
+            self.half_track_f = 0.5 * self.track
+        else:
+            self.share_f, self.share_r = 0.0, 1.0
+            self.half_track_f = 0.0
+        #: True when the loads are static and the drive free: the model without load
+        #: transfer and combined slip
+        self.static = self.h == 0.0 and drive == "ideal"
+
+    def wheel_loads(self, ax, ay):
+        """Vertical loads [N] (front left, front right, rear left, rear right) for the
+        accelerations ``ax``, ``ay`` [m/s^2] of G in the body frame: longitudinal transfer
+        m a_x h / L from the front to the rear axle, lateral transfer share m a_y h / t
+        from each axle's left to its right wheel. One front wheel (layout "three"): its
+        load is split into two equal halves at the same point (its two entries)."""
+        dlong = self.m * ax * self.h / self.L
+        fzf, fzr = self.Fzf - dlong, self.Fzr + dlong
+        lat = self.m * ay * self.h / self.track
+        dyf, dyr = self.share_f * lat, self.share_r * lat
+        return (0.5 * fzf - dyf, 0.5 * fzf + dyf, 0.5 * fzr - dyr, 0.5 * fzr + dyr)
+
+    def wheel_names(self):
+        """Names of the four load entries of :meth:`wheel_loads` (layout "three": the
+        front wheel twice)."""
+        if self.layout == "three":
+            return ("front", "front", "rear left", "rear right")
+        return ("front left", "front right", "rear left", "rear right")
+
+    def lateral_tip_acceleration(self):
+        """Lateral acceleration [m/s^2] (a_x = 0) at which the first wheel lifts: the
+        inner wheel of axle k when share_k m a_y h / t = Fz_k / 2, so g (t / 2) / h for
+        four wheels and g d / h for one front wheel, d = t a / (2 L) the lateral distance
+        from G's ground projection to the line from the front wheel to a rear wheel.
+        Infinite for h = 0."""
+        if self.h == 0.0:
+            return math.inf
+        limits = [0.5 * fz * self.track / (share * self.m * self.h)
+                  for fz, share in ((self.Fzf, self.share_f), (self.Fzr, self.share_r))
+                  if share > 0.0]
+        return min(limits)
 
     def understeer_gradient(self):
         """K_us = (m / L) (b / C_f - a / C_r) [rad/(m/s^2)]: steady delta = L/R + K_us a_y."""
@@ -240,6 +326,9 @@ class DynamicVehicle:
             return slip_f, slip_r, ff, fr, (ff + fr) / p.m - u * r, (p.a * ff - p.b * fr) / p.Iz
         slip_f = math.atan2(vy + p.a * r, u) - alpha
         slip_r = math.atan2(vy - p.b * r, u)
+        if not p.static:
+            tyres = self._tyres(alpha, u, vy, r, slip_f, slip_r)
+            return slip_f, slip_r, tyres[0], tyres[1], tyres[2], tyres[3]
         if p.tyre == "fiala":
             ff = fiala_force(slip_f, p.Cf, p.limit_f)
             fr = fiala_force(slip_r, p.Cr, p.limit_r)
@@ -247,6 +336,179 @@ class DynamicVehicle:
             ff, fr = linear_force(slip_f, p.Cf), linear_force(slip_r, p.Cr)
         ffc = ff * math.cos(alpha)
         return slip_f, slip_r, ff, fr, (ffc + fr) / p.m - u * r, (p.a * ffc - p.b * fr) / p.Iz
+
+    def _wheel_force(self, slip, stiffness, static_load, load, fx):
+        """Lateral force [N] of one wheel with vertical ``load`` [N] and longitudinal force
+        ``fx`` [N]: cornering stiffness and friction limit in proportion to the load (the
+        axle's ``stiffness`` at its ``static_load``), the limit derated by ``fx``."""
+        if not load > 0.0:
+            return 0.0
+        c = stiffness * (load / static_load)
+        if self.p.tyre == "linear":
+            return linear_force(slip, c)
+        return fiala_force(slip, c, combined_limit(self.p.mu * load, fx))
+
+    def _tyres(self, alpha, u, vy, r, slip_f, slip_r):
+        """Forces with load transfer and combined slip (module docstring): (F_f, F_r
+        [N] lateral per axle, vy' [m/s^2], r' [rad/s^2], loads (4) [N], F_x front,
+        F_x rear [N] per axle, a_y [m/s^2]). The lateral load transfer depends on a_y,
+        which depends on the forces, and a driven front axle's F_x on its own lateral
+        force: both are iterated to a fixed point (to 1e-12 relative)."""
+        p = self.p
+        m, mu = p.m, p.mu
+        cos_d, sin_d = math.cos(alpha), math.sin(alpha)
+        drag = -m * r * vy              # m a_x: the body force that holds u (u' = 0)
+        scale = mu * m * G
+
+        def evaluate(ay, fxf):
+            """Forces for the lateral acceleration ``ay`` that sets the load transfer."""
+            loads = p.wheel_loads(-r * vy, ay)
+
+            def front(fx):
+                return (self._wheel_force(slip_f, p.Cf, p.Fzf, loads[0], 0.5 * fx),
+                        self._wheel_force(slip_f, p.Cf, p.Fzf, loads[1], 0.5 * fx))
+
+            fxr = 0.0
+            if p.drive == "front":
+                fxf = self._front_drive(front, drag, cos_d, sin_d, fxf, scale)
+            else:
+                fxf = 0.0
+            ffl, ffr = front(fxf)
+            ff = ffl + ffr
+            if p.drive == "rear":
+                fxr = drag + ff * sin_d
+            fr = (self._wheel_force(slip_r, p.Cr, p.Fzr, loads[2], 0.5 * fxr)
+                  + self._wheel_force(slip_r, p.Cr, p.Fzr, loads[3], 0.5 * fxr))
+            fy = fxf * sin_d + ff * cos_d + fr
+            return fy / m, (loads, ffl, ffr, ff, fr, fxf, fxr, fy)
+
+        ay, fxf = u * r, 0.0
+        for _ in range(30):
+            ay_new, found = evaluate(ay, fxf)
+            done = p.h == 0.0 or abs(ay_new - ay) <= 1e-12 * (1.0 + abs(ay))
+            ay, fxf = ay_new, found[5]
+            if done:
+                break
+        else:
+            ay, found = self._bisect_ay(evaluate, ay, fxf)
+        loads, ffl, ffr, ff, fr, fxf, fxr, fy = found
+        # the front wheels' body-x forces differ left to right by (F_fl - F_fr) sin(delta)
+        mz = p.a * (fxf * sin_d + ff * cos_d) - p.b * fr + p.half_track_f * (ffl - ffr) * sin_d
+        return ff, fr, fy / m - u * r, mz / p.Iz, loads, fxf, fxr, ay
+
+    @staticmethod
+    def _bisect_ay(evaluate, ay, fxf):
+        """Fixed point of a_y -> evaluate(a_y)[0] by bisection when the iteration does not
+        contract (a wheel near lift or drive spin switching its force on and off): the
+        new a_y is bounded, so a bracket is found by widening; the forces returned are
+        those at the bracket's end nearest the fixed point."""
+        span = 1.0 + abs(ay)
+        for _ in range(ITERATIONS):
+            lo, hi = ay - span, ay + span
+            if evaluate(lo, fxf)[0] >= lo and evaluate(hi, fxf)[0] <= hi:
+                break
+            span *= 2.0
+        else:
+            raise FloatingPointError("lateral load transfer found no fixed point")
+        for _ in range(ITERATIONS):
+            mid = 0.5 * (lo + hi)
+            if evaluate(mid, fxf)[0] >= mid:
+                lo = mid
+            else:
+                hi = mid
+            if hi - lo <= 1e-12 * (1.0 + abs(mid)):
+                break
+        return evaluate(lo, fxf)
+
+    @staticmethod
+    def _front_drive(front, drag, cos_d, sin_d, guess, scale):
+        """The driven front axle's longitudinal force x [N] solving
+        x cos(delta) = drag + F_f(x) sin(delta) (``front(x)``: the two wheels' lateral
+        forces): fixed-point iteration from ``guess``, bisection when it does not
+        contract (the root lies within (drag -+ |sin(delta)| mu m g) / cos(delta))."""
+        x = guess
+        for _ in range(20):
+            left, right = front(x)
+            new = (drag + (left + right) * sin_d) / cos_d
+            if abs(new - x) <= 1e-12 * (scale + abs(x)):
+                return new
+            x = new
+        spread = abs(sin_d) * scale / cos_d
+        lo, hi = drag / cos_d - spread, drag / cos_d + spread
+        for _ in range(ITERATIONS):
+            mid = 0.5 * (lo + hi)
+            left, right = front(mid)
+            if mid * cos_d - drag - (left + right) * sin_d > 0.0:
+                hi = mid
+            else:
+                lo = mid
+            if hi - lo <= 1e-12 * (scale + abs(mid)):
+                break
+        return 0.5 * (lo + hi)
+
+    def tyre_state(self):
+        """Loads, drive and friction use for the last inputs and the current state:
+        dict with ``loads`` (front left, front right, rear left, rear right [N]; one front
+        wheel: its two halves), ``drive_front``, ``drive_rear`` (longitudinal force of
+        each axle [N]), ``friction_front``, ``friction_rear`` (the largest
+        sqrt(F_x^2 + F_y^2) / (mu Fz) of the axle's wheels, 1 at the friction limit),
+        ``tip_margin`` (the smallest wheel load over its static load: 1 at rest, 0 when
+        a wheel lifts). Kinematic regime and the static model: static loads, no drive
+        force (friction use from the lateral forces alone)."""
+        p = self.p
+        half = (0.5 * p.Fzf, 0.5 * p.Fzf, 0.5 * p.Fzr, 0.5 * p.Fzr)
+        if self.is_kinematic() or self.linear:
+            loads, fxf, fxr = half, 0.0, 0.0
+            ff = fr = 0.0
+            shares = (0.5, 0.5, 0.5, 0.5)
+        elif p.static:
+            slip_f, slip_r, ff, fr, _, _ = self.lateral()
+            loads, fxf, fxr = half, 0.0, 0.0
+            shares = (0.5, 0.5, 0.5, 0.5)
+        else:
+            alpha, u, vy, r = self.alpha, self.u, self.vy, self.r
+            slip_f = math.atan2(vy + p.a * r, u) - alpha
+            slip_r = math.atan2(vy - p.b * r, u)
+            _, _, _, _, loads, fxf, fxr, _ = self._tyres(alpha, u, vy, r, slip_f, slip_r)
+            ff = fr = 0.0
+            shares = None
+        use = []
+        for i, load in enumerate(loads):
+            front = i < 2
+            if shares is None:
+                slip = slip_f if front else slip_r
+                fy = self._wheel_force(slip, p.Cf if front else p.Cr,
+                                       p.Fzf if front else p.Fzr, load,
+                                       0.5 * (fxf if front else fxr))
+            else:
+                fy = shares[i] * (ff if front else fr)
+            fx = 0.5 * (fxf if front else fxr)
+            use.append(math.hypot(fx, fy) / (p.mu * load) if load > 0.0 else math.inf)
+        return {"loads": tuple(loads), "drive_front": fxf, "drive_rear": fxr,
+                "friction_front": max(use[0], use[1]), "friction_rear": max(use[2], use[3]),
+                "tip_margin": min(load / static for load, static in zip(loads, half))}
+
+    def check_contact(self):
+        """Raise :class:`WheelLiftError` naming the wheel when a wheel's load is <= 0, and
+        :class:`DriveLimitError` when the driven axle's force per wheel exceeds mu Fz
+        (the speed cannot be held), for the last inputs and the current state."""
+        p = self.p
+        if p.static or self.linear or self.is_kinematic():
+            return
+        state = self.tyre_state()
+        for name, load in zip(p.wheel_names(), state["loads"]):
+            if not load > 0.0:
+                raise WheelLiftError(
+                    f"the {name} wheel lifts (vertical load {load:.1f} N): the vehicle "
+                    f"tips over (lateral acceleration {self.lateral_acceleration():.3f} "
+                    f"m/s2, tip-over limit {p.lateral_tip_acceleration():.3f} m/s2)")
+        for axle, fx, loads in (("front", state["drive_front"], state["loads"][:2]),
+                                ("rear", state["drive_rear"], state["loads"][2:])):
+            if abs(0.5 * fx) > p.mu * min(loads):
+                raise DriveLimitError(
+                    f"the {axle} axle's drive needs {abs(fx):.1f} N to hold the speed "
+                    f"{self.u:.3f} m/s, more than its wheels' friction "
+                    f"2 x mu Fz = {2.0 * p.mu * min(loads):.1f} N")
 
     def lateral_acceleration(self, dvy=None):
         """a_y = vy' + u r [m/s^2] of G in the body frame (last inputs, current state;
@@ -283,6 +545,7 @@ class DynamicVehicle:
             self._linear_step(h)
         else:
             self._nonlinear_step(h)
+            self.check_contact()
 
     def _kinematic_step(self, h):
         u, alpha = self.u, self.alpha

@@ -15,8 +15,15 @@ theta = C / (3 mu Fz):
 
 Its slope at alpha = 0 is -C (the cornering stiffness), it reaches the friction limit
 mu Fz with zero slope at tan(alpha_sl) = 3 mu Fz / C, and it is odd in alpha. One
-friction coefficient for adhesion and sliding; no load transfer, no combined slip (the
-longitudinal force the drive needs is not modelled), no relaxation length.
+friction coefficient for adhesion and sliding; no relaxation length.
+
+Combined slip (:func:`combined_limit`): a wheel that transmits a longitudinal force F_x
+has only the rest of its friction circle left for the lateral force; the Fiala law then
+runs with the derated limit xi mu Fz, xi = sqrt((mu Fz)^2 - F_x^2) / (mu Fz), in place
+of mu Fz (the "coupled" brush model with the longitudinal force as an input: friction
+circle; the brush model under combined slip is Pacejka 2012, ch. 3; this derated form
+is the one of Hindiyeh and Gerdes, "A controller framework for autonomous drifting",
+J. Dyn. Sys. Meas. Control 136(5), 2014). The cornering stiffness is unchanged.
 """
 
 import math
@@ -38,8 +45,12 @@ def fiala_force(slip, stiffness, limit):
     stiffness : float
         Cornering stiffness C [N/rad], > 0.
     limit : float
-        Friction limit mu Fz [N], > 0.
+        Friction limit mu Fz [N] (or the derated xi mu Fz of combined slip); a limit of
+        0 (a lifted wheel, a wheel whose longitudinal force takes all its friction) gives
+        no force.
     """
+    if not limit > 0.0:
+        return 0.0
     if abs(slip) >= 0.5 * math.pi:
         return -math.copysign(limit, slip)
     sigma = math.tan(slip)
@@ -48,6 +59,16 @@ def fiala_force(slip, stiffness, limit):
     if a >= 1.0:
         return -math.copysign(limit, sigma)
     return -stiffness * sigma * (1.0 - a + a * a / 3.0)
+
+
+def combined_limit(limit, longitudinal):
+    """Lateral friction limit [N] left on the friction circle of radius ``limit`` = mu Fz
+    [N] by the longitudinal force ``longitudinal`` = F_x [N]: sqrt(limit^2 - F_x^2), 0
+    when |F_x| >= limit (the wheel spins or locks: no lateral force)."""
+    if longitudinal == 0.0:
+        return limit
+    rest = limit * limit - longitudinal * longitudinal
+    return math.sqrt(rest) if rest > 0.0 else 0.0
 
 
 def sliding_slip(stiffness, limit):
