@@ -12,8 +12,11 @@ mypyc and with Cython (pure-Python mode, the same source, no annotations added) 
    boot loader imports it by (``agv_core_<BUILD_ID>.steering.actuator``) and the
    extension is put beside the ``.py`` in ``resources/agv_core_bundle/`` (Python's import
    takes an extension module before the source; mypyc's shared runtime library goes to
-   ``resources/``). The compilers run in the venv ``--compiler-venv`` (a throwaway venv
-   with mypy and Cython; nothing is installed by this script).
+   ``resources/``). For mypyc, ``super().__init__(...)`` is written
+   ``Base.__init__(self, ...)`` first (the same call; mypyc's analysis fails on the
+   former); Cython compiles the source as it is. The compilers run in the venv
+   ``--compiler-venv`` (a throwaway venv with mypy and Cython; nothing is installed by
+   this script).
 2. ``benchmarks/bench_step.py --child floor`` runs each copy in a fresh child (the slave
    classes in plain Python, the master's Gauss-Seidel order: the FMUs' own Python per
    step, no FMI), rounds interleaved; medians of the CPU per macro step, the ratio to
@@ -26,6 +29,7 @@ Run: ``python benchmarks/bench_compiled_cores.py --compiler-venv VENV [--fmus DI
 
 import argparse
 import json
+import re
 import shutil
 import statistics
 import subprocess
@@ -45,6 +49,20 @@ class CompileFailed(Exception):
     pass
 
 
+def explicit_base_init(source):
+    """``super().__init__(`` as ``Base.__init__(self, `` (the class's first base): the same
+    call, which mypyc compiles (its self-leak analysis fails on ``super().__init__``)."""
+    lines, base = [], None
+    for line in source.splitlines(keepends=True):
+        header = re.match(r"class \w+\((\w+)", line)
+        if header:
+            base = header.group(1)
+        if base and "super().__init__(" in line:
+            line = line.replace("super().__init__(", f"{base}.__init__(self, ")
+        lines.append(line)
+    return "".join(lines)
+
+
 def compile_fmu(fmu, out, compiler, venv, work):
     """Copy ``fmu`` to ``out`` with MODULES compiled by ``compiler`` where it has them."""
     with zipfile.ZipFile(fmu) as archive:
@@ -61,6 +79,10 @@ def compile_fmu(fmu, out, compiler, venv, work):
                 target.parent.mkdir(parents=True, exist_ok=True)
                 target.write_bytes(archive.read(name))
     sources = [str(package.relative_to(work) / m) for m in present]
+    if compiler == "mypyc":
+        for module in present:
+            path = package / module
+            path.write_text(explicit_base_init(path.read_text()))
     # mypy checks what the modules import; scipy and numpy's stubs are not needed here
     (work / "mypy.ini").write_text("[mypy]\nignore_missing_imports = True\n")
     if compiler == "mypyc":
@@ -86,8 +108,6 @@ def compile_fmu(fmu, out, compiler, venv, work):
 
 
 def write_manifest(fmus, folder, stop):
-    import re
-
     text = (ROOT / "experiments" / "seed000_models_abc.toml").read_text()
     text = re.sub(r'"\.\./fmus/(\w+)\.fmu"', lambda m: f'"{Path(fmus) / m.group(1)}.fmu"',
                   text)
