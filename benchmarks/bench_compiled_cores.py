@@ -12,10 +12,9 @@ mypyc and with Cython (pure-Python mode, the same source, no annotations added) 
    boot loader imports it by (``agv_core_<BUILD_ID>.steering.actuator``) and the
    extension is put beside the ``.py`` in ``resources/agv_core_bundle/`` (Python's import
    takes an extension module before the source; mypyc's shared runtime library goes to
-   ``resources/``). For mypyc, ``super().__init__(...)`` is written
-   ``Base.__init__(self, ...)`` and a one-line ``def __init__(...):`` gets ``-> None``
-   first (the same code; mypyc's analysis fails without); Cython compiles the source as
-   it is. The compilers run in the venv
+   ``resources/``). For mypyc, every ``def __init__(...):`` gets ``-> None`` first
+   (the same code; mypyc's analysis fails without); Cython compiles the source as it
+   is. The compilers run in the venv
    ``--compiler-venv`` (a throwaway venv with mypy and Cython; nothing is installed by
    this script).
 2. ``benchmarks/bench_step.py --child floor`` runs each copy in a fresh child (the slave
@@ -25,7 +24,8 @@ mypyc and with Cython (pure-Python mode, the same source, no annotations added) 
    the digest of the recorded rows (must be equal: bit-identical results).
 
 Run: ``python benchmarks/bench_compiled_cores.py --compiler-venv VENV [--fmus DIR]
-[--rounds 5] [--stop 10]``.
+[--modules steering/actuator.py sensors/sensors.py] [--compilers mypyc cython]
+[--rounds 5] [--stop 10] [--callgrind]``.
 """
 
 import argparse
@@ -50,28 +50,27 @@ class CompileFailed(Exception):
     pass
 
 
-def explicit_base_init(source):
-    """What mypyc needs to compile the modules, the same code otherwise: ``super().__init__(``
-    as ``Base.__init__(self, `` (the class's first base) and ``-> None`` on a one-line
-    ``def __init__(...):`` (mypyc's self-leak analysis fails on a call of an untyped
-    ``__init__`` and on ``super().__init__``)."""
-    lines, base = [], None
+def typed_inits(source):
+    """The source with ``-> None`` on every untyped ``def __init__(...):``: mypyc's
+    self-leak analysis fails on a call of an untyped ``__init__`` (``super().__init__``
+    included); the code is otherwise the same."""
+    lines, in_init = [], False
     for line in source.splitlines(keepends=True):
-        header = re.match(r"class \w+\((\w+)", line)
-        if header:
-            base = header.group(1)
-        if base and "super().__init__(" in line:
-            line = line.replace("super().__init__(", f"{base}.__init__(self, ")
-        line = re.sub(r"^(\s+def __init__\(self[^)]*\)):$", r"\1 -> None:", line)
+        if re.match(r"\s+def __init__\(", line):
+            in_init = True
+        if in_init and line.rstrip().endswith(":"):
+            in_init = False
+            if "->" not in line:
+                line = re.sub(r"\):(\s*)$", r") -> None:\1", line)
         lines.append(line)
     return "".join(lines)
 
 
-def compile_fmu(fmu, out, compiler, venv, work):
-    """Copy ``fmu`` to ``out`` with MODULES compiled by ``compiler`` where it has them."""
+def compile_fmu(fmu, out, compiler, venv, work, modules=MODULES):
+    """Copy ``fmu`` to ``out`` with ``modules`` compiled by ``compiler`` where it has them."""
     with zipfile.ZipFile(fmu) as archive:
         names = archive.namelist()
-        present = [m for m in MODULES if BUNDLE + m in names]
+        present = [m for m in modules if BUNDLE + m in names]
         if not present or fmu.stem not in LOOP:
             shutil.copy(fmu, out)
             return []
@@ -86,7 +85,7 @@ def compile_fmu(fmu, out, compiler, venv, work):
     if compiler == "mypyc":
         for module in present:
             path = package / module
-            path.write_text(explicit_base_init(path.read_text()))
+            path.write_text(typed_inits(path.read_text()))
     # mypy checks what the modules import; scipy and numpy's stubs are not needed here
     (work / "mypy.ini").write_text("[mypy]\nignore_missing_imports = True\n"
                                    "disable_error_code = var-annotated\n")
@@ -136,7 +135,13 @@ def main():
     parser.add_argument("--compiler-venv", type=Path, required=True,
                         help="a venv with mypy (mypyc) and Cython installed")
     parser.add_argument("--fmus", type=Path, help="FMUs built by this checkout (a folder)")
+    parser.add_argument("--modules", nargs="+", default=list(MODULES),
+                        help=f"the modules to compile (default: {' '.join(MODULES)})")
+    parser.add_argument("--compilers", nargs="+", default=["mypyc", "cython"])
     parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--callgrind", action="store_true",
+                        help="count instructions per macro step (bench_step.py's callgrind "
+                        "child, one per copy) instead of timing rounds")
     parser.add_argument("--stop", type=float, default=10.0, help="simulated time [s]")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench_cores_") as tmp:
@@ -147,7 +152,7 @@ def main():
             subprocess.run([sys.executable, "-m", "agv_cosim.cli", "build", "--out",
                             str(fmus)], check=True, cwd=ROOT, capture_output=True)
         manifests = {"python": write_manifest(fmus, tmp, args.stop)}
-        for compiler in ("mypyc", "cython"):
+        for compiler in args.compilers:
             folder = tmp / compiler
             folder.mkdir()
             try:
@@ -155,12 +160,30 @@ def main():
                     work = tmp / "work" / compiler / fmu.stem
                     work.mkdir(parents=True)
                     compile_fmu(fmu, folder / fmu.name, compiler,
-                                args.compiler_venv.resolve(), work)
+                                args.compiler_venv.resolve(), work, args.modules)
             except CompileFailed as error:
                 print(f"  {error}")
                 continue
             (folder / "run").mkdir()
             manifests[compiler] = write_manifest(folder, folder / "run", args.stop)
+        if args.callgrind:
+            sys.path.insert(0, str(ROOT / "benchmarks"))
+            import bench_step
+
+            library = tmp / "callgrind_control.so"
+            (tmp / "callgrind_control.c").write_text(bench_step.CALLGRIND_CONTROL)
+            subprocess.run(["gcc", "-shared", "-fPIC", "-O2", "-o", str(library),
+                            str(tmp / "callgrind_control.c")], check=True)
+            env = bench_step.env_for(ROOT)
+            counts = {kind: bench_step.run_callgrind("floor", manifest, env, str(library),
+                                                     args.stop, tmp)
+                      for kind, manifest in manifests.items()}
+            print(f"seed 000 model a floor, instructions per macro step (callgrind), "
+                  f"{args.stop:g} s simulated:")
+            for kind, count in counts.items():
+                print(f"  {kind:7s} {count:10.0f}   python / {kind}: "
+                      f"{counts['python'] / count:.2f}x")
+            return 0
         results = {kind: [] for kind in manifests}
         for _ in range(args.rounds):
             for kind, manifest in manifests.items():
