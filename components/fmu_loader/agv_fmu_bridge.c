@@ -19,7 +19,8 @@
  *    defines that has a do_step method, and creates the slave with the keyword arguments
  *    instance_name, resources and visible. Its bound methods are looked up once.
  *  - every call: takes the GIL (on a host's own threads through one thread state per
- *    thread, kept while instances use it: see "the GIL on any thread"), calls the slave method with the values as Python lists
+ *    thread, kept while instances use it: see "the GIL on any thread"), calls the
+ *    slave method with the values as Python lists
  *    (value references as a cached tuple), passes messages the slave queued in its
  *    log_queue to the host's logger (only when there are any), releases the GIL. A Python
  *    exception is logged (its type and message) and the call returns fmi2Fatal /
