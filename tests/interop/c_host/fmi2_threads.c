@@ -233,9 +233,15 @@ int main(int argc, char **argv)
         fprintf(stderr, "dlopen: %s\n", dlerror());
         return 1;
     }
-    LOAD(instantiate_fn, fmi2Instantiate) LOAD(freeinstance_fn, fmi2FreeInstance) LOAD(setupexperiment_fn, fmi2SetupExperiment)
-    LOAD(enterinitializationmode_fn, fmi2EnterInitializationMode) LOAD(exitinitializationmode_fn, fmi2ExitInitializationMode) LOAD(setreal_fn, fmi2SetReal)
-    LOAD(getreal_fn, fmi2GetReal) LOAD(dostep_fn, fmi2DoStep) LOAD(terminate_fn, fmi2Terminate)
+    LOAD(instantiate_fn, fmi2Instantiate)
+    LOAD(freeinstance_fn, fmi2FreeInstance)
+    LOAD(setupexperiment_fn, fmi2SetupExperiment)
+    LOAD(enterinitializationmode_fn, fmi2EnterInitializationMode)
+    LOAD(exitinitializationmode_fn, fmi2ExitInitializationMode)
+    LOAD(setreal_fn, fmi2SetReal)
+    LOAD(getreal_fn, fmi2GetReal)
+    LOAD(dostep_fn, fmi2DoStep)
+    LOAD(terminate_fn, fmi2Terminate)
 
     pthread_barrier_init(&start_barrier, NULL, (unsigned)n_threads + 1);
     pthread_barrier_init(&done_barrier, NULL, (unsigned)n_threads + 1);
