@@ -18,7 +18,9 @@
  *    imported it, so that it binds to this FMU's files), takes the one class the module
  *    defines that has a do_step method, and creates the slave with the keyword arguments
  *    instance_name, resources and visible. Its bound methods are looked up once.
- *  - every call: takes the GIL, calls the slave method with the values as Python lists
+ *  - every call: takes the GIL (on a host's own threads through one thread state per
+ *    thread, kept while instances use it: see "the GIL on any thread"), calls the
+ *    slave method with the values as Python lists
  *    (value references as a cached tuple), passes messages the slave queued in its
  *    log_queue to the host's logger (only when there are any), releases the GIL. A Python
  *    exception is logged (its type and message) and the call returns fmi2Fatal /
@@ -68,6 +70,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <pthread.h>
 #include <sys/stat.h>
 
 #include "fmi2FunctionTypes.h"
@@ -147,7 +150,139 @@ typedef struct {
     unsigned char *var_type; /* 1 + VAR_* code, 0 for no variable */
     unsigned char *var_set;  /* SET_* code */
     char **var_name;
+
+    /* the thread slots (see "the GIL on any thread") of the threads this instance took
+       the GIL on through a slot; read and changed with the GIL held */
+    struct ThreadSlot **slots;
+    size_t n_slots, cap_slots;
 } Instance;
+
+/* ------------------------------------------------------------------ the GIL on any thread */
+/* A thread Python knows (the interpreter's main thread, a Python thread calling through
+   ctypes) takes the GIL with PyGILState_Ensure / PyGILState_Release: its thread state
+   exists, nothing is created. A foreign thread (a host's worker thread) gets one thread
+   state of the bridge's, its slot, made at its first call and kept in thread-local
+   storage, so that later calls only take and give the GIL (PyEval_RestoreThread /
+   PyEval_SaveThread) instead of creating and destroying a thread state each time.
+   Every instance that ran on a slot holds it (users); the thread state is deleted on its
+   own thread (which also clears Python's PyGILState pointer of that thread): when the
+   last of its instances is freed on that thread, else when the thread exits. A thread
+   that exits while instances still hold its slot deletes the thread state and leaves the
+   slot to the last of them to free. */
+typedef struct ThreadSlot {
+    PyThreadState *ts; /* the thread's state; NULL once the thread has exited */
+    int users;         /* live instances that ran on this slot */
+    int depth;         /* gil_take calls not yet given back on this thread */
+} ThreadSlot;
+
+enum { GIL_SLOT = -1, GIL_NESTED = -2 }; /* gil_take's tokens beside PyGILState_STATE */
+
+static __thread ThreadSlot *tl_slot;
+static pthread_key_t slot_key;
+static pthread_once_t slot_once = PTHREAD_ONCE_INIT;
+static int slot_key_made;
+
+static int interpreter_alive(void)
+{
+#if PY_VERSION_HEX >= 0x030D0000
+    return Py_IsInitialized() && !Py_IsFinalizing();
+#else
+    return Py_IsInitialized() && !_Py_IsFinalizing();
+#endif
+}
+
+/* Thread exit: delete the thread's state on its own thread, with the GIL. */
+static void slot_exit(void *value)
+{
+    ThreadSlot *slot = value;
+    tl_slot = NULL;
+    if (slot == NULL || slot->ts == NULL) return;
+    if (!interpreter_alive()) return; /* the interpreter is going: it clears the states */
+    PyEval_RestoreThread(slot->ts);
+    PyThreadState_Clear(slot->ts);
+    slot->ts = NULL;
+    int unused = slot->users == 0;
+    PyThreadState_DeleteCurrent(); /* gives the GIL back */
+    if (unused) free(slot);
+}
+
+static void make_slot_key(void) { slot_key_made = pthread_key_create(&slot_key, slot_exit) == 0; }
+
+/* This thread's new slot, or NULL (then PyGILState_Ensure serves). */
+static ThreadSlot *new_slot(void)
+{
+    pthread_once(&slot_once, make_slot_key);
+    if (!slot_key_made) return NULL;
+    ThreadSlot *slot = calloc(1, sizeof *slot);
+    if (slot == NULL) return NULL;
+    slot->ts = PyThreadState_New(PyInterpreterState_Main());
+    if (slot->ts == NULL || pthread_setspecific(slot_key, slot) != 0) {
+        if (slot->ts != NULL) PyThreadState_Delete(slot->ts);
+        free(slot);
+        return NULL;
+    }
+    tl_slot = slot;
+    return slot;
+}
+
+/* Take the GIL for a call on `inst`; the token for gil_give. */
+static int gil_take(Instance *inst)
+{
+    ThreadSlot *slot = tl_slot;
+    if (slot == NULL) {
+        if (PyGILState_GetThisThreadState() != NULL) return (int)PyGILState_Ensure();
+        slot = new_slot();
+        if (slot == NULL) return (int)PyGILState_Ensure();
+    }
+    if (slot->depth++ > 0) return GIL_NESTED; /* a call from within a call (a logger) */
+    PyEval_RestoreThread(slot->ts);
+    for (size_t i = 0; i < inst->n_slots; i++)
+        if (inst->slots[i] == slot) return GIL_SLOT;
+    if (inst->n_slots == inst->cap_slots) {
+        size_t cap = inst->cap_slots ? 2 * inst->cap_slots : 4;
+        ThreadSlot **grown = realloc(inst->slots, cap * sizeof *grown);
+        if (grown == NULL) return GIL_SLOT; /* not held: then deleted at the thread's exit */
+        inst->slots = grown;
+        inst->cap_slots = cap;
+    }
+    inst->slots[inst->n_slots++] = slot;
+    slot->users++;
+    return GIL_SLOT;
+}
+
+/* Give back what gil_take(inst) took. */
+static void gil_give(int token)
+{
+    if (token >= 0) {
+        PyGILState_Release((PyGILState_STATE)token);
+        return;
+    }
+    ThreadSlot *slot = tl_slot;
+    if (--slot->depth > 0) return;
+    if (slot->users > 0) {
+        PyEval_SaveThread();
+        return;
+    }
+    /* the last instance that ran on this thread's slot was freed: delete its state */
+    tl_slot = NULL;
+    pthread_setspecific(slot_key, NULL);
+    PyThreadState_Clear(slot->ts);
+    PyThreadState_DeleteCurrent(); /* gives the GIL back */
+    free(slot);
+}
+
+/* An instance being freed lets go of its slots (with the GIL held). */
+static void drop_slots(Instance *inst)
+{
+    for (size_t i = 0; i < inst->n_slots; i++) {
+        ThreadSlot *slot = inst->slots[i];
+        /* a slot whose thread has exited is freed by its last user */
+        if (--slot->users == 0 && slot->ts == NULL) free(slot);
+    }
+    free(inst->slots);
+    inst->slots = NULL;
+    inst->n_slots = inst->cap_slots = 0;
+}
 
 /* ------------------------------------------------------------------ messages */
 static void emit(Instance *inst, int status, const char *category, const char *message)
@@ -1111,7 +1246,7 @@ static Instance *instantiate(int fmi3, const char *name, const char *location, i
     inst->env3 = env3;
     char *resources = resource_path(location);
 
-    PyGILState_STATE gil = PyGILState_Ensure();
+    int gil = gil_take(inst);
     int ok = intern_names() && resources != NULL && inst->name != NULL;
     if (ok) {
         inst->cls = slave_class(resources);
@@ -1131,14 +1266,15 @@ static Instance *instantiate(int fmi3, const char *name, const char *location, i
         drop_slave(inst);
         Py_CLEAR(inst->cls);
         Py_CLEAR(inst->kwargs);
-        PyGILState_Release(gil);
+        drop_slots(inst);
+        gil_give(gil);
         free(resources);
         free(inst->name);
         free(inst);
         return NULL;
     }
     flush_log(inst);
-    PyGILState_Release(gil);
+    gil_give(gil);
     free(resources);
     return inst;
 }
@@ -1146,11 +1282,12 @@ static Instance *instantiate(int fmi3, const char *name, const char *location, i
 static void free_instance(Instance *inst)
 {
     if (inst == NULL) return;
-    PyGILState_STATE gil = PyGILState_Ensure();
+    int gil = gil_take(inst);
     drop_slave(inst);
     Py_CLEAR(inst->cls);
     Py_CLEAR(inst->kwargs);
-    PyGILState_Release(gil);
+    drop_slots(inst);
+    gil_give(gil);
     free(inst->name);
     free(inst);
 }
@@ -1158,7 +1295,7 @@ static void free_instance(Instance *inst)
 /* Call method() without arguments under the GIL; the FMI status. */
 static int simple_call(Instance *inst, PyObject *method, const char *what)
 {
-    PyGILState_STATE gil = PyGILState_Ensure();
+    int gil = gil_take(inst);
     PyObject *result = call0(method);
     int status = OK_STATUS(inst);
     if (result == NULL) status = failed(inst, what);
@@ -1166,7 +1303,7 @@ static int simple_call(Instance *inst, PyObject *method, const char *what)
         Py_DECREF(result);
         flush_log(inst);
     }
-    PyGILState_Release(gil);
+    gil_give(gil);
     return status;
 }
 
@@ -1184,12 +1321,12 @@ static int reset(Instance *inst, const char *what)
 {
     int refused = not_in(inst, MODES_ALIVE, what);
     if (refused) return refused;
-    PyGILState_STATE gil = PyGILState_Ensure();
+    int gil = gil_take(inst);
     drop_slave(inst);
     inst->terminated = 0;
     int status = make_slave(inst) == 0 ? OK_STATUS(inst) : failed(inst, what);
     if (status == OK_STATUS(inst)) flush_log(inst);
-    PyGILState_Release(gil);
+    gil_give(gil);
     return settle(inst, status);
 }
 
@@ -1260,7 +1397,7 @@ static int state_get(Instance *inst, void **state, const char *what)
 {
     int refused = not_in(inst, MODES_ALIVE, what);
     if (refused) return refused;
-    PyGILState_STATE gil = PyGILState_Ensure();
+    int gil = gil_take(inst);
     int status = OK_STATUS(inst);
     PyObject *result = PyObject_CallMethod(inst->slave, "_get_fmu_state", NULL);
     if (result == NULL) status = failed(inst, what);
@@ -1269,7 +1406,7 @@ static int state_get(Instance *inst, void **state, const char *what)
         *state = result;
         flush_log(inst);
     }
-    PyGILState_Release(gil);
+    gil_give(gil);
     return settle(inst, status);
 }
 
@@ -1278,7 +1415,7 @@ static int state_set(Instance *inst, void *state, const char *what)
     int refused = not_in(inst, MODES_ALIVE, what);
     if (refused) return refused;
     if (state == NULL) return refuse(inst, what, "no FMU state given");
-    PyGILState_STATE gil = PyGILState_Ensure();
+    int gil = gil_take(inst);
     int status = OK_STATUS(inst);
     PyObject *result = PyObject_CallMethod(inst->slave, "_set_fmu_state", "O",
                                            (PyObject *)state);
@@ -1288,17 +1425,17 @@ static int state_set(Instance *inst, void *state, const char *what)
         flush_log(inst);
         inst->mode = saved_mode((PyObject *)state);
     }
-    PyGILState_Release(gil);
+    gil_give(gil);
     return settle(inst, status);
 }
 
 static int state_free(Instance *inst, void **state)
 {
     if (state == NULL || *state == NULL) return OK_STATUS(inst);
-    PyGILState_STATE gil = PyGILState_Ensure();
+    int gil = gil_take(inst);
     Py_DECREF((PyObject *)*state);
     *state = NULL;
-    PyGILState_Release(gil);
+    gil_give(gil);
     return OK_STATUS(inst);
 }
 
@@ -1323,7 +1460,7 @@ static int state_size(Instance *inst, void *state, size_t *size, const char *wha
 {
     int refused = not_in(inst, MODES_ALIVE, what);
     if (refused) return refused;
-    PyGILState_STATE gil = PyGILState_Ensure();
+    int gil = gil_take(inst);
     int status = OK_STATUS(inst);
     PyObject *bytes = state_bytes(inst, state);
     if (bytes == NULL) status = failed(inst, what);
@@ -1331,7 +1468,7 @@ static int state_size(Instance *inst, void *state, size_t *size, const char *wha
         *size = (size_t)PyBytes_GET_SIZE(bytes);
         Py_DECREF(bytes);
     }
-    PyGILState_Release(gil);
+    gil_give(gil);
     return settle(inst, status);
 }
 
@@ -1340,7 +1477,7 @@ static int state_serialize(Instance *inst, void *state, char *out, size_t size,
 {
     int refused = not_in(inst, MODES_ALIVE, what);
     if (refused) return refused;
-    PyGILState_STATE gil = PyGILState_Ensure();
+    int gil = gil_take(inst);
     int status = OK_STATUS(inst);
     PyObject *bytes = state_bytes(inst, state);
     if (bytes == NULL) status = failed(inst, what);
@@ -1352,7 +1489,7 @@ static int state_serialize(Instance *inst, void *state, char *out, size_t size,
         memcpy(out, PyBytes_AS_STRING(bytes), (size_t)PyBytes_GET_SIZE(bytes));
     }
     Py_XDECREF(bytes);
-    PyGILState_Release(gil);
+    gil_give(gil);
     return settle(inst, status);
 }
 
@@ -1361,7 +1498,7 @@ static int state_deserialize(Instance *inst, const char *in, size_t size, void *
 {
     int refused = not_in(inst, MODES_ALIVE, what);
     if (refused) return refused;
-    PyGILState_STATE gil = PyGILState_Ensure();
+    int gil = gil_take(inst);
     int status = OK_STATUS(inst);
     PyObject *result = PyObject_CallMethod(inst->cls, "_fmu_state_from_bytes", "y#", in,
                                            (Py_ssize_t)size);
@@ -1370,7 +1507,7 @@ static int state_deserialize(Instance *inst, const char *in, size_t size, void *
         Py_XDECREF((PyObject *)*state);
         *state = result;
     }
-    PyGILState_Release(gil);
+    gil_give(gil);
     return settle(inst, status);
 }
 
@@ -1378,11 +1515,11 @@ static int state_deserialize(Instance *inst, const char *in, size_t size, void *
 #define VALUES_CALL(inst, what, body)                                                    \
     do {                                                                                  \
         if (n == 0) return OK_STATUS(inst);                                               \
-        PyGILState_STATE gil_ = PyGILState_Ensure();                                      \
+        int gil_ = gil_take(inst);                                                        \
         int status_ = OK_STATUS(inst);                                                    \
         if ((body) < 0) status_ = settle(inst, failed(inst, what));                       \
         else if (inst->log_queue && PyList_GET_SIZE(inst->log_queue)) flush_log(inst);    \
-        PyGILState_Release(gil_);                                                         \
+        gil_give(gil_);                                                                   \
         return status_;                                                                   \
     } while (0)
 
@@ -1462,10 +1599,10 @@ fmi2Status EXPORT2(fmi2SetupExperiment)(fmi2Component c, fmi2Boolean toleranceDe
     if (refused) return (fmi2Status)refused;
     if (!isfinite(startTime))
         return (fmi2Status)refuse(I2, "fmi2SetupExperiment", "the start time is not finite");
-    PyGILState_STATE gil = PyGILState_Ensure();
+    int gil = gil_take(I2);
     int status = setup(I2, startTime, "fmi2SetupExperiment");
     if (status == fmi2OK) flush_log(I2);
-    PyGILState_Release(gil);
+    gil_give(gil);
     return (fmi2Status)settle(I2, status);
 }
 
@@ -1612,7 +1749,7 @@ fmi2Status EXPORT2(fmi2DoStep)(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Bool
     (void)noSetFMUStatePrior;
     int refused = check_step(I2, "fmi2DoStep", t, h);
     if (refused) return (fmi2Status)refused;
-    PyGILState_STATE gil = PyGILState_Ensure();
+    int gil = gil_take(I2);
     int code, terminate;
     int done = step(I2, t, h, &code, &terminate);
     fmi2Status status = fmi2OK;
@@ -1626,7 +1763,7 @@ fmi2Status EXPORT2(fmi2DoStep)(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Bool
         status = fmi2Discard;
         I2->mode = MODE_STEP_FAILED;
     }
-    PyGILState_Release(gil);
+    gil_give(gil);
     return (fmi2Status)settle(I2, status);
 }
 
@@ -1747,9 +1884,9 @@ fmi3Status fmi3EnterInitializationMode(fmi3Instance instance, fmi3Boolean tolera
     if (!isfinite(startTime))
         return (fmi3Status)refuse(I3, "fmi3EnterInitializationMode", "the start time is not "
                                   "finite");
-    PyGILState_STATE gil = PyGILState_Ensure();
+    int gil = gil_take(I3);
     int status = setup(I3, startTime, "fmi3EnterInitializationMode");
-    PyGILState_Release(gil);
+    gil_give(gil);
     if (status != fmi3OK) return (fmi3Status)settle(I3, status);
     return (fmi3Status)moved(I3, simple_call(I3, I3->enter_init, "fmi3EnterInitializationMode"),
                              MODE_INITIALIZATION);
@@ -1900,7 +2037,7 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 t, fmi3Float64 h,
         if (lastSuccessfulTime) *lastSuccessfulTime = t;
         return (fmi3Status)refused;
     }
-    PyGILState_STATE gil = PyGILState_Ensure();
+    int gil = gil_take(I3);
     int code, terminate;
     int done = step(I3, t, h, &code, &terminate);
     fmi3Status status;
@@ -1914,7 +2051,7 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 t, fmi3Float64 h,
     }
     if (status == fmi3Discard) I3->mode = MODE_STEP_FAILED;
     settle(I3, (int)status);
-    PyGILState_Release(gil);
+    gil_give(gil);
     if (eventHandlingNeeded) *eventHandlingNeeded = fmi3False;
     if (earlyReturn) *earlyReturn = fmi3False;
     if (terminateSimulation) *terminateSimulation = terminate ? fmi3True : fmi3False;

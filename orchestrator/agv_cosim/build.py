@@ -184,7 +184,7 @@ def _compile_binaries(sources, python_include):
         for name, text in sources:
             (Path(tmp) / name).write_text(text)
         for name, libraries in ((LOADER_SOURCE.name, ["-ldl", "-lpthread"]),
-                                (BRIDGE_SOURCE, [])):
+                                (BRIDGE_SOURCE, ["-lpthread"])):
             target = Path(tmp) / (Path(name).stem + ".so")
             command = [compiler, "-shared", "-fPIC", "-O2", "-Wall", "-g0", "-s", "-DNDEBUG",
                        f"-ffile-prefix-map={tmp}=.",

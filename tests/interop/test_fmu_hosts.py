@@ -27,6 +27,7 @@ pytestmark = pytest.mark.interop
 
 SCRIPTS = [p.stem for p in slave_scripts(default_components_dir())]
 HOST_SOURCE = Path(__file__).parent / "c_host" / "fmi2_host.c"
+THREADS_SOURCE = Path(__file__).parent / "c_host" / "fmi2_threads.c"
 
 #: What a plain C program started from a service or a desktop launcher has: no Python
 #: variables, no venv on PATH, no preloaded libpython. The BLAS settings are kept: they
@@ -49,6 +50,19 @@ def c_host(tmp_path_factory):
     headers = Path(fmpy.__file__).parent / "c-code"
     subprocess.run(["gcc", "-O1", "-Wall", "-Werror", f"-I{headers}", "-o", str(out),
                     str(HOST_SOURCE), "-ldl"], check=True, capture_output=True, text=True)
+    return out
+
+
+@pytest.fixture(scope="module")
+def threads_host(tmp_path_factory):
+    """The threaded C host (c_host/fmi2_threads.c), compiled into a temp folder."""
+    if not Path(host_python()["libpython"]).is_file():
+        pytest.skip(f"this Python has no shared library ({host_python()['libpython']})")
+    out = tmp_path_factory.mktemp("threads_host") / "fmi2_threads"
+    headers = Path(fmpy.__file__).parent / "c-code"
+    subprocess.run(["gcc", "-O1", "-Wall", "-Werror", f"-I{headers}", "-o", str(out),
+                    str(THREADS_SOURCE), "-ldl", "-lpthread"], check=True,
+                   capture_output=True, text=True)
     return out
 
 
@@ -256,3 +270,63 @@ def test_the_docs_c_host_recipe_runs_as_written(component_fmus, tmp_path):
             if line.strip()]
     assert len(rows) >= 10 and {len(r) for r in rows} == {4}
     assert rows[-1][0] == pytest.approx(1.0) and rows[-1][3] > 0.0  # turned left
+
+
+def run_threads_host(threads_host, folder, md, stop, step, start_values, instances, threads,
+                     mode):
+    """Run the threaded C host; (completed process, {instance: {output name: array}})."""
+    outputs = [v for v in md.modelVariables if v.causality == "output" and v.type == "Real"]
+    by_name = {v.name: v for v in md.modelVariables}
+    settings = [f"{by_name[n].valueReference}={value!r}" for n, value in start_values.items()]
+    command = [str(threads_host), str(folder), md.coSimulation.modelIdentifier, md.guid,
+               repr(stop), repr(step), ",".join(str(v.valueReference) for v in outputs),
+               str(instances), str(threads), mode, *settings]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=120, env=VENV_ENV)
+    tables = {}
+    if done.returncode == 0:
+        rows = np.array([[float(x) for x in line.split()] for line in done.stdout.splitlines()])
+        for k in range(instances):
+            mine = rows[rows[:, 0] == k]
+            tables[k] = {"time": mine[:, 1]}
+            tables[k].update({v.name: mine[:, i + 2] for i, v in enumerate(outputs)})
+    return done, tables
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_fmus_stepped_from_a_thread_pool_match_a_single_thread(c_host, threads_host, unzipped,
+                                                               name):
+    """Three instances stepped by two worker threads in turn (each instance moves from
+    thread to thread every step, two run at once; instantiated on one worker and freed on
+    the other, or freed by the main thread after the workers have exited) give, bit for
+    bit, what the single-threaded C host gives for each instance's inputs."""
+    folder, md = unzipped[name]
+    stop, step, instances = 0.3, 0.01, 3
+    inputs = _inputs(md)
+    expected = {}
+    for k in range(instances):
+        done, expected[k] = run_c_host(c_host, folder, md, stop, step,
+                                       {n: v * (1 + 0.1 * k) for n, v in inputs.items()})
+        assert done.returncode == 0, done.stderr[-2000:]
+    for mode in ("pool", "exit-first"):
+        done, tables = run_threads_host(threads_host, folder, md, stop, step, inputs,
+                                        instances, 2, mode)
+        assert done.returncode == 0, f"{mode}: {done.returncode} {done.stderr[-2000:]}"
+        for k in range(instances):
+            assert len(tables[k]["time"]) == 31
+            for column, values in expected[k].items():
+                assert np.array_equal(tables[k][column], values), (mode, k, column)
+
+
+def test_a_pool_thread_keeps_its_python_thread_state(threads_host, unzipped):
+    """After the first step, an FMI call on a host's worker thread takes the GIL with the
+    thread state the bridge made for that thread: no thread state (and no frame stack
+    mapped for it) per call. Measured: about one page fault per 4 calls when every call
+    made and deleted a thread state, 0-1 per 100 calls with one per thread."""
+    folder, md = unzipped["agv_vehicle"]
+    done, _ = run_threads_host(threads_host, folder, md, 1.0, 0.01, {"alpha": 0.2}, 3, 2,
+                               "pool")
+    assert done.returncode == 0, done.stderr[-2000:]
+    faults, calls = map(int, re.search(r"worker page faults (\d+) in (\d+) FMI calls",
+                                       done.stderr).groups())
+    assert calls == 3 * 99 * 2
+    assert faults < calls / 20, f"{faults} page faults in {calls} calls"
