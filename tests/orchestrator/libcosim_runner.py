@@ -5,6 +5,7 @@ test dependency.
 """
 
 import tempfile
+from decimal import Decimal
 
 from agv_cosim.ssp.importer import load_ssp
 
@@ -65,7 +66,10 @@ def run_libcosim(ssp_path, variables, step=None, stop=None, start=0.0):
     if not execution.step(n_steps):
         raise RuntimeError(f"libcosim: {_internal.get_last_error_message()}")
     series = {}
-    times = start + np.arange(n_steps + 1) * step
+    # the communication points t_k = start + k step, each the double nearest to the
+    # exact decimal (libcosim counts integer nanoseconds; our master's grid is the same)
+    times = np.array([float(Decimal(repr(start)) + k * Decimal(repr(step)))
+                      for k in range(n_steps + 1)])
     for item in variables:
         index, ref = infos["_refs"][item]
         # libcosimpy trims its result by counting step numbers equal to 0 (taken as empty
