@@ -16,7 +16,7 @@ import atexit
 import os
 import sys
 import traceback
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 from .errors import kept_summary
 from .files import printable
@@ -82,17 +82,21 @@ def _warn(warnings: list[str], quiet: bool = False) -> None:
         _say(f"agv-cosim: warning: {warning}")
 
 
-def _factor(text):
-    """``--real-time``: a positive, finite factor."""
+def _positive(what: str, unit: str = "") -> Callable[[str], float]:
+    """An argparse type: a positive, finite number (``what``: "factor", "number of Hz");
+    ``unit`` follows "is not a number" in the refusal."""
     import math
 
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive, finite factor")
-    return value
+    def convert(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number{unit}") from None
+        if not (math.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"{text!r} must be a positive, finite {what}")
+        return value
+
+    return convert
 
 
 def _timeout(text):
@@ -286,19 +290,6 @@ def _cmd_identify(args):
     return 0
 
 
-def _cutoff(text):
-    """``--cutoff``: a positive, finite frequency [Hz]."""
-    import math
-
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number of Hz") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive, finite number of Hz")
-    return value
-
-
 def make_parser() -> argparse.ArgumentParser:
     """The argument parser of ``agv-cosim`` with all its subcommands."""
     parser = _Parser(prog="agv-cosim", description=_plain(__doc__),
@@ -395,7 +386,7 @@ def make_parser() -> argparse.ArgumentParser:
                           "complete runs whose inputs are unchanged, run the others "
                           "(the same folder as a run from scratch, byte for byte, but "
                           "for timings.csv, the one file of measured times)")
-    run.add_argument("--real-time", type=_factor, metavar="FACTOR",
+    run.add_argument("--real-time", type=_positive("factor"), metavar="FACTOR",
                      help="pace the run so that simulated time advances at FACTOR x "
                           "wall-clock time (1: real time; one run only, not with --dask); "
                           "overruns and the achieved factor go to timings.csv and the "
@@ -471,7 +462,8 @@ def make_parser() -> argparse.ArgumentParser:
                        help="the time column [s], uniformly sampled (default: time)")
     ident.add_argument("--models", default="a,b,c", metavar="a,b,c",
                        help="the models to fit (default: a,b,c)")
-    ident.add_argument("--cutoff", type=_cutoff, default=30.0, metavar="HZ",
+    ident.add_argument("--cutoff", type=_positive("number of Hz", " of Hz"), default=30.0,
+                       metavar="HZ",
                        help="pre-filter cut-off [Hz] (default: 30, seed 000 eq 4)")
     ident.add_argument("--order", type=int, default=3, metavar="N",
                        help="pre-filter order (default: 3, seed 000 eq 4)")
