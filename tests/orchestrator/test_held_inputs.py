@@ -67,3 +67,22 @@ def test_shipped_experiments_have_no_warning(manifest):
 
     _, _, warnings = prepare(ROOT / "experiments" / manifest, None, [])
     assert warnings == []
+
+
+@pytest.mark.skipif(not (ROOT / "fmus" / "AgvVehicle.fmu").is_file(),
+                    reason="needs the built FMUs (make fmus)")
+def test_held_input_of_a_variant_not_run_is_accepted(capsys, tmp_path):
+    # experiments/baselines.toml holds the pose inputs of the laws that have them
+    # (ctrl.x, ...); its state_feedback variant's ctrl has none: running that variant
+    # alone is valid, and a name that no variant has is still refused
+    manifest = str(ROOT / "experiments" / "baselines.toml")
+    assert cli.main(["validate", "--no-init", manifest, "--variant", "state_feedback"]) == 0
+    assert capsys.readouterr().err == ""
+    text = (ROOT / "experiments" / "baselines.toml").read_text()
+    assert '"ctrl.dv"]' in text
+    typo = tmp_path / "baselines.toml"
+    typo.write_text(text.replace('"ctrl.dv"]', '"ctrl.dw"]')
+                    .replace('"../fmus/', f'"{ROOT}/fmus/'))
+    assert cli.main(["validate", "--no-init", str(typo), "--variant", "state_feedback"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "held[6]: 'ctrl.dw' is not an input of 'ctrl'" in err

@@ -16,7 +16,7 @@ from typing import Any, TypeVar
 from .. import fmitypes
 from ..errors import ManifestError, ModelError, TableError, did_you_mean
 from ..manifest import Component, Connection, Manifest, split_name, whole_multiple
-from ..plan import RunSpec
+from ..plan import RunSpec, plan_runs
 from .checked import Checked, CheckedRun, Event
 from .files import file_problem
 from .model import ModelInfo, read_model
@@ -422,12 +422,18 @@ def validate(manifest: Manifest, runs: list[RunSpec],
 
 def _check_held(manifest: Manifest, checked: list[CheckedRun]) -> set[str]:
     """The manifest's ``held`` names, each checked to be an input of its component in
-    some run (a variant that rewires may connect it); raises a :class:`ManifestError`
-    naming the first that is not."""
+    some run (a variant that rewires may connect it), or, when only some variants run, in
+    some variant of the manifest (the list holds every variant's unconnected inputs);
+    raises a :class:`ManifestError` naming the first that is not."""
     problems = []
+    others: list[dict[str, ModelInfo]] | None = None
     for index, name in enumerate(manifest.held):
         cname, vname = split_name(name)
         models = [one.models[cname] for one in checked if cname in one.models]
+        if vname not in {v.name for info in models for v in info.inputs}:
+            if others is None:
+                others = _other_variants_models(manifest, checked)
+            models += [one[cname] for one in others if cname in one]
         if not models:
             known = sorted({c for one in checked for c in one.models})
             problems.append(manifest.error(f"held[{index}]", f"'{name}': unknown component "
@@ -440,6 +446,23 @@ def _check_held(manifest: Manifest, checked: list[CheckedRun]) -> set[str]:
                 f"{', '.join(inputs) or 'none'})"))
     raise_all(problems)
     return set(manifest.held)
+
+
+def _other_variants_models(manifest: Manifest,
+                           checked: list[CheckedRun]) -> list[dict[str, ModelInfo]]:
+    """The models of each declared variant that none of ``checked`` runs (one run each;
+    a variant whose FMUs cannot be read is left out: it is not being run)."""
+    running = {one.run.variant for one in checked}
+    models = []
+    for variant in manifest.variants:
+        if variant in running:
+            continue
+        try:
+            run = plan_runs(manifest, [variant])[0]
+            models.append(read_models(manifest, run))
+        except ManifestError:
+            continue
+    return models
 
 
 def _article(causality: str) -> str:
