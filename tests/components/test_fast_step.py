@@ -181,7 +181,7 @@ def test_vision_projects_a_pose_once_for_its_sample_and_its_commit():
 # ---------------------------------------------------------------------- actuator
 def reference_step(act, t, h, u):
     """Model a's step as first written: every breakpoint scanned at every step."""
-    eps = act._eps(h)
+    eps = act.delay.eps(h)
     hist = act.history
     if hist and hist[-1][0] >= t - eps:
         hist[-1] = [t, float(u)]
@@ -193,7 +193,7 @@ def reference_step(act, t, h, u):
     cuts = [time + act.tau for time, _ in hist if t + eps < time + act.tau < t_end - eps]
     start = t
     for stop in cuts + [t_end]:
-        act._advance_constant_rate(act.K * act._delayed(start - act.tau + eps), stop - start)
+        act._advance_constant_rate(act.K * act.delay.delayed(start - act.tau + eps), stop - start)
         start = stop
     s = t_end - act.tau + eps
     keep = 0
