@@ -17,16 +17,17 @@ base_dir`, the folder its FMUs and tables are relative to), never to the current
 """
 
 import errno
-import hashlib
-import os
-import stat
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
+
+from ..errors import UnreadableFile
+from ..files import open_regular
+from .model import file_sha256 as _file_sha256
 
 __all__ = ["file_problem", "file_sha256", "hash_files", "named_files", "resolved"]
 
-#: Bytes read at a time when a file is hashed.
-_BLOCK = 1 << 20
+_T = TypeVar("_T")
 
 
 def named_files(value: Any) -> list[str]:
@@ -50,14 +51,14 @@ def resolved(value: Any, base_dir: str | Path) -> Any:
         raise ValueError(str(error).removeprefix("path: ")) from None
 
 
-def _open_regular(path: Path) -> int:
-    """A descriptor of the regular file ``path`` (a link to one is followed), opened
-    without blocking (a FIFO is refused, not waited on); OSError otherwise."""
-    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
-        os.close(fd)
-        raise OSError(errno.EINVAL, "not a regular file", str(path))
-    return fd
+def _regular(read: Callable[[Path], _T], path: Path) -> _T:
+    """``read(path)`` of a regular file (:func:`agv_cosim.files.open_regular`: a link to
+    one is followed, a FIFO is refused, not waited on); anything else is an OSError,
+    as a missing file is."""
+    try:
+        return read(path)
+    except UnreadableFile:
+        raise OSError(errno.EINVAL, "not a regular file", str(path)) from None
 
 
 def file_problem(value: Any, base_dir: str | Path) -> str | None:
@@ -66,7 +67,7 @@ def file_problem(value: Any, base_dir: str | Path) -> str | None:
         path = Path(base_dir) / name
         try:
             resolved(value, base_dir)
-            os.close(_open_regular(path))
+            _regular(lambda p: open_regular(p).close(), path)
         except ValueError as error:
             return str(error)
         except OSError as error:
@@ -76,15 +77,9 @@ def file_problem(value: Any, base_dir: str | Path) -> str | None:
 
 
 def file_sha256(path: str | Path) -> str:
-    """SHA-256 (hex) of the regular file ``path``, read in blocks; OSError otherwise."""
-    digest = hashlib.sha256()
-    fd = _open_regular(Path(path))
-    try:
-        while block := os.read(fd, _BLOCK):
-            digest.update(block)
-    finally:
-        os.close(fd)
-    return digest.hexdigest()
+    """SHA-256 (hex) of the regular file ``path``, read in blocks
+    (:func:`agv_cosim.system.model.file_sha256`); OSError otherwise."""
+    return _regular(_file_sha256, Path(path))
 
 
 def hash_files(values: dict[str, Any], base_dir: str | Path,
