@@ -101,8 +101,9 @@ def test_an_interrupted_paced_run_keeps_its_figures_and_its_page(chain, tmp_path
                                start_new_session=True, env=env)
     err = Collected(process.stderr)
     try:
-        # the run is under way once its temporary folder has rows
-        wait_until(lambda: any(sum(1 for _ in f.open()) > 5 for f in
+        # five paced steps are done once the temporary timeseries holds the header, the
+        # row at the start and five more complete rows (a last line may still be partial)
+        wait_until(lambda: any(sum(1 for _ in f.open()) > 7 for f in
                                tmp_path.glob(".o*/base/timeseries.csv")), "rows written")
         os.killpg(process.pid, signal.SIGINT)
         assert process.wait(timeout=120) == 130
