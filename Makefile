@@ -45,7 +45,7 @@ test-deps:
 	else echo "missing Debian packages (install as root):" $$missing; fi
 
 test: fmus test-deps
-	$(BIN)/python -m pytest -q -n $(JOBS) --dist loadfile
+	$(BIN)/python -m pytest -q -n $(JOBS) --dist loadfile --durations=30
 
 # The fast tier: every test not marked slow (no seed reproductions, no interop checks).
 test-fast: venv
