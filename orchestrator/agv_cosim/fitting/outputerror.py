@@ -7,8 +7,8 @@ and returns, for each, ``{signal: (time, values)}``: a batch so that the runs on
 iteration needs (the finite-difference Jacobian's columns) can run in parallel.
 
 - **Residuals** at the data's time stamps: the simulated signal is interpolated linearly
-  between its samples (``numpy.interp``); where the simulation recorded one time twice
-  (an event), the later value is used. When the data's stamps are output points of the
+  between its samples; where the simulation recorded one time twice (an event), the
+  value at that time is the later one, and before it the segment runs to the earlier. When the data's stamps are output points of the
   simulation (a co-simulation step that divides them) nothing is interpolated. A data
   stamp outside the simulated signal's time raises FitError.
 - **Weights**: the residual of signal ``s`` at every stamp is ``w_s (simulated -
@@ -150,9 +150,14 @@ def interpolate(signal: Signal, at: np.ndarray, name: str = "signal") -> np.ndar
     if at[0] < t[0] - slack or at[-1] > t[-1] + slack:
         raise FitError(f"fit: data from {float(at[0])!r} to {float(at[-1])!r} s are outside "
                        f"simulated signal '{name}' ({float(t[0])!r} to {float(t[-1])!r} s)")
-    keep = np.r_[t[1:] != t[:-1], True]
-    t, y = t[keep], y[keep]
-    out: np.ndarray = np.interp(np.clip(at, t[0], t[-1]), t, y)
+    if t.size == 1:
+        return np.full(at.shape, float(y[0]))
+    x = np.clip(at, t[0], t[-1])
+    right = np.clip(np.searchsorted(t, x, side="right"), 1, t.size - 1)
+    left = right - 1
+    width = t[right] - t[left]
+    share = np.divide(x - t[left], width, out=np.ones_like(x), where=width > 0)
+    out: np.ndarray = y[left] + share * (y[right] - y[left])
     return out
 
 
