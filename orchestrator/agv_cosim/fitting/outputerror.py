@@ -157,7 +157,8 @@ def interpolate(signal: Signal, at: np.ndarray, name: str = "signal") -> np.ndar
     left = right - 1
     width = t[right] - t[left]
     share = np.divide(x - t[left], width, out=np.ones_like(x), where=width > 0)
-    out: np.ndarray = y[left] + share * (y[right] - y[left])
+    with np.errstate(invalid="ignore", over="ignore"):  # a value not finite stays so
+        out: np.ndarray = y[left] + share * (y[right] - y[left])
     return out
 
 
