@@ -8,9 +8,10 @@ iteration needs (the finite-difference Jacobian's columns) can run in parallel.
 
 - **Residuals** at the data's time stamps: the simulated signal is interpolated linearly
   between its samples; where the simulation recorded one time twice (an event), the
-  value at that time is the later one, and before it the segment runs to the earlier. When the data's stamps are output points of the
-  simulation (a co-simulation step that divides them) nothing is interpolated. A data
-  stamp outside the simulated signal's time raises FitError.
+  value at that time is the later one, and before it the segment runs to the earlier.
+  When the data's stamps are output points of the simulation (a co-simulation step that
+  divides them) nothing is interpolated. A data stamp outside the simulated signal's
+  time raises FitError.
 - **Weights**: the residual of signal ``s`` at every stamp is ``w_s (simulated -
   measured)``; by default ``w_s = 1 / std(measured column)``, so that signals in
   different units count by their number of samples, not their units; ``weights``

@@ -12,8 +12,17 @@ import math
 
 import numpy as np
 import pytest
-from fitting_models import (SECOND_PARAMETERS, SECOND_TRUE, SPRING_PARAMETERS, SPRING_TRUE,
-                            TIME, Counted, data_of, mass_spring, second_order)
+from fitting_models import (
+    SECOND_PARAMETERS,
+    SECOND_TRUE,
+    SPRING_PARAMETERS,
+    SPRING_TRUE,
+    TIME,
+    Counted,
+    data_of,
+    mass_spring,
+    second_order,
+)
 
 from agv_cosim.errors import FitNotConverged
 from agv_cosim.fitting import Parameter, fit, interpolate, measured_data
