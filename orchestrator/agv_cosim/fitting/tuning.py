@@ -108,10 +108,12 @@ class Trial:
 
 @dataclass
 class TuneResult:
-    """What a tuning found: ``best`` parameters and ``best_value``, the start's
-    (``start``, ``start_value``), the ``history`` of every trial, ``evaluations``,
-    ``generations``, ``converged`` (the population's spread fell within the tolerance
-    before the generation budget ran out), ``message``, ``seed``, ``objective``."""
+    """What a tuning found: ``best`` parameters, ``best_value`` and each run's objective
+    ``best_runs``, the start's (``start``, ``start_value``, ``start_runs``: the
+    original controller, for the comparison on every run), the ``history`` of every
+    trial, ``evaluations``, ``generations``, ``converged`` (the population's spread fell
+    within the tolerance before the generation budget ran out), ``message``, ``seed``,
+    ``objective``."""
 
     names: tuple[str, ...]
     best: dict[str, float]
@@ -119,6 +121,7 @@ class TuneResult:
     best_runs: dict[str, float]
     start: dict[str, float]
     start_value: float
+    start_runs: dict[str, float]
     history: list[Trial] = field(repr=False)
     evaluations: int
     generations: int
@@ -135,7 +138,8 @@ class TuneResult:
         return {"best": {"parameters": dict(self.best), "value": number(self.best_value),
                          "runs": {k: number(v) for k, v in self.best_runs.items()}},
                 "start": {"parameters": dict(self.start),
-                          "value": number(self.start_value)},
+                          "value": number(self.start_value),
+                          "runs": {k: number(v) for k, v in self.start_runs.items()}},
                 "objective": {"metrics": dict(self.objective.metrics),
                               "aggregate": self.objective.aggregate},
                 "evaluations": self.evaluations, "generations": self.generations,
@@ -194,7 +198,8 @@ def tune(evaluate: Evaluate, parameters: Sequence[Parameter], objective: Objecti
                  if np.array_equal(np.array(list(t.parameters.values())), start))
     return TuneResult(names=names, best=dict(best.parameters), best_value=best.value,
                       best_runs=dict(best.runs), start={p.name: p.start for p in chosen},
-                      start_value=first.value, history=history,
+                      start_value=first.value, start_runs=dict(first.runs),
+                      history=history,
                       evaluations=len(history), generations=generation[0] - 1,
                       converged=bool(solved.success), message=str(solved.message),
                       seed=seed, objective=objective)

@@ -66,6 +66,9 @@ def test_tune_finds_the_known_optimum(aggregate: str, x_best: float, value: floa
     assert result.start_value == pytest.approx(
         (slow + fast) / 2 if aggregate == "mean" else max(slow, fast))
     assert first.runs == pytest.approx({"slow": slow, "fast": fast})
+    assert result.start_runs == first.runs
+    assert result.as_json()["start"]["runs"] == first.runs
+    assert result.best_runs["slow"] < slow and result.best_runs["fast"] < fast
     assert runs.batches == [20] * (result.generations + 1)
     assert result.evaluations == len(result.history) == sum(runs.batches)
     assert [t.number for t in result.history] == list(range(result.evaluations))
