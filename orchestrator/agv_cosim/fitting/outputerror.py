@@ -355,6 +355,11 @@ def _uncertainties(problem: _Problem, x: np.ndarray, r: np.ndarray, jac: np.ndar
             reasons[par.name] = "the simulated signals do not depend on it"
         else:
             free.append(j)
+    if free and n <= len(free):
+        for j in free:
+            reasons[chosen[j].name] = (f"{n} residual(s) for {len(free)} parameter(s): "
+                                       "no degree of freedom left for the noise")
+        return
     if free:
         sub = jac[:, free]
         norms = np.linalg.norm(sub, axis=0)

@@ -191,3 +191,51 @@ def test_fit_json_holds_the_issue_fields() -> None:
     assert all(isinstance(v, int) for v in (out["iterations"], out["runs"]))
     assert math.isfinite(out["cost"]) and out["converged"] is True
     assert measured_data(TIME, {"x": TIME}).columns["x"] is not None
+
+
+def test_the_steering_actuator_core_is_fitted() -> None:
+    """The project's own core (agv_core.steering.actuator model a, the code the
+    AgvSteeringA FMU runs, stepped every 2 ms) as the simulation: K and a dead time that
+    the step does not divide recovered from its record."""
+    from fitting_models import command
+
+    from agv_core.steering.actuator import make_actuator
+
+    h = 0.002
+    t = h * np.arange(751)
+    u = command(t)
+
+    def run(x: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        actuator = make_actuator("a", K=float(x[0]), tau=float(x[1]))
+        y = np.empty(t.size)
+        y[0] = actuator.alpha
+        for k in range(t.size - 1):
+            actuator.step(t[k], h, u[k])
+            y[k + 1] = actuator.alpha
+        return {"steering.alpha": (t, y)}
+
+    def simulate(batch):  # type: ignore[no-untyped-def]
+        return [run(x) for x in batch]
+
+    truth = np.array([0.6, 0.0234])
+    parameters = (Parameter("K", 1.0, 0.1, 5.0), Parameter("tau", 0.01, 0.0, 0.2))
+    exact = run(truth)["steering.alpha"][1]
+    for noise in (0.0, 1e-3):
+        rng = np.random.default_rng(5)
+        data = measured_data(t, {"alpha": exact + noise * rng.standard_normal(t.size)})
+        result = fit(simulate, data, {"steering.alpha": "alpha"}, parameters)
+        assert result.converged, result.message
+        for value, name in zip(truth, result.names):
+            if noise == 0.0:
+                assert abs(result.values[name] / value - 1.0) < 1e-6, result.values
+            else:
+                assert abs(result.values[name] - value) < 3.0 * result.stderr[name]
+
+
+def test_fewer_residuals_than_parameters_give_no_standard_error() -> None:
+    data = measured_data([0.0, 4.0], {"y": [0.0, 0.6]})
+    result = fit(lambda batch: [second_order(x) for x in batch], data, {"y": "y"},
+                 SECOND_PARAMETERS)
+    assert all(result.stderr[n] is None for n in result.names)
+    assert all("2 residual(s) for 3 parameter(s)" in result.reasons[n]
+               for n in result.names)
