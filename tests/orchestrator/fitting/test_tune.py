@@ -76,6 +76,21 @@ def test_tune_finds_the_known_optimum(aggregate: str, x_best: float, value: floa
                for p in PARAMETERS)
 
 
+def test_gradient_method_on_a_smooth_objective() -> None:
+    runs = Runs()
+    result = tune(runs, PARAMETERS, Objective({"error": 1.0}), method="gradient")
+    print("gradient", result.best, result.evaluations, result.generations, result.message)
+    assert result.converged and result.method == "gradient"
+    assert result.best["x"] == pytest.approx(MEAN_X, abs=1e-5)
+    assert result.best["y"] == pytest.approx(Y, abs=1e-5)
+    # value and forward-difference gradient as one batch of p + 1 points, start first
+    assert set(runs.batches) == {3} and result.evaluations == sum(runs.batches) <= 60
+    assert result.history[0].parameters == {"x": 4.0, "y": 1.0}
+    assert result.as_json()["optimiser"].startswith("scipy.optimize.minimize (L-BFGS-B)")
+    again = tune(Runs(), PARAMETERS, Objective({"error": 1.0}), method="gradient")
+    assert again.history == result.history
+
+
 def test_weighted_sum_of_metrics() -> None:
     # error + 4 effort: effort |y + 0.5| has its kink at the same y; a negative weight
     # maximises: -effort pushes y to the bound farthest from -0.5 (y = 2)
@@ -116,6 +131,7 @@ def test_budget_and_result_fields() -> None:
     assert not result.converged and "Maximum number of iterations" in result.message
     out = result.as_json()
     assert out["optimiser"] == "scipy.optimize.differential_evolution"
+    assert out["method"] == "evolution"
     assert out["seed"] == 0 and len(out["history"]) == 40
     assert out["best"]["parameters"] == result.best
     assert out["objective"] == {"metrics": {"error": 1.0}, "aggregate": "mean"}
@@ -138,9 +154,11 @@ def test_budget_and_result_fields() -> None:
      ["generations 0: must be a whole number >= 1"]),
     (PARAMETERS, Objective({"error": 1.0}), {"seed": -1},
      ["seed -1: must be a whole number >= 0"]),
+    (PARAMETERS, Objective({"error": 1.0}), {"method": "tpe"},
+     ["method 'tpe': not one of evolution, gradient"]),
 ])
 def test_bad_tuning_input(parameters: tuple[Parameter, ...], objective: Objective,
-                          options: dict[str, int], parts: list[str]) -> None:
+                          options: dict[str, object], parts: list[str]) -> None:
     with pytest.raises(TuneError) as error:
         tune(Runs(), parameters, objective, **options)  # type: ignore[arg-type]
     text = str(error.value)
