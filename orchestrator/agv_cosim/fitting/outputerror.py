@@ -303,8 +303,8 @@ def fit(simulate: Simulate, data: MeasuredData, signals: Mapping[str, str],
     converged = int(solved.status) in _CONVERGED
     assert problem.best is not None
     x = np.asarray(solved.x, dtype=float)
-    if problem.best[0] < 0.5 * float(residual(x) @ residual(x)):
-        x = problem.best[1]
+    if not converged and problem.best[0] < 0.5 * float(residual(x) @ residual(x)):
+        x = problem.best[1]  # the lowest cost of every run, finite-difference probes too
     message = (_CONVERGED[int(solved.status)] if converged else
                f"the solver's budget of {solved.nfev} evaluations ran out"
                if int(solved.status) == 0 else str(solved.message))

@@ -172,6 +172,17 @@ def test_a_fit_that_does_not_converge_is_reported_with_its_best_point() -> None:
     # the best point kept: better than the start, the lowest cost of every run
     start = fit(Counted(model), data, signals, parameters, max_nfev=1)
     assert result.cost < start.cost
+    points: list[np.ndarray] = []
+
+    def recorded(batch):  # type: ignore[no-untyped-def]
+        points.extend(batch)
+        return [model(x) for x in batch]
+
+    again = fit(recorded, data, signals, parameters, max_nfev=2)
+    weight = 1.0 / np.std(data.columns["y"])
+    costs = [0.5 * float(np.sum((weight * (model(x)["y"][1] - data.columns["y"])) ** 2))
+             for x in points]
+    assert again.cost == pytest.approx(min(costs), rel=1e-12) == result.cost
     assert result.as_json()["converged"] is False
     with pytest.raises(FitNotConverged) as raised:
         result.check_converged()
