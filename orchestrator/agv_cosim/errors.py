@@ -15,6 +15,7 @@ __all__ = [
     "OutputError", "ReportError", "SamplingError", "SchemaError", "SimulationError",
     "SspError", "StandaloneError", "TableError", "UnreadableFile", "WorkerUnfit", "closest",
     "did_you_mean", "kept_summary",
+    "FitDataError", "FitError", "FitNotConverged", "TuneError",
 ]
 
 #: Most problems of one manifest reported at once (one line each).
