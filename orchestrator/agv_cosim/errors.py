@@ -15,6 +15,7 @@ __all__ = [
     "OutputError", "ReportError", "SamplingError", "SchemaError", "SimulationError",
     "SspError", "StandaloneError", "TableError", "UnreadableFile", "WorkerUnfit", "closest",
     "did_you_mean", "kept_summary",
+    "FitDataError", "FitError", "FitNotConverged", "TuneError",
 ]
 
 #: Most problems of one manifest reported at once (one line each).
@@ -154,6 +155,34 @@ class IdentifyError(AgvCosimError):
     """A record ``agv-cosim identify`` cannot identify from (a file that is not CSV, a
     missing column, a value that is not a finite number, time not increasing, data too
     short or without excitation): one line naming the culprit, exit 2."""
+
+
+class FitDataError(AgvCosimError):
+    """Measured data ``fit`` cannot use (a file that is not CSV, no ``time`` column or
+    no column a signal names, a value that is not a finite number, time not increasing,
+    data outside the simulated interval): one line naming the file, the line and the
+    column, exit 2."""
+
+
+class FitError(AgvCosimError):
+    """A fit that cannot be set up or carried on (no parameter or signal, min >= max, a
+    start outside its bounds, a weight that is not a positive number, a simulated signal
+    missing or not finite): one line naming the culprit, exit 2."""
+
+
+class FitNotConverged(FitError):
+    """The fit stopped before its solver converged; ``result`` holds the best point
+    found (a :class:`agv_cosim.fitting.FitResult`, marked not converged)."""
+
+    def __init__(self, message: str, result: object = None) -> None:
+        super().__init__(message)
+        self.result = result
+
+
+class TuneError(AgvCosimError):
+    """A tuning that cannot be set up or carried on (no parameter, min >= max, a start
+    outside its bounds, an unknown aggregate, a metric missing from a run): one line
+    naming the culprit, exit 2."""
 
 
 class Interrupted(BaseException):

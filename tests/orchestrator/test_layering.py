@@ -22,7 +22,7 @@ LAYERS = {
     "errors": 0, "version": 0, "fmitypes": 0, "lifetime": 0, "files": 0, "timeseries": 0,
     "manifest": 1, "plan": 2, "system": 3, "execution": 4, "report": 5, "pipeline": 6,
     "ssp": 7, "shipped": 7, "bundle": 7, "standalone": 7, "build": 7, "examples": 7,
-    "identification": 7,
+    "identification": 7, "fitting": 7,
     "cli": 8, "api": 8, "": 9,
 }
 
