@@ -15,7 +15,8 @@ import pytest
 from processes import ended
 
 from agv_cosim import cli, pipeline as runner
-from agv_cosim.pipeline import channels, initcheck, pool, run as runner_run
+from agv_cosim.pipeline import run as runner_run
+from agv_cosim.workers import channels, initcheck, pool
 from agv_cosim.files import MARKER
 
 HANG = """

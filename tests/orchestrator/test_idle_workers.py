@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from agv_cosim import pipeline as runner
-from agv_cosim.pipeline import host, pool
+from agv_cosim.workers import host, pool
 
 ROGUE = """
 name = "rogue"
@@ -77,7 +77,7 @@ def test_the_checking_worker_runs_after_its_check_and_meanwhile_overlaps(chain, 
     """run_isolated with checks and one worker: that worker checks, then runs both jobs
     (one process in all); ``meanwhile`` is called once, before any run ended; the
     folders hold what runs without the check write."""
-    from agv_cosim.pipeline import initcheck
+    from agv_cosim.workers import initcheck
 
     manifest, jobs, _ = runner.prepare(chain(extra='[sweep]\n"gain.k" = [1.0, 2.0]\n'))
     checks = initcheck.plan_checks(manifest, jobs, 30.0)

@@ -18,7 +18,8 @@ from agv_cosim.errors import OutputError, SimulationError
 from agv_cosim.execution import Pacer, simulate
 from agv_cosim.execution import pacing
 from agv_cosim.files import MARKER
-from agv_cosim.pipeline import execute, pool, prepare, run as runner_run
+from agv_cosim.pipeline import execute, prepare, run as runner_run
+from agv_cosim.workers import pool
 from agv_cosim.report.records import TIMINGS, read_timings
 
 

@@ -269,7 +269,8 @@ def test_an_interrupted_resume_keeps_the_reused_runs(chain, tmp_path, monkeypatc
     """A resumed sweep interrupted before its own runs end commits the folder marked
     partial with the reused runs complete in it; resuming again reuses them."""
     from agv_cosim.errors import Interrupted
-    from agv_cosim.pipeline import pool, run
+    from agv_cosim.pipeline import run
+    from agv_cosim.workers import pool
 
     path = chain(extra='[sweep]\n"gain.k" = [1.0, 2.0]\n')
     out = tmp_path / "out"

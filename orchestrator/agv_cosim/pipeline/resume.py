@@ -52,7 +52,7 @@ from ..report.page import FIGURES_ERROR, RECORD, REPORT_FILE
 from ..report.records import TIMINGS, RunResult, read_timings, recorded_inputs, write_run_files
 from ..system import Job
 from ..system.files import file_sha256
-from .job import run_metrics
+from ..workers.job import run_metrics
 
 __all__ = ["FOLDER_FILES", "RUN_FILES", "check_resumable", "keep_others", "keep_users",
            "listed", "reusable", "reuse_runs"]

@@ -50,9 +50,9 @@ from ..report import montecarlo, plots
 from ..report.page import REPORT_FILE, draw_figures, write_report_quietly
 from ..report.records import TIMINGS, RunResult, summary_rows, write_timings
 from ..system import Job
-from .distributed import run_on_dask
-from .initcheck import plan_checks
-from .pool import call_concurrently, run_isolated
+from ..workers.distributed import run_on_dask
+from ..workers.initcheck import plan_checks
+from ..workers.pool import call_concurrently, run_isolated
 from .prepare import prepare
 from .resume import check_resumable, keep_others, keep_users, listed, reuse_runs
 
@@ -244,7 +244,7 @@ def progress_bar() -> type:
     class Bar(tqdm):
         drawn = False
         # no monitor thread: the runs' processes are forked from this process while it
-        # has a single thread (agv_cosim.pipeline.channels.process_context)
+        # has a single thread (agv_cosim.workers.channels.process_context)
         monitor_interval = 0
 
         def display(self, *args: Any, **kwargs: Any) -> Any:

@@ -17,8 +17,8 @@ What a task does on a worker (:func:`run_remote`):
    worker can never run an FMU other than the one the client validated: the hash in
    ``run.json`` is the hash of the bytes that ran.
 2. **The same crash isolation as locally.** The run goes to a run host of the worker
-   (:mod:`agv_cosim.pipeline.host`: an ordinary subprocess, kept for the worker's later
-   tasks), which runs it through :func:`agv_cosim.pipeline.pool.run_isolated` in its
+   (:mod:`agv_cosim.workers.host`: an ordinary subprocess, kept for the worker's later
+   tasks), which runs it through :func:`agv_cosim.workers.pool.run_isolated` in its
    worker process, kept between tasks as a local sweep keeps it between runs (replaced
    after a run that did not end ``complete``), so an FMU that aborts its process fails
    only its run, reported ``partial`` or ``failed`` with the same text as locally; the
@@ -185,7 +185,7 @@ def cached_fmu(sha256: str, blob: bytes, cache: str | Path | None = None) -> Pat
 
 def run_remote(job: Job, blobs: dict[str, bytes]) -> tuple[RunResult, dict[str, bytes]]:
     """Body of a Dask task: run ``job`` isolated on this worker (in a run host, see
-    :mod:`agv_cosim.pipeline.host`); return its folder.
+    :mod:`agv_cosim.workers.host`); return its folder.
 
     ``blobs``: SHA-256 -> FMU bytes of the job's FMUs. Returns ``(result dict, files)``,
     ``files`` mapping each file of the run's folder (relative POSIX path) to its bytes.
@@ -301,7 +301,7 @@ def run_on_dask(address: str, jobs: list[Job], root: Path,
                 on_done: Callable[[], None]) -> list[RunResult]:
     """Run ``jobs`` on the cluster at ``address``; write each run under ``root``.
 
-    Same contract as :func:`agv_cosim.pipeline.pool.run_isolated`: one result dict per
+    Same contract as :func:`agv_cosim.workers.pool.run_isolated`: one result dict per
     job, in job order. ``on_progress`` gets each finished run's steps at once. A run
     whose task fails on the cluster (its worker died, ...) is ``failed`` with the reason
     and the others go on. When the command cannot go on (the scheduler gone, no worker left

@@ -135,8 +135,8 @@ def _worker(jobs: Connection, channel: Connection, output: Connection, life: Con
             scratch: str, track: Track, inherited: list[int] | None = None,
             checks: list[Any] | None = None, pacing: Any = None) -> None:
     """Body of a worker process: run the jobs the parent sends, one at a time; with
-    ``checks`` (:attr:`~agv_cosim.pipeline.initcheck.InitChecks.items`), first the
-    initialisation check (:func:`~agv_cosim.pipeline.initcheck.run_checks`:
+    ``checks`` (:attr:`~agv_cosim.workers.initcheck.InitChecks.items`), first the
+    initialisation check (:func:`~agv_cosim.workers.initcheck.run_checks`:
     ``("checked", None)`` when it passed, else the worker exits after its ``failed``
     message).
 
@@ -275,7 +275,7 @@ def _process_end(exitcode: int | None) -> str:
 
 class IdleWorkers:
     """Workers that :func:`run_isolated` leaves running when it returns, for the next
-    call to take (a run host's, :mod:`agv_cosim.pipeline.host`): each ended its last
+    call to take (a run host's, :mod:`agv_cosim.workers.host`): each ended its last
     run ``complete`` and waits for a job. Their life pipe (see :func:`child_setup`)
     stays open with them; :meth:`close` ends them."""
 
@@ -343,7 +343,7 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
     workers whose last run ended ``complete`` are left running in it when the runs are
     done (else every worker is ended before this returns).
 
-    With ``checks`` (:func:`~agv_cosim.pipeline.initcheck.plan_checks`), the first
+    With ``checks`` (:func:`~agv_cosim.workers.initcheck.plan_checks`), the first
     worker does the initialisation check before it takes a job (the other workers run
     meanwhile); an FMU's refusal, or that worker's death, broken channel or overrun of
     ``checks.limit`` per FMU during the check, stops every worker and raises the
@@ -575,11 +575,11 @@ def check_initialisation(manifest: Manifest, jobs: list[Job],
     (``agv-cosim validate``).
 
     Catches what only the FMU knows (a parameter value it refuses), without running:
-    the checks (:func:`~agv_cosim.pipeline.initcheck.plan_checks`: each distinct (FMU,
+    the checks (:func:`~agv_cosim.workers.initcheck.plan_checks`: each distinct (FMU,
     parameter values) pair once) are made by a pool worker that runs no job
     (:func:`run_isolated`), the first refusal stops them. An FMU that takes longer than
     ``timeout`` [s] (default: the manifest's ``[simulation] timeout``, else
-    :data:`~agv_cosim.pipeline.initcheck.INIT_TIMEOUT`) to instantiate and initialise
+    :data:`~agv_cosim.workers.initcheck.INIT_TIMEOUT`) to instantiate and initialise
     is stopped.
 
     Raises
