@@ -34,15 +34,15 @@ def test_a_complete_runs_worker_takes_the_next_call_and_ends_with_close(chain, t
         [first] = pool.run_isolated([job], tmp_path / "a", 1, _noop, _noop, idle)
         assert first["status"] == "complete"
         [worker] = idle.workers
-        pid, scratch = worker["process"].pid, Path(worker["scratch"])
-        assert worker["process"].is_alive() and scratch.is_dir()
+        pid, scratch = worker.process.pid, Path(worker.scratch)
+        assert worker.process.is_alive() and scratch.is_dir()
         (tmp_path / "b").mkdir()
         [second] = pool.run_isolated([job], tmp_path / "b", 1, _noop, _noop, idle)
         assert second["status"] == "complete"
-        assert [w["process"].pid for w in idle.workers] == [pid]  # the same process
+        assert [w.process.pid for w in idle.workers] == [pid]  # the same process
         assert ((tmp_path / "a" / job.label / "timeseries.csv").read_bytes()
                 == (tmp_path / "b" / job.label / "timeseries.csv").read_bytes())
-        process = idle.workers[0]["process"]
+        process = idle.workers[0].process
     finally:
         idle.close()
     assert not process.is_alive() and not scratch.exists() and idle.workers == []
