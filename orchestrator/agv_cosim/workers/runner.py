@@ -5,7 +5,7 @@ cluster (:class:`DaskRunner`: :func:`~agv_cosim.workers.distributed.run_on_dask`
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 from ..report.records import RunResult
 from ..system import Job
@@ -15,6 +15,7 @@ from .initcheck import InitChecks
 __all__ = ["DaskRunner", "LocalRunner", "Runner"]
 
 
+@runtime_checkable
 class Runner(Protocol):
     """Runs jobs, each into its folder ``root / job.label``.
 
