@@ -131,16 +131,9 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         kept, users = keep_others(folder.target, manifest, jobs, written) if resume \
             else ([], keep_users(folder.target, jobs, written))
         todo = [job for i, job in enumerate(jobs) if i not in reused]
-        if resume and not quiet:
-            print(printable(f"agv-cosim: resume: reused {len(reused)} of {len(jobs)} "
-                            f"run(s) of {folder.target}; running {len(todo)}"
-                            + (f"; kept {len(kept)} run(s) of other variants as they "
-                               "are" if kept else "")), file=sys.stderr)
-        if users and not quiet:
-            shown = ", ".join(users[:5]) + (f" and {len(users) - 5} more"
-                                             if len(users) > 5 else "")
-            print(printable(f"agv-cosim: kept {len(users)} file(s) not written by "
-                            f"agv-cosim: {shown}"), file=sys.stderr)
+        if not quiet:
+            _say_kept(folder.target, len(jobs), len(todo), len(reused) if resume else None,
+                      kept, users)
         workers_asked = max(1, workers or os.cpu_count() or 1)
         workers = min(workers_asked, max(1, len(todo)))
         total = sum(job.plan.steps for job in todo)
@@ -180,6 +173,22 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         raise ReportError(f"{target / REPORT_FILE}: not written ({page_error}); the "
                           f"results are in {target}", kept=target, results=results)
     return target, results
+
+
+def _say_kept(target: Path, runs: int, todo: int, reused: int | None,
+              kept: list[RunResult], users: list[str]) -> None:
+    """On stderr: what ``--resume`` reused (``reused`` of ``runs``; None: no resume)
+    and the runs of other variants it kept; the user's files kept."""
+    if reused is not None:
+        print(printable(f"agv-cosim: resume: reused {reused} of {runs} "
+                        f"run(s) of {target}; running {todo}"
+                        + (f"; kept {len(kept)} run(s) of other variants as they "
+                           "are" if kept else "")), file=sys.stderr)
+    if users:
+        shown = ", ".join(users[:5]) + (f" and {len(users) - 5} more"
+                                         if len(users) > 5 else "")
+        print(printable(f"agv-cosim: kept {len(users)} file(s) not written by "
+                        f"agv-cosim: {shown}"), file=sys.stderr)
 
 
 def _runner(manifest: Manifest, jobs: list[Job], todo: list[Job], workers: int,
