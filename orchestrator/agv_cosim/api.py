@@ -24,13 +24,14 @@ from .errors import (
     AgvCosimError,
     ClusterError,
     FolderLost,
-    Interrupted,
     ManifestError,
     ModelError,
     OutputError,
     ReportError,
+    RunsStopped,
     UnreadableFile,
-    kept_summary,
+    error_lines,
+    exit_code,
 )
 from .files import CSV_LIMIT, JSON_LIMIT, open_regular, printable, read_bytes, read_text
 
@@ -455,8 +456,9 @@ def run(manifest: str | Path, *, out: str | Path | None = None,
     AgvCosimError
         For everything ``agv-cosim run`` reports as an error; ``str()`` is its line.
     KeyboardInterrupt, Interrupted
-        When interrupted; ``.kept`` is then the result folder kept marked partial (or
-        None).
+        When interrupted; once runs started it is a
+        :class:`~agv_cosim.errors.RunsStopped`, whose ``.kept`` is the result folder
+        kept marked partial (or None).
     """
     from .lifetime import (
         clean_stale_scratch,
@@ -481,26 +483,13 @@ def run(manifest: str | Path, *, out: str | Path | None = None,
             clean_stale_scratch()
             target, results, warnings = _run(manifest, out, chosen, overrides, jobs, quiet,
                                              overwrite, dask, timeout, init_check)
-    except ManifestError as error:
-        lines = error.lines()
-        raise AgvCosimError(lines[0], lines, 2) from error
-    except (OutputError, UnreadableFile) as error:
-        raise AgvCosimError(str(error), exit_code=2) from error
-    except FolderLost as error:
-        raise AgvCosimError(str(error), exit_code=1) from error
-    except ReportError as error:  # the results were written; their page was not
-        raise AgvCosimError(str(error), exit_code=1,
-                            kept=getattr(error, "kept", None)) from error
-    except ClusterError as error:
-        kept = kept_summary(error)
-        raise AgvCosimError(f"{error}" + (f"; {kept}" if kept else ""), exit_code=1,
-                            kept=getattr(error, "kept", None)) from error
-    except (KeyboardInterrupt, Interrupted):
-        raise
-    except OSError as error:  # the system refused (disk full, permissions, ...)
-        where = f"{error.filename}: " if error.filename else ""
-        text = error.strerror or str(error) or type(error).__name__
-        raise AgvCosimError(f"{where}{text}", exit_code=1) from error
+    except (ManifestError, OutputError, UnreadableFile, FolderLost, ReportError,
+            ClusterError, OSError) as error:
+        # ReportError: the results were written, their page was not; OSError: the
+        # system refused (disk full, permissions, ...)
+        lines = error_lines(error)
+        kept = error.kept if isinstance(error, (ReportError, RunsStopped)) else None
+        raise AgvCosimError(lines[0], lines, exit_code(error), kept=kept) from error
     bad = [r for r in results if r["status"] != "complete"]
     lines = [f"run {r['label']} {r['status']}: {r['error']}" for r in bad]
     lines += [f"run {r['label']}: metrics: {r['metrics_error']}"

@@ -18,7 +18,7 @@ import sys
 import traceback
 from collections.abc import Callable, Iterable
 
-from .errors import kept_summary
+from .errors import error_lines, exit_code, kept_summary
 from .files import printable
 from .version import __version__
 
@@ -153,9 +153,8 @@ def _cmd_run(args):
                                   resume=args.resume, real_time=args.real_time,
                                   init_limit=_init_limit(args, manifest))
     except ClusterError as error:
-        kept = kept_summary(error)
-        _say(f"agv-cosim: error: {error}" + (f"; {kept}" if kept else ""))
-        return 1
+        _say(f"agv-cosim: error: {error_lines(error)[0]}")
+        return exit_code(error)
     bad = [r for r in results if r["status"] != "complete"]
     for result in bad:
         _say(f"agv-cosim: run {result['label']} {result['status']}: {result['error']}")
@@ -494,11 +493,11 @@ def _report(args, text, code):
     return code
 
 
-def _interrupted(args, name, signum, error):
+def _interrupted(args, name, error):
     kept = kept_summary(error)
     return _report(args, f"interrupted by {name}" + (f"; {kept}" if kept else
                                                     " (no result folder was completed)"),
-                   128 + signum)
+                   exit_code(error))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -526,27 +525,22 @@ def main(argv: list[str] | None = None) -> int:
             if args.command != "list":
                 clean_stale_scratch()
             return _dispatch(args)
-    except (ManifestError, OutputError, UnreadableFile) as error:
-        # every problem found in the manifest, one line each (capped)
-        lines = error.lines() if isinstance(error, ManifestError) else [str(error)]
-        code = _report(args, f"error: {lines[0]}", 2)
-        for more in lines[1:]:
-            _say(f"agv-cosim: error: {more}")
-        return code
-    except (FolderLost, ReportError) as error:
-        return _report(args, f"error: {error}", 1)
     except BrokenPipeError:
         # the reader went away (e.g. `agv-cosim list | head`): stop quietly
         sys.stdout = None
         return 0
+    except (ManifestError, OutputError, UnreadableFile, FolderLost, ReportError,
+            OSError) as error:  # OSError: the system refused (disk full, permissions, ...)
+        # every problem found in the manifest, one line each (capped)
+        lines = error_lines(error)
+        code = _report(args, f"error: {lines[0]}", exit_code(error))
+        for more in lines[1:]:
+            _say(f"agv-cosim: error: {more}")
+        return code
     except KeyboardInterrupt as error:
-        return _interrupted(args, "SIGINT", 2, error)
+        return _interrupted(args, "SIGINT", error)
     except Interrupted as error:
-        return _interrupted(args, error.name, error.signum, error)
-    except OSError as error:  # the system refused (disk full, permissions, ...)
-        where = f"{error.filename}: " if error.filename else ""
-        text = error.strerror or str(error) or type(error).__name__
-        return _report(args, f"error: {where}{text}", 1)
+        return _interrupted(args, error.name, error)
     except Exception as error:  # noqa: BLE001 - never a traceback without --debug
         return _report(args, f"error: internal error: {type(error).__name__}: {error} "
                        "(run with --debug for the traceback)", 1)

@@ -7,14 +7,16 @@ key, the FMU, the file, or the component, call and time.
 
 import difflib
 import signal
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from typing import Any
 
 __all__ = [
-    "MAX_REPORTED", "AgvCosimError", "BuildError", "BundleError", "ClusterError", "ExamplesError",
-    "FolderLost", "IdentifyError", "Interrupted", "ManifestError", "ModelError",
-    "OutputError", "ReportError", "SamplingError", "SchemaError", "SimulationError",
-    "SspError", "StandaloneError", "TableError", "UnreadableFile", "WorkerUnfit", "closest",
-    "did_you_mean", "kept_summary",
+    "MAX_REPORTED", "AgvCosimError", "BuildError", "BundleError", "ClusterError",
+    "ClusterStopped", "ExamplesError", "FolderLost", "IdentifyError", "Interrupted",
+    "InterruptedRuns", "KeyboardInterruptedRuns", "ManifestError", "ModelError",
+    "OutputError", "ReportError", "RunsStopped", "SamplingError", "SchemaError",
+    "SimulationError", "SspError", "StandaloneError", "TableError", "UnreadableFile",
+    "WorkerUnfit", "closest", "did_you_mean", "error_lines", "exit_code", "kept_summary",
     "FitDataError", "FitError", "FitNotConverged", "TuneError",
 ]
 
@@ -40,6 +42,8 @@ class ManifestError(Exception):
 
     ``others`` holds further problems of the same manifest found in the same check.
     """
+
+    exit_code = 2
 
     def __init__(self, manifest: object, key: str, problem: str,
                  line: int | None = None) -> None:
@@ -92,16 +96,28 @@ class SimulationError(Exception):
 class OutputError(Exception):
     """An output folder we must not (or cannot) write; the text names the path."""
 
+    exit_code = 2
+
 
 class ReportError(Exception):
     """The report could not be written whole: its page (none is left) or a figure (the
-    page marks it); the text names the file and the reason. The results stay."""
+    page marks it); the text names the file and the reason. The results stay: ``kept``
+    is then their folder and ``results`` one result per run (or None)."""
+
+    exit_code = 1
+
+    def __init__(self, message: str, kept: object = None,
+                 results: list[Any] | None = None) -> None:
+        super().__init__(message)
+        self.kept, self.results = kept, results
 
 
 class UnreadableFile(Exception):
     """A file the tool reads that it refuses to read: not a regular file (a FIFO, a
     device, a folder), larger than the limit of its kind, or not text/JSON/CSV as its
     kind must be. The text names the file and the reason (``<path>: <problem>``)."""
+
+    exit_code = 2
 
     def __init__(self, path: object, problem: str) -> None:
         super().__init__(f"{path}: {problem}")
@@ -111,9 +127,13 @@ class UnreadableFile(Exception):
 class FolderLost(Exception):
     """The folder a run was writing was removed or replaced during the run."""
 
+    exit_code = 1
+
 
 class ClusterError(Exception):
     """The cluster cannot be used (unreachable scheduler, no workers, ...)."""
+
+    exit_code = 1
 
 
 class WorkerUnfit(RuntimeError):
@@ -196,14 +216,106 @@ class Interrupted(BaseException):
     def name(self) -> str:
         return signal.Signals(self.signum).name
 
+    @property
+    def exit_code(self) -> int:
+        """128 + the signal's number, as a shell reports a process the signal ended."""
+        return 128 + self.signum
+
+
+class RunsStopped(BaseException):
+    """Runs stopped before all ended (a termination signal, a cluster gone), with what
+    was done: raised by the runners (:class:`~agv_cosim.workers.runner.Runner`) as the
+    kind of the stop it carries (:meth:`of`: a :class:`KeyboardInterrupt`, an
+    :class:`Interrupted` or a :class:`ClusterError`), so that every ``except`` of that
+    kind still takes it.
+
+    ``results``: one result per job (the runs not done ``not run``); ``restore``: puts
+    the termination signals back as they were (ignored since the stop, so that the
+    caller can keep what was done); ``reason``: why, as partial.txt says it; ``kept``:
+    the result folder the command kept marked partial (None until then, or when it
+    kept none)."""
+
+    def __init__(self, *args: object, results: list[Any] | None = None,
+                 restore: Callable[[], None] | None = None, reason: str = "") -> None:
+        BaseException.__init__(self, *args)  # the text of the stop's own kind
+        self.results: list[Any] = list(results or [])
+        self._restore = restore
+        self.reason = reason
+        self.kept: object = None
+
+    def restore(self) -> None:
+        """The termination signals back as they were before the stop (once)."""
+        restore, self._restore = self._restore, None
+        if restore is not None:
+            restore()
+
+    @staticmethod
+    def of(stop: BaseException, results: list[Any],
+           restore: Callable[[], None] | None = None, reason: str = "") -> "RunsStopped":
+        """A RunsStopped of the kind of ``stop`` (a KeyboardInterrupt, an Interrupted
+        or a ClusterError), with its text and signal; ``reason`` defaults to
+        'interrupted by SIGNAL'."""
+        if isinstance(stop, Interrupted):
+            return InterruptedRuns(stop.signum, results=results, restore=restore,
+                                   reason=reason or f"interrupted by {stop.name}")
+        if isinstance(stop, KeyboardInterrupt):
+            return KeyboardInterruptedRuns(*stop.args, results=results, restore=restore,
+                                           reason=reason or "interrupted by SIGINT")
+        if isinstance(stop, ClusterError):
+            return ClusterStopped(str(stop), results=results, restore=restore,
+                                  reason=reason or str(stop))
+        raise TypeError(f"runs are not stopped by {type(stop).__name__}")
+
+
+class InterruptedRuns(RunsStopped, Interrupted):
+    """Runs stopped by a termination signal (an :class:`Interrupted`)."""
+
+    def __init__(self, signum: int, results: list[Any] | None = None,
+                 restore: Callable[[], None] | None = None, reason: str = "") -> None:
+        RunsStopped.__init__(self, signal.Signals(signum).name, results=results,
+                             restore=restore, reason=reason)
+        self.signum = int(signum)
+
+
+class KeyboardInterruptedRuns(RunsStopped, KeyboardInterrupt):
+    """Runs stopped by SIGINT through Python's handler (a :class:`KeyboardInterrupt`)."""
+
+
+class ClusterStopped(RunsStopped, ClusterError):
+    """Runs stopped because the cluster went away (a :class:`ClusterError`)."""
+
+
+def exit_code(error: BaseException) -> int:
+    """The exit code of ``agv-cosim`` for ``error``, for the command line and the API
+    alike: the error type's own (``exit_code``: 2 bad input, 1 a failure, 128 + N for
+    signal N), 130 for a KeyboardInterrupt, else 1 (the system refused: an OSError; an
+    internal error)."""
+    if isinstance(error, KeyboardInterrupt):
+        return 128 + signal.SIGINT
+    code = getattr(error, "exit_code", None)
+    return code if isinstance(code, int) else 1
+
+
+def error_lines(error: BaseException) -> list[str]:
+    """The lines ``agv-cosim`` prints for ``error`` after ``agv-cosim: error:``, one per
+    problem (a manifest's, capped: :meth:`ManifestError.lines`); for an OSError its file
+    and the system's reason; for runs a cluster stopped, what was kept."""
+    if isinstance(error, ManifestError):
+        return error.lines()
+    if isinstance(error, OSError):
+        where = f"{error.filename}: " if error.filename else ""
+        return [f"{where}{error.strerror or str(error) or type(error).__name__}"]
+    kept = kept_summary(error)
+    return [f"{error}" + (f"; {kept}" if kept else "")]
+
 
 def kept_summary(error: BaseException) -> str | None:
     """What a stopped run kept, as the command says it: 'k of n run(s) complete kept in
-    DIR (marked partial: ...)', from the error's ``kept`` folder and ``results``; None
-    when it kept nothing."""
-    kept, results = getattr(error, "kept", None), getattr(error, "results", None)
-    if kept is None or results is None:
+    DIR (marked partial: ...)', from a :class:`RunsStopped`'s ``kept`` folder and
+    ``results``; None when it kept nothing."""
+    if not isinstance(error, RunsStopped) or error.kept is None:
         return None
+    kept, results = error.kept, error.results
     complete = sum(r["status"] == "complete" for r in results)
     return (f"{complete} of {len(results)} run(s) complete kept in {kept} (marked partial: "
             "partial.txt, summary.csv)")

@@ -1,5 +1,5 @@
 """The result folder's figures drawn in concurrent forked processes
-(agv_cosim.pipeline.pool.call_concurrently, used by pipeline.run after the runs)."""
+(agv_cosim.workers.pool.call_concurrently, used by pipeline.run after the runs)."""
 
 import os
 import subprocess
@@ -9,7 +9,7 @@ import pytest
 from test_resume import folder_contents
 
 from agv_cosim import cli
-from agv_cosim.pipeline.pool import call_concurrently
+from agv_cosim.workers.pool import call_concurrently
 from agv_cosim.report import plots
 
 SWEEP_PLOTS = """
@@ -27,7 +27,7 @@ signals = ["int.y", "gain.y"]
 FORKED = """
 import os
 from functools import partial
-from agv_cosim.pipeline.pool import call_concurrently
+from agv_cosim.workers.pool import call_concurrently
 
 def pid(index):
     return index, os.getpid()
@@ -113,7 +113,7 @@ def test_a_plot_failing_in_its_process_is_reported(chain, tmp_path, monkeypatch,
 INTERRUPTED = """
 import os, signal, sys, time
 from functools import partial
-from agv_cosim.pipeline.pool import call_concurrently
+from agv_cosim.workers.pool import call_concurrently
 
 def task(seconds):
     time.sleep(seconds)

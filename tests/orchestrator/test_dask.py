@@ -16,7 +16,7 @@ import pytest
 
 from agv_cosim.cli import main
 from agv_cosim.errors import ClusterError
-from agv_cosim.pipeline.distributed import cached_fmu, connect
+from agv_cosim.workers.distributed import cached_fmu, connect
 
 pytestmark = pytest.mark.slow
 
@@ -165,7 +165,7 @@ def test_stock_workers_run_every_run_isolated(cluster, fmus, tmp_path):
     from distributed import Client
 
     from agv_cosim.pipeline import prepare
-    from agv_cosim.pipeline.distributed import run_remote
+    from agv_cosim.workers.distributed import run_remote
 
     with Client(cluster, timeout=30) as client:
         daemonic = client.run(  # a lambda: sent by value (this module is not on workers)

@@ -11,8 +11,8 @@ import time
 import pytest
 
 from agv_cosim.errors import ClusterError, WorkerUnfit
-from agv_cosim.pipeline import distributed
-from agv_cosim.pipeline.distributed import cached_fmu, connect
+from agv_cosim.workers import distributed
+from agv_cosim.workers.distributed import cached_fmu, connect
 
 
 def _blob(text=b"the FMU the client validated"):

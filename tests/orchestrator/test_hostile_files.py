@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from agv_cosim import cli, errors, files as results, lifetime, pipeline as runner
-from agv_cosim.pipeline import run as runner_run
+from agv_cosim.workers import pool
 from agv_cosim.errors import OutputError
 from agv_cosim.files import MARKER, AtomicDir
 
@@ -188,14 +188,14 @@ def test_a_result_folder_removed_before_the_summary_is_one_line(chain, tmp_path,
     claims complete runs, one line names the folder, exit 1, nothing half-written."""
     import shutil
 
-    real = runner_run.run_isolated
+    real = pool.run_isolated
 
     def runs_then_removed(jobs, root, *args, **kwargs):
         done = real(jobs, root, *args, **kwargs)
         shutil.rmtree(root)
         return done
 
-    monkeypatch.setattr(runner_run, "run_isolated", runs_then_removed)
+    monkeypatch.setattr(pool, "run_isolated", runs_then_removed)
     assert _run(chain(), tmp_path / "out") == 1
     line = _last_error(capsys)
     assert line.startswith(f"agv-cosim: error: {tmp_path / 'out'}: the folder being "
@@ -207,14 +207,14 @@ def test_a_result_folder_whose_parent_is_removed_is_one_line(chain, tmp_path, ca
                                                              monkeypatch):
     import shutil
 
-    real = runner_run.run_isolated
+    real = pool.run_isolated
 
     def runs_then_parent_removed(jobs, root, *args, **kwargs):
         done = real(jobs, root, *args, **kwargs)
         shutil.rmtree(root.parent)
         return done
 
-    monkeypatch.setattr(runner_run, "run_isolated", runs_then_parent_removed)
+    monkeypatch.setattr(pool, "run_isolated", runs_then_parent_removed)
     assert _run(chain(), tmp_path / "deep" / "out") == 1
     assert "was removed or replaced during the run" in _last_error(capsys)
     assert not (tmp_path / "deep").exists()  # not recreated by us
@@ -226,14 +226,14 @@ def test_a_run_folder_removed_after_its_run_is_not_complete(chain, tmp_path, cap
     why, the other run stays complete."""
     import shutil
 
-    real = runner_run.run_isolated
+    real = pool.run_isolated
 
     def one_removed(jobs, root, *args, **kwargs):
         done = real(jobs, root, *args, **kwargs)
         shutil.rmtree(root / jobs[0].label)
         return done
 
-    monkeypatch.setattr(runner_run, "run_isolated", one_removed)
+    monkeypatch.setattr(pool, "run_isolated", one_removed)
     path = chain(extra='[sweep]\n"gain.k" = [1.0, 2.0]\n')
     assert _run(path, tmp_path / "out") == 1
     err = capsys.readouterr().err

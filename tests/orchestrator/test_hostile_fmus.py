@@ -15,8 +15,9 @@ import pytest
 from processes import ended
 
 from agv_cosim import cli, pipeline as runner
-from agv_cosim.pipeline import channels, initcheck, pool, run as runner_run
+from agv_cosim.errors import RunsStopped
 from agv_cosim.files import MARKER
+from agv_cosim.workers import channels, initcheck, pool
 
 HANG = """
 name = "hang"
@@ -77,7 +78,7 @@ def test_a_hung_run_is_stopped_at_its_limit_and_the_sweep_goes_on(fmus, tmp_path
     root = tmp_path / "root"
     root.mkdir()
     begin = time.monotonic()
-    results = runner_run.run_isolated(jobs, root, 2, lambda steps: None, lambda: None)
+    results = pool.run_isolated(jobs, root, 2, lambda steps: None, lambda: None)
     assert time.monotonic() - begin < 600  # not the hour the FMU would hang
     by_label = {r["label"]: r for r in results}
     for job in jobs:
@@ -137,16 +138,13 @@ def test_an_interruption_keeps_the_finished_runs_marked_partial(chain, tmp_path,
                                                                 monkeypatch):
     """SIGINT after the first of two runs: the folder is committed with that run
     complete, the other 'not run', the marker and partial.txt saying so; exit 130."""
-    real = runner_run.run_isolated
+    real = pool.run_isolated
 
     def first_then_interrupted(jobs, root, *args, **kwargs):
         [first] = real(jobs[:1], root, *args, **kwargs)
-        stop = KeyboardInterrupt()
-        stop.results = [first, pool.not_run(jobs[1])]
-        stop.restore = lambda: None
-        raise stop
+        raise RunsStopped.of(KeyboardInterrupt(), [first, pool.not_run(jobs[1])])
 
-    monkeypatch.setattr(runner_run, "run_isolated", first_then_interrupted)
+    monkeypatch.setattr(pool, "run_isolated", first_then_interrupted)
     path = chain(extra='[sweep]\n"gain.k" = [1.0, 2.0]\n')
     out = tmp_path / "out"
     assert cli.main(["run", str(path), "--out", str(out), "--quiet"]) == 130

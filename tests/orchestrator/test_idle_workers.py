@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from agv_cosim import pipeline as runner
-from agv_cosim.pipeline import host, pool
+from agv_cosim.workers import host, pool
 
 ROGUE = """
 name = "rogue"
@@ -34,15 +34,15 @@ def test_a_complete_runs_worker_takes_the_next_call_and_ends_with_close(chain, t
         [first] = pool.run_isolated([job], tmp_path / "a", 1, _noop, _noop, idle)
         assert first["status"] == "complete"
         [worker] = idle.workers
-        pid, scratch = worker["process"].pid, Path(worker["scratch"])
-        assert worker["process"].is_alive() and scratch.is_dir()
+        pid, scratch = worker.process.pid, Path(worker.scratch)
+        assert worker.process.is_alive() and scratch.is_dir()
         (tmp_path / "b").mkdir()
         [second] = pool.run_isolated([job], tmp_path / "b", 1, _noop, _noop, idle)
         assert second["status"] == "complete"
-        assert [w["process"].pid for w in idle.workers] == [pid]  # the same process
+        assert [w.process.pid for w in idle.workers] == [pid]  # the same process
         assert ((tmp_path / "a" / job.label / "timeseries.csv").read_bytes()
                 == (tmp_path / "b" / job.label / "timeseries.csv").read_bytes())
-        process = idle.workers[0]["process"]
+        process = idle.workers[0].process
     finally:
         idle.close()
     assert not process.is_alive() and not scratch.exists() and idle.workers == []
@@ -77,7 +77,7 @@ def test_the_checking_worker_runs_after_its_check_and_meanwhile_overlaps(chain, 
     """run_isolated with checks and one worker: that worker checks, then runs both jobs
     (one process in all); ``meanwhile`` is called once, before any run ended; the
     folders hold what runs without the check write."""
-    from agv_cosim.pipeline import initcheck
+    from agv_cosim.workers import initcheck
 
     manifest, jobs, _ = runner.prepare(chain(extra='[sweep]\n"gain.k" = [1.0, 2.0]\n'))
     checks = initcheck.plan_checks(manifest, jobs, 30.0)

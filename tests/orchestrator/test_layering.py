@@ -17,13 +17,16 @@ PACKAGE = "agv_cosim"
 
 #: Layer of each top-level part: a module may import only from its own layer or below.
 #: The foundation (0) serves every stage; the stages follow the pipeline (manifest ->
-#: plan -> system -> execution -> report); the pipeline and the tools sit on top.
+#: plan -> system -> execution -> report); the workers run the jobs (local processes or
+#: Dask); the pipeline composes a command from the stages and the workers; the tools sit
+#: on top.
 LAYERS = {
     "errors": 0, "version": 0, "fmitypes": 0, "lifetime": 0, "files": 0, "timeseries": 0,
-    "manifest": 1, "plan": 2, "system": 3, "execution": 4, "report": 5, "pipeline": 6,
-    "ssp": 7, "shipped": 7, "bundle": 7, "standalone": 7, "build": 7, "examples": 7,
-    "identification": 7, "fitting": 7,
-    "cli": 8, "api": 8, "": 9,
+    "manifest": 1, "plan": 2, "system": 3, "execution": 4, "report": 5, "workers": 6,
+    "pipeline": 7,
+    "ssp": 8, "shipped": 8, "bundle": 8, "standalone": 8, "build": 8, "examples": 8,
+    "identification": 8, "fitting": 8,
+    "cli": 9, "api": 9, "": 10,
 }
 
 

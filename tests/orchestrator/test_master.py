@@ -127,7 +127,7 @@ def test_bad_parameter_value_fails_run(fmus, tmp_path):
 
 
 def test_interrupted_run_leaves_no_complete_folder(chain, tmp_path, monkeypatch):
-    from agv_cosim.pipeline import run as runner
+    from agv_cosim.workers import pool as runner
 
     def boom(*args, **kwargs):
         raise KeyboardInterrupt

@@ -14,11 +14,12 @@ import pytest
 from processes import Collected, wait_until
 
 from agv_cosim import cli
-from agv_cosim.errors import OutputError, SimulationError
+from agv_cosim.errors import OutputError, RunsStopped, SimulationError
 from agv_cosim.execution import Pacer, simulate
 from agv_cosim.execution import pacing
 from agv_cosim.files import MARKER
-from agv_cosim.pipeline import execute, pool, prepare, run as runner_run
+from agv_cosim.pipeline import execute, prepare
+from agv_cosim.workers import pool
 from agv_cosim.report.records import TIMINGS, read_timings
 
 
@@ -124,16 +125,13 @@ def test_the_folder_an_interruption_keeps_has_its_page(chain, tmp_path, capsys,
                                                         monkeypatch):
     """SIGINT after the first of two runs: the kept folder has index.html, which shows
     the partial note and the run kept."""
-    real = runner_run.run_isolated
+    real = pool.run_isolated
 
     def first_then_interrupted(jobs, root, *args, **kwargs):
         [first] = real(jobs[:1], root, *args, **kwargs)
-        stop = KeyboardInterrupt()
-        stop.results = [first, pool.not_run(jobs[1])]
-        stop.restore = lambda: None
-        raise stop
+        raise RunsStopped.of(KeyboardInterrupt(), [first, pool.not_run(jobs[1])])
 
-    monkeypatch.setattr(runner_run, "run_isolated", first_then_interrupted)
+    monkeypatch.setattr(pool, "run_isolated", first_then_interrupted)
     path = chain(extra='[sweep]\n"gain.k" = [1.0, 2.0]\n')
     out = tmp_path / "out"
     assert cli.main(["run", str(path), "--out", str(out), "--quiet"]) == 130

@@ -268,8 +268,8 @@ def test_sweep_killed_by_sigterm_then_resumed_equals_a_clean_run(chain, fmus, tm
 def test_an_interrupted_resume_keeps_the_reused_runs(chain, tmp_path, monkeypatch):
     """A resumed sweep interrupted before its own runs end commits the folder marked
     partial with the reused runs complete in it; resuming again reuses them."""
-    from agv_cosim.errors import Interrupted
-    from agv_cosim.pipeline import pool, run
+    from agv_cosim.errors import Interrupted, RunsStopped
+    from agv_cosim.workers import pool
 
     path = chain(extra='[sweep]\n"gain.k" = [1.0, 2.0]\n')
     out = tmp_path / "out"
@@ -277,11 +277,9 @@ def test_an_interrupted_resume_keeps_the_reused_runs(chain, tmp_path, monkeypatc
     path.write_text(path.read_text().replace("[1.0, 2.0]", "[1.0, 3.0]"))
 
     def interrupted(jobs, *args, **kwargs):
-        stop = Interrupted(signal.SIGTERM)
-        stop.results = [pool.not_run(job) for job in jobs]
-        raise stop
+        raise RunsStopped.of(Interrupted(signal.SIGTERM), [pool.not_run(job) for job in jobs])
 
-    monkeypatch.setattr(run, "run_isolated", interrupted)
+    monkeypatch.setattr(pool, "run_isolated", interrupted)
     manifest, jobs, _ = prepare(path)
     with pytest.raises(Interrupted):
         execute(manifest, jobs, out, quiet=True, resume=True)

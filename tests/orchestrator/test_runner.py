@@ -91,7 +91,7 @@ def test_a_worker_is_reused_only_after_complete_runs(fmus, tmp_path, monkeypatch
     """--jobs 1, three runs: complete, partial (the FMU fails at t = 0.5), complete. The
     first worker takes runs 1 and 2 and exits after the failure; a fresh worker takes run
     3. Counted by the run scratch folders the parent makes, one per worker process."""
-    from agv_cosim.pipeline import pool as runner
+    from agv_cosim.workers import pool as runner
 
     made = []
     real = runner.scratch_dir

@@ -57,10 +57,10 @@ def test_list_imports_no_plotting_no_scipy_and_no_schema():
 def test_fork_server_preload_imports_no_plotting_and_no_scipy():
     modules = _modules_after(
         "import importlib\n"
-        "from agv_cosim.pipeline.pool import FORKSERVER_PRELOAD\n"
+        "from agv_cosim.workers.pool import FORKSERVER_PRELOAD\n"
         "for name in FORKSERVER_PRELOAD:\n"
         "    importlib.import_module(name)\n")
-    assert "fmpy.fmi2" in modules and "agv_cosim.pipeline.pool" in modules
+    assert "fmpy.fmi2" in modules and "agv_cosim.workers.pool" in modules
     assert not modules & set(HEAVY)
 
 
@@ -68,10 +68,10 @@ def test_a_run_worker_starts_without_plotting_or_scipy():
     # a worker is forked from the command after it prepared the runs: it starts with
     # the command's modules, which must not include what only a figure needs
     modules = _modules_after(
-        "import agv_cosim.cli, agv_cosim.pipeline, agv_cosim.pipeline.job\n"
+        "import agv_cosim.cli, agv_cosim.pipeline, agv_cosim.workers.job\n"
         "import agv_cosim.report, agv_cosim.ssp\n"
         "from agv_cosim.report import plots, montecarlo, page\n")
-    assert "agv_cosim.pipeline.pool" in modules and "agv_cosim.report.plots" in modules
+    assert "agv_cosim.workers.pool" in modules and "agv_cosim.report.plots" in modules
     assert not modules & set(HEAVY)
 
 

@@ -19,7 +19,7 @@ with where they are.
    of a corrupted heap). A host that runs several failing instances of one FMU can still
    see its heap damaged (measured with PYTHONMALLOC=debug, cause not located), which is
    why the orchestrator runs simulations in worker processes and retires a worker after
-   any run that did not end complete (agv_cosim/pipeline/pool.py).
+   any run that did not end complete (agv_cosim/workers/pool.py).
 2. Exit-time use after free (here: :func:`finalize_at_exit`, used by the FMI 3.0
    adapter; the FMI 2.0 FMUs avoid it with the C loader, components/fmu_loader). At
    process exit C++ static destruction destroys the library's global

@@ -49,10 +49,9 @@ from ..manifest import Manifest
 from ..plan import plan_runs
 from ..report import plots
 from ..report.page import FIGURES_ERROR, RECORD, REPORT_FILE
-from ..report.records import TIMINGS, RunResult, read_timings, recorded_inputs, write_run_files
+from ..report.records import TIMINGS, RunResult, finish_run, read_timings, recorded_inputs
 from ..system import Job
 from ..system.files import file_sha256
-from .job import run_metrics
 
 __all__ = ["FOLDER_FILES", "RUN_FILES", "check_resumable", "keep_others", "keep_users",
            "listed", "reusable", "reuse_runs"]
@@ -170,10 +169,8 @@ def reuse_runs(target: str | Path, manifest: Manifest, jobs: list[Job],
             if (old / name).is_file() and not (old / name).is_symlink():
                 _keep(old / name, run_dir / name)
         rows = record["rows"]
-        values, metrics_error = run_metrics(job, run_dir, rows)
-        result = write_run_files(job, run_dir, rows, "complete", None, values,
-                                 metrics_error, record.get("ended_by"),
-                                 record["timeseries_sha256"])
+        result = finish_run(job, run_dir, rows, "complete", None, record.get("ended_by"),
+                            record["timeseries_sha256"])
         result["csv_bytes"] = (run_dir / "timeseries.csv").stat().st_size
         result["reused"] = True
         timing = timings.get(job.label, {})

@@ -2,8 +2,8 @@
 folder written.
 
 :func:`execute` runs the jobs (:func:`agv_cosim.pipeline.prepare.prepare`) in worker
-processes (:mod:`.pool`; up to ``workers`` at once) or on a Dask cluster
-(:mod:`.distributed`), and writes the output folder::
+processes (:mod:`agv_cosim.workers.pool`; up to ``workers`` at once) or on a Dask cluster
+(:mod:`agv_cosim.workers.distributed`), and writes the output folder::
 
     DIR/<run label>/timeseries.csv   time, then component.variable (csv module; repr floats)
     DIR/<run label>/metrics.json     metrics of the run (agv_cosim.report.metrics)
@@ -42,7 +42,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from ..errors import FolderLost, OutputError, ReportError
+from ..errors import FolderLost, OutputError, ReportError, RunsStopped
 from ..execution.pacing import factor_problem
 from ..files import AtomicDir, printable, write_summary, write_text
 from ..manifest import Manifest
@@ -50,9 +50,9 @@ from ..report import montecarlo, plots
 from ..report.page import REPORT_FILE, draw_figures, write_report_quietly
 from ..report.records import TIMINGS, RunResult, summary_rows, write_timings
 from ..system import Job
-from .distributed import run_on_dask
-from .initcheck import plan_checks
-from .pool import call_concurrently, run_isolated
+from ..workers.initcheck import plan_checks
+from ..workers.pool import call_concurrently
+from ..workers.runner import DaskRunner, LocalRunner, Runner
 from .prepare import prepare
 from .resume import check_resumable, keep_others, keep_users, listed, reuse_runs
 
@@ -131,16 +131,9 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         kept, users = keep_others(folder.target, manifest, jobs, written) if resume \
             else ([], keep_users(folder.target, jobs, written))
         todo = [job for i, job in enumerate(jobs) if i not in reused]
-        if resume and not quiet:
-            print(printable(f"agv-cosim: resume: reused {len(reused)} of {len(jobs)} "
-                            f"run(s) of {folder.target}; running {len(todo)}"
-                            + (f"; kept {len(kept)} run(s) of other variants as they "
-                               "are" if kept else "")), file=sys.stderr)
-        if users and not quiet:
-            shown = ", ".join(users[:5]) + (f" and {len(users) - 5} more"
-                                             if len(users) > 5 else "")
-            print(printable(f"agv-cosim: kept {len(users)} file(s) not written by "
-                            f"agv-cosim: {shown}"), file=sys.stderr)
+        if not quiet:
+            _say_kept(folder.target, len(jobs), len(todo), len(reused) if resume else None,
+                      kept, users)
         workers_asked = max(1, workers or os.cpu_count() or 1)
         workers = min(workers_asked, max(1, len(todo)))
         total = sum(job.plan.steps for job in todo)
@@ -157,25 +150,16 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
             bar.set_postfix(runs=f"{finished}/{len(jobs)}")
 
         try:
-            if not todo:
-                ran = []
-            elif dask:
-                ran = run_on_dask(dask, todo, written, bar.update, run_done)
-            else:
-                checks = plan_checks(manifest, todo, init_limit) \
-                    if init_limit is not None else None
-                # the figures' imports while the runs are under way
-                ran = run_isolated(todo, written, workers, bar.update, run_done,
-                                   checks=checks,
-                                   meanwhile=plots.import_drawing
-                                   if _draws(manifest, len(jobs)) else None)
-        except BaseException as stop:
+            ran = _runner(manifest, jobs, todo, workers, dask, init_limit).run(
+                todo, written, bar.update, run_done) if todo else []
+        except RunsStopped as stop:
             bar.close()  # before any message: the error is the last line on stderr
-            so_far = getattr(stop, "results", None)
-            if reused and so_far is not None:
-                setattr(stop, "results",  # noqa: B010 - read by _keep_partial, the CLI
-                        _merged(len(jobs), reused, so_far))
+            if reused:
+                stop.results = _merged(len(jobs), reused, stop.results)
             _keep_partial(manifest, jobs, folder, stop, kept)
+            raise
+        except BaseException:
+            bar.close()  # before any message: the error is the last line on stderr
             raise
         bar.close()
         results = _merged(len(jobs), reused, ran)
@@ -186,11 +170,37 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         page_error = _finish(manifest, jobs, results, written, workers_asked)
         target = folder.commit()
     if page_error:  # the results are kept: the command fails, saying where they are
-        failure = ReportError(f"{target / REPORT_FILE}: not written ({page_error}); the "
-                              f"results are in {target}")
-        failure.kept, failure.results = target, results  # type: ignore[attr-defined]
-        raise failure
+        raise ReportError(f"{target / REPORT_FILE}: not written ({page_error}); the "
+                          f"results are in {target}", kept=target, results=results)
     return target, results
+
+
+def _say_kept(target: Path, runs: int, todo: int, reused: int | None,
+              kept: list[RunResult], users: list[str]) -> None:
+    """On stderr: what ``--resume`` reused (``reused`` of ``runs``; None: no resume)
+    and the runs of other variants it kept; the user's files kept."""
+    if reused is not None:
+        print(printable(f"agv-cosim: resume: reused {reused} of {runs} "
+                        f"run(s) of {target}; running {todo}"
+                        + (f"; kept {len(kept)} run(s) of other variants as they "
+                           "are" if kept else "")), file=sys.stderr)
+    if users:
+        shown = ", ".join(users[:5]) + (f" and {len(users) - 5} more"
+                                         if len(users) > 5 else "")
+        print(printable(f"agv-cosim: kept {len(users)} file(s) not written by "
+                        f"agv-cosim: {shown}"), file=sys.stderr)
+
+
+def _runner(manifest: Manifest, jobs: list[Job], todo: list[Job], workers: int,
+            dask: str | None, init_limit: float | None) -> Runner:
+    """What runs ``todo`` (of ``jobs``): the cluster at ``dask``, else ``workers`` local
+    processes, the first doing the initialisation check with ``init_limit``."""
+    if dask:
+        return DaskRunner(dask)
+    checks = plan_checks(manifest, todo, init_limit) if init_limit is not None else None
+    # the figures' imports while the runs are under way
+    return LocalRunner(workers, checks,
+                       plots.import_drawing if _draws(manifest, len(jobs)) else None)
 
 
 def check_options(jobs: list[Job], overwrite: bool = False, dask: str | None = None,
@@ -244,7 +254,7 @@ def progress_bar() -> type:
     class Bar(tqdm):
         drawn = False
         # no monitor thread: the runs' processes are forked from this process while it
-        # has a single thread (agv_cosim.pipeline.channels.process_context)
+        # has a single thread (agv_cosim.workers.channels.process_context)
         monitor_interval = 0
 
         def display(self, *args: Any, **kwargs: Any) -> Any:
@@ -303,39 +313,35 @@ def _checked_files(job: Job, result: RunResult, root: str | Path) -> RunResult:
 
 
 def _keep_partial(manifest: Manifest, jobs: list[Job], folder: AtomicDir,
-                  stop: BaseException, kept: list[RunResult] | None = None) -> None:
+                  stop: RunsStopped, kept: list[RunResult] | None = None) -> None:
     """After an interruption (or a cluster that went away), commit the folder marked
     partial, with its summary, timings and report (index.html), when a run has results
     (``stop.results``, one per job); ``stop.kept`` is then the folder. ``kept``: the
     runs of other variants ``--resume`` kept (listed in summary.csv too). Termination
-    signals stay ignored meanwhile (``stop.restore``)."""
-    restore = getattr(stop, "restore", None)
+    signals stay ignored meanwhile (until ``stop.restore``)."""
     try:
-        results = getattr(stop, "results", None)
-        if results is None or not any(r["rows"] for r in results):
+        results = stop.results
+        if not any(r["rows"] for r in results):
             return
         if not folder.intact():
             return
         results = [_checked_files(job, result, str(folder.path))
                    for job, result in zip(jobs, results)]
         complete = sum(r["status"] == "complete" for r in results)
-        reason = getattr(stop, "reason", None) or (
-            f"interrupted by {getattr(stop, 'name', 'SIGINT')}")
         try:
             _write_summary(folder, listed(manifest, results, kept or []))
-            folder.mark_partial(reason, complete, len(results))
+            folder.mark_partial(stop.reason, complete, len(results))
             # the page of what was kept, partial.txt shown on it
             report_error = write_report_quietly(str(folder.path))
             if report_error:
                 print(printable(f"agv-cosim: warning: {manifest.path}: report: "
                                 f"{report_error}"), file=sys.stderr)
-            setattr(stop, "kept", folder.commit())  # noqa: B010 - read by the CLI
+            stop.kept = folder.commit()
         except (OSError, FolderLost):  # nothing to keep: the first error is the story
             return
-        setattr(stop, "results", results)  # noqa: B010 - read by the CLI
+        stop.results = results
     finally:
-        if restore is not None:
-            restore()
+        stop.restore()
 
 
 def _finish(manifest: Manifest, jobs: list[Job], results: list[RunResult], written: Path,

@@ -20,11 +20,12 @@ from typing import Any, NotRequired, TypedDict
 from ..files import CSV_LIMIT, create_file, json_text, read_bytes, write_json, write_summary
 from ..system import Job
 from ..version import __version__
+from . import metrics
 
-__all__ = ["REAL_TIME_FIELDS", "TIMINGS", "TIMING_COLUMNS", "RunResult", "inputs_sha256",
-           "read_timings", "record_units", "recorded_inputs", "run_inputs", "run_result",
-           "summary_rows", "timing_rows", "versions", "write_run_files", "write_summary",
-           "write_timings"]
+__all__ = ["REAL_TIME_FIELDS", "TIMINGS", "TIMING_COLUMNS", "RunResult", "finish_remote_run",
+           "finish_run", "inputs_sha256", "read_timings", "record_units", "recorded_inputs",
+           "run_inputs", "run_metrics", "run_result", "summary_rows", "timing_rows",
+           "versions", "write_run_files", "write_summary", "write_timings"]
 
 #: The result folder's file of the runs' timings: the one file that is not reproducible.
 TIMINGS = "timings.csv"
@@ -181,6 +182,46 @@ def write_run_files(job: Job, run_dir: Path, rows: int, status: str, error: str 
     write_json(run_dir / "run.json", record, replace=True)
     return run_result(job, status, rows=rows, error=error, metrics=values,
                       metrics_error=metrics_error)
+
+
+def run_metrics(job: Job, run_dir: Path, rows: int) -> tuple[dict[str, Any], str | None]:
+    """The metrics of a run from its timeseries.csv (streamed in chunks: memory does not
+    grow with the run's length), and the error that stopped them (None); nothing for a
+    run without ``[metrics]`` or without rows."""
+    if not job.metrics_spec or not rows:
+        return {}, None
+    try:
+        return dict(metrics.compute_metrics_csv(run_dir / "timeseries.csv", job.metrics_spec,
+                                                base_dir=job.manifest_dir)), None
+    except Exception as failure:  # noqa: BLE001 - reported in run.json
+        return {}, f"{type(failure).__name__}: {failure}"
+
+
+def finish_run(job: Job, run_dir: Path, rows: int, status: str, error: str | None,
+               ended_by: str | None = None, timeseries_sha256: str | None = None,
+               measure: bool = True) -> RunResult:
+    """A run's record finished: its metrics from its timeseries.csv (:func:`run_metrics`;
+    none unless ``measure``), then metrics.json and run.json (:func:`write_run_files`);
+    return its result. What a worker reports (status, rows, error, how it ended) is all
+    it takes."""
+    values, metrics_error = run_metrics(job, run_dir, rows) if measure else ({}, None)
+    return write_run_files(job, run_dir, rows, status, error, values, metrics_error,
+                           ended_by, timeseries_sha256)
+
+
+def finish_remote_run(job: Job, run_dir: Path, result: RunResult,
+                      record: dict[str, Any]) -> RunResult:
+    """The record of a run that ran on another machine (a Dask worker) finished here,
+    where the manifest's files are: its metrics from the timeseries.csv written into
+    ``run_dir`` (:func:`run_metrics`), metrics.json, and run.json as the worker wrote it
+    (``record``: it names the worker's FMU copies and package versions) with the metrics'
+    error. Returns ``result`` with the metrics."""
+    values, metrics_error = run_metrics(job, run_dir, result["rows"])
+    write_json(run_dir / "metrics.json", values)
+    record["metrics_error"] = metrics_error
+    write_json(run_dir / "run.json", record)
+    result["metrics"], result["metrics_error"] = values, metrics_error
+    return result
 
 
 def timing_rows(results: list[RunResult]) -> list[dict[str, Any]]:

@@ -1,5 +1,5 @@
-"""One job run into its folder: the simulation with its CSV recorded, then its metrics,
-``metrics.json`` and ``run.json``."""
+"""One job run into its folder: the simulation with its CSV recorded, then its record
+(metrics, ``metrics.json`` and ``run.json``: :func:`agv_cosim.report.records.finish_run`)."""
 
 import time
 from collections.abc import Callable
@@ -10,12 +10,11 @@ from .. import fmitypes
 from ..errors import SimulationError
 from ..execution import CsvObserver, Observer, Pacer, ProgressObserver, simulate
 from ..execution.track import Track
-from ..report import metrics
-from ..report.records import RunResult, write_run_files
+from ..report.records import RunResult, finish_run
 from ..system import Job
 from ..timeseries import CsvSink
 
-__all__ = ["run_job", "run_metrics"]
+__all__ = ["run_job"]
 
 
 def run_job(job: Job, run_dir: str | Path, progress: Callable[[int], None] | None = None,
@@ -64,24 +63,9 @@ def run_job(job: Job, run_dir: str | Path, progress: Callable[[int], None] | Non
     rows = sink.rows
     wall = time.perf_counter() - begin
     status = "complete" if error is None else ("partial" if rows else "failed")
-    values, metrics_error = run_metrics(job, run_dir, rows)
-    result = write_run_files(job, run_dir, rows, status, error, values, metrics_error,
-                             ended_by, sink.sha256())
+    result = finish_run(job, run_dir, rows, status, error, ended_by, sink.sha256())
     result["csv_bytes"] = sink.bytes
     result["wall_time_s"] = wall
     if pace is not None:
         result["real_time"] = pace.report()
     return result
-
-
-def run_metrics(job: Job, run_dir: Path, rows: int) -> tuple[dict[str, Any], str | None]:
-    """The metrics of a run from its timeseries.csv (streamed in chunks: memory does not
-    grow with the run's length), and the error that stopped them (None); nothing for a
-    run without ``[metrics]`` or without rows."""
-    if not job.metrics_spec or not rows:
-        return {}, None
-    try:
-        return dict(metrics.compute_metrics_csv(run_dir / "timeseries.csv", job.metrics_spec,
-                                                base_dir=job.manifest_dir)), None
-    except Exception as failure:  # noqa: BLE001 - reported in run.json
-        return {}, f"{type(failure).__name__}: {failure}"

@@ -1,20 +1,20 @@
 """Run hosts: Python processes of their own that run jobs for a Dask worker.
 
 A Dask worker under a nanny is a daemonic process, which :mod:`multiprocessing` forbids
-to have children, so it cannot run :func:`agv_cosim.pipeline.pool.run_isolated` itself.
-It can start an ordinary subprocess: a run host (``python -m agv_cosim.pipeline.host``),
+to have children, so it cannot run :func:`agv_cosim.workers.pool.run_isolated` itself.
+It can start an ordinary subprocess: a run host (``python -m agv_cosim.workers.host``),
 which reads ``(job, root)`` requests from its stdin and runs each through
-:func:`~agv_cosim.pipeline.pool.run_isolated` (the run in a worker process of its own,
+:func:`~agv_cosim.workers.pool.run_isolated` (the run in a worker process of its own,
 exactly as locally), then writes the run's result to its stdout (pickles, one per
 request). A host lives as long as its Dask worker: it ends when its stdin closes or its
 parent process is gone (the kernel kills it then, ``PR_SET_PDEATHSIG``).
 
 The host keeps its worker process between requests, as a local sweep does between runs
-(:class:`~agv_cosim.pipeline.pool.IdleWorkers`): a worker whose run ended ``complete``
+(:class:`~agv_cosim.workers.pool.IdleWorkers`): a worker whose run ended ``complete``
 takes the next request's run with its FMUs' cores already imported and its FMUs already
 extracted; after any other ending it exits and the next run gets a fresh worker, forked
 from the host (which runs a single thread, see
-:func:`~agv_cosim.pipeline.channels.process_context`). A run that crashes its worker is a
+:func:`~agv_cosim.workers.channels.process_context`). A run that crashes its worker is a
 result, as locally; the host goes on.
 
 The worker side (:func:`run_hosted`) keeps its idle hosts for the next task, one host per

@@ -17,8 +17,8 @@ What a task does on a worker (:func:`run_remote`):
    worker can never run an FMU other than the one the client validated: the hash in
    ``run.json`` is the hash of the bytes that ran.
 2. **The same crash isolation as locally.** The run goes to a run host of the worker
-   (:mod:`agv_cosim.pipeline.host`: an ordinary subprocess, kept for the worker's later
-   tasks), which runs it through :func:`agv_cosim.pipeline.pool.run_isolated` in its
+   (:mod:`agv_cosim.workers.host`: an ordinary subprocess, kept for the worker's later
+   tasks), which runs it through :func:`agv_cosim.workers.pool.run_isolated` in its
    worker process, kept between tasks as a local sweep keeps it between runs (replaced
    after a run that did not end ``complete``), so an FMU that aborts its process fails
    only its run, reported ``partial`` or ``failed`` with the same text as locally; the
@@ -52,13 +52,12 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
-from ..errors import ClusterError, Interrupted, WorkerUnfit
-from ..files import create_file, write_json
+from ..errors import ClusterError, Interrupted, RunsStopped, WorkerUnfit
+from ..files import create_file
 from ..lifetime import ignore_termination, scratch_dir
-from ..report import metrics
-from ..report.records import RunResult, run_result
+from ..report.records import RunResult, finish_remote_run, run_result
 from ..system import Job
 from .host import run_hosted
 from .pool import not_run
@@ -120,7 +119,7 @@ def connect(address: str, timeout: float = CONNECT_TIMEOUT) -> Any:
     return box["client"]
 
 
-def _fmu_cache():
+def _fmu_cache() -> Path:
     """This user's FMU cache folder on a worker: created 0700; refused (WorkerUnfit)
     unless it is a folder (not a link) of this user that no one else can write."""
     folder = Path(tempfile.gettempdir()) / f"agv-cosim-dask-fmus-{os.getuid()}"
@@ -137,7 +136,7 @@ def _fmu_cache():
     return folder
 
 
-def _file_sha256(path):
+def _file_sha256(path: Path) -> str | None:
     """SHA-256 of the regular file at ``path`` (not through a link), or None."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
@@ -185,7 +184,7 @@ def cached_fmu(sha256: str, blob: bytes, cache: str | Path | None = None) -> Pat
 
 def run_remote(job: Job, blobs: dict[str, bytes]) -> tuple[RunResult, dict[str, bytes]]:
     """Body of a Dask task: run ``job`` isolated on this worker (in a run host, see
-    :mod:`agv_cosim.pipeline.host`); return its folder.
+    :mod:`agv_cosim.workers.host`); return its folder.
 
     ``blobs``: SHA-256 -> FMU bytes of the job's FMUs. Returns ``(result dict, files)``,
     ``files`` mapping each file of the run's folder (relative POSIX path) to its bytes.
@@ -211,13 +210,16 @@ def run_remote(job: Job, blobs: dict[str, bytes]) -> tuple[RunResult, dict[str, 
     return result, files
 
 
-def _write_back(job, result, files, root):
-    """Write a run's files under ``root`` and compute its metrics here (the client)."""
+def _write_back(job: Job, result: dict[str, Any], files: dict[str, bytes],
+                root: Path) -> RunResult:
+    """Write a run's files under ``root``; its record is finished here, the client
+    (:func:`~agv_cosim.report.records.finish_remote_run`: the metrics, metrics.json,
+    run.json)."""
     run_dir = Path(root) / job.label
     run_dir.mkdir(exist_ok=True)  # never its parents: a removed result folder stays gone
-    result = RunResult(**result)
+    written = cast(RunResult, dict(result))  # a copy
     # with metrics, run.json and metrics.json are written once, after the metrics
-    measured = bool(job.metrics_spec and result["rows"] and "run.json" in files)
+    measured = bool(job.metrics_spec and written["rows"] and "run.json" in files)
     for name, data in files.items():
         target = run_dir / name
         if run_dir.resolve() not in target.resolve().parents:
@@ -227,20 +229,10 @@ def _write_back(job, result, files, root):
         target.parent.mkdir(parents=True, exist_ok=True)
         with create_file(target, binary=True) as stream:
             stream.write(data)
-    if measured:
-        values, metrics_error = {}, None
-        try:
-            values = dict(metrics.compute_metrics_csv(
-                run_dir / "timeseries.csv", job.metrics_spec,
-                base_dir=job.manifest_dir))
-        except Exception as failure:  # noqa: BLE001 - reported in run.json, as locally
-            metrics_error = f"{type(failure).__name__}: {failure}"
-        write_json(run_dir / "metrics.json", values)
-        info = json.loads(files["run.json"].decode("utf-8"))
-        info["metrics_error"] = metrics_error
-        write_json(run_dir / "run.json", info)
-        result.update(metrics=values, metrics_error=metrics_error)
-    return result
+    if not measured:
+        return written
+    record = json.loads(files["run.json"].decode("utf-8"))
+    return finish_remote_run(job, run_dir, written, record)
 
 
 def _taken(arrived: "queue.SimpleQueue[Any]", timeout: float) -> list[Any]:
@@ -267,7 +259,7 @@ def _failure(future: Any) -> str:
     return ""
 
 
-def _worker_count(client):
+def _worker_count(client: Any) -> int | None:
     """Workers the scheduler knows now, or None when it does not answer within
     :data:`CONNECT_TIMEOUT` (gone, or the client is no longer connected)."""
     if client.status != "running":
@@ -280,11 +272,11 @@ def _worker_count(client):
     return len(info.get("workers") or {})
 
 
-def _one_line(error):
+def _one_line(error: BaseException) -> str:
     return " ".join(str(error).split()) or type(error).__name__
 
 
-def _quiet_logs():
+def _quiet_logs() -> Callable[[], None]:
     """Silence the log output of distributed (and tornado, asyncio) on our stderr while
     the cluster is used (a lost scheduler makes it print tracebacks before our one
     line); return a function that turns logging back on."""
@@ -299,123 +291,171 @@ def _quiet_logs():
 def run_on_dask(address: str, jobs: list[Job], root: Path,
                 on_progress: Callable[[int], None],
                 on_done: Callable[[], None]) -> list[RunResult]:
-    """Run ``jobs`` on the cluster at ``address``; write each run under ``root``.
+    """Run ``jobs`` on the cluster at ``address``; write each run under ``root`` (the
+    Dask :class:`~agv_cosim.workers.runner.Runner`).
 
-    Same contract as :func:`agv_cosim.pipeline.pool.run_isolated`: one result dict per
+    Same contract as :func:`agv_cosim.workers.pool.run_isolated`: one result dict per
     job, in job order. ``on_progress`` gets each finished run's steps at once. A run
     whose task fails on the cluster (its worker died, ...) is ``failed`` with the reason
     and the others go on. When the command cannot go on (the scheduler gone, no worker left
     for :data:`LOST_TIMEOUT` s, a worker unfit to run anything, a SIGINT/SIGTERM/SIGHUP)
-    the exception carries ``results`` (the finished runs, the others ``not run``) so
-    that the caller keeps them.
+    once runs were submitted, a :class:`~agv_cosim.errors.RunsStopped` of the stop's
+    kind carries ``results`` (the finished runs, the others ``not run``) so that the
+    caller keeps them.
     """
     restore_logs = _quiet_logs()
     client = connect(address)
-    results: list[RunResult | None] = [None] * len(jobs)
-    futures = {}
+    runs = _DaskRuns(address, client, jobs, root, on_progress, on_done)
     try:
+        runs.submit()
+        runs.collect()
+        done_results = [r for r in runs.results if r is not None]
+        assert len(done_results) == len(runs.results), "a run ended without a result"
+        return done_results
+    except (KeyboardInterrupt, Interrupted) as stop:
+        raise RunsStopped.of(stop, runs.so_far(), ignore_termination()) from stop
+    except ClusterError as stop:
+        if not runs.futures:
+            raise
+        raise RunsStopped.of(stop, runs.so_far(),
+                             reason=str(stop).removeprefix("--dask: ")) from stop
+    finally:
+        runs.close()
+        restore_logs()
+
+
+class _DaskRuns:
+    """The state of one :func:`run_on_dask`: the client, the tasks, the results."""
+
+    def __init__(self, address: str, client: Any, jobs: list[Job], root: Path,
+                 on_progress: Callable[[int], None], on_done: Callable[[], None]) -> None:
+        self.address, self.client, self.jobs, self.root = address, client, jobs, root
+        self.on_progress, self.on_done = on_progress, on_done
+        self.results: list[RunResult | None] = [None] * len(jobs)
+        #: each submitted task's future -> the index of its job
+        self.futures: dict[Any, int] = {}
+        self.lost_since: float | None = None
+
+    def so_far(self) -> list[RunResult]:
+        """The results, the runs not finished ``not run``."""
+        return [r if r is not None else not_run(self.jobs[i])
+                for i, r in enumerate(self.results)]
+
+    def submit(self) -> None:
+        """Wait for a worker; scatter each distinct FMU once; submit one task per job."""
+        client = self.client
         if not client.scheduler_info().get("workers"):
             try:
                 client.wait_for_workers(1, timeout=CONNECT_TIMEOUT)
             except (TimeoutError, OSError):
-                raise ClusterError(f"--dask: the scheduler at {address} has no workers") \
-                    from None
-        blobs = {}
-        for job in jobs:
-            for info in job.plan.models.values():
-                if info.table is None and info.sha256 not in blobs:
-                    data = Path(info.path).read_bytes()
-                    if hashlib.sha256(data).hexdigest() != info.sha256:
-                        raise ClusterError(f"{info.path}: changed since it was validated")
-                    blobs[info.sha256] = data
+                raise ClusterError(f"--dask: the scheduler at {self.address} has no "
+                                   "workers") from None
         shipped = {sha: client.scatter(data, hash=False, broadcast=False)
-                   for sha, data in blobs.items()}
-        for index, job in enumerate(jobs):
+                   for sha, data in _fmu_blobs(self.jobs).items()}
+        for index, job in enumerate(self.jobs):
             needed = {info.sha256: shipped[info.sha256] for info in job.plan.models.values()
                       if info.table is None}
             # pure=False: a run is not cached by Dask (two identical runs both run)
             future = client.submit(run_remote, job, needed, pure=False,
                                    key=f"agv-cosim-{os.getpid()}-{index}-{job.label}")
-            futures[future] = index
+            self.futures[future] = index
+
+    def collect(self) -> None:
+        """Take each finished task's run as it comes, until none is pending."""
         # each finished task is put here by Dask's callback thread: the loop takes them
         # as they come (no wait over every pending task, no scheduler call per task)
         arrived: queue.SimpleQueue[Any] = queue.SimpleQueue()
-        for future in futures:
+        for future in self.futures:
             future.add_done_callback(arrived.put)
-        pending = set(futures)
-        lost_since: float | None = None
+        pending = set(self.futures)
         while pending:
             ready = _taken(arrived, 1.0)
             quiet = not ready
             if quiet:  # nothing for a second: a completion a callback missed, if any
                 ready = [f for f in pending if f.done()]
             done = [f for f in dict.fromkeys(ready) if f in pending and f.done()]
-            cancelled = [f for f in done if f.cancelled()]
-            if cancelled:
-                reasons = sorted({reason for f in cancelled
-                                  for reason in re.findall(r"for reason: ([^.\n]+)",
-                                                           _failure(f))})
-                why = ", ".join(reasons) or "CancelledError"
-                problem: str | None = (
-                    f"lost the scheduler at {address}" if _worker_count(client) is None
-                    else f"the cluster at {address} cancelled the runs left (a worker "
-                         "holding their FMUs died)")
-                raise ClusterError(f"--dask: {problem} ({why}); {len(pending)} run(s) did "
-                                   "not finish")
+            self.check_cancelled(done, pending)
             pending.difference_update(done)
             for future in done:
-                index = futures[future]
-                job = jobs[index]
-                try:
-                    result, files = future.result()
-                except WorkerUnfit as error:
-                    raise ClusterError(f"--dask: run {job.label} could not run on the "
-                                       f"cluster: {_one_line(error)}") from None
-                except Exception as error:  # noqa: BLE001 - this run's task failed
-                    results[index] = run_result(
-                        job, "failed", error=f"its Dask task failed: "
-                                             f"{type(error).__name__}: {_one_line(error)}")
-                    on_done()
-                    continue
-                results[index] = _write_back(job, result, files, root)
-                on_progress(job.plan.steps)
-                on_done()
+                self.take(future)
             if not pending or not quiet:  # runs that finish: the cluster is there
-                lost_since = None
+                self.lost_since = None
                 continue
-            problem = None
-            workers = _worker_count(client)
-            if workers is None:
-                problem = f"lost the scheduler at {address}"
-            elif not workers:
-                problem = f"the cluster at {address} has no worker left"
-            if problem is None:
-                lost_since = None
-            elif lost_since is None:
-                lost_since = time.monotonic()
-            elif time.monotonic() - lost_since > LOST_TIMEOUT:
-                raise ClusterError(f"--dask: {problem} (for {LOST_TIMEOUT:g} s); "
-                                   f"{len(pending)} run(s) did not finish")
-        done_results = [r for r in results if r is not None]
-        assert len(done_results) == len(results), "a run ended without a result"
-        return done_results
-    except BaseException as stop:
-        if isinstance(stop, (KeyboardInterrupt, Interrupted)):
-            setattr(stop, "restore", ignore_termination())  # noqa: B010 - for the caller
-        if isinstance(stop, (KeyboardInterrupt, Interrupted, ClusterError)) and futures:
-            setattr(stop, "results", [r if r is not None else not_run(jobs[i])  # noqa: B010
-                                      for i, r in enumerate(results)])
-            if isinstance(stop, ClusterError):
-                setattr(stop, "reason", str(stop).removeprefix("--dask: "))  # noqa: B010
-        raise
-    finally:
+            self.check_cluster(len(pending))
+
+    def check_cancelled(self, done: list[Any], pending: set[Any]) -> None:
+        """Raise ClusterError when the cluster cancelled a task of ``done``."""
+        cancelled = [f for f in done if f.cancelled()]
+        if not cancelled:
+            return
+        reasons = sorted({reason for f in cancelled
+                          for reason in re.findall(r"for reason: ([^.\n]+)", _failure(f))})
+        why = ", ".join(reasons) or "CancelledError"
+        problem = (f"lost the scheduler at {self.address}"
+                   if _worker_count(self.client) is None
+                   else f"the cluster at {self.address} cancelled the runs left (a worker "
+                        "holding their FMUs died)")
+        raise ClusterError(f"--dask: {problem} ({why}); {len(pending)} run(s) did "
+                           "not finish")
+
+    def take(self, future: Any) -> None:
+        """The run of a finished task written back (or ``failed`` with its reason)."""
+        index = self.futures[future]
+        job = self.jobs[index]
         try:
-            if futures:
-                client.cancel(list(futures), force=True)
+            result, files = future.result()
+        except WorkerUnfit as error:
+            raise ClusterError(f"--dask: run {job.label} could not run on the "
+                               f"cluster: {_one_line(error)}") from None
+        except Exception as error:  # noqa: BLE001 - this run's task failed
+            self.results[index] = run_result(
+                job, "failed", error=f"its Dask task failed: "
+                                     f"{type(error).__name__}: {_one_line(error)}")
+            self.on_done()
+            return
+        self.results[index] = _write_back(job, result, files, self.root)
+        self.on_progress(job.plan.steps)
+        self.on_done()
+
+    def check_cluster(self, pending: int) -> None:
+        """Raise ClusterError when the scheduler or every worker has been gone for
+        :data:`LOST_TIMEOUT` s, ``pending`` runs left."""
+        problem = None
+        workers = _worker_count(self.client)
+        if workers is None:
+            problem = f"lost the scheduler at {self.address}"
+        elif not workers:
+            problem = f"the cluster at {self.address} has no worker left"
+        if problem is None:
+            self.lost_since = None
+        elif self.lost_since is None:
+            self.lost_since = time.monotonic()
+        elif time.monotonic() - self.lost_since > LOST_TIMEOUT:
+            raise ClusterError(f"--dask: {problem} (for {LOST_TIMEOUT:g} s); "
+                               f"{pending} run(s) did not finish")
+
+    def close(self) -> None:
+        """Cancel the tasks left and close the client (the scheduler may be gone)."""
+        try:
+            if self.futures:
+                self.client.cancel(list(self.futures), force=True)
         except Exception:  # noqa: BLE001 - the scheduler may be gone
             pass
         try:
-            client.close(timeout=CONNECT_TIMEOUT)
+            self.client.close(timeout=CONNECT_TIMEOUT)
         except Exception:  # noqa: BLE001 - the scheduler may be gone
             pass
-        restore_logs()
+
+
+def _fmu_blobs(jobs: list[Job]) -> dict[str, bytes]:
+    """SHA-256 -> bytes of each distinct FMU of ``jobs``, each checked against the hash
+    it was validated with."""
+    blobs: dict[str, bytes] = {}
+    for job in jobs:
+        for info in job.plan.models.values():
+            if info.table is None and info.sha256 not in blobs:
+                data = Path(info.path).read_bytes()
+                if hashlib.sha256(data).hexdigest() != info.sha256:
+                    raise ClusterError(f"{info.path}: changed since it was validated")
+                blobs[info.sha256] = data
+    return blobs

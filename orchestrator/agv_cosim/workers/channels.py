@@ -276,7 +276,7 @@ def start_without_main(process: BaseProcess) -> None:
 #: component core may import (scipy.signal, ...): a worker imports those when an FMU of
 #: its run needs them, once per worker. A module missing here is skipped by the fork
 #: server.
-FORKSERVER_PRELOAD = ("agv_cosim.pipeline.pool", "fmpy.fmi2", "numpy")
+FORKSERVER_PRELOAD = ("agv_cosim.workers.pool", "fmpy.fmi2", "numpy")
 
 
 def process_context() -> ForkContext | ForkServerContext:

@@ -1,9 +1,9 @@
 """The initialisation check: each FMU instantiated and initialised once with each run's
 parameters (:func:`plan_checks`), in a worker process of the pool
-(:func:`run_checks` in :func:`agv_cosim.pipeline.pool.run_isolated`), never in the
+(:func:`run_checks` in :func:`agv_cosim.workers.pool.run_isolated`), never in the
 command's. ``agv-cosim run`` hands the checks to its first worker, which then runs: the
 FMUs are unpacked, loaded and their cores imported once for both; ``agv-cosim validate``
-(:func:`agv_cosim.pipeline.pool.check_initialisation`) to a worker that runs nothing.
+(:func:`agv_cosim.workers.pool.check_initialisation`) to a worker that runs nothing.
 """
 
 from collections.abc import Callable

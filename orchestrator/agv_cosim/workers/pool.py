@@ -24,12 +24,14 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from multiprocessing import get_context
 from multiprocessing.connection import Connection, wait
+from multiprocessing.process import BaseProcess
 from pathlib import Path
 from typing import Any
 
-from ..errors import Interrupted
+from ..errors import Interrupted, RunsStopped
 from ..execution.instance import keep_extractions
 from ..execution.pacing import FIGURES, WALL, report_of
 from ..execution.track import Track, describe_track
@@ -41,8 +43,7 @@ from ..lifetime import (
     scratch_dir,
 )
 from ..manifest import Manifest
-from ..report import metrics
-from ..report.records import RunResult, run_result, write_run_files
+from ..report.records import RunResult, finish_run, run_result
 from ..system import Job
 from ..timeseries import count_rows
 from .channels import (
@@ -60,8 +61,9 @@ from .channels import (
 from .initcheck import InitChecks, plan_checks, run_checks
 from .job import run_job
 
-__all__ = ["FORKSERVER_PRELOAD", "IdleWorkers", "call_concurrently", "check_initialisation",
-           "inherited_fds", "not_run", "process_context", "run_isolated", "start_process"]
+__all__ = ["FORKSERVER_PRELOAD", "IdleWorkers", "Worker", "call_concurrently",
+           "check_initialisation", "inherited_fds", "not_run", "process_context",
+           "run_isolated", "start_process"]
 
 #: The tasks of :func:`call_concurrently` under way: its forked processes inherit them
 #: and are sent an index, so that no task need be pickled.
@@ -135,8 +137,8 @@ def _worker(jobs: Connection, channel: Connection, output: Connection, life: Con
             scratch: str, track: Track, inherited: list[int] | None = None,
             checks: list[Any] | None = None, pacing: Any = None) -> None:
     """Body of a worker process: run the jobs the parent sends, one at a time; with
-    ``checks`` (:attr:`~agv_cosim.pipeline.initcheck.InitChecks.items`), first the
-    initialisation check (:func:`~agv_cosim.pipeline.initcheck.run_checks`:
+    ``checks`` (:attr:`~agv_cosim.workers.initcheck.InitChecks.items`), first the
+    initialisation check (:func:`~agv_cosim.workers.initcheck.run_checks`:
     ``("checked", None)`` when it passed, else the worker exits after its ``failed``
     message).
 
@@ -166,9 +168,6 @@ def _worker(jobs: Connection, channel: Connection, output: Connection, life: Con
         except OSError:  # the parent is gone (BrokenPipeError): nobody to report to
             os._exit(1)
 
-    def progress(steps: int) -> None:
-        send(("progress", steps))
-
     if checks is not None:
         passed = run_checks(checks, send)
         flush_c_stdio()  # what the FMUs printed is in the pipe before the answer
@@ -184,25 +183,34 @@ def _worker(jobs: Connection, channel: Connection, output: Connection, life: Con
         if task is None:
             break
         job, run_dir = task
-        track[:] = [0.0] * len(track)
-        warnings = [0]
-
-        def message(component: str, status: int, text: str,
-                    warnings: list[int] = warnings) -> None:
-            # errors (and the first 100 warnings) reach the parent before a crash loses them
-            if status >= 3 or (status >= 1 and warnings[0] < 100):
-                warnings[0] += status < 3
-                send(("message", f"{component}: {' '.join(text.split())}"))
-
-        try:
-            result = run_job(job, run_dir, progress, track, message, pacing=pacing)
-        except Exception as failure:  # noqa: BLE001 - e.g. a full disk: report, no traceback
-            result = run_result(job, "failed", error=f"{type(failure).__name__}: {failure}")
+        result = _run_in_worker(job, run_dir, send, track, pacing)
         flush_c_stdio()  # the run's output is in the pipe before its result
         send(("done", result))
         if result["status"] != "complete":
             break
     channel.close()
+
+
+def _run_in_worker(job: Job, run_dir: Path, send: Callable[[tuple[str, Any]], None],
+                   track: Track, pacing: Any) -> RunResult:
+    """One job run in a worker (:func:`_worker`): its progress and FMU messages sent."""
+    track[:] = [0.0] * len(track)
+    warnings = 0
+
+    def message(component: str, status: int, text: str) -> None:
+        # errors (and the first 100 warnings) reach the parent before a crash loses them
+        nonlocal warnings
+        if status >= 3 or (status >= 1 and warnings < 100):
+            warnings += status < 3
+            send(("message", f"{component}: {' '.join(text.split())}"))
+
+    def progress(steps: int) -> None:
+        send(("progress", steps))
+
+    try:
+        return run_job(job, run_dir, progress, track, message, pacing=pacing)
+    except Exception as failure:  # noqa: BLE001 - e.g. a full disk: report, no traceback
+        return run_result(job, "failed", error=f"{type(failure).__name__}: {failure}")
 
 
 def _ended(job: Job, run_dir: str | Path, status: str | None, how: str, track: Track,
@@ -234,16 +242,11 @@ def _ended_result(job: Job, run_dir: str | Path, status: str | None, how: str,
         error = (f"{how} in {describe_track(track, list(job.plan.models))} after {rows} "
                  "recorded rows" + (f"; last FMU message: {last_message}" if last_message
                                     else ""))
-    values, metrics_error = {}, None
-    if job.metrics_spec and rows and status != "interrupted":  # as for any partial run
-        try:
-            values = dict(metrics.compute_metrics_csv(
-                csv_file, job.metrics_spec, base_dir=job.manifest_dir))
-        except Exception as failure:  # noqa: BLE001 - reported in run.json
-            metrics_error = f"{type(failure).__name__}: {failure}"
     try:
         run_dir.mkdir(exist_ok=True)  # not its parents: a removed result folder stays gone
-        return write_run_files(job, run_dir, rows, status, error, values, metrics_error)
+        # measured as any partial run, but for an interrupted one
+        return finish_run(job, run_dir, rows, status, error,
+                          measure=status != "interrupted")
     except OSError:  # the result folder is gone: the result only
         return run_result(job, status, rows=rows, error=error)
 
@@ -273,37 +276,97 @@ def _process_end(exitcode: int | None) -> str:
     return f"the run's process died ({how})"
 
 
+@dataclass(eq=False)
+class Worker:
+    """A worker process of :func:`run_isolated` and the parent's ends of its pipes."""
+
+    #: the worker process (the leader of its process group)
+    process: BaseProcess
+    #: a pidfd of the process (None without pidfd_open), closed by :meth:`release`
+    pidfd: int | None
+    #: what reads ready once the process ended: the pidfd, else the process's sentinel
+    exited: int
+    #: the writing end of the jobs pipe: ``(job, run_dir)``, or None to stop
+    send: Connection
+    #: the frames the worker sends (progress, messages, results)
+    frames: Frames
+    #: the worker's stdout and stderr, into its run's output.txt
+    output: OutputLog
+    #: where the worker extracts FMUs (deleted with the worker)
+    scratch: str
+    #: where the worker is (component, call, time), shared with it
+    track: Track
+    #: a paced run's figures, shared with it (:class:`~agv_cosim.execution.Pacer`)
+    pacing: Any
+    #: the index of the job it runs, or None
+    index: int | None = None
+    #: when its run (or check) must have ended [monotonic s], or None
+    deadline: float | None = None
+    #: when its run was handed out [monotonic s]: the wall time of a run it does not
+    #: report
+    started: float = 0.0
+    #: True once it was told (or chose) to exit
+    leaving: bool = False
+    #: True while it does the initialisation check
+    checking: bool = False
+    #: the index of the check item under way
+    checked: Any = None
+
+    def busy(self) -> bool:
+        """Whether the worker has a run, a check or its exit under way."""
+        return self.index is not None or self.leaving or self.checking
+
+    def handles(self) -> list[int]:
+        """What reads ready when the worker ended or sent something."""
+        found = [self.exited]
+        found += [self.frames.fd] if not self.frames.closed else []
+        found += [self.output.fd] if not self.output.closed else []
+        return found
+
+    def hand(self, message: Any) -> None:
+        """Send ``message`` to the worker; a worker already gone is seen by its end."""
+        try:
+            self.send.send(message)
+        except OSError:
+            pass
+
+    def release(self) -> None:
+        """Close the parent's ends of the worker's pipes and its pidfd; delete its
+        scratch folder (the process has ended)."""
+        self.output.close()
+        self.send.close()
+        self.frames.close()
+        if self.pidfd is not None:
+            os.close(self.pidfd)
+            self.pidfd = None
+        shutil.rmtree(self.scratch, ignore_errors=True)
+
+
 class IdleWorkers:
     """Workers that :func:`run_isolated` leaves running when it returns, for the next
-    call to take (a run host's, :mod:`agv_cosim.pipeline.host`): each ended its last
+    call to take (a run host's, :mod:`agv_cosim.workers.host`): each ended its last
     run ``complete`` and waits for a job. Their life pipe (see :func:`child_setup`)
     stays open with them; :meth:`close` ends them."""
 
     def __init__(self) -> None:
-        #: each: dict as :func:`run_isolated` keeps them (process, send, frames, ...)
-        self.workers: list[dict[str, Any]] = []
+        self.workers: list[Worker] = []
         #: (reading end, writing end) of the life pipe, made by the first call
         self.life: tuple[Connection, Connection] | None = None
 
-    def take(self) -> dict[str, Any] | None:
+    def take(self) -> Worker | None:
         """A worker that is still alive (the dead ones cleaned up), or None."""
         while self.workers:
             worker = self.workers.pop()
-            if worker["process"].is_alive():
+            if worker.process.is_alive():
                 return worker
             self._end(worker)
         return None
 
     @staticmethod
-    def _end(worker: dict[str, Any]) -> None:
-        kill_group(worker["process"])
-        worker["process"].join()
-        if worker["pidfd"] is not None:
-            os.close(worker["pidfd"])
-            worker["pidfd"] = None
-        for name in ("output", "send", "frames"):
-            worker[name].close()
-        shutil.rmtree(worker["scratch"], ignore_errors=True)
+    def _end(worker: Worker) -> None:
+        kill_group(worker.process)
+        worker.process.join()
+        worker.release()
 
     def close(self) -> None:
         """End the workers (their process groups killed) and close the life pipe."""
@@ -322,7 +385,8 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
                  idle: IdleWorkers | None = None,
                  checks: InitChecks | None = None,
                  meanwhile: Callable[[], None] | None = None) -> list[RunResult]:
-    """Run every job in a worker process, ``workers`` processes at a time.
+    """Run every job in a worker process, ``workers`` processes at a time (the local
+    :class:`~agv_cosim.workers.runner.Runner`).
 
     A worker runs one job at a time and gets the next one only if its last run ended
     ``complete`` (see :func:`_worker`); otherwise it exits and a fresh worker takes the
@@ -334,16 +398,17 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
     A run longer than its ``job.timeout`` [s] is stopped (its process group killed) and
     reported ``timed out``; the other runs go on. On SIGINT, SIGTERM or SIGHUP the
     workers are stopped, the runs under way reported ``interrupted`` and the waiting
-    ones ``not run``; the exception is re-raised with those results (``.results``) and
-    the termination signals ignored until ``.restore()`` is called, so that the caller
-    can keep what was done. A run whose process ended before it reported has the time
-    from handing it out to its end as its ``wall_time_s``.
+    ones ``not run``; a :class:`~agv_cosim.errors.RunsStopped` of the signal's kind is
+    raised with those results, the termination signals ignored until its ``restore()``
+    is called, so that the caller can keep what was done. A run whose process ended
+    before it reported has the time from handing it out to its end as its
+    ``wall_time_s``.
 
     With ``idle``, the workers of that :class:`IdleWorkers` take jobs first, and the
     workers whose last run ended ``complete`` are left running in it when the runs are
     done (else every worker is ended before this returns).
 
-    With ``checks`` (:func:`~agv_cosim.pipeline.initcheck.plan_checks`), the first
+    With ``checks`` (:func:`~agv_cosim.workers.initcheck.plan_checks`), the first
     worker does the initialisation check before it takes a job (the other workers run
     meanwhile); an FMU's refusal, or that worker's death, broken channel or overrun of
     ``checks.limit`` per FMU during the check, stops every worker and raises the
@@ -354,27 +419,65 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
     process that can overlap the runs, e.g. :func:`~agv_cosim.report.plots.import_drawing`).
     """
     assert checks is None or idle is None, "a run host's workers are not checked"
-    context = process_context()
-    results: list[RunResult | None] = [None] * len(jobs)
-    last_message = [None] * len(jobs)
-    waiting = list(range(len(jobs)))
-    #: each: dict(process, send, frames, output, scratch, track, index, deadline,
-    #: started: when its run was handed out, the wall time of a run it does not report;
-    #: checking: True while it does the initialisation check, then ``checked``: the
-    #: index of the check item under way)
-    pool: list[dict[str, Any]] = []
-    # a process a run started that outlives its worker (it left the worker's group) is
-    # handed to this process, which ends it when that worker ends and at the end
-    orphans = Orphans()
-    # closes when this process ends, however: each worker's guard then ends its group
-    if idle is not None and idle.life is not None:
-        life_reader, life_writer = idle.life
-    else:
-        life_reader, life_writer = context.Pipe(duplex=False)
-        if idle is not None:
-            idle.life = (life_reader, life_writer)
+    return _Sweep(jobs, root, workers, on_progress, on_done, idle, checks).run(meanwhile)
 
-    def start_worker(check: InitChecks | None = None) -> dict[str, Any]:
+
+#: Why a run whose worker wrote into its result channel was stopped.
+_BROKEN_CHANNEL = ("the run's process wrote data that is no message of agv-cosim into its "
+                   "result channel (an FMU writing into a file descriptor it does not own) "
+                   "and was stopped")
+
+
+class _Sweep:
+    """The state of one :func:`run_isolated`: the jobs, their results, the workers."""
+
+    def __init__(self, jobs: list[Job], root: Path, workers: int,
+                 on_progress: Callable[[int], None], on_done: Callable[[], None],
+                 idle: IdleWorkers | None, checks: InitChecks | None) -> None:
+        self.jobs, self.root, self.workers = jobs, root, workers
+        self.on_progress, self.on_done = on_progress, on_done
+        self.idle, self.checks = idle, checks
+        self.context = process_context()
+        self.results: list[RunResult | None] = [None] * len(jobs)
+        self.last_message: list[str | None] = [None] * len(jobs)
+        self.waiting = list(range(len(jobs)))
+        self.pool: list[Worker] = []
+        # a process a run started that outlives its worker (it left the worker's
+        # group) is handed to this process, which ends it when that worker ends and at
+        # the end
+        self.orphans = Orphans()
+        # closes when this process ends, however: each worker's guard then ends its group
+        if idle is not None and idle.life is not None:
+            self.life = idle.life
+        else:
+            self.life = self.context.Pipe(duplex=False)
+            if idle is not None:
+                idle.life = self.life
+
+    def run(self, meanwhile: Callable[[], None] | None) -> list[RunResult]:
+        """Run the jobs; return their results in job order."""
+        try:
+            if self.checks is not None:  # takes a job once its check passed
+                self.start_worker(self.checks)
+            while self.waiting or any(w.busy() for w in self.pool):
+                self.fill()
+                if meanwhile is not None:
+                    overlap, meanwhile = meanwhile, None
+                    overlap()
+                self.wait()
+                now = time.monotonic()
+                for worker in list(self.pool):
+                    self.look_after(worker, now)
+        except (KeyboardInterrupt, Interrupted) as stop:
+            raise self.stopped(stop) from stop
+        finally:
+            self.close()
+        done = [r for r in self.results if r is not None]
+        assert len(done) == len(self.results), "a run ended without a result"
+        return done
+
+    def start_worker(self, check: InitChecks | None = None) -> Worker:
+        context = self.context
         job_reader, job_writer = context.Pipe(duplex=False)
         reader, writer = context.Pipe(duplex=False)
         out_reader, out_writer = context.Pipe(duplex=False)
@@ -384,189 +487,177 @@ def run_isolated(jobs: list[Job], root: Path, workers: int,
         pacing = context.RawArray("d", FIGURES)  # a paced run's figures (Pacer)
         pacing[WALL] = float("nan")
         process = context.Process(target=_worker, name="agv-cosim worker",
-                                  args=(job_reader, writer, out_writer, life_reader, scratch,
-                                        track, inherited_fds(context),
+                                  args=(job_reader, writer, out_writer, self.life[0],
+                                        scratch, track, inherited_fds(context),
                                         check.items if check is not None else None,
                                         pacing))
         start_process(process, context)
         for end in (job_reader, writer, out_writer):
             end.close()
         pidfd = _exit_fd(process.pid)
-        worker = {"process": process, "pidfd": pidfd,
-                  "exited": process.sentinel if pidfd is None else pidfd,
-                  "send": job_writer, "frames": Frames(reader),
-                  "output": OutputLog(out_reader), "scratch": scratch, "track": track,
-                  "pacing": pacing,
-                  "index": None, "deadline": None, "started": None, "leaving": False,
-                  "checking": check is not None, "checked": None}
+        worker = Worker(process, pidfd, process.sentinel if pidfd is None else pidfd,
+                        job_writer, Frames(reader), OutputLog(out_reader), scratch, track,
+                        pacing, checking=check is not None)
         if check is not None:
-            worker["deadline"] = time.monotonic() + check.limit
-        pool.append(worker)
+            worker.deadline = time.monotonic() + check.limit
+        self.pool.append(worker)
         return worker
 
-    def give(worker: dict[str, Any]) -> None:
-        index = waiting.pop(0)
-        worker["index"] = index
-        job = jobs[index]
-        worker["started"] = time.monotonic()
-        worker["deadline"] = worker["started"] + job.timeout if job.timeout else None
-        worker["output"].attach(root / job.label)
-        worker["pacing"][:] = [0.0] * FIGURES  # no step paced yet
-        worker["pacing"][WALL] = float("nan")
-        try:
-            worker["send"].send((job, root / job.label))
-        except OSError:  # the worker is already gone: its end is seen below
-            pass
+    def fill(self) -> None:
+        """Workers for the jobs waiting, up to ``workers`` (idle ones first)."""
+        while self.waiting and len(self.pool) < self.workers:
+            kept = self.idle.take() if self.idle is not None else None
+            if kept is not None:
+                self.pool.append(kept)
+                self.give(kept)
+            else:
+                self.give(self.start_worker())
 
-    def end(worker: dict[str, Any], status: str | None = None, how: str | None = None) -> None:
+    def give(self, worker: Worker) -> None:
+        index = self.waiting.pop(0)
+        worker.index = index
+        job = self.jobs[index]
+        worker.started = time.monotonic()
+        worker.deadline = worker.started + job.timeout if job.timeout else None
+        worker.output.attach(self.root / job.label)
+        worker.pacing[:] = [0.0] * FIGURES  # no step paced yet
+        worker.pacing[WALL] = float("nan")
+        worker.hand((job, self.root / job.label))
+
+    def wait(self) -> None:
+        """Wait until a worker ended or sent something, or the next deadline."""
+        now = time.monotonic()
+        deadlines = [w.deadline for w in self.pool if w.deadline is not None]
+        pause = min([1.0] + [max(0.0, d - now) for d in deadlines])
+        wait([handle for w in self.pool for handle in w.handles()], timeout=pause)
+
+    def look_after(self, worker: Worker, now: float) -> None:
+        """Take what ``worker`` sent; end it when it died, broke its channel or
+        overran its run's limit."""
+        worker.output.read()
+        alive = worker.process.is_alive()
+        for kind, payload in worker.frames.read():  # (a dead one's last words)
+            self.handle(worker, kind, payload)
+        if worker.checking:
+            self.check_ended(worker, alive)
+        elif worker.frames.broken:
+            self.end(worker, how=_BROKEN_CHANNEL)
+        elif not worker.process.is_alive():
+            for kind, payload in worker.frames.read():  # its last words
+                self.handle(worker, kind, payload)
+            self.end(worker)
+        elif worker.deadline is not None and now >= worker.deadline:
+            assert worker.index is not None
+            job = self.jobs[worker.index]
+            self.end(worker, "timed out", f"the run exceeded its wall-clock limit of "
+                                          f"{job.timeout!r} s and was stopped")
+
+    def handle(self, worker: Worker, kind: str, payload: Any) -> None:
+        """One frame ``worker`` sent."""
+        if worker.checking and self.checks is not None:
+            self.handle_check(worker, kind, payload)
+            return
+        index = worker.index
+        if kind == "progress":
+            self.on_progress(payload)
+        elif kind == "message" and index is not None:
+            self.last_message[index] = payload
+        elif kind == "done" and index is not None:
+            worker.output.read()  # the run's output was written before its result
+            self.results[index] = payload
+            worker.index = worker.deadline = None
+            self.on_done()
+            if payload["status"] != "complete":
+                worker.leaving = True
+                return  # the worker exits by itself: its end retires it
+            self.next_job(worker)
+
+    def handle_check(self, worker: Worker, kind: str, payload: Any) -> None:
+        """One frame of the worker doing the initialisation check."""
+        checks = self.checks
+        assert checks is not None
+        if kind == "checking":
+            worker.checked = payload
+            worker.deadline = time.monotonic() + checks.limit
+        elif kind == "failed":
+            item, text = payload
+            raise checks.error(item, text, True)
+        elif kind == "checked":
+            worker.output.read()  # the check's output (dropped) before any run's
+            worker.checking = False
+            worker.deadline = None
+            self.next_job(worker)
+
+    def check_ended(self, worker: Worker, alive: bool) -> None:
+        """Raise the check's error when the checking ``worker`` went wrong."""
+        checks = self.checks
+        assert checks is not None
+        if worker.frames.broken:
+            raise checks.broken(worker.checked)
+        if not alive:
+            worker.process.join()
+            raise checks.died(worker.checked, worker.process.exitcode)
+        if worker.deadline is not None and time.monotonic() >= worker.deadline:
+            raise checks.timed_out(worker.checked)
+
+    def next_job(self, worker: Worker) -> None:
+        """A worker that is free: the next job, else (no idle workers kept) its end."""
+        if self.waiting:
+            self.give(worker)
+        elif self.idle is None:  # nothing left for it: let it exit
+            worker.leaving = True
+            worker.hand(None)
+
+    def end(self, worker: Worker, status: str | None = None, how: str | None = None) -> None:
         """Stop a worker (its whole process group) and clean up after it; a run it was
         doing gets ``how`` as its reason (default: how its process ended)."""
-        process = worker["process"]
+        process = worker.process
         kill_group(process)
         process.join()
-        orphans.sweep()
-        worker["output"].read()
-        worker["output"].detach()  # output.txt whole on disk: _ended reads its last line
-        index = worker["index"]
-        if index is not None and results[index] is None:
-            job = jobs[index]
-            results[index] = _ended(job, root / job.label, status,
-                                    how or _process_end(process.exitcode),
-                                    worker["track"], last_message[index],
-                                    worker["pacing"])
-            results[index]["wall_time_s"] = time.monotonic() - worker["started"]
-            on_done()
-        worker["output"].close()
-        worker["send"].close()
-        worker["frames"].close()
-        if worker["pidfd"] is not None:
-            os.close(worker["pidfd"])
-            worker["pidfd"] = None
-        shutil.rmtree(worker["scratch"], ignore_errors=True)
-        if worker in pool:  # (an interruption may have come in the middle of an end)
-            pool.remove(worker)
+        self.orphans.sweep()
+        worker.output.read()
+        worker.output.detach()  # output.txt whole on disk: _ended reads its last line
+        index = worker.index
+        if index is not None and self.results[index] is None:
+            job = self.jobs[index]
+            result = _ended(job, self.root / job.label, status,
+                            how or _process_end(process.exitcode), worker.track,
+                            self.last_message[index], worker.pacing)
+            result["wall_time_s"] = time.monotonic() - worker.started
+            self.results[index] = result
+            self.on_done()
+        worker.release()
+        if worker in self.pool:  # (an interruption may have come in the middle of an end)
+            self.pool.remove(worker)
 
-    def next_job(worker: dict[str, Any]) -> None:
-        """A worker that is free: the next job, else (no idle workers kept) its end."""
-        if waiting:
-            give(worker)
-        elif idle is None:  # nothing left for it: let it exit
-            worker["leaving"] = True
-            try:
-                worker["send"].send(None)
-            except OSError:
-                pass
+    def stopped(self, stop: KeyboardInterrupt | Interrupted) -> RunsStopped:
+        """After a termination signal: the workers stopped, the runs under way
+        ``interrupted``, the waiting ones ``not run``; the signals ignored until the
+        error's ``restore``."""
+        restore = ignore_termination()
+        name = stop.name if isinstance(stop, Interrupted) else "SIGINT"
+        for worker in list(self.pool):
+            self.end(worker, "interrupted", f"interrupted by {name}")
+        results = [r if r is not None else not_run(self.jobs[i])
+                   for i, r in enumerate(self.results)]
+        return RunsStopped.of(stop, results, restore)
 
-    def handle(worker: dict[str, Any], kind: str, payload: Any) -> None:
-        index = worker["index"]
-        if worker["checking"] and checks is not None:
-            if kind == "checking":
-                worker["checked"] = payload
-                worker["deadline"] = time.monotonic() + checks.limit
-            elif kind == "failed":
-                item, text = payload
-                raise checks.error(item, text, True)
-            elif kind == "checked":
-                worker["output"].read()  # the check's output (dropped) before any run's
-                worker["checking"] = False
-                worker["deadline"] = None
-                next_job(worker)
-            return
-        if kind == "progress":
-            on_progress(payload)
-        elif kind == "message" and index is not None:
-            last_message[index] = payload
-        elif kind == "done" and index is not None:
-            worker["output"].read()  # the run's output was written before its result
-            results[index] = payload
-            worker["index"] = worker["deadline"] = None
-            on_done()
-            if payload["status"] != "complete":
-                worker["leaving"] = True
-                return  # the worker exits by itself: its end retires it
-            next_job(worker)
-
-    def busy() -> bool:
-        return any(w["index"] is not None or w["leaving"] or w["checking"] for w in pool)
-
-    def check_ended(worker: dict[str, Any], alive: bool) -> None:
-        """Raise the check's error when the checking ``worker`` went wrong."""
-        assert checks is not None
-        if worker["frames"].broken:
-            raise checks.broken(worker["checked"])
-        if not alive:
-            worker["process"].join()
-            raise checks.died(worker["checked"], worker["process"].exitcode)
-        if time.monotonic() >= worker["deadline"]:
-            raise checks.timed_out(worker["checked"])
-
-    try:
-        if checks is not None:  # takes a job once its check passed
-            start_worker(checks)
-        while waiting or busy():
-            while waiting and len(pool) < workers:
-                kept = idle.take() if idle is not None else None
-                if kept is not None:
-                    pool.append(kept)
-                    give(kept)
-                else:
-                    give(start_worker())
-            if meanwhile is not None:
-                overlap, meanwhile = meanwhile, None
-                overlap()
-            now = time.monotonic()
-            deadlines = [w["deadline"] for w in pool if w["deadline"] is not None]
-            pause = min([1.0] + [max(0.0, d - now) for d in deadlines])
-            handles = [w["exited"] for w in pool]
-            handles += [w["frames"].fd for w in pool if not w["frames"].closed]
-            handles += [w["output"].fd for w in pool if not w["output"].closed]
-            wait(handles, timeout=pause)
-            now = time.monotonic()
-            for worker in list(pool):
-                worker["output"].read()
-                alive = worker["process"].is_alive()
-                for kind, payload in worker["frames"].read():  # (a dead one's last words)
-                    handle(worker, kind, payload)
-                if worker["checking"]:
-                    check_ended(worker, alive)
-                elif worker["frames"].broken:
-                    end(worker, how="the run's process wrote data that is no message of "
-                                    "agv-cosim into its result channel (an FMU writing into "
-                                    "a file descriptor it does not own) and was stopped")
-                elif not worker["process"].is_alive():
-                    for kind, payload in worker["frames"].read():  # its last words
-                        handle(worker, kind, payload)
-                    end(worker)
-                elif worker["deadline"] is not None and now >= worker["deadline"]:
-                    job = jobs[worker["index"]]
-                    end(worker, "timed out", f"the run exceeded its wall-clock limit of "
-                                             f"{job.timeout!r} s and was stopped")
-    except BaseException as stop:
-        if isinstance(stop, (KeyboardInterrupt, Interrupted)):
-            setattr(stop, "restore", ignore_termination())  # noqa: B010 - for the caller
-            name = getattr(stop, "name", "SIGINT")
-            for worker in list(pool):
-                end(worker, "interrupted", f"interrupted by {name}")
-            setattr(stop, "results", [r if r is not None else not_run(jobs[i])  # noqa: B010
-                                      for i, r in enumerate(results)])
-        raise
-    finally:
-        for worker in list(pool):
-            if (idle is not None and worker["index"] is None and not worker["leaving"]
-                    and worker["process"].is_alive()):
-                worker["output"].read()
-                worker["output"].detach()  # the run's output.txt is complete and closed
-                pool.remove(worker)
+    def close(self) -> None:
+        """Every worker ended, or (with idle workers kept) left in ``idle``."""
+        idle = self.idle
+        for worker in list(self.pool):
+            if (idle is not None and worker.index is None and not worker.leaving
+                    and worker.process.is_alive()):
+                worker.output.read()
+                worker.output.detach()  # the run's output.txt is complete and closed
+                self.pool.remove(worker)
                 idle.workers.append(worker)
             else:
-                end(worker)
+                self.end(worker)
         if idle is None:
-            life_reader.close()
-            life_writer.close()
-        orphans.close()
-    done = [r for r in results if r is not None]
-    assert len(done) == len(results), "a run ended without a result"
-    return done
+            for connection in self.life:
+                connection.close()
+        self.orphans.close()
 
 
 def check_initialisation(manifest: Manifest, jobs: list[Job],
@@ -575,11 +666,11 @@ def check_initialisation(manifest: Manifest, jobs: list[Job],
     (``agv-cosim validate``).
 
     Catches what only the FMU knows (a parameter value it refuses), without running:
-    the checks (:func:`~agv_cosim.pipeline.initcheck.plan_checks`: each distinct (FMU,
+    the checks (:func:`~agv_cosim.workers.initcheck.plan_checks`: each distinct (FMU,
     parameter values) pair once) are made by a pool worker that runs no job
     (:func:`run_isolated`), the first refusal stops them. An FMU that takes longer than
     ``timeout`` [s] (default: the manifest's ``[simulation] timeout``, else
-    :data:`~agv_cosim.pipeline.initcheck.INIT_TIMEOUT`) to instantiate and initialise
+    :data:`~agv_cosim.workers.initcheck.INIT_TIMEOUT`) to instantiate and initialise
     is stopped.
 
     Raises
@@ -592,10 +683,8 @@ def check_initialisation(manifest: Manifest, jobs: list[Job],
         return
     try:
         run_isolated([], Path(), 1, _ignored, _ignored, checks=checks)  # no job: no folder
-    except BaseException as stop:
-        restore = getattr(stop, "restore", None)  # termination signals back as they were
-        if restore is not None:
-            restore()
+    except RunsStopped as stop:
+        stop.restore()  # termination signals back as they were
         raise
 
 
