@@ -121,7 +121,7 @@ class FmuUnit:
         self.component = self.slave.component
         self.fmi3 = instance.info.fmi_version == "3.0"
         vr_type = _vr_type(self.fmi3)
-        self.do_step = c_function(self.slave, "fmi3DoStep" if self.fmi3 else "fmi2DoStep")
+        self.do_step = self._step_function()
         self.step_extra: tuple[Any, ...] | None = None
         if self.fmi3:
             # fmi3DoStep's out-arguments: eventHandlingNeeded, terminateSimulation,
@@ -171,6 +171,10 @@ class FmuUnit:
         self.in_groups: tuple[InputGroup, ...] = ()
         #: (input name, source unit, source output name)
         self.sources: list[tuple[str, Unit, str]] = []
+
+    def _step_function(self) -> Any:
+        """What :class:`~.algorithm.Stepper` calls to step this unit: its doStep."""
+        return c_function(self.slave, "fmi3DoStep" if self.fmi3 else "fmi2DoStep")
 
     def link(self, input_name: str, source: "Unit", output_name: str) -> None:
         """Copy ``source``'s output ``output_name`` into input ``input_name`` at each set."""
@@ -315,6 +319,11 @@ def build_units(models: dict[str, ModelInfo], instances: dict[str, FmuInstance],
             continue
         outs = [v for v in info.outputs if v.name in needed_out[cname]]
         ins = [info.variables[c.target[1]] for c in connected.get(cname, [])]
+        if getattr(info, "integration", None) is not None:
+            from .model_exchange import ModelExchangeUnit
+
+            units[cname] = ModelExchangeUnit(instances[cname], index[cname], outs, ins)
+            continue
         units[cname] = FmuUnit(instances[cname], index[cname], outs, ins)
     for cname, unit in units.items():
         for conn in connected.get(cname, []):
