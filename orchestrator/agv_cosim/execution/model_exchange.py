@@ -328,6 +328,9 @@ class _Scipy:
             reached, first = min(found)
             reached, y = self._past_crossing(sol.sol, reached, first, before[first])
             event = True
+        if not np.all(np.isfinite(y)):
+            raise SolverFailed(f"solve_ivp ({self.method}): the state is not finite at "
+                               f"t={reached!r} s ({', '.join(map(repr, y.tolist()))})")
         if len(sol.t) > 1:
             self.first_step = float(sol.t[-1] - sol.t[-2]) or None
         model.set_time(reached)
