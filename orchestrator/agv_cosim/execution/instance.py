@@ -281,7 +281,9 @@ class FmuInstance:
             # FMU2Model, which fmi2Instantiate makes with fmi2ModelExchange
             kind: Any = FMU2Slave
             if getattr(info, "integration", None) is not None:
-                from fmpy.fmi2 import FMU2Model as kind
+                from fmpy.fmi2 import FMU2Model
+
+                kind = FMU2Model
             slave = kind(guid=info.guid, unzipDirectory=self.unzip_dir,
                          modelIdentifier=info.identifier, instanceName=instance_name,
                          libraryPath=self._library(info))

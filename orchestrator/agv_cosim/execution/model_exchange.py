@@ -189,27 +189,27 @@ class _Cvode:
         self.raised: BaseException | None = None
         owner = self
 
-        class Solver(CVodeSolver):  # type: ignore[misc]
-            # fmpy's callbacks, with an FMU error held instead of lost in ctypes
-            def f(self, t: float, y: Any, ydot: Any, user_data: Any) -> int:
-                try:
-                    return int(CVodeSolver.f(self, t, y, ydot, user_data))
-                except Exception as error:  # noqa: BLE001 - re-raised by advance
-                    owner.raised = error
-                    return -1
+        # fmpy's callbacks, with an FMU error held instead of lost in ctypes
+        def f(solver: Any, t: float, y: Any, ydot: Any, user_data: Any) -> int:
+            try:
+                return int(CVodeSolver.f(solver, t, y, ydot, user_data))
+            except Exception as error:  # noqa: BLE001 - re-raised by advance
+                owner.raised = error
+                return -1
 
-            def g(self, t: float, y: Any, gout: Any, user_data: Any) -> int:
-                try:
-                    return int(CVodeSolver.g(self, t, y, gout, user_data))
-                except Exception as error:  # noqa: BLE001 - re-raised by advance
-                    owner.raised = error
-                    return -1
+        def g(solver: Any, t: float, y: Any, gout: Any, user_data: Any) -> int:
+            try:
+                return int(CVodeSolver.g(solver, t, y, gout, user_data))
+            except Exception as error:  # noqa: BLE001 - re-raised by advance
+                owner.raised = error
+                return -1
 
-        self.solver = Solver(nx=model.nx, nz=model.nz, get_x=model.get_x, set_x=model.set_x,
-                             get_dx=model.get_dx, get_z=model.get_z,
-                             get_nominals=model.get_nominals, set_time=model.set_time,
-                             input=_Held(), startTime=t0, relativeTolerance=tolerance,
-                             maxNumSteps=MAX_SOLVER_STEPS)
+        solver_class: Any = type("HeldErrorsCVodeSolver", (CVodeSolver,), {"f": f, "g": g})
+        self.solver = solver_class(
+            nx=model.nx, nz=model.nz, get_x=model.get_x, set_x=model.set_x,
+            get_dx=model.get_dx, get_z=model.get_z, get_nominals=model.get_nominals,
+            set_time=model.set_time, input=_Held(), startTime=t0,
+            relativeTolerance=tolerance, maxNumSteps=MAX_SOLVER_STEPS)
 
     def advance(self, t: float, t_stop: float) -> tuple[float, bool]:
         """Integrate from ``t`` towards ``t_stop``: (time reached, a state event there)."""
@@ -321,13 +321,13 @@ class _Scipy:
                         **options)
         if sol.status == -1:
             raise SolverFailed(f"solve_ivp ({self.method}): {sol.message}")
-        reached, y, event = float(sol.t[-1]), sol.y[:, -1], False
+        reached, y, crossed = float(sol.t[-1]), sol.y[:, -1], False
         if sol.status == 1:
             found = [(float(times[0]), i) for i, times in enumerate(sol.t_events)
                      if len(times)]
             reached, first = min(found)
             reached, y = self._past_crossing(sol.sol, reached, first, before[first])
-            event = True
+            crossed = True
         if not np.all(np.isfinite(y)):
             raise SolverFailed(f"solve_ivp ({self.method}): the state is not finite at "
                                f"t={reached!r} s ({', '.join(map(repr, y.tolist()))})")
@@ -337,7 +337,7 @@ class _Scipy:
         if model.nx:
             self.x[:] = y.tolist()
             model.set_x(self.x, model.nx)
-        return reached, event
+        return reached, crossed
 
 
 _SOLVER_CLASSES: dict[str, Any] = {"cvode": _Cvode, "scipy": _Scipy}

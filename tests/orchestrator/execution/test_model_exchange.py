@@ -385,7 +385,7 @@ def test_a_solver_failure_mid_run_keeps_the_rows(reference, tmp_path, monkeypatc
     """VanDerPol's derivatives turn NaN from t = 1 s: the solver fails, and the run ends
     with a SimulationError naming component, solver, time and the solver's reason; the
     rows up to the failing step are kept."""
-    from ctypes import c_double, cast, POINTER
+    from ctypes import POINTER, c_double, cast
 
     from fmpy.fmi2 import FMU2Model
 
