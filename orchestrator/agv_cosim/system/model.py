@@ -284,7 +284,7 @@ def _parse_model(path: Path) -> ModelInfo:
     me = _model_exchange(md)
     if cosim is None or not cosim.modelIdentifier:
         if me is None:
-            raise ModelError(f"not a co-simulation FMU: '{path}'")
+            raise ModelError(f"neither a co-simulation nor a Model Exchange FMU: '{path}'")
         cosim = None  # a model-exchange-only FMU: integrated by the orchestrator
     identifier = cosim.modelIdentifier if cosim is not None else me.identifier  # type: ignore[union-attr]
     for name in {identifier, me.identifier if me is not None else identifier}:
