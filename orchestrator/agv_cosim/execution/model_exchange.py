@@ -21,7 +21,9 @@ At a communication point t_k
     input (``variability`` other than continuous) whose values changed is set in event
     mode: ``enterEventMode``, the set, the event iteration, ``enterContinuousTimeMode``
     (an external event at t_k). Outputs read after a set show the FMU at t_k with those
-    inputs (direct feedthrough is exact).
+    inputs (direct feedthrough is exact). A scenario event's value (any value set through
+    fmpy's setters once in continuous time) is set in event mode the same way; the solver
+    restarts after either.
 The step from t_k to t_k + h (``do_step``)
     The inputs hold over the step. The solver integrates the continuous states from
     t_k, restarted (its history dropped) whenever an input changed or an event happened
@@ -342,6 +344,11 @@ class _Scipy:
 
 _SOLVER_CLASSES: dict[str, Any] = {"cvode": _Cvode, "scipy": _Scipy}
 
+#: fmpy's convenience setters (FMI 2.0 and 3.0) that parameters and events go through.
+_PY_SETTERS = ("setReal", "setInteger", "setBoolean", "setString", "setFloat32",
+               "setFloat64", "setInt8", "setUInt8", "setInt16", "setUInt16", "setInt32",
+               "setUInt32", "setInt64", "setUInt64", "setBinary")
+
 
 class ModelExchangeUnit(FmuUnit):
     """A Model Exchange FMU instance integrated between communication points (see the
@@ -395,6 +402,12 @@ class ModelExchangeUnit(FmuUnit):
         # simulate() calls slave.exitInitializationMode(): the initial event iteration
         # and the switch to continuous-time mode follow it there
         slave.exitInitializationMode = exit_then_event
+        # fmpy's setters (a parameter, a scenario event's value) set in event mode once
+        # in continuous time (the unit's own input sets call the C functions directly)
+        for name in _PY_SETTERS:
+            setter = getattr(slave, name, None)
+            if setter is not None:
+                setattr(slave, name, self._in_event_mode(setter))
 
     # the master's interface -----------------------------------------------------------
 
@@ -435,6 +448,18 @@ class ModelExchangeUnit(FmuUnit):
             self._event_iteration(self._time())
             return status
         return set_group
+
+    def _in_event_mode(self, setter: Callable[..., Any]) -> Callable[..., Any]:
+        def set_in_event_mode(*args: Any, **kwargs: Any) -> Any:
+            if not self.in_continuous_time:
+                return setter(*args, **kwargs)
+            self.slave.enterEventMode()
+            self.in_continuous_time = False
+            result = setter(*args, **kwargs)
+            self.events += 1
+            self._event_iteration(self._now)
+            return result
+        return set_in_event_mode
 
     def _time(self) -> float:
         return self._now
