@@ -462,3 +462,30 @@ def test_the_unit_is_the_model_exchange_one(reference, tmp_path):
         assert units["m"].step_extra is None
     finally:
         instance.close()
+
+
+def test_a_solver_failure_in_a_sweep(reference, tmp_path, capsys):
+    """``agv-cosim run`` of a sweep over Dahlquist's k: k = -1000 makes x = exp(1000 t)
+    overflow, CVODE gives up (its reason in the one line), that run ends partial with its
+    rows up to the failing step kept, and the run with k = 1 completes."""
+    import csv
+
+    from agv_cosim import cli
+
+    fmu = me_only(reference, "2", "Dahlquist", tmp_path)
+    manifest = tmp_path / "sweep.toml"
+    manifest.write_text(f'[simulation]\nstop = 2.0\nstep = 0.1\n[components.m]\n'
+                        f'fmu = "{fmu}"\n[sweep]\n"m.k" = [1.0, -1000.0]\n')
+    out = tmp_path / "out"
+    code = cli.main(["run", str(manifest), "--out", str(out), "--jobs", "1", "--quiet"])
+    assert code == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert any("component 'm': the CVODE solver failed at t=" in line
+               and "mxstep steps taken" in line for line in err), err
+    with open(out / "summary.csv", newline="") as stream:
+        status = {row["run"]: row["status"] for row in csv.DictReader(stream)}
+    assert status == {"base__m.k=1.0": "complete", "base__m.k=-1000.0": "partial"}
+    with open(out / "base__m.k=-1000.0" / "timeseries.csv", newline="") as stream:
+        rows = list(csv.reader(stream))[1:]
+    assert len(rows) >= 5 and float(rows[-1][0]) < 1.0
+    assert float(rows[1][1]) == pytest.approx(math.exp(100.0), rel=1e-2)
