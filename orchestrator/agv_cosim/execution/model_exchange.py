@@ -68,7 +68,13 @@ from typing import Any
 import numpy as np
 
 from ..errors import ModelError, SimulationError
-from ..system.model import Integration, ModelExchangeInfo, ModelInfo, Variable
+from ..system.model import (
+    Integration,
+    ModelExchangeInfo,
+    ModelInfo,
+    Variable,
+    model_exchange_refusal,
+)
 from .instance import FmuInstance
 from .units import FmuUnit, _grouped
 
@@ -117,13 +123,10 @@ def use_model_exchange(info: ModelInfo, solver: str | None = None,
         exporting tool, or the solver or tolerance cannot be used.
     """
     me = info.model_exchange
-    if me is None:
-        raise ModelError(f"'{info.path}': has no Model Exchange interface (it declares "
-                         f"{', '.join(info.interfaces) or 'none'}): it cannot be run with "
+    problem = model_exchange_refusal(info)
+    if problem or me is None:
+        raise ModelError(f"'{info.path}': it {problem}: it cannot be run with "
                          "interface = \"model-exchange\"")
-    problem = refusal(me)
-    if problem:
-        raise ModelError(f"'{info.path}': {problem}")
     base = info.integration or Integration()
     chosen = Integration(solver=base.solver if solver is None else solver,
                          tolerance=base.tolerance if tolerance is None else tolerance)
@@ -131,15 +134,6 @@ def use_model_exchange(info: ModelInfo, solver: str | None = None,
     if problem:
         raise ModelError(f"'{info.path}': Model Exchange {problem}")
     return replace(info, identifier=me.identifier, integration=chosen)
-
-
-def refusal(me: ModelExchangeInfo) -> str:
-    """Why the orchestrator cannot integrate an FMU with this ``<ModelExchange>`` ('' if
-    it can)."""
-    if me.needs_execution_tool:
-        return ("its Model Exchange interface needs its exporting tool "
-                "(needsExecutionTool=\"true\"), which agv-cosim cannot provide")
-    return ""
 
 
 class _Held:

@@ -1,7 +1,8 @@
 """One co-simulation run, composed of its parts.
 
 FMI 2.0 and 3.0 co-simulation FMUs may be mixed, and with them Model Exchange FMUs,
-which the orchestrator integrates (:mod:`.model_exchange`: the same unit interface). :func:`simulate` instantiates the FMUs
+which the orchestrator integrates (:mod:`.model_exchange`: the same unit interface).
+:func:`simulate` instantiates the FMUs
 (:mod:`.instance`), wires their value buffers (:mod:`.units`), initialises them
 (``fmi2SetupExperiment``, parameters, enter / exit initialisation; for FMI 3.0 the
 parameters before ``fmi3EnterInitializationMode``), then at every communication point

@@ -325,7 +325,31 @@ def _parse_model(path: Path) -> ModelInfo:
     for variable in ordered:
         if variable.causality == "output" and variable.name not in info.dependencies:
             info.dependencies[variable.name] = list(input_names)
+    if cosim is None:
+        problem = model_exchange_refusal(info)
+        if problem:
+            raise ModelError(f"a model-exchange-only FMU the orchestrator cannot "
+                             f"integrate: it {problem}: '{path}'")
     return info
+
+
+def model_exchange_refusal(info: ModelInfo) -> str:
+    """Why the orchestrator cannot integrate the FMU ``info`` through its Model Exchange
+    interface ('' if it can): none declared, it needs its exporting tool, or it has Clock
+    variables (clocked Model Exchange is not supported)."""
+    me = info.model_exchange
+    if me is None:
+        return (f"has no Model Exchange interface (it declares "
+                f"{', '.join(info.interfaces) or 'none'})")
+    if me.needs_execution_tool:
+        return ("its Model Exchange interface needs its exporting tool "
+                "(needsExecutionTool=\"true\"), which agv-cosim cannot provide")
+    clocks = [v.name for v in info.variables.values() if v.type == "Clock"]
+    if clocks:
+        return (f"has Clock variables ({', '.join(clocks[:3])}"
+                f"{' ..' if len(clocks) > 3 else ''}): clocked Model Exchange is not "
+                "supported")
+    return ""
 
 
 def _model_exchange(md: Any) -> ModelExchangeInfo | None:

@@ -370,6 +370,25 @@ def test_refusals_are_one_line(reference, tmp_path, case, message):
     assert message in text and "\n" not in text and str(fmu.name) in text
 
 
+def test_a_model_exchange_only_fmu_needing_its_tool_is_refused_in_one_line(
+        reference, tmp_path, capsys):
+    """``agv-cosim run`` of a model-exchange-only FMU with needsExecutionTool="true":
+    refused before any run, one line naming the FMU and the reason, exit 2."""
+    from agv_cosim import cli
+
+    fmu = _without(reference["2"] / "Dahlquist.fmu", tmp_path / "tool.fmu", "CoSimulation",
+                   lambda text: text.replace("<ModelExchange",
+                                             '<ModelExchange needsExecutionTool="true"'))
+    manifest = tmp_path / "tool.toml"
+    manifest.write_text(f'[simulation]\nstop = 1.0\nstep = 0.1\n[components.m]\n'
+                        f'fmu = "{fmu}"\n')
+    code = cli.main(["run", str(manifest), "--out", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert "a model-exchange-only FMU the orchestrator cannot integrate" in err[0]
+    assert "needsExecutionTool" in err[0] and "tool.fmu" in err[0]
+
+
 def test_an_fmu_that_never_leaves_event_mode_fails_in_one_line(reference, tmp_path,
                                                              monkeypatch):
     """From t = 2 s Stair's event iteration is made to ask for new discrete states
