@@ -76,7 +76,7 @@ from ..system.model import (
     model_exchange_refusal,
 )
 from .instance import FmuInstance
-from .units import FmuUnit, _grouped
+from .units import FmuUnit
 
 __all__ = ["DEFAULT_SOLVER", "DEFAULT_TOLERANCE", "MAX_EVENTS_PER_STEP",
            "MAX_EVENT_ITERATIONS", "SOLVERS", "Integration", "ModelExchangeUnit",
@@ -142,10 +142,6 @@ class _Held:
 
     def apply(self, *args: Any, **kwargs: Any) -> None:
         pass
-
-
-class SolverFailed(Exception):
-    """The solver could not integrate; the text is its reason."""
 
 
 class _Model:
@@ -221,7 +217,7 @@ class _Cvode:
         if flag < 0:
             info = solver.error_info
             reason = info[3] if info else f"flag {flag}"
-            raise SolverFailed(f"CVODE error {flag}: {' '.join(str(reason).split())}")
+            raise SimulationError(f"CVODE error {flag}: {' '.join(str(reason).split())}")
         if not solver.discrete:
             solver.set_x(solver.px, solver.nx)
         return float(reached.value), flag == self._root_return
@@ -316,7 +312,7 @@ class _Scipy:
                         atol=self.atol, events=events or None, dense_output=bool(events),
                         **options)
         if sol.status == -1:
-            raise SolverFailed(f"solve_ivp ({self.method}): {sol.message}")
+            raise SimulationError(f"solve_ivp ({self.method}): {sol.message}")
         reached, y, crossed = float(sol.t[-1]), sol.y[:, -1], False
         if sol.status == 1:
             found = [(float(times[0]), i) for i, times in enumerate(sol.t_events)
@@ -325,7 +321,7 @@ class _Scipy:
             reached, y = self._past_crossing(sol.sol, reached, first, before[first])
             crossed = True
         if not np.all(np.isfinite(y)):
-            raise SolverFailed(f"solve_ivp ({self.method}): the state is not finite at "
+            raise SimulationError(f"solve_ivp ({self.method}): the state is not finite at "
                                f"t={reached!r} s ({', '.join(map(repr, y.tolist()))})")
         if len(sol.t) > 1:
             self.first_step = float(sol.t[-1] - sol.t[-2]) or None
@@ -415,8 +411,10 @@ class ModelExchangeUnit(FmuUnit):
 
     def _wrap_inputs(self, inputs: list[Variable]) -> None:
         """Input groups with a discrete input are set through :meth:`_set_discrete`."""
-        groups = _grouped(inputs, "set")
-        for i, (_, variables) in enumerate(groups):
+        groups: dict[str, list[Variable]] = {}  # as FmuUnit groups them: by C setter
+        for v in inputs:
+            groups.setdefault(v.ftype.set, []).append(v)
+        for i, variables in enumerate(groups.values()):
             fn, args, buf, links, fname = self._in_groups[i]
             if all(v.variability == "continuous" for v in variables):
                 self._continuous.append((buf, list(buf)))
@@ -534,7 +532,7 @@ class ModelExchangeUnit(FmuUnit):
             if self.solver is not None and t_stop > now and not _close(t_stop, now):
                 try:
                     now, state_event = self.solver.advance(now, t_stop)
-                except SolverFailed as failed:
+                except SimulationError as failed:  # the solver's reason
                     raise SimulationError(
                         f"component '{self.name}': the {self.solver.name} solver failed "
                         f"at t={now!r} s (step from t={t!r} s): {failed}") from None

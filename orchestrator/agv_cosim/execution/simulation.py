@@ -27,6 +27,7 @@ from ..system.model import ModelInfo
 from .algorithm import Algorithm, Stepper, StopRequest, algorithm_for
 from .grid import Grid
 from .instance import FmuInstance, extract_ahead
+from .model_exchange import ModelExchangeUnit
 from .observers import Observer
 from .pacing import Pacer
 from .scenario import Scenario
@@ -203,7 +204,7 @@ def simulate(system: System, observers: Iterable[Observer] = (), *,
     try:
         _instantiate(system, instances, track, on_message)
         units = build_units(system.models, instances, system.connections, system.record,
-                            track)
+                            track, ModelExchangeUnit)
         algorithm = algorithm_for(system, units, track, fast)
         _initialise(system, instances, algorithm, track)
         recorder = _Recorder(system, units, observers)

@@ -299,8 +299,11 @@ def check_finite(unit: Unit, t: float) -> None:
 
 def build_units(models: dict[str, ModelInfo], instances: dict[str, FmuInstance],
                 connections: list[Any], record: list[str],
-                track: Any) -> dict[str, Unit]:
-    """Each component's unit (a table's: :class:`TableUnit`), its value buffers linked to
+                track: Any, model_exchange: Callable[..., FmuUnit] | None = None
+                ) -> dict[str, Unit]:
+    """Each component's unit (a table's: :class:`TableUnit`; one integrated as Model
+    Exchange, its ``integration`` set: ``model_exchange(instance, index, outputs,
+    inputs)``, :class:`~.model_exchange.ModelExchangeUnit`), its value buffers linked to
     its sources'; only outputs that are connected or recorded are read."""
     index = {cname: i for i, cname in enumerate(models)}
     connected: dict[str, list[Any]] = {}
@@ -320,9 +323,10 @@ def build_units(models: dict[str, ModelInfo], instances: dict[str, FmuInstance],
         outs = [v for v in info.outputs if v.name in needed_out[cname]]
         ins = [info.variables[c.target[1]] for c in connected.get(cname, [])]
         if getattr(info, "integration", None) is not None:
-            from .model_exchange import ModelExchangeUnit
-
-            units[cname] = ModelExchangeUnit(instances[cname], index[cname], outs, ins)
+            if model_exchange is None:
+                raise ValueError(f"component '{cname}' is to be integrated as Model "
+                                 "Exchange, and no Model Exchange unit was given")
+            units[cname] = model_exchange(instances[cname], index[cname], outs, ins)
             continue
         units[cname] = FmuUnit(instances[cname], index[cname], outs, ins)
     for cname, unit in units.items():

@@ -476,7 +476,8 @@ def test_the_unit_is_the_model_exchange_one(reference, tmp_path):
     info = read_model(me_only(reference, "3", "Dahlquist", tmp_path))
     instance = FmuInstance(info, "m")
     try:
-        units = build_units({"m": info}, {"m": instance}, [], ["m.x"], [0, 0, 0])
+        units = build_units({"m": info}, {"m": instance}, [], ["m.x"], [0, 0, 0],
+                            ModelExchangeUnit)
         assert isinstance(units["m"], ModelExchangeUnit)
         assert units["m"].step_extra is None
     finally:
