@@ -30,9 +30,11 @@ The step from t_k to t_k + h (``do_step``)
     since the last step, and stops at the earliest of: t_k + h; the FMU's next time
     event (``nextEventTime``); a state event (an event indicator changing sign, located
     by the solver's root finding: CVODE's to 100 u (|t| + |h|), u the unit round-off;
-    solve_ivp's by Brent's method on its dense output to 4 u); after every accepted
-    stop ``completedIntegratorStep`` when the FMU needs it (a step event when it asks
-    for event mode). At a time, state or step event the event iteration runs and the
+    solve_ivp's by Brent's method on its dense output to 4 u, then moved forward to
+    the first time past the sign change, which is where CVODE returns); after every
+    stop (once per interval, as fmpy does, not after each internal solver step)
+    ``completedIntegratorStep`` when the FMU needs it (a step event when it asks for
+    event mode). At a time, state or step event the event iteration runs and the
     solver restarts. A time event within 1e-12 (relative, at least 1e-12 s) of t_k + h
     is handled at t_k + h, as fmpy does. The FMU is at t_k + h, with its states set, when
     ``do_step`` returns.
