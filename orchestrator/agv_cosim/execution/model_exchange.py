@@ -7,7 +7,8 @@ convention, for FMI 2.0 and 3.0 FMUs alike). It is chosen for a component whose
 :class:`~agv_cosim.system.model.ModelInfo` carries an ``integration``: every
 model-exchange-only FMU (:func:`agv_cosim.system.model.read_model` sets the default), or
 one the caller asks for with :func:`use_model_exchange` (``interface =
-"model-exchange"`` for an FMU with both interfaces).
+"model-exchange"`` for an FMU with both interfaces). :func:`select_interface` maps a
+component's ``interface``, ``solver`` and ``tolerance`` onto its ModelInfo.
 
 Semantics
 ---------
@@ -80,9 +81,9 @@ from ..system.model import (
 from .instance import FmuInstance
 from .units import FmuUnit
 
-__all__ = ["DEFAULT_SOLVER", "DEFAULT_TOLERANCE", "MAX_EVENTS_PER_STEP",
+__all__ = ["DEFAULT_SOLVER", "DEFAULT_TOLERANCE", "INTERFACES", "MAX_EVENTS_PER_STEP",
            "MAX_EVENT_ITERATIONS", "SOLVERS", "Integration", "ModelExchangeUnit",
-           "check_integration", "use_model_exchange"]
+           "check_integration", "select_interface", "use_model_exchange"]
 
 #: Solver names a component may ask for.
 SOLVERS = ("cvode", "scipy")
@@ -570,3 +571,41 @@ class ModelExchangeUnit(FmuUnit):
         self._now = end
         return 0
 
+
+
+#: What a component's ``interface`` may name (None: the FMU's own choice).
+INTERFACES = ("co-simulation", "model-exchange")
+
+
+def select_interface(info: ModelInfo, interface: str | None = None,
+                     solver: str | None = None,
+                     tolerance: float | None = None) -> ModelInfo:
+    """``info`` for one component, as its ``interface``, ``solver`` and ``tolerance``
+    ask (the entry point for a manifest's component keys).
+
+    ``interface`` None: an FMU with a co-simulation interface runs through it, a
+    model-exchange-only one is integrated; "model-exchange": integrated
+    (:func:`use_model_exchange`); "co-simulation": through its co-simulation interface.
+    ``solver`` and ``tolerance`` apply to an integrated component only.
+
+    Raises
+    ------
+    ModelError
+        One line naming the FMU and the reason.
+    """
+    if interface is not None and interface not in INTERFACES:
+        raise ModelError(f"'{info.path}': interface {interface!r} is not one of "
+                         f"{', '.join(map(repr, INTERFACES))}")
+    integrated = interface == "model-exchange" or (
+        interface is None and info.integration is not None)
+    if integrated:
+        return use_model_exchange(info, solver, tolerance)
+    if solver is not None or tolerance is not None:
+        raise ModelError(f"'{info.path}': solver and tolerance apply to a component "
+                         "integrated as Model Exchange (interface = \"model-exchange\"), "
+                         "and this one runs as co-simulation")
+    if "co-simulation" not in info.interfaces:
+        raise ModelError(f"'{info.path}': has no co-simulation interface (it declares "
+                         f"{', '.join(info.interfaces)}): it cannot be run with "
+                         "interface = \"co-simulation\"")
+    return info

@@ -35,6 +35,7 @@ from agv_cosim.execution import RowObserver, simulate
 from agv_cosim.execution.model_exchange import (
     MAX_EVENT_ITERATIONS,
     ModelExchangeUnit,
+    select_interface,
     use_model_exchange,
 )
 from agv_cosim.pipeline import prepare
@@ -344,6 +345,24 @@ def test_interface_choice(reference, tmp_path):
     only = read_model(me_only(reference, "3", "Dahlquist", tmp_path))
     assert only.interfaces == ("model-exchange",)
     assert only.integration.solver == "cvode"
+
+
+def test_select_interface(reference, tmp_path):
+    """A component's interface / solver / tolerance: None keeps the FMU's own choice,
+    "co-simulation" and "model-exchange" pick one; what cannot be honoured is one line."""
+    both = read_model(reference["2"] / "Dahlquist.fmu")
+    only = read_model(me_only(reference, "2", "Dahlquist", tmp_path))
+    assert select_interface(both) is both
+    assert select_interface(both, "co-simulation") is both
+    assert select_interface(both, "model-exchange").integration.solver == "cvode"
+    assert select_interface(only, solver="scipy").integration.solver == "scipy"
+    assert select_interface(only, tolerance=1e-8).integration.tolerance == 1e-8
+    for args, message in [((only, "co-simulation"), "has no co-simulation interface"),
+                          ((both, "fmu"), "interface 'fmu' is not one of"),
+                          ((both, None, "scipy"), "apply to a component integrated")]:
+        with pytest.raises(ModelError) as raised:
+            select_interface(*args)
+        assert message in str(raised.value) and "\n" not in str(raised.value)
 
 
 @pytest.mark.parametrize("case,message", [
