@@ -306,18 +306,21 @@ def test_feedthrough_discrete_and_continuous_inputs(reference, tmp_path, version
                        theirs["Float64_continuous_output"], rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("algorithm", ["gauss-seidel", "jacobi"])
 @pytest.mark.parametrize("fast", [False, True])
-def test_closed_loop_with_a_co_simulation_fmu(reference, fmus, tmp_path, fast):
+def test_closed_loop_with_a_co_simulation_fmu(reference, fmus, tmp_path, fast, algorithm):
     """Our co-simulation integrator (y' = u, exact for a held input) with the ME
-    Feedthrough closing the loop u = y: Gauss-Seidel gives y_k = (1 + h)^k exactly (the
-    reference loops and the generated fast path alike)."""
+    Feedthrough closing the loop u = y (y0 = 1, h = 0.1): Gauss-Seidel gives
+    y_k = (1 + h)^k exactly; Jacobi, whose feedthrough connection adds a step of delay,
+    y_{k+1} = y_k + h y_{k-1} with y_{-1} = y_0 = 1 (the reference loops and the
+    generated fast path alike)."""
     fmu = me_only(reference, "2", "Feedthrough", tmp_path)
     extra = (f'[components.integ]\nfmu = "{fmus["agv_test_integrator"]}"\n'
              'parameters = { y0 = 1.0 }\n'
              '[[connections]]\nfrom = "integ.y"\nto = "m.Float64_continuous_input"\n'
              '[[connections]]\nfrom = "m.Float64_continuous_output"\nto = "integ.u"\n')
     manifest = tmp_path / "loop.toml"
-    manifest.write_text(f'[simulation]\nstop = 1.0\nstep = 0.1\n'
+    manifest.write_text(f'[simulation]\nstop = 1.0\nstep = 0.1\nalgorithm = "{algorithm}"\n'
                         f'[components.m]\nfmu = "{fmu}"\n{extra}'
                         '[record]\nvariables = ["integ.y", "m.Float64_continuous_output"]\n')
     _, jobs, _ = prepare(manifest)
@@ -326,9 +329,16 @@ def test_closed_loop_with_a_co_simulation_fmu(reference, fmus, tmp_path, fast):
     rows = []
     simulate(system, [RowObserver(lambda row: rows.append(list(row)))], fast=fast)
     rows = np.array(rows)
-    k = np.arange(len(rows))
-    assert np.allclose(rows[:, 1], 1.1 ** k, rtol=1e-12, atol=0)
-    assert np.allclose(rows[:, 2], rows[:, 1], rtol=0, atol=0)
+    if algorithm == "gauss-seidel":
+        expected = 1.1 ** np.arange(len(rows))
+        assert np.array_equal(rows[:, 2], rows[:, 1])  # the output of this instant
+    else:
+        expected = [1.0, 1.0]
+        while len(expected) <= len(rows):
+            expected.append(expected[-1] + 0.1 * expected[-2])
+        expected = np.array(expected[1:])
+        assert np.array_equal(rows[1:, 2], rows[:-1, 1])  # the output of the last step
+    assert np.allclose(rows[:, 1], expected, rtol=1e-12, atol=0)
 
 
 # the choice of interface, and bad input -----------------------------------------------
