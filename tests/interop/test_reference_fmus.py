@@ -262,8 +262,10 @@ def test_array_misuse_refused(reference_fmus, tmp_path, capsys, extra, message):
     assert len(err) == 1 and message in err[0], err
 
 
-def test_model_exchange_only_refused(reference_fmus, tmp_path, capsys):
-    """An FMU without <CoSimulation> is refused with a message saying why."""
+def test_model_exchange_only_runs_integrated(reference_fmus, tmp_path):
+    """An FMU without <CoSimulation> runs through ``agv-cosim run``: the orchestrator
+    integrates it (agv_cosim.execution.model_exchange, CVODE at relative tolerance 1e-6):
+    Dahlquist's x = exp(-t) within 1e-5."""
     source = reference_fmus["2"] / "Dahlquist.fmu"
     target = tmp_path / "DahlquistME.fmu"
     with zipfile.ZipFile(source) as zin, zipfile.ZipFile(target, "w") as zout:
@@ -276,10 +278,12 @@ def test_model_exchange_only_refused(reference_fmus, tmp_path, capsys):
                                  in text else start) + 1
                 data = (text[:start] + text[end:]).encode()
             zout.writestr(item, data)
-    _run(tmp_path, f'[simulation]\nstop = 1.0\nstep = 0.1\n'
-                   f'[components.m]\nfmu = "{target}"\n', expect=2)
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "a model-exchange-only FMU" in err[0]
+    run = _run(tmp_path, f'[simulation]\nstop = 1.0\nstep = 0.1\n'
+                         f'[components.m]\nfmu = "{target}"\n')
+    header, rows = _ours(run)
+    values = np.array(rows, dtype=float)
+    assert header == ["time", "m.x"] and len(values) == 11
+    assert np.allclose(values[:, 1], np.exp(-values[:, 0]), rtol=0, atol=1e-5)
 
 
 def test_ssp_enumeration_connectors_round_trip(reference_fmus, tmp_path):

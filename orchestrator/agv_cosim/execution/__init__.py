@@ -3,6 +3,9 @@ of parts as in libcosim.
 
 - :mod:`.instance`: an FMU instantiated in a private extraction folder;
 - :mod:`.units`: its value buffers, grouped by C getter / setter;
+- :mod:`.model_exchange`: a Model Exchange FMU as a unit, integrated between
+  communication points by a solver (CVODE or solve_ivp), events handled; chosen for a
+  model-exchange-only FMU or by :func:`.model_exchange.use_model_exchange`;
 - :mod:`.algorithm`: Gauss-Seidel or Jacobi, which moves the values; the stepper,
   which steps every FMU and collects stop requests;
 - :mod:`.scenario`: the events, applied at their communication points;

@@ -277,9 +277,16 @@ class FmuInstance:
             except Exception:  # noqa: BLE001 - messages then arrive unformatted
                 pass
             self._callbacks = callbacks  # keep the ctypes callbacks alive
-            slave = FMU2Slave(guid=info.guid, unzipDirectory=self.unzip_dir,
-                              modelIdentifier=info.identifier, instanceName=instance_name,
-                              libraryPath=self._library(info))
+            # a component integrated as Model Exchange (info.integration set) is an
+            # FMU2Model, which fmi2Instantiate makes with fmi2ModelExchange
+            kind: Any = FMU2Slave
+            if getattr(info, "integration", None) is not None:
+                from fmpy.fmi2 import FMU2Model
+
+                kind = FMU2Model
+            slave = kind(guid=info.guid, unzipDirectory=self.unzip_dir,
+                         modelIdentifier=info.identifier, instanceName=instance_name,
+                         libraryPath=self._library(info))
             self.slave = slave
             slave.instantiate(callbacks=callbacks, loggingOn=True)
         except BaseException:
@@ -315,6 +322,9 @@ class FmuInstance:
             fmi3ValueReference,
         )
 
+        if getattr(info, "integration", None) is not None:
+            self._instantiate_3_model_exchange(info, instance_name)
+            return
         slave = FMU3Slave(guid=info.guid, unzipDirectory=self.unzip_dir,
                           modelIdentifier=info.identifier, instanceName=instance_name,
                           libraryPath=self._library(info))
@@ -329,6 +339,23 @@ class FmuInstance:
             fmi3InstanceEnvironment(self._key), slave.logMessage, slave.intermediateUpdate)
         if not slave.component:
             raise RuntimeError("fmi3InstantiateCoSimulation failed")
+
+    def _instantiate_3_model_exchange(self, info: ModelInfo, instance_name: str) -> None:
+        """FMI 3.0: ``fmi3InstantiateModelExchange`` with our environment key and logger."""
+        from fmpy.fmi3 import FMU3Model, fmi3Boolean, fmi3InstanceEnvironment
+
+        slave = FMU3Model(guid=info.guid, unzipDirectory=self.unzip_dir,
+                          modelIdentifier=info.identifier, instanceName=instance_name,
+                          libraryPath=self._library(info))
+        self.slave = slave
+        resources = str(Path(str(self.unzip_dir), "resources")) + "/"
+        slave.logMessage = _logger3()
+        slave.component = slave.fmi3InstantiateModelExchange(
+            instance_name.encode("utf-8"), info.guid.encode("utf-8"),
+            resources.encode("utf-8"), fmi3Boolean(False), fmi3Boolean(True),
+            fmi3InstanceEnvironment(self._key), slave.logMessage)
+        if not slave.component:
+            raise RuntimeError("fmi3InstantiateModelExchange failed")
 
     def _receive(self, status: int, text: str) -> None:
         self.logged[min(max(status, 0), 5)] += 1

@@ -1,6 +1,8 @@
 """One co-simulation run, composed of its parts.
 
-FMI 2.0 and 3.0 co-simulation FMUs may be mixed. :func:`simulate` instantiates the FMUs
+FMI 2.0 and 3.0 co-simulation FMUs may be mixed, and with them Model Exchange FMUs,
+which the orchestrator integrates (:mod:`.model_exchange`: the same unit interface).
+:func:`simulate` instantiates the FMUs
 (:mod:`.instance`), wires their value buffers (:mod:`.units`), initialises them
 (``fmi2SetupExperiment``, parameters, enter / exit initialisation; for FMI 3.0 the
 parameters before ``fmi3EnterInitializationMode``), then at every communication point
@@ -25,6 +27,7 @@ from ..system.model import ModelInfo
 from .algorithm import Algorithm, Stepper, StopRequest, algorithm_for
 from .grid import Grid
 from .instance import FmuInstance, extract_ahead
+from .model_exchange import ModelExchangeUnit
 from .observers import Observer
 from .pacing import Pacer
 from .scenario import Scenario
@@ -201,7 +204,7 @@ def simulate(system: System, observers: Iterable[Observer] = (), *,
     try:
         _instantiate(system, instances, track, on_message)
         units = build_units(system.models, instances, system.connections, system.record,
-                            track)
+                            track, ModelExchangeUnit)
         algorithm = algorithm_for(system, units, track, fast)
         _initialise(system, instances, algorithm, track)
         recorder = _Recorder(system, units, observers)

@@ -121,7 +121,7 @@ class FmuUnit:
         self.component = self.slave.component
         self.fmi3 = instance.info.fmi_version == "3.0"
         vr_type = _vr_type(self.fmi3)
-        self.do_step = c_function(self.slave, "fmi3DoStep" if self.fmi3 else "fmi2DoStep")
+        self.do_step = self._step_function()
         self.step_extra: tuple[Any, ...] | None = None
         if self.fmi3:
             # fmi3DoStep's out-arguments: eventHandlingNeeded, terminateSimulation,
@@ -171,6 +171,10 @@ class FmuUnit:
         self.in_groups: tuple[InputGroup, ...] = ()
         #: (input name, source unit, source output name)
         self.sources: list[tuple[str, Unit, str]] = []
+
+    def _step_function(self) -> Any:
+        """What :class:`~.algorithm.Stepper` calls to step this unit: its doStep."""
+        return c_function(self.slave, "fmi3DoStep" if self.fmi3 else "fmi2DoStep")
 
     def link(self, input_name: str, source: "Unit", output_name: str) -> None:
         """Copy ``source``'s output ``output_name`` into input ``input_name`` at each set."""
@@ -295,8 +299,11 @@ def check_finite(unit: Unit, t: float) -> None:
 
 def build_units(models: dict[str, ModelInfo], instances: dict[str, FmuInstance],
                 connections: list[Any], record: list[str],
-                track: Any) -> dict[str, Unit]:
-    """Each component's unit (a table's: :class:`TableUnit`), its value buffers linked to
+                track: Any, model_exchange: Callable[..., FmuUnit] | None = None
+                ) -> dict[str, Unit]:
+    """Each component's unit (a table's: :class:`TableUnit`; one integrated as Model
+    Exchange, its ``integration`` set: ``model_exchange(instance, index, outputs,
+    inputs)``, :class:`~.model_exchange.ModelExchangeUnit`), its value buffers linked to
     its sources'; only outputs that are connected or recorded are read."""
     index = {cname: i for i, cname in enumerate(models)}
     connected: dict[str, list[Any]] = {}
@@ -315,6 +322,12 @@ def build_units(models: dict[str, ModelInfo], instances: dict[str, FmuInstance],
             continue
         outs = [v for v in info.outputs if v.name in needed_out[cname]]
         ins = [info.variables[c.target[1]] for c in connected.get(cname, [])]
+        if getattr(info, "integration", None) is not None:
+            if model_exchange is None:
+                raise ValueError(f"component '{cname}' is to be integrated as Model "
+                                 "Exchange, and no Model Exchange unit was given")
+            units[cname] = model_exchange(instances[cname], index[cname], outs, ins)
+            continue
         units[cname] = FmuUnit(instances[cname], index[cname], outs, ins)
     for cname, unit in units.items():
         for conn in connected.get(cname, []):

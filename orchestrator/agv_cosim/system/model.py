@@ -1,4 +1,5 @@
-"""What an FMU declares: its model description read (FMI 2.0 and 3.0 co-simulation).
+"""What an FMU declares: its model description read (FMI 2.0 and 3.0, co-simulation
+and Model Exchange).
 
 :func:`read_model` checks the FMU archive (every entry's CRC) and maps fmpy's
 ``read_model_description`` (XML schema on; no extraction) onto a :class:`ModelInfo`; fmpy's
@@ -9,8 +10,11 @@ parsing (undefined unit, input without start ..) are not errors, as before; FMI 
 value reference, type (see
 :mod:`agv_cosim.fmitypes`), causality, unit and description, and each output's direct
 dependencies. An output whose ``<Unknown>`` (FMI 2.0) or ``<Output>`` (FMI 3.0) carries no
-``dependencies`` attribute depends, per the standard, on every input. A model-exchange-only
-FMU is refused with a message saying so.
+``dependencies`` attribute depends, per the standard, on every input. An FMU's
+``<ModelExchange>`` is read into :class:`ModelExchangeInfo`; a model-exchange-only FMU
+gets an :class:`Integration` (the orchestrator integrates it with a solver:
+:mod:`agv_cosim.execution.model_exchange`), and its ``identifier`` is the Model
+Exchange one.
 
 The master steps with a fixed communication step and never saves or restores FMU state,
 so ``canHandleVariableCommunicationStepSize="false"`` and ``canGetAndSetFMUstate="false"``
@@ -104,6 +108,29 @@ def element_names(name: str, shape: tuple[int, ...]) -> list[str]:
             for index in itertools.product(*(range(n) for n in shape))]
 
 
+@dataclass(frozen=True)
+class ModelExchangeInfo:
+    """What an FMU's ``<ModelExchange>`` element declares."""
+
+    identifier: str
+    #: ``numberOfContinuousStates`` (FMI 2.0) or the count of continuous-state
+    #: derivatives (FMI 3.0, fmpy's; an array state counts its elements)
+    states: int = 0
+    event_indicators: int = 0
+    needs_completed_integrator_step: bool = False
+    needs_execution_tool: bool = False
+
+
+@dataclass(frozen=True)
+class Integration:
+    """How a Model Exchange FMU is integrated between communication points: the solver
+    ("cvode": SUNDIALS CVODE through fmpy.sundials; "scipy": scipy.integrate.solve_ivp)
+    and its relative tolerance (absolute: tolerance x each state's nominal)."""
+
+    solver: str = "cvode"
+    tolerance: float = 1e-6
+
+
 @dataclass
 class ModelInfo:
     """What the orchestrator needs from one FMU's model description.
@@ -124,6 +151,14 @@ class ModelInfo:
     can_get_set_state: bool = False
     #: a time table (:class:`agv_cosim.system.table.Table`) instead of an FMU
     table: Any = None
+    #: the FMI interfaces the FMU declares: "co-simulation", "model-exchange"
+    interfaces: tuple[str, ...] = ("co-simulation",)
+    #: what its <ModelExchange> declares (None: no Model Exchange interface)
+    model_exchange: "ModelExchangeInfo | None" = None
+    #: how the orchestrator integrates it as a Model Exchange FMU (None: it is run
+    #: through its co-simulation interface); see
+    #: :func:`agv_cosim.execution.model_exchange.use_model_exchange`
+    integration: "Integration | None" = None
 
     def of_causality(self, causality: str) -> list[Variable]:
         """Variables with the given causality, in model-description order."""
@@ -246,21 +281,27 @@ def _parse_model(path: Path) -> ModelInfo:
         raise ModelError(f"not an FMI 2.0 or 3.0 FMU (fmiVersion={md.fmiVersion!r}): "
                          f"'{path}'")
     cosim = md.coSimulation
+    me = _model_exchange(md)
     if cosim is None or not cosim.modelIdentifier:
-        if md.modelExchange is not None:
-            raise ModelError(f"a model-exchange-only FMU: agv-cosim runs co-simulation FMUs "
-                             f"only: '{path}'")
-        raise ModelError(f"not a co-simulation FMU: '{path}'")
-    if not IDENTIFIER.fullmatch(cosim.modelIdentifier):
-        raise ModelError(f"broken FMU (modelIdentifier {cosim.modelIdentifier!r} is not a "
-                         "name: FMI wants a C identifier, which also names the FMU's binary "
-                         f"inside it): '{path}'")
+        if me is None:
+            raise ModelError(f"neither a co-simulation nor a Model Exchange FMU: '{path}'")
+        cosim = None  # a model-exchange-only FMU: integrated by the orchestrator
+    identifier = cosim.modelIdentifier if cosim is not None else me.identifier  # type: ignore[union-attr]
+    for name in {identifier, me.identifier if me is not None else identifier}:
+        if not IDENTIFIER.fullmatch(name):
+            raise ModelError(f"broken FMU (modelIdentifier {name!r} is not a "
+                             "name: FMI wants a C identifier, which also names the FMU's "
+                             f"binary inside it): '{path}'")
+    interfaces = tuple(kind for kind, there in (("co-simulation", cosim is not None),
+                                                ("model-exchange", me is not None)) if there)
     info = ModelInfo(path=path, sha256=file_sha256(path), model_name=md.modelName or "",
-                     identifier=cosim.modelIdentifier, guid=md.guid or "",
+                     identifier=identifier, guid=md.guid or "",
                      description=md.description or "", fmi_version=version,
                      can_handle_variable_step=bool(
-                         cosim.canHandleVariableCommunicationStepSize),
-                     can_get_set_state=bool(cosim.canGetAndSetFMUstate))
+                         cosim.canHandleVariableCommunicationStepSize) if cosim else True,
+                     can_get_set_state=bool(cosim.canGetAndSetFMUstate) if cosim else False,
+                     interfaces=interfaces, model_exchange=me,
+                     integration=Integration() if cosim is None else None)
     # fmpy appends FMI 3.0 <Alias> entries as extra variables: agv-cosim does not list them
     own = [sv for sv in md.modelVariables if getattr(sv, "alias", None) is None]
     ordered = [_variable(sv, version) for sv in own]
@@ -284,7 +325,44 @@ def _parse_model(path: Path) -> ModelInfo:
     for variable in ordered:
         if variable.causality == "output" and variable.name not in info.dependencies:
             info.dependencies[variable.name] = list(input_names)
+    if cosim is None:
+        problem = model_exchange_refusal(info)
+        if problem:
+            raise ModelError(f"a model-exchange-only FMU the orchestrator cannot "
+                             f"integrate: it {problem}: '{path}'")
     return info
+
+
+def model_exchange_refusal(info: ModelInfo) -> str:
+    """Why the orchestrator cannot integrate the FMU ``info`` through its Model Exchange
+    interface ('' if it can): none declared, it needs its exporting tool, or it has Clock
+    variables (clocked Model Exchange is not supported)."""
+    me = info.model_exchange
+    if me is None:
+        return (f"has no Model Exchange interface (it declares "
+                f"{', '.join(info.interfaces) or 'none'})")
+    if me.needs_execution_tool:
+        return ("its Model Exchange interface needs its exporting tool "
+                "(needsExecutionTool=\"true\"), which agv-cosim cannot provide")
+    clocks = [v.name for v in info.variables.values() if v.type == "Clock"]
+    if clocks:
+        return (f"has Clock variables ({', '.join(clocks[:3])}"
+                f"{' ..' if len(clocks) > 3 else ''}): clocked Model Exchange is not "
+                "supported")
+    return ""
+
+
+def _model_exchange(md: Any) -> ModelExchangeInfo | None:
+    """The FMU's ``<ModelExchange>`` as a :class:`ModelExchangeInfo` (None: none)."""
+    me = md.modelExchange
+    if me is None or not me.modelIdentifier:
+        return None
+    return ModelExchangeInfo(
+        identifier=me.modelIdentifier, states=int(md.numberOfContinuousStates or 0),
+        event_indicators=int(md.numberOfEventIndicators or 0),
+        needs_completed_integrator_step=bool(me.needsCompletedIntegratorStep)
+        and not bool(getattr(me, "completedIntegratorStepNotNeeded", False)),
+        needs_execution_tool=bool(getattr(me, "needsExecutionTool", False)))
 
 
 def _fmi_version(path: Path) -> str | None:
