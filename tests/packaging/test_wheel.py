@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 
 from agv_cosim.build import default_components_dir, slave_scripts
-from agv_cosim.shipped import SHIPPED
+from agv_cosim.build.shipped import SHIPPED
 from manifests import localise
 
 pytestmark = pytest.mark.slow

@@ -41,7 +41,7 @@ with where they are.
    ._check_bundle``): each FMU loads its own ``agv_core`` bundle as ``agv_core_<tag>``
    from ``sys.path[0]``, and refuses to run another build's slave code in its name.
 5. pythonfmu3 finds the slave class only from a ``class`` line naming ``Fmi3Slave`` (the
-   FMI 3.0 alias, in ``agv_cosim/build.py``): the build bundles the slave script
+   FMI 3.0 alias, in ``agv_cosim/build/fmus.py``): the build bundles the slave script
    unchanged, writes a two-line wrapper script, and makes the bundle's ``fmi/fmi_slave.py``
    an alias of ``fmi/fmi3_slave.py``.
 6. Model-description fixes (in the adapters' ``to_xml``): no ``generationDateAndTime``
