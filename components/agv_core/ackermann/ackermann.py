@@ -29,7 +29,7 @@ it (|R| = d/2); that and beyond is rejected.
 import math
 
 
-def wheel_angles(delta, l, d):
+def wheel_angles(delta, l, d):  # noqa: E741 - l: the axle offset, as in the paper
     """Left and right wheel angles [rad] of an axle with axle-equivalent angle ``delta``.
 
     Parameters
@@ -79,13 +79,13 @@ def axle_angle(delta_left, delta_right):
     return math.atan(2.0 * tl * tr / (tl + tr))
 
 
-def turning_curvature(delta, l):
+def turning_curvature(delta, l):  # noqa: E741 - l as in wheel_angles
     """1 / R [1/m]: signed inverse lateral position of the axle's turning centre on the
     baseline (positive left; 0 when the axle is straight and O is at infinity)."""
     return math.tan(delta) / l
 
 
-def wheel_distances(delta, l, d):
+def wheel_distances(delta, l, d):  # noqa: E741 - l as in wheel_angles
     """Distances [m] from the left and right wheel centres to the turning centre O.
 
     Seed 003's e1, e2 are these distances for axle 2 (inner, outer). Infinite for a
@@ -113,12 +113,13 @@ class TrainCoordination:
     """
 
     def __init__(self, offsets, d):
-        self.offsets = tuple(float(l) for l in offsets)
+        self.offsets = tuple(float(offset) for offset in offsets)
         self.d = float(d)
 
     def wheels(self, deltas):
         """[(delta_L, delta_R), ...] [rad] for the axle angles ``deltas`` [rad]."""
-        return [wheel_angles(delta, l, self.d) for delta, l in zip(deltas, self.offsets)]
+        return [wheel_angles(delta, offset, self.d)
+                for delta, offset in zip(deltas, self.offsets)]
 
     def get_state(self):
         return {}

@@ -51,8 +51,9 @@ class AgvAckermann(core.fmi.fmi_slave.AgvSlave):
     def publish(self):
         c = self.core
         deltas = [getattr(self, f"delta{i}") for i in _AXLES]
-        for i, delta, l, (left, right) in zip(_AXLES, deltas, c.offsets, c.wheels(deltas)):
+        for i, delta, offset, (left, right) in zip(_AXLES, deltas, c.offsets,
+                                                   c.wheels(deltas)):
             setattr(self, f"delta{i}_left", left)
             setattr(self, f"delta{i}_right", right)
             setattr(self, f"centre_curvature{i}",
-                    core.ackermann.ackermann.turning_curvature(delta, l))
+                    core.ackermann.ackermann.turning_curvature(delta, offset))

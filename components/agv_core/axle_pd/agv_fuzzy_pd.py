@@ -26,7 +26,7 @@ class AgvFuzzyPd(core.fmi.axle_pd_fmi.AxlePdSlave):
                         "speed": ((0.0, 14.0 / 3.6),)}
 
     def declare_gain_parameters(self):
-        S, I = core.fmi.fmi_slave.String, core.fmi.fmi_slave.Integer
+        S, Int = core.fmi.fmi_slave.String, core.fmi.fmi_slave.Integer
         self.parameter("kp_rules", DEFAULTS["kp_rules"], None,
                        "Kp rule table: 5 rows (e NB..PB) of 3 labels (speed low, mid, high) "
                        "from NB NM NS ZE PS PM PB, rows separated by ';'", kind=S)
@@ -41,10 +41,10 @@ class AgvFuzzyPd(core.fmi.axle_pd_fmi.AxlePdSlave):
                        "Kd universe [-kd_max, kd_max] (800 deg s/m)")
         self.parameter("e_cells", DEFAULTS["e_cells"], None,
                        "Gain-grid cells across the error universe "
-                       "(multiple of 4)", kind=I)
+                       "(multiple of 4)", kind=Int)
         self.parameter("v_cells", DEFAULTS["v_cells"], None,
                        "Gain-grid cells across the speed universe "
-                       "(multiple of 2)", kind=I)
+                       "(multiple of 2)", kind=Int)
 
     def make_gains(self):
         return core.axle_pd.fuzzy_pd.FuzzySchedule(

@@ -37,7 +37,7 @@ wrappers' double release of a failed slave (pythonfmu3 0.3.4 has pythonfmu 0.7's
 from math import isfinite
 from xml.etree.ElementTree import Element
 
-from pythonfmu3 import Boolean, Fmi3Causality, Fmi3Slave, Fmi3Variability, Float64, Int32, String
+from pythonfmu3 import Boolean, Float64, Fmi3Causality, Fmi3Slave, Fmi3Variability, Int32, String
 from pythonfmu3.default_experiment import DefaultExperiment
 from pythonfmu3.enums import Fmi3Status
 

@@ -26,8 +26,9 @@ The slack softens the optional "feasible region" bound e_max on the predicted po
 errors; with e_max = 0 (default: its value is lost from the paper) it appears in the
 cost only and the optimum has gamma = 0. The first increment is applied:
 u(k) = u(k-1) + Delta u(k) (eq 30); the controller output is held for T (sampled at
-k T by the rule of :mod:`agv_core.numerics.sampling`, :class:`~agv_core.numerics.sampling.SampleHold`
-with memory: u(k-1) and the warm start come from the committed sample before).
+k T by the rule of :mod:`agv_core.numerics.sampling`,
+:class:`~agv_core.numerics.sampling.SampleHold` with memory: u(k-1) and the warm start come
+from the committed sample before).
 
 The QP (1/2 z' P z + q' z, l <= A z <= u with z = [Delta U; gamma]) is solved by OSQP
 (operator splitting, with solution polishing), warm-started from the previous solution
@@ -149,7 +150,7 @@ class LtvMpc:
                 if not (math.isfinite(lo[i]) and math.isfinite(hi[i]) and lo[i] <= hi[i]):
                     raise ParameterError(f"{label}_{part}", f"bounds [{lo[i]}, {hi[i]}] are "
                                                            "not an interval")
-            if label == "du" and not all(l <= 0.0 <= h for l, h in zip(lo, hi)):
+            if label == "du" and not all(low <= 0.0 <= high for low, high in zip(lo, hi)):
                 raise ParameterError("du", f"increment bounds {lo}..{hi} must contain 0")
             bounds[label] = (np.array(lo), np.array(hi))
         self.T = float(sample_time)

@@ -154,8 +154,8 @@ def find_wheelbase(target=PAPER_GAINS, V0=1.0, K=0.6, q=20.0, r=1.0, bounds=(0.2
 
     Uses ``Q = diag(0, 0, q)``, ``R = r``; ``q = 20`` reproduces the paper's
     ``Ke = 4.472 = sqrt(20)`` (``Ke = sqrt(q / r)`` exactly, see the module docstring;
-    ``q=None`` takes ``q = r * Ke^2`` from ``target``). It then minimises the squared error of (Ka, Kb) over L with
-    :func:`scipy.optimize.minimize_scalar`.
+    ``q=None`` takes ``q = r * Ke^2`` from ``target``). It then minimises the squared error
+    of (Ka, Kb) over L with :func:`scipy.optimize.minimize_scalar`.
 
     Parameters
     ----------
