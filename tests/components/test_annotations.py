@@ -13,26 +13,16 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2] / "components" / "agv_core"
 
 PENDING = {
-    "ackermann/ackermann.py", "ackermann/agv_ackermann.py", "axle_pd/agv_axle_errors.py",
-    "axle_pd/agv_fixed_pd.py", "axle_pd/agv_fuzzy_pd.py", "axle_pd/fuzzy_pd.py",
-    "axle_pd/track_path.py", "chained_form/agv_chained_form.py",
-    "chained_form/chained_form.py", "double_steer/agv_double_steer.py",
-    "double_steer/agv_double_steer_ik.py", "double_steer/double_steer.py",
-    "double_steer/seed001_loop.py", "dynamic_train/agv_dynamic_train.py",
-    "dynamic_train/dynamic_train.py", "dynamic_vehicle/agv_dynamic_vehicle.py",
+    "ackermann/ackermann.py", "axle_pd/fuzzy_pd.py", "axle_pd/track_path.py",
+    "chained_form/chained_form.py", "double_steer/double_steer.py",
+    "double_steer/seed001_loop.py", "dynamic_train/dynamic_train.py",
     "dynamic_vehicle/dynamic_vehicle.py", "dynamic_vehicle/tyres.py", "fmi/actuator_fmi.py",
-    "fmi/agv_boot.py", "fmi/axle_pd_fmi.py", "fmi/fmi3_slave.py", "fmi/fmi_slave.py",
-    "fmi/path_law_fmi.py", "fmi/pythonfmu_workarounds.py", "fmi/slave_base.py",
-    "fmi/tracking_fmi.py", "lateral_pid/agv_lateral_pid.py", "lateral_pid/pid.py",
-    "ltv_mpc/agv_ltv_mpc.py", "ltv_mpc/ltv_mpc.py", "numerics/paths.py",
-    "preview_lq/agv_preview_lq.py", "preview_lq/preview_lq.py",
-    "pure_pursuit/agv_pure_pursuit.py", "rear_wheel_feedback/agv_rear_wheel_feedback.py",
-    "ref_trajectory/agv_ref_trajectory.py", "ref_trajectory/ref_trajectory.py",
-    "sensors/agv_gyro.py", "sensors/agv_steer_sensor.py", "sensors/agv_total_station.py",
-    "sensors/agv_vision_sensor.py", "sensors/sensors.py", "stanley/agv_stanley.py",
-    "state_feedback/agv_state_feedback.py", "state_feedback/state_feedback.py",
-    "steering/actuator.py", "steering/agv_steering_a.py", "steering/agv_steering_c.py",
-    "train/agv_train.py", "train/train.py", "vehicle/agv_vehicle.py", "vehicle/vehicle.py",
+    "fmi/axle_pd_fmi.py", "fmi/fmi3_slave.py", "fmi/fmi_slave.py", "fmi/path_law_fmi.py",
+    "fmi/pythonfmu_workarounds.py", "fmi/slave_base.py", "fmi/tracking_fmi.py",
+    "lateral_pid/pid.py", "ltv_mpc/ltv_mpc.py", "numerics/paths.py",
+    "preview_lq/preview_lq.py", "ref_trajectory/ref_trajectory.py", "sensors/sensors.py",
+    "state_feedback/state_feedback.py", "steering/actuator.py", "train/train.py",
+    "vehicle/vehicle.py",
 }
 
 

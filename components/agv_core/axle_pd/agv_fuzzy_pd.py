@@ -2,6 +2,7 @@
 agv_core.axle_pd_fmi)."""
 
 import math
+from typing import Any
 
 from agv_boot import load_core
 
@@ -25,7 +26,7 @@ class AgvFuzzyPd(core.fmi.axle_pd_fmi.AxlePdSlave):
     reference_inputs = {"lateral_error": ((0.0, 0.0), (0.5, 0.01)),
                         "speed": ((0.0, 14.0 / 3.6),)}
 
-    def declare_gain_parameters(self):
+    def declare_gain_parameters(self) -> None:
         S, Int = core.fmi.fmi_slave.String, core.fmi.fmi_slave.Integer
         self.parameter("kp_rules", DEFAULTS["kp_rules"], None,
                        "Kp rule table: 5 rows (e NB..PB) of 3 labels (speed low, mid, high) "
@@ -46,7 +47,7 @@ class AgvFuzzyPd(core.fmi.axle_pd_fmi.AxlePdSlave):
                        "Gain-grid cells across the speed universe "
                        "(multiple of 2)", kind=Int)
 
-    def make_gains(self):
+    def make_gains(self) -> Any:
         return core.axle_pd.fuzzy_pd.FuzzySchedule(
             self.kp_rules, self.kd_rules, self.e_max, self.v_max * core.axle_pd.fuzzy_pd.KMH,
             math.degrees(self.kp_max), math.degrees(self.kd_max), self.e_cells, self.v_cells)
