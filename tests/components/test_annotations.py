@@ -13,14 +13,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2] / "components" / "agv_core"
 
 PENDING = {
-    "axle_pd/fuzzy_pd.py", "axle_pd/track_path.py", "chained_form/chained_form.py",
-    "double_steer/double_steer.py", "double_steer/seed001_loop.py",
-    "dynamic_train/dynamic_train.py", "dynamic_vehicle/dynamic_vehicle.py",
-    "dynamic_vehicle/tyres.py", "fmi/actuator_fmi.py", "fmi/axle_pd_fmi.py",
-    "fmi/fmi3_slave.py", "fmi/fmi_slave.py", "fmi/path_law_fmi.py",
-    "fmi/pythonfmu_workarounds.py", "fmi/slave_base.py", "fmi/tracking_fmi.py",
-    "ltv_mpc/ltv_mpc.py", "numerics/paths.py", "preview_lq/preview_lq.py",
-    "sensors/sensors.py", "steering/actuator.py", "train/train.py", "vehicle/vehicle.py",
+    "axle_pd/fuzzy_pd.py", "axle_pd/track_path.py", "double_steer/double_steer.py",
+    "double_steer/seed001_loop.py", "dynamic_train/dynamic_train.py",
+    "dynamic_vehicle/dynamic_vehicle.py", "dynamic_vehicle/tyres.py", "ltv_mpc/ltv_mpc.py",
+    "numerics/paths.py", "preview_lq/preview_lq.py", "sensors/sensors.py",
+    "steering/actuator.py", "train/train.py", "vehicle/vehicle.py",
 }
 
 

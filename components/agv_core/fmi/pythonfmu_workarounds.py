@@ -56,6 +56,7 @@ import ctypes
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
 #: Objects of failed slaves, kept for the wrappers' second release (entry 1).
 KEPT_FOR_PYTHONFMU = []
@@ -64,7 +65,7 @@ KEPT_FOR_PYTHONFMU = []
 _WRAPPERS_TO_FINALIZE = {}
 
 
-def keep_for_pythonfmu(slave):
+def keep_for_pythonfmu(slave: Any) -> None:
     """Balance the wrapper's double release before an exception leaves ``slave`` (entry 1)."""
     KEPT_FOR_PYTHONFMU.extend((type(slave), slave, slave.log_queue))
 
@@ -74,7 +75,7 @@ def _finalize_wrappers():
         library.finalizePythonInterpreter()
 
 
-def finalize_at_exit(resources, identifier):
+def finalize_at_exit(resources: str | Path, identifier: str) -> None:
     """Register the FMU's loaded pythonfmu3 library (if any) for finalisation (entry 2)."""
     if not sys.platform.startswith("linux"):
         return
