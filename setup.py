@@ -2,7 +2,7 @@
 
 A wheel ships, besides the packages, the experiment manifests and the FMU loader's C
 source, which live outside the packages in the repository: ``build_py`` copies them into
-``agv_cosim/shipped/<kind>/`` (agv_cosim/shipped.py finds them there; an editable install
+``agv_cosim/shipped/<kind>/`` (agv_cosim/build/shipped.py finds them there; an editable install
 finds them in the checkout instead).
 """
 
@@ -11,7 +11,7 @@ from pathlib import Path
 from setuptools import setup
 from setuptools.command.build_py import build_py
 
-#: The same table as agv_cosim.shipped.SHIPPED: kind -> (repository folder, patterns).
+#: The same table as agv_cosim.build.shipped.SHIPPED: kind -> (repository folder, patterns).
 SHIPPED = {
     "experiments": ("experiments", ("*.toml",)),
     "fmu_loader": ("components/fmu_loader", ("*.c", "*.h")),

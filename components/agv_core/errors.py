@@ -12,6 +12,6 @@ class ParameterError(ValueError):
         What is wrong with it.
     """
 
-    def __init__(self, name, message):
+    def __init__(self, name: str, message: str) -> None:
         super().__init__(f"parameter '{name}': {message}")
         self.name = name

@@ -37,7 +37,7 @@ UNITS = {
 }
 
 
-def base_unit_attributes(unit):
+def base_unit_attributes(unit: str) -> dict[str, str]:
     """Return the FMI ``BaseUnit`` attributes of ``unit`` as strings.
 
     Raises

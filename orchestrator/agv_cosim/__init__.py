@@ -22,8 +22,8 @@ stages before it and from the foundation modules (``errors``, ``fmitypes``,
 :mod:`agv_cosim.pipeline` runs the stages end to end (local worker processes or a Dask
 cluster); :mod:`agv_cosim.ssp` reads and writes SSP packages; :mod:`agv_cosim.cli` is the
 ``agv-cosim`` command and :mod:`agv_cosim.api` its Python API (:func:`run`,
-:func:`open_results`: results as pandas DataFrames); :mod:`agv_cosim.build` (with
-``bundle``, ``standalone``, ``shipped``, ``examples``) builds the component FMUs.
+:func:`open_results`: results as pandas DataFrames); the package :mod:`agv_cosim.build`
+(``fmus``, ``bundle``, ``standalone``, ``shipped``, ``examples``) builds the component FMUs.
 
 Every error of stages 1-3 is one line, ``<manifest>: <key>: <problem>``; every error type
 is in :mod:`agv_cosim.errors`.

@@ -60,8 +60,8 @@ def _cmd_build(args: argparse.Namespace) -> int:
 
 
 def _cmd_examples(args):
+    from .build.examples import copy_examples
     from .errors import ExamplesError
-    from .examples import copy_examples
 
     try:
         written = copy_examples(args.folder, args.fmus)

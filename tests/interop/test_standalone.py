@@ -27,7 +27,7 @@ import pytest
 from fmusim_host import assert_matches, read_output, reference_of, unavailable
 
 from agv_cosim.build import build_one, slave_script
-from agv_cosim.standalone import distribution_files
+from agv_cosim.build.standalone import distribution_files
 
 pytestmark = pytest.mark.interop
 

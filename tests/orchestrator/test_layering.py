@@ -24,10 +24,13 @@ LAYERS = {
     "errors": 0, "version": 0, "fmitypes": 0, "lifetime": 0, "files": 0, "timeseries": 0,
     "manifest": 1, "plan": 2, "system": 3, "execution": 4, "report": 5, "workers": 6,
     "pipeline": 7,
-    "ssp": 8, "shipped": 8, "bundle": 8, "standalone": 8, "build": 8, "examples": 8,
-    "identification": 8, "fitting": 8,
+    "ssp": 8, "build": 8, "identification": 8, "fitting": 8,
     "cli": 9, "api": 9, "": 10,
 }
+
+#: Inside the build package (agv_cosim.build, the FMU build wing): its modules in layers of
+#: their own; the package as a whole stands on the foundation (layer 0) only.
+BUILD_LAYERS = {"shipped": 0, "bundle": 0, "standalone": 1, "examples": 1, "fmus": 2, "": 3}
 
 
 def module_name(path):
@@ -108,6 +111,31 @@ def test_imports_point_down_the_pipeline():
     upward = [f"{m} ({layer(m)}) imports {t} ({layer(t)}) at line {uses[0][1]}"
               for m, targets in graph().items() for t, uses in targets.items()
               if layer(t) > layer(m)]
+    assert upward == []
+
+
+def build_layer(name):
+    parts = name.split(".")
+    return BUILD_LAYERS[parts[2] if len(parts) > 2 else ""]
+
+
+def test_every_build_module_has_a_layer():
+    assert [m for m in modules() if m.startswith(f"{PACKAGE}.build.")
+            and m.split(".")[2] not in BUILD_LAYERS] == []
+
+
+def test_the_build_package_stands_on_the_foundation_only():
+    above = [f"{m} imports {t} at line {uses[0][1]}" for m, targets in graph().items()
+             if layer(m) == LAYERS["build"] and m.split(".")[1] == "build"
+             for t, uses in targets.items()
+             if t.split(".")[1] != "build" and layer(t) > 0]
+    assert above == []
+
+
+def test_imports_point_down_inside_the_build_package():
+    upward = [f"{m} imports {t} at line {uses[0][1]}" for m, targets in graph().items()
+              if m.split(".")[1:2] == ["build"] for t, uses in targets.items()
+              if t.split(".")[1:2] == ["build"] and build_layer(t) > build_layer(m)]
     assert upward == []
 
 

@@ -54,6 +54,16 @@ def test_list_imports_no_plotting_no_scipy_and_no_schema():
     assert not modules & {*HEAVY, "pydantic", "agv_cosim.manifest"}
 
 
+def test_examples_imports_no_fmu_tooling():
+    # agv-cosim examples needs agv_cosim.build.examples only: the package's FMU build
+    # names (agv_cosim.build.fmus, pythonfmu, fmpy) load on first use
+    modules = _modules_after("from agv_cosim.build.examples import copy_examples\n")
+    assert "agv_cosim.build.examples" in modules
+    assert not modules & {"agv_cosim.build.fmus", "pythonfmu", "fmpy", *HEAVY}
+    modules = _modules_after("from agv_cosim.build import build_one\n")
+    assert {"agv_cosim.build.fmus", "pythonfmu"} <= modules
+
+
 def test_fork_server_preload_imports_no_plotting_and_no_scipy():
     modules = _modules_after(
         "import importlib\n"

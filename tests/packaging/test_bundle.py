@@ -1,4 +1,4 @@
-"""agv_cosim.bundle: which part of agv_core an FMU ships and which distributions it declares.
+"""agv_cosim.build.bundle: which part of agv_core an FMU ships and which distributions it declares.
 
 On small made-up packages (the real FMUs' lists are checked in test_fmu_requirements.py).
 """
@@ -9,7 +9,7 @@ import textwrap
 import pytest
 
 from agv_cosim.errors import BundleError
-from agv_cosim.bundle import bundle_of, installed_requirements, requirements_text
+from agv_cosim.build.bundle import bundle_of, installed_requirements, requirements_text
 
 NONE = ((), ())  # no child process: the requirement list given
 BOOT = ["agv_boot"]  # the boot loader: shipped by the FMU, not a distribution

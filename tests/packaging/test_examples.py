@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 
 from agv_cosim import cli
-from agv_cosim import examples as examples_module
-from agv_cosim.examples import RECORD, ExamplesError, copy_examples
+from agv_cosim.build import examples as examples_module
+from agv_cosim.build.examples import RECORD, ExamplesError, copy_examples
+from agv_cosim.build.shipped import shipped_dir
 from agv_cosim.manifest import load_manifest
-from agv_cosim.shipped import shipped_dir
 
 EXPERIMENTS = Path(__file__).resolve().parents[2] / "experiments"
 

@@ -1,6 +1,6 @@
 """Every FMU runs in a Python that has nothing installed but its ``resources/requirements.txt``.
 
-The build derives each FMU's requirement list from the imports of its code (agv_cosim/bundle.py).
+The build derives each FMU's requirement list from the imports of its code (agv_cosim/build/bundle.py).
 Here every component FMU, FMI 2.0 and FMI 3.0 twin, is run in a fresh venv into which
 exactly its pinned list was installed with ``pip install --no-deps`` (one venv per distinct
 list, shared by the FMUs that declare the same; an FMU and its FMI 3.0 twin declare the same

@@ -22,14 +22,21 @@ from pathlib import Path
 import pytest
 
 from agv_cosim.build import default_components_dir, slave_scripts
-from agv_cosim.shipped import SHIPPED
+from agv_cosim.build.shipped import SHIPPED
 from manifests import localise
 
 pytestmark = pytest.mark.slow
 
 REPO = Path(__file__).resolve().parents[2]
-NOT_SOURCES = shutil.ignore_patterns(".venv", ".git", "fmus", "results", "build", "dist",
-                                     "__pycache__", "*.egg-info", ".pytest_cache")
+_NOT_SOURCES = shutil.ignore_patterns(".venv", ".git", "fmus", "results", "__pycache__",
+                                      "*.egg-info", ".pytest_cache")
+
+
+def NOT_SOURCES(folder, names):
+    """What the copy leaves out: the checkout's own build output (``build/`` and ``dist/``
+    at its top; agv_cosim/build/ is a package) and caches, venvs and results anywhere."""
+    top = {"build", "dist"} if Path(folder) == REPO else set()
+    return _NOT_SOURCES(folder, names) | (top & set(names))
 MODELS = sorted(p.stem for p in slave_scripts(default_components_dir()))
 
 

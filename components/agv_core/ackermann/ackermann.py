@@ -27,9 +27,12 @@ it (|R| = d/2); that and beyond is rejected.
 """
 
 import math
+from collections.abc import Iterable, Sequence
+from typing import Any
 
 
-def wheel_angles(delta, l, d):
+def wheel_angles(delta: float, l: float, d: float  # noqa: E741 - l: the axle offset (paper)
+                 ) -> tuple[float, float]:
     """Left and right wheel angles [rad] of an axle with axle-equivalent angle ``delta``.
 
     Parameters
@@ -63,7 +66,7 @@ def wheel_angles(delta, l, d):
     return math.atan(a * t / den_left), math.atan(a * t / den_right)
 
 
-def axle_angle(delta_left, delta_right):
+def axle_angle(delta_left: float, delta_right: float) -> float:
     """Exact inverse of :func:`wheel_angles`: the axle-equivalent angle [rad].
 
     tan(delta) = 2 tL tR / (tL + tR) (the mean of the cotangents); 0 when both wheels are
@@ -79,13 +82,14 @@ def axle_angle(delta_left, delta_right):
     return math.atan(2.0 * tl * tr / (tl + tr))
 
 
-def turning_curvature(delta, l):
+def turning_curvature(delta: float, l: float) -> float:  # noqa: E741 - l as in wheel_angles
     """1 / R [1/m]: signed inverse lateral position of the axle's turning centre on the
     baseline (positive left; 0 when the axle is straight and O is at infinity)."""
     return math.tan(delta) / l
 
 
-def wheel_distances(delta, l, d):
+def wheel_distances(delta: float, l: float, d: float  # noqa: E741 - l as in wheel_angles
+                    ) -> tuple[float, float]:
     """Distances [m] from the left and right wheel centres to the turning centre O.
 
     Seed 003's e1, e2 are these distances for axle 2 (inner, outer). Infinite for a
@@ -112,16 +116,17 @@ class TrainCoordination:
         Track width [m].
     """
 
-    def __init__(self, offsets, d):
-        self.offsets = tuple(float(l) for l in offsets)
+    def __init__(self, offsets: Iterable[float], d: float) -> None:
+        self.offsets = tuple(float(offset) for offset in offsets)
         self.d = float(d)
 
-    def wheels(self, deltas):
+    def wheels(self, deltas: Sequence[float]) -> list[tuple[float, float]]:
         """[(delta_L, delta_R), ...] [rad] for the axle angles ``deltas`` [rad]."""
-        return [wheel_angles(delta, l, self.d) for delta, l in zip(deltas, self.offsets)]
+        return [wheel_angles(delta, offset, self.d)
+                for delta, offset in zip(deltas, self.offsets)]
 
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         return {}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         pass

@@ -1,6 +1,8 @@
 """FMU slave: per-axle Ackermann coordination about each car's hinge baseline
 (agv_core.ackermann)."""
 
+from typing import Any
+
 from agv_boot import load_core
 
 core = load_core("fmi.fmi_slave", "ackermann.ackermann", "train.train")
@@ -23,7 +25,7 @@ class AgvAckermann(core.fmi.fmi_slave.AgvSlave):
                                       (1.0, -sign * 0.1253278311680654))
                         for i, sign in zip(_AXLES, (1.0, -1.0, 1.0, -1.0))}
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         for i in _AXLES:
             self.input(f"delta{i}", 0.0, "rad",
@@ -41,18 +43,19 @@ class AgvAckermann(core.fmi.fmi_slave.AgvSlave):
                         f"1/R of axle {i}'s turning centre on the baseline (positive: left "
                         "of the car's centre line; 0 = straight)", depends_on=(f"delta{i}",))
 
-    def make_core(self):
+    def make_core(self) -> Any:
         geometry = core.train.train.TrainGeometry(self.L1, self.L2, self.d)
         return core.ackermann.ackermann.TrainCoordination(geometry.axle_offsets, geometry.d)
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         pass  # static map: publish() evaluates it from the held inputs
 
-    def publish(self):
+    def publish(self) -> None:
         c = self.core
         deltas = [getattr(self, f"delta{i}") for i in _AXLES]
-        for i, delta, l, (left, right) in zip(_AXLES, deltas, c.offsets, c.wheels(deltas)):
+        for i, delta, offset, (left, right) in zip(_AXLES, deltas, c.offsets,
+                                                   c.wheels(deltas)):
             setattr(self, f"delta{i}_left", left)
             setattr(self, f"delta{i}_right", right)
             setattr(self, f"centre_curvature{i}",
-                    core.ackermann.ackermann.turning_curvature(delta, l))
+                    core.ackermann.ackermann.turning_curvature(delta, offset))

@@ -1,6 +1,8 @@
 """FMU slave: lateral errors of seed 003's four axle tracking points from a reference path
 (agv_core.track_path)."""
 
+from typing import Any
+
 from agv_boot import load_core
 
 core = load_core("fmi.fmi_slave", "axle_pd.track_path", "numerics.paths")
@@ -23,7 +25,7 @@ class AgvAxleErrors(core.fmi.fmi_slave.AgvSlave):
                         "x3": ((0.0, -2.0), (0.5, 0.0)), "y3": ((0.0, 0.2), (0.5, 0.0)),
                         "x4": ((0.0, -5.0), (0.5, -3.0)), "y4": ((0.0, 0.0), (0.5, 1.5))}
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         for i in _AXLES:
             self.input(f"x{i}", 0.0, "m", f"x of tracking point {i}")
@@ -38,17 +40,17 @@ class AgvAxleErrors(core.fmi.fmi_slave.AgvSlave):
             self.output(f"s{i}", "m", f"Arc length of point {i}'s projection on the path",
                         depends_on=(f"x{i}", f"y{i}"))
 
-    def make_core(self):
+    def make_core(self) -> Any:
         track_path = core.axle_pd.track_path
         return track_path.PointErrors(track_path.parse_track_path(self.path), 4)
 
     def _points(self):
         return [(getattr(self, f"x{i}"), getattr(self, f"y{i}")) for i in _AXLES]
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         self.core.measure(self._points(), commit=True)   # hints from the held points
 
-    def publish(self):
+    def publish(self) -> None:
         for i, p in zip(_AXLES, self.core.measure(self._points())):
             setattr(self, f"e{i}", p.offset)
             setattr(self, f"s{i}", p.s)

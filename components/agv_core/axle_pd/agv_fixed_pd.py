@@ -2,6 +2,7 @@
 (agv_core.fuzzy_pd, interface in agv_core.axle_pd_fmi)."""
 
 import math
+from typing import Any
 
 from agv_boot import load_core
 
@@ -28,11 +29,11 @@ class AgvFixedPd(core.fmi.axle_pd_fmi.AxlePdSlave):
     reference_inputs = {"lateral_error": ((0.0, 0.0), (0.5, 0.01)),
                         "speed": ((0.0, 14.0 / 3.6),)}
 
-    def declare_gain_parameters(self):
+    def declare_gain_parameters(self) -> None:
         self.parameter("Kp", math.radians(DEFAULTS["kp_deg"]), "rad/m",
                        "Proportional gain (default: the fuzzy Kp at e = 1 cm, 14 km/h)")
         self.parameter("Kd", math.radians(DEFAULTS["kd_deg"]), "rad.s/m",
                        "Derivative gain (default: the fuzzy Kd at e = 1 cm, 14 km/h)")
 
-    def make_gains(self):
+    def make_gains(self) -> Any:
         return core.axle_pd.fuzzy_pd.FixedGains(math.degrees(self.Kp), math.degrees(self.Kd))

@@ -2,6 +2,7 @@
 agv_core.axle_pd_fmi)."""
 
 import math
+from typing import Any
 
 from agv_boot import load_core
 
@@ -25,8 +26,8 @@ class AgvFuzzyPd(core.fmi.axle_pd_fmi.AxlePdSlave):
     reference_inputs = {"lateral_error": ((0.0, 0.0), (0.5, 0.01)),
                         "speed": ((0.0, 14.0 / 3.6),)}
 
-    def declare_gain_parameters(self):
-        S, I = core.fmi.fmi_slave.String, core.fmi.fmi_slave.Integer
+    def declare_gain_parameters(self) -> None:
+        S, Int = core.fmi.fmi_slave.String, core.fmi.fmi_slave.Integer
         self.parameter("kp_rules", DEFAULTS["kp_rules"], None,
                        "Kp rule table: 5 rows (e NB..PB) of 3 labels (speed low, mid, high) "
                        "from NB NM NS ZE PS PM PB, rows separated by ';'", kind=S)
@@ -41,12 +42,12 @@ class AgvFuzzyPd(core.fmi.axle_pd_fmi.AxlePdSlave):
                        "Kd universe [-kd_max, kd_max] (800 deg s/m)")
         self.parameter("e_cells", DEFAULTS["e_cells"], None,
                        "Gain-grid cells across the error universe "
-                       "(multiple of 4)", kind=I)
+                       "(multiple of 4)", kind=Int)
         self.parameter("v_cells", DEFAULTS["v_cells"], None,
                        "Gain-grid cells across the speed universe "
-                       "(multiple of 2)", kind=I)
+                       "(multiple of 2)", kind=Int)
 
-    def make_gains(self):
+    def make_gains(self) -> Any:
         return core.axle_pd.fuzzy_pd.FuzzySchedule(
             self.kp_rules, self.kd_rules, self.e_max, self.v_max * core.axle_pd.fuzzy_pd.KMH,
             math.degrees(self.kp_max), math.degrees(self.kd_max), self.e_cells, self.v_cells)

@@ -21,9 +21,10 @@ system is defined with scikit-fuzzy (``skfuzzy.control``); ``FuzzySchedule.contr
 returns it. Since one ``skfuzzy.control`` evaluation costs ~4 ms, the two gain surfaces are
 evaluated once at initialisation on a regular grid by :func:`mamdani_surface` (the same
 inference, vectorised with numpy; the tests check it against ``skfuzzy.control`` at
-random points; memberships from ``skfuzzy.trimf``) and interpolated bilinearly at run time in plain floats. Grid nodes align
-with every membership breakpoint, so within a cell the memberships are linear; the
-interpolation error bound is stated and tested in components/README.md.
+random points; memberships from ``skfuzzy.trimf``) and interpolated bilinearly at run time
+in plain floats. Grid nodes align with every membership breakpoint, so within a cell the
+memberships are linear; the interpolation error bound is stated and tested in
+components/README.md.
 """
 
 import functools
@@ -43,6 +44,8 @@ OUTPUT_SETS = ("NB", "NM", "NS", "ZE", "PS", "PM", "PB")
 #: flips. See components/README.md.
 DEFAULT_KP_RULES = "PB PM PS; PM PM PS; PS PS PS; PM PM PS; PB PM PS"
 DEFAULT_KD_RULES = "ZE ZE ZE; PS PS ZE; ZE ZE ZE; PS PS ZE; ZE ZE ZE"
+#: Default steering limit [rad] of :class:`FuzzyPD` (35 deg).
+DEFAULT_DELTA_MAX = math.radians(35.0)
 
 KMH = 3.6  # (km/h) / (m/s)
 
@@ -252,7 +255,7 @@ class AxlePD:
         Saturation [rad], 0 < delta_max < pi/2.
     """
 
-    def __init__(self, schedule, tau_d=0.05, delta_max=math.radians(35.0)):
+    def __init__(self, schedule, tau_d=0.05, delta_max=DEFAULT_DELTA_MAX):
         if not (math.isfinite(tau_d) and tau_d > 0.0):
             raise ParameterError("tau_d", f"must be positive, got {tau_d}")
         if not (0.0 < delta_max < 0.5 * math.pi):

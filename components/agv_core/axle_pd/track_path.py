@@ -25,6 +25,9 @@ Other kinds (``line``, ``circle``, ``sine``, ``scurve``, ``waypoints``) are pass
 """
 
 import math
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -37,8 +40,9 @@ _GL_X, _GL_W = (tuple(float(v) for v in a) for a in np.polynomial.legendre.legga
 class CurvePath(ReferencePath):
     """Straight, clothoid, arc, clothoid, straight (see the module docstring)."""
 
-    def __init__(self, straight, radius, angle, transition=0.0, direction="ccw", x0=0.0,
-                 y0=0.0, heading=0.0):
+    def __init__(self, straight: float, radius: float, angle: float, transition: float = 0.0,
+                 direction: str = "ccw", x0: float = 0.0, y0: float = 0.0,
+                 heading: float = 0.0) -> None:
         if not (math.isfinite(straight) and straight >= 0.0):
             raise ParameterError("path", f"curve straight must be >= 0 m, got {straight}")
         if not (math.isfinite(radius) and radius > 0.0):
@@ -122,7 +126,7 @@ class CurvePath(ReferencePath):
         return (self.p4[0] + u * math.cos(self.th4), self.p4[1] + u * math.sin(self.th4),
                 self.th4, 0.0, 0.0)
 
-    def point(self, s):
+    def point(self, s: float) -> PathProjection:
         x, y, th, c, dc = self._pose(float(s))
         return PathProjection(float(s), x, y, th, c, dc, 0.0)
 
@@ -167,7 +171,7 @@ class CurvePath(ReferencePath):
                 best = (dist, s)
         return best[1]
 
-    def project(self, x, y, s_hint=None):
+    def project(self, x: float, y: float, s_hint: float | None = None) -> PathProjection:
         qx, qy = float(x), float(y)
         s = None
         if s_hint is not None:
@@ -181,7 +185,7 @@ _CURVE_REQUIRED = ("straight", "radius", "angle")
 _CURVE_OPTIONAL = {"transition": 0.0, "direction": "ccw", "x0": 0.0, "y0": 0.0, "heading": 0.0}
 
 
-def parse_track_path(spec, base_dir=None):
+def parse_track_path(spec: str, base_dir: str | Path | None = None) -> ReferencePath:
     """``curve:...`` (this module) or any kind of :func:`agv_core.numerics.paths.parse_path`.
 
     Raises ParameterError("path", ...) for a malformed string.
@@ -207,12 +211,13 @@ class PointErrors:
         Number of points.
     """
 
-    def __init__(self, path, n=4):
+    def __init__(self, path: ReferencePath, n: int = 4) -> None:
         self.path = path
         self.hints = [None] * int(n)
         self.last = [None] * int(n)
 
-    def measure(self, points, commit=False):
+    def measure(self, points: Iterable[tuple[float, float]], commit: bool = False
+                ) -> list[PathProjection]:
         """Projections of ``points`` [(x, y), ...] [m]; ``commit`` stores the hints."""
         out = [self.path.project(x, y, h) for (x, y), h in zip(points, self.hints)]
         if commit:
@@ -220,8 +225,8 @@ class PointErrors:
         self.last = out
         return out
 
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         return {"hints": list(self.hints)}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         self.hints = [None if h is None else float(h) for h in state["hints"]]

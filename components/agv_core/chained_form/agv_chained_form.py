@@ -1,5 +1,7 @@
 """FMU slave: chained-form (Samson) path-following steering law (agv_core.chained_form)."""
 
+from typing import Any
+
 from agv_boot import load_core
 
 core = load_core("fmi.fmi_slave", "chained_form.chained_form", "numerics.paths", "fmi.defaults")
@@ -24,7 +26,7 @@ class AgvChainedForm(core.fmi.fmi_slave.AgvSlave):
     reference_inputs = {"lateral_error": ((0.0, 0.1),),
                         "heading_error": ((0.0, 0.0), (0.5, 0.05))}
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         S = core.fmi.fmi_slave.String
         B = core.fmi.fmi_slave.Boolean
@@ -77,12 +79,12 @@ class AgvChainedForm(core.fmi.fmi_slave.AgvSlave):
                     "undefined; full-lock recovery command)", depends_on=every, kind=B,
                     start=True)
 
-    def make_core(self):
+    def make_core(self) -> Any:
         return core.chained_form.chained_form.make_controller(
             self.Kd, self.Kp, self.wheelbase, self.delta_max, self.sample_period,
             self.source, self.path)
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         # a static law; a sample instant inside this step is taken from the held inputs
         c = self.core
         if self.source == "pose":
@@ -91,7 +93,7 @@ class AgvChainedForm(core.fmi.fmi_slave.AgvSlave):
             c.step(t, h, self.lateral_error, self.heading_error, self.curvature,
                    self.curvature_rate)
 
-    def publish(self):
+    def publish(self) -> None:
         c = self.core
         if self.source == "pose":
             c.update_from_pose(self.time, self.x, self.y, self.heading)

@@ -28,6 +28,8 @@ valid for |theta| < pi/2 and y c < 1. The steering angle is then saturated at
 """
 
 import math
+from pathlib import Path
+from typing import Any
 
 from ..errors import ParameterError
 from ..numerics import paths
@@ -39,7 +41,8 @@ from ..numerics.sampling import SampleHold
 SOURCES = ("sensor", "pose")
 
 
-def chained_coordinates(lateral_error, heading_error, curvature):
+def chained_coordinates(lateral_error: float, heading_error: float, curvature: float
+                        ) -> tuple[float, float]:
     """Chained-form states a2 [m] and a3 [1] (seed 002 eq 19).
 
     Parameters
@@ -59,7 +62,8 @@ def chained_coordinates(lateral_error, heading_error, curvature):
     return lateral_error, (1.0 - lateral_error * curvature) * math.tan(heading_error)
 
 
-def distance_derivatives(lateral_error, heading_error, curvature, delta, wheelbase):
+def distance_derivatives(lateral_error: float, heading_error: float, curvature: float,
+                         delta: float, wheelbase: float) -> tuple[float, float]:
     """Path-arc-length derivatives of the path-relative state (model divided by s').
 
     Parameters
@@ -82,8 +86,9 @@ def distance_derivatives(lateral_error, heading_error, curvature, delta, wheelba
     return dy, dtheta
 
 
-def steering_law(lateral_error, heading_error, curvature, curvature_rate, Kd, Kp, wheelbase,
-                 delta_max):
+def steering_law(lateral_error: float, heading_error: float, curvature: float,
+                 curvature_rate: float, Kd: float, Kp: float, wheelbase: float,
+                 delta_max: float) -> tuple[float, float, bool]:
     """Unsaturated chained-form steering angle (seed 002 eq 23), with its domain check.
 
     Parameters
@@ -153,8 +158,9 @@ class ChainedFormController:
         (agv_core.numerics.paths.ReferencePath).
     """
 
-    def __init__(self, Kd=0.6, Kp=0.09, wheelbase=2.0, delta_max=math.pi / 4,
-                 sample_period=0.0, path=None):
+    def __init__(self, Kd: float = 0.6, Kp: float = 0.09, wheelbase: float = 2.0,
+                 delta_max: float = math.pi / 4, sample_period: float = 0.0,
+                 path: paths.ReferencePath | None = None) -> None:
         for name, value in (("Kd", Kd), ("Kp", Kp), ("wheelbase", wheelbase),
                             ("delta_max", delta_max), ("sample_period", sample_period)):
             _finite(name, value)
@@ -191,7 +197,8 @@ class ChainedFormController:
                 "s": s, "lateral_error": lateral_error, "heading_error": heading_error,
                 "saturated": delta != delta_law, "in_domain": in_domain}
 
-    def update(self, t, lateral_error, heading_error, curvature, curvature_rate):
+    def update(self, t: float, lateral_error: float, heading_error: float, curvature: float,
+               curvature_rate: float) -> float:
         """Steering angle [rad] at time ``t`` [s] from the path-relative state.
 
         Parameters
@@ -221,7 +228,8 @@ class ChainedFormController:
         return (float(lateral_error), wrap_angle(heading_error), float(curvature),
                 float(curvature_rate))
 
-    def step(self, t, h, lateral_error, heading_error, curvature, curvature_rate):
+    def step(self, t: float, h: float, lateral_error: float, heading_error: float,
+             curvature: float, curvature_rate: float) -> None:
         """Commit the samples of the step from ``t`` to ``t + h`` [s] (inputs held).
 
         The sampling rule is :mod:`agv_core.numerics.sampling`'s: an instant inside the step is
@@ -237,7 +245,7 @@ class ChainedFormController:
         return self._evaluate(float(p.offset), paths.heading_error(heading, float(p.heading)),
                               float(p.curvature), float(p.curvature_rate), s=float(p.s))
 
-    def update_from_pose(self, t, x, y, heading):
+    def update_from_pose(self, t: float, x: float, y: float, heading: float) -> float:
         """Steering angle [rad] from the rear-axle-centre pose, projected on ``path``.
 
         Parameters
@@ -260,7 +268,8 @@ class ChainedFormController:
                                          self._from_pose)
         return self.outputs["delta"]
 
-    def step_from_pose(self, t, h, x, y, heading):
+    def step_from_pose(self, t: float, h: float, x: float, y: float, heading: float
+                       ) -> None:
         """:meth:`step` for the pose inputs (rear-axle centre [m], heading [rad])."""
         if self.path is None:
             raise ValueError("step_from_pose needs a path")
@@ -268,19 +277,19 @@ class ChainedFormController:
         self.outputs = self._hold.value if self._hold.value is not None else self.outputs
 
     # ------------------------------------------------------------------ state
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         """JSON-safe snapshot: the held sample, its outputs and the projection hint."""
         return {"hold": self._hold.get_state(), "s_hint": self._s_hint,
                 "outputs": dict(self.outputs)}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         """Restore a snapshot from :meth:`get_state`."""
         self._hold.set_state(state["hold"])
         self._s_hint = state["s_hint"]
         self.outputs = dict(state["outputs"])
 
 
-def path_from_spec(spec, base_dir=None):
+def path_from_spec(spec: str, base_dir: str | Path | None = None) -> paths.ReferencePath:
     """Parse a path string with :func:`agv_core.numerics.paths.parse_path`.
 
     Parameters
@@ -297,8 +306,10 @@ def path_from_spec(spec, base_dir=None):
     return paths.parse_path(spec, base_dir=base_dir)
 
 
-def make_controller(Kd=0.6, Kp=0.09, wheelbase=2.0, delta_max=math.pi / 4, sample_period=0.0,
-                    source="sensor", path="", base_dir=None):
+def make_controller(Kd: float = 0.6, Kp: float = 0.09, wheelbase: float = 2.0,
+                    delta_max: float = math.pi / 4, sample_period: float = 0.0,
+                    source: str = "sensor", path: str = "",
+                    base_dir: str | Path | None = None) -> ChainedFormController:
     """Build a :class:`ChainedFormController` from FMU-style parameters.
 
     Parameters

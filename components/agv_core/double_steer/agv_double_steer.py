@@ -1,6 +1,7 @@
 """FMU slave: double-steering-wheel AGV of seed 001 (agv_core.double_steer)."""
 
 import math
+from typing import Any
 
 from agv_boot import load_core
 
@@ -26,7 +27,7 @@ class AgvDoubleSteer(core.fmi.fmi_slave.AgvSlave):
     reference_inputs = {"theta_f": ((0.0, 0.2),), "v_f": ((0.0, 0.5),),
                         "theta_b": ((0.0, -0.2),), "v_b": ((0.0, 0.5),)}
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.input("theta_f", 0.0, "rad", "Front wheel angle to the body axis X', positive left")
         self.input("v_f", 0.0, "m/s", "Front wheel ground speed (negative: backwards)")
@@ -55,17 +56,17 @@ class AgvDoubleSteer(core.fmi.fmi_slave.AgvSlave):
         self.output("y_rear", "m", "y of the rear wheel contact point")
         self.output("distance", "m", "Distance travelled by the centroid")
 
-    def make_core(self):
+    def make_core(self) -> Any:
         return core.double_steer.double_steer.DoubleSteerVehicle(self.wheelbase, self.x0,
                                                                  self.y0, self.yaw0)
 
     def _wheels(self):
         return self.theta_f, self.v_f, self.theta_b, self.v_b
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         self.core.step(*self._wheels(), h)
 
-    def publish(self):
+    def publish(self) -> None:
         c = self.core
         u, v, w, stretch = c.twist(*self._wheels())
         self.x, self.y, self.yaw = c.x, c.y, c.yaw

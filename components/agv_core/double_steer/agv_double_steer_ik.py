@@ -1,5 +1,7 @@
 """FMU slave: symmetric-steering inverse kinematics of seed 001 (agv_core.double_steer)."""
 
+from typing import Any
+
 from agv_boot import load_core
 
 core = load_core("fmi.fmi_slave", "double_steer.double_steer")
@@ -16,7 +18,7 @@ class AgvDoubleSteerIk(core.fmi.fmi_slave.AgvSlave):
                                                               step_size=0.1)
     reference_inputs = {"v_c": ((0.0, 0.4),), "omega": ((0.0, 0.0), (1.0, 0.074), (2.0, -0.3))}
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.input("v_c", 0.0, "m/s", "Commanded centroid speed along the body axis")
         self.input("omega", 0.0, "rad/s", "Commanded yaw rate, positive counter-clockwise")
@@ -28,13 +30,13 @@ class AgvDoubleSteerIk(core.fmi.fmi_slave.AgvSlave):
         self.output("theta_b", "rad", "Rear wheel angle -theta_f", depends_on=both)
         self.output("v_b", "m/s", "Rear wheel speed (= v_f)", depends_on=both)
 
-    def make_core(self):
+    def make_core(self) -> Any:
         return core.double_steer.double_steer.InverseKinematics(self.wheelbase)
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         pass  # algebraic
 
-    def publish(self):
+    def publish(self) -> None:
         self.theta_f, self.v_f, self.theta_b, self.v_b = \
             self.core.command(self.v_c, self.omega)
         self.finite_or_fail(theta_f=self.theta_f, v_f=self.v_f)

@@ -1,6 +1,8 @@
 """FMU slave: seed 003's three-car train with tyre forces on every axle
 (agv_core.dynamic_train), a drop-in for AgvTrain."""
 
+from typing import Any
+
 from agv_boot import load_core
 
 core = load_core("fmi.fmi_slave", "dynamic_train.dynamic_train", "ackermann.ackermann",
@@ -29,7 +31,7 @@ class AgvDynamicTrain(core.fmi.fmi_slave.AgvSlave):
                                                               step_size=0.05)
     reference_inputs = {"delta1": ((0.0, 0.05),), "dv": ((0.0, 0.0), (5.0, 1.0))}
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         S = core.fmi.fmi_slave.String
         self.input("dv", 0.0, "m/s", "Speed added to v0 (a speed profile; with v0 = 0 the "
@@ -130,7 +132,7 @@ class AgvDynamicTrain(core.fmi.fmi_slave.AgvSlave):
                         f"Lateral acceleration of the {car} car's centre of gravity in its "
                         "frame, positive left")
 
-    def make_core(self):
+    def make_core(self) -> Any:
         if self.steering_input not in ("axle", "wheels"):
             raise core.errors.ParameterError(
                 "steering_input", f"must be 'axle' or 'wheels', got '{self.steering_input}'")
@@ -152,11 +154,11 @@ class AgvDynamicTrain(core.fmi.fmi_slave.AgvSlave):
             return [core.ackermann.ackermann.axle_angle(*p) for p in pairs], pairs
         return [getattr(self, f"delta{i}") for i in _AXLES], None
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         deltas, pairs = self._steering()
         self.core.step(self.v0 + self.dv, deltas, h, wheels=pairs)
 
-    def publish(self):
+    def publish(self) -> None:
         c = self.core
         self.x_J1, self.y_J1 = c.x1, c.y1
         self.x_J2, self.y_J2 = c.hinge2()

@@ -631,8 +631,8 @@ def steady_circle(dynamics, radius, u1, phi=0.0, iterations=60):
     import numpy as np
     from scipy.optimize import brentq
 
-    from ..train.train import steady_pose
     from ..dynamic_vehicle.tyres import sliding_slip
+    from ..train.train import steady_pose
 
     g, d = dynamics.g, dynamics
     R, sgn = abs(radius), (1.0 if radius > 0 else -1.0)

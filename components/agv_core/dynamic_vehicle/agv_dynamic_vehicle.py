@@ -1,6 +1,7 @@
 """FMU slave: dynamic single-track vehicle with tyre forces (agv_core.dynamic_vehicle)."""
 
 from math import isfinite
+from typing import Any
 
 from agv_boot import load_core
 
@@ -26,7 +27,7 @@ class AgvDynamicVehicle(core.fmi.fmi_slave.AgvSlave):
                                                               step_size=0.01)
     reference_inputs = {"alpha": ((0.0, 0.0), (1.0, 0.2)), "dv": ((0.0, 0.0), (5.0, 2.0))}
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         S, B = core.fmi.fmi_slave.String, core.fmi.fmi_slave.Boolean
         self.input("alpha", 0.0, "rad", "Steered-wheel angle, positive turns left",
@@ -119,7 +120,7 @@ class AgvDynamicVehicle(core.fmi.fmi_slave.AgvSlave):
         self.output("tip_margin", "1", "Smallest wheel load over its static load: 1 at rest, "
                     "0 when a wheel lifts (the step then fails naming the wheel)")
 
-    def make_core(self):
+    def make_core(self) -> Any:
         params = _MODULE.SingleTrackParameters(
             self.wheelbase, self.mass, self.yaw_inertia, self.cg_to_rear,
             self.cornering_stiffness_front, self.cornering_stiffness_rear, self.mu, self.tyre,
@@ -128,10 +129,10 @@ class AgvDynamicVehicle(core.fmi.fmi_slave.AgvSlave):
                                       self.reference_point, self.linear, self.kinematic_below,
                                       self.tolerance, self.alpha, self.v0 + self.dv)
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         self.core.step(self.alpha, self.v0 + self.dv, h)
 
-    def publish(self):
+    def publish(self) -> None:
         c = self.core
         self.x_rear, self.y_rear = c.rear()
         self.x_front, self.y_front = c.front()

@@ -7,6 +7,7 @@ slave script subclasses :class:`ActuatorSlave` and sets ``model``, ``description
 """
 
 from math import isfinite
+from typing import Any
 
 from ..steering.actuator import SteeringActuator, make_actuator
 from .defaults import defaults_of
@@ -26,7 +27,7 @@ class ActuatorSlave(AgvSlave):
                                            step_size=0.001)
     reference_inputs = {"u": ((0.0, 0.0), (0.5, 1.0))}
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.input("u", 0.0, "V", "Motor control voltage (mode 'command'); positive drives "
                    "alpha positive")
@@ -45,23 +46,23 @@ class ActuatorSlave(AgvSlave):
         self.output("alpha_rate", "rad/s", "Wheel rate d(alpha)/dt",
                     depends_on=self.rate_depends_on)
 
-    def declare_model_parameters(self):
+    def declare_model_parameters(self) -> None:
         """Declare the parameters only this model has (override)."""
 
-    def model_parameters(self):
+    def model_parameters(self) -> Any:
         """Values of the parameters only this model has, as keyword arguments."""
         return {}
 
-    def make_core(self):
+    def make_core(self) -> Any:
         return make_actuator(self.model, K=self.K, alpha0=self.alpha0,
                              alpha_max=self.alpha_max, rate_max=self.rate_max,
                              mode=self.mode, servo_gain=self.servo_gain,
                              **self.model_parameters())
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         self.core.step(t, h, self.u, self.alpha_ref)
 
-    def publish(self):
+    def publish(self) -> None:
         self.alpha = self.core.alpha
         self.alpha_rate = self.core.rate(self.u, self.alpha_ref)
         if not isfinite(self.alpha + self.alpha_rate):  # finite iff every term is

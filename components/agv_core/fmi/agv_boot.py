@@ -25,6 +25,7 @@ changing BOOT_ABI.
 import importlib.util
 import sys
 from pathlib import Path
+from types import ModuleType
 
 #: 3: the bundle's folder is resources/agv_core_bundle (2: resources/agv_core, still read)
 BOOT_ABI = 3
@@ -42,7 +43,7 @@ BUNDLE_FOLDERS = ("agv_core_bundle", "agv_core")
 _PINNED_GLOBALS = []
 
 
-def load_core(*submodules):
+def load_core(*submodules: str) -> ModuleType:
     """Import the ``agv_core`` bundled in the FMU being instantiated, with ``submodules``.
 
     Returns the package; each named submodule is imported and is an attribute of it.

@@ -6,6 +6,8 @@ outputs, so a manifest can swap one for the other. A slave script subclasses
 returns the gain source of :class:`agv_core.fuzzy_pd.AxlePD` from ``make_gains``.
 """
 
+from typing import Any
+
 from ..axle_pd.fuzzy_pd import AxlePD
 from .defaults import defaults_of
 from .fmi_slave import AgvSlave, Boolean
@@ -24,7 +26,7 @@ class AxlePdSlave(AgvSlave):
     #: inputs the gain outputs depend on directly (none for constant gains)
     gain_depends_on = INPUTS
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.input("lateral_error", 0.0, "m", "Lateral error e of the axle's tracking point, "
                    "positive left of the path")
@@ -45,20 +47,20 @@ class AxlePdSlave(AgvSlave):
                     depends_on=self.gain_depends_on or ("lateral_error",), kind=Boolean,
                     start=False)
 
-    def declare_gain_parameters(self):
+    def declare_gain_parameters(self) -> None:
         """Declare the gain parameters (override)."""
 
-    def make_gains(self):
+    def make_gains(self) -> Any:
         """The gain source (``gains(e, v_kmh) -> (Kp, Kd)``) from the parameters (override)."""
         raise NotImplementedError
 
-    def make_core(self):
+    def make_core(self) -> Any:
         return AxlePD(self.make_gains(), self.tau_d, self.delta_max)
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         self.core.advance(self.lateral_error, h)
 
-    def publish(self):
+    def publish(self) -> None:
         out = self.core.evaluate(self.lateral_error, self.speed)
         self.delta, self.Kp_used, self.Kd_used = out["delta"], out["Kp"], out["Kd"]
         self.error_rate, self.saturated = out["error_rate"], out["saturated"]

@@ -9,14 +9,16 @@ component README's parameter table is checked against the built FMU
 """
 
 import inspect
+from collections.abc import Callable
+from typing import Any
 
 
-def defaults_of(*factories):
+def defaults_of(*factories: Callable[..., Any]) -> dict[str, Any]:
     """Keyword defaults of the core classes or functions ``factories``, by parameter name.
 
     A name defined by several factories takes the first one's default.
     """
-    defaults = {}
+    defaults: dict[str, Any] = {}
     for factory in reversed(factories):
         defaults.update({name: p.default
                          for name, p in inspect.signature(factory).parameters.items()

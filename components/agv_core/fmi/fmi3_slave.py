@@ -34,10 +34,12 @@ wrappers' double release of a failed slave (pythonfmu3 0.3.4 has pythonfmu 0.7's
 :mod:`agv_core.fmi.pythonfmu_workarounds`, which lists every wrapper work-around).
 """
 
+from collections.abc import Sequence
 from math import isfinite
+from typing import Any
 from xml.etree.ElementTree import Element
 
-from pythonfmu3 import Boolean, Fmi3Causality, Fmi3Slave, Fmi3Variability, Float64, Int32, String
+from pythonfmu3 import Boolean, Float64, Fmi3Causality, Fmi3Slave, Fmi3Variability, Int32, String
 from pythonfmu3.default_experiment import DefaultExperiment
 from pythonfmu3.enums import Fmi3Status
 
@@ -66,7 +68,7 @@ class AgvSlave(SlaveLogic, Fmi3Slave):
     _ERROR = Fmi3Status.error
     _FAST_METHODS = ("get_float64", "set_float64")
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         # pythonfmu3 sets these on the instance (None); the class attributes say them.
         for name in ("author", "license", "version", "description", "default_experiment"):
@@ -90,39 +92,39 @@ class AgvSlave(SlaveLogic, Fmi3Slave):
                     description=description, **extra)
 
     # ------------------------------------------------------------------ FMI calls
-    def set_float64(self, vrs, values):
+    def set_float64(self, vrs: Sequence[int], values: Sequence[float]) -> None:
         if not isfinite(sum(values)):
             self._check_finite_inputs(vrs, values)  # refuses a non-finite input
         self._inputs_set(super().set_float64, vrs, values)
 
-    def set_int32(self, vrs, values):
+    def set_int32(self, vrs: Sequence[int], values: Sequence[int]) -> None:
         self._inputs_set(super().set_int32, vrs, values)
 
-    def set_boolean(self, vrs, values):
+    def set_boolean(self, vrs: Sequence[int], values: Sequence[bool]) -> None:
         self._inputs_set(super().set_boolean, vrs, values)
 
-    def set_string(self, vrs, values):
+    def set_string(self, vrs: Sequence[int], values: Sequence[str]) -> None:
         self._inputs_set(super().set_string, vrs, values)
 
-    def get_float64(self, vrs):
+    def get_float64(self, vrs: Sequence[int]) -> list[float]:
         self._fresh_outputs()
         return self._guarded(super().get_float64, vrs)
 
     # a feedthrough output of any type is recomputed after a set, as in the FMI 2.0 twin
-    def get_int32(self, vrs):
+    def get_int32(self, vrs: Sequence[int]) -> list[int]:
         self._fresh_outputs()
         return self._guarded(super().get_int32, vrs)
 
-    def get_boolean(self, vrs):
+    def get_boolean(self, vrs: Sequence[int]) -> list[bool]:
         self._fresh_outputs()
         return self._guarded(super().get_boolean, vrs)
 
-    def get_string(self, vrs):
+    def get_string(self, vrs: Sequence[int]) -> list[str]:
         self._fresh_outputs()
         return self._guarded(super().get_string, vrs)
 
     # ------------------------------------------------------------------ model description
-    def to_xml(self, model_options=None):
+    def to_xml(self, model_options: dict[str, str] | None = None) -> Element:
         root = super().to_xml(model_options or {})
         root.attrib.pop("generationDateAndTime", None)  # a rebuild must not differ by clock
         info = self._build_info()

@@ -32,6 +32,7 @@ header. State save/restore covers the variables and the core's ``get_state()`` /
 failed slave is in :mod:`agv_core.fmi.slave_base`.
 """
 
+from collections.abc import Sequence
 from math import isfinite
 from xml.etree.ElementTree import Element, SubElement
 
@@ -60,7 +61,7 @@ class AgvSlave(SlaveLogic, Fmi2Slave):
     _FAST_METHODS = ("get_real", "set_real")
 
     # ------------------------------------------------------------------ FMI calls
-    def set_real(self, vrs, values):
+    def set_real(self, vrs: Sequence[int], values: Sequence[float]) -> None:
         # hot path (every input, every step): attribute names by value reference, looked
         # up once; pythonfmu's own setter (one isinstance and one lambda per variable)
         # only for what is not a plain Real attribute, which raises its own error
@@ -81,16 +82,16 @@ class AgvSlave(SlaveLogic, Fmi2Slave):
         if not self._quiet_inputs.issuperset(vrs):
             self._stale = True
 
-    def set_integer(self, vrs, values):
+    def set_integer(self, vrs: Sequence[int], values: Sequence[int]) -> None:
         self._inputs_set(super().set_integer, vrs, values)
 
-    def set_boolean(self, vrs, values):
+    def set_boolean(self, vrs: Sequence[int], values: Sequence[bool]) -> None:
         self._inputs_set(super().set_boolean, vrs, values)
 
-    def set_string(self, vrs, values):
+    def set_string(self, vrs: Sequence[int], values: Sequence[str]) -> None:
         self._inputs_set(super().set_string, vrs, values)
 
-    def get_real(self, vrs):
+    def get_real(self, vrs: Sequence[int]) -> list[float]:
         if self._stale or self.core is None:
             self._fresh_outputs()
         names = self._real_names or self._map_real_names()
@@ -103,20 +104,20 @@ class AgvSlave(SlaveLogic, Fmi2Slave):
             raise
 
     # a feedthrough output of any type is recomputed after a set, not only a Real one
-    def get_integer(self, vrs):
+    def get_integer(self, vrs: Sequence[int]) -> list[int]:
         self._fresh_outputs()
         return self._guarded(super().get_integer, vrs)
 
-    def get_boolean(self, vrs):
+    def get_boolean(self, vrs: Sequence[int]) -> list[bool]:
         self._fresh_outputs()
         return self._guarded(super().get_boolean, vrs)
 
-    def get_string(self, vrs):
+    def get_string(self, vrs: Sequence[int]) -> list[str]:
         self._fresh_outputs()
         return self._guarded(super().get_string, vrs)
 
     # ------------------------------------------------------------------ model description
-    def to_xml(self, model_options=None):
+    def to_xml(self, model_options: dict[str, str] | None = None) -> Element:
         root = super().to_xml(model_options or {})
         root.attrib.pop("generationDateAndTime", None)  # a rebuild must not differ by clock
         info = self._build_info()

@@ -14,6 +14,8 @@ rebuilt from a path-relative measurement of the rear axle (``s_meas``, ``e_meas`
 ``theta_meas``, e.g. AgvVisionSensor's outputs, latency and all) on the same path.
 """
 
+from typing import Any
+
 from ..errors import ParameterError
 from .fmi_slave import AgvSlave, Boolean, DefaultExperiment, String
 
@@ -34,7 +36,7 @@ class PathLawSlave(AgvSlave):
     default_experiment = REFERENCE_EXPERIMENT
     reference_inputs = REFERENCE_INPUTS
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.input("x", 0.0, "m", "x of the rear-axle centre")
         self.input("y", 0.0, "m", "y of the rear-axle centre")
@@ -85,26 +87,26 @@ class PathLawSlave(AgvSlave):
         self.declare_extra_outputs()
 
     # ------------------------------------------------------------------ hooks
-    def defaults(self):
+    def defaults(self) -> dict[str, Any]:
         """The core's parameter defaults by name (override)."""
         raise NotImplementedError
 
-    def make_core(self):
+    def make_core(self) -> Any:
         if self.source not in SOURCES:
             raise ParameterError("source", f"must be one of {SOURCES}, got '{self.source}'")
         return self.make_law()
 
-    def make_law(self):
+    def make_law(self) -> Any:
         """Build the core from the parameters (override)."""
         raise NotImplementedError
 
-    def declare_gains(self, defaults):
+    def declare_gains(self, defaults: dict[str, Any]) -> None:
         """Declare the law's own parameters (override)."""
 
-    def declare_extra_outputs(self):
+    def declare_extra_outputs(self) -> None:
         """Declare outputs only this law has (override)."""
 
-    def publish_extra(self, out):
+    def publish_extra(self, out: dict[str, Any]) -> None:
         """Copy the extra outputs from the core's result ``out`` (override)."""
 
     # ------------------------------------------------------------------ FMI
@@ -116,11 +118,11 @@ class PathLawSlave(AgvSlave):
             return self.core.pose_from_path(self.s_meas, self.e_meas, self.theta_meas)
         return self.x, self.y, self.heading
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         # a static law; a sample instant inside this step is taken from the held inputs
         self.core.step(t, h, *self._pose(), self._speed())
 
-    def publish(self):
+    def publish(self) -> None:
         self.core.update(self.time, *self._pose(), self._speed())
         out = self.core.outputs
         self.delta, self.delta_law = out["delta"], out["delta_law"]

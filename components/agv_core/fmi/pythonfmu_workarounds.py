@@ -41,7 +41,7 @@ with where they are.
    ._check_bundle``): each FMU loads its own ``agv_core`` bundle as ``agv_core_<tag>``
    from ``sys.path[0]``, and refuses to run another build's slave code in its name.
 5. pythonfmu3 finds the slave class only from a ``class`` line naming ``Fmi3Slave`` (the
-   FMI 3.0 alias, in ``agv_cosim/build.py``): the build bundles the slave script
+   FMI 3.0 alias, in ``agv_cosim/build/fmus.py``): the build bundles the slave script
    unchanged, writes a two-line wrapper script, and makes the bundle's ``fmi/fmi_slave.py``
    an alias of ``fmi/fmi3_slave.py``.
 6. Model-description fixes (in the adapters' ``to_xml``): no ``generationDateAndTime``
@@ -56,6 +56,7 @@ import ctypes
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
 #: Objects of failed slaves, kept for the wrappers' second release (entry 1).
 KEPT_FOR_PYTHONFMU = []
@@ -64,7 +65,7 @@ KEPT_FOR_PYTHONFMU = []
 _WRAPPERS_TO_FINALIZE = {}
 
 
-def keep_for_pythonfmu(slave):
+def keep_for_pythonfmu(slave: Any) -> None:
     """Balance the wrapper's double release before an exception leaves ``slave`` (entry 1)."""
     KEPT_FOR_PYTHONFMU.extend((type(slave), slave, slave.log_queue))
 
@@ -74,7 +75,7 @@ def _finalize_wrappers():
         library.finalizePythonInterpreter()
 
 
-def finalize_at_exit(resources, identifier):
+def finalize_at_exit(resources: str | Path, identifier: str) -> None:
     """Register the FMU's loaded pythonfmu3 library (if any) for finalisation (entry 2)."""
     if not sys.platform.startswith("linux"):
         return

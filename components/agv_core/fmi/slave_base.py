@@ -13,7 +13,9 @@ typed get/set methods (which call ``_fresh_outputs`` / ``_inputs_set``), and the
 
 import json
 import math
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 from xml.etree.ElementTree import Element, SubElement
 
 from .. import __version__
@@ -114,7 +116,7 @@ class SlaveLogic:
     #: the Real getter and setter the bridge's fast path stands for (_fmi_real_access)
     _FAST_METHODS = ()
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self._units = {}
         self._dependencies = {}
@@ -175,7 +177,8 @@ class SlaveLogic:
         self.register_variable(self._variable(kind, name, causality, variability,
                                               description, unit))
 
-    def input(self, name, start, unit, description, kind=None, builds_core=False):
+    def input(self, name: str, start: Any, unit: str | None, description: str, kind: Any = None,
+              builds_core: bool = False) -> None:
         """Declare an input (a continuous Real by default) with its start value;
         ``builds_core`` when ``make_core`` reads it (the core starts from its value)."""
         kind = kind or self._REAL
@@ -185,7 +188,8 @@ class SlaveLogic:
         if builds_core:
             self._core_inputs.add(name)
 
-    def output(self, name, unit, description, depends_on=(), kind=None, start=0.0):
+    def output(self, name: str, unit: str | None, description: str,
+               depends_on: Iterable[str] = (), kind: Any = None, start: Any = 0.0) -> None:
         """Declare an output; ``depends_on`` names the inputs it depends on directly."""
         kind = kind or self._REAL
         unknown = [d for d in depends_on if d not in self._input_names]
@@ -196,7 +200,8 @@ class SlaveLogic:
         self._output_names.append(name)
         self._dependencies[name] = tuple(depends_on)
 
-    def parameter(self, name, start, unit, description, kind=None, tunable=False):
+    def parameter(self, name: str, start: Any, unit: str | None, description: str,
+                  kind: Any = None, tunable: bool = False) -> None:
         """Declare a parameter: fixed (set before initialisation, then constant), or
         ``tunable`` (a master may change it between steps; the slave reads the attribute
         in ``advance``/``publish``, the core is not rebuilt)."""
@@ -206,26 +211,27 @@ class SlaveLogic:
         self._parameter_names.append(name)
 
     # ------------------------------------------------------------------ hooks
-    def make_core(self):
+    def make_core(self) -> Any:
         """Build the core from the parameters (override)."""
         raise NotImplementedError
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         """Advance the core from ``t`` to ``t + h`` (override)."""
         raise NotImplementedError
 
-    def publish(self):
+    def publish(self) -> None:
         """Copy the core's outputs onto the output attributes (override)."""
         raise NotImplementedError
 
     # ------------------------------------------------------------------ FMI calls
-    def setup_experiment(self, start_time, stop_time=None, tolerance=None):
+    def setup_experiment(self, start_time: float, stop_time: float | None = None,
+                         tolerance: float | None = None) -> None:
         self.time = float(start_time)
 
-    def enter_initialization_mode(self):
+    def enter_initialization_mode(self) -> None:
         self._initializing = True
 
-    def exit_initialization_mode(self):
+    def exit_initialization_mode(self) -> None:
         self._initializing = False
         self._lazy_step = self.lazy_publish and any(self._dependencies.values())
         try:
@@ -245,10 +251,10 @@ class SlaveLogic:
             self._fail(f"initialisation failed: {type(error).__name__}: {error}")
         self._stale = False
 
-    def terminate(self):
+    def terminate(self) -> None:
         self._terminated = True
 
-    def do_step(self, current_time, step_size):
+    def do_step(self, current_time: float, step_size: float) -> bool:
         t, h = float(current_time), float(step_size)
         try:
             self.advance(t, h)
@@ -611,7 +617,7 @@ class SlaveLogic:
         return table
 
     # ------------------------------------------------------------------ helpers
-    def finite_or_fail(self, **values):
+    def finite_or_fail(self, **values: float) -> None:
         """Raise naming the first non-finite value among ``values`` (name=value).
 
         Hot paths may test ``math.isfinite`` of the values' sum first and call this only

@@ -11,6 +11,8 @@ agv_core.numerics.sampling) and ``get_state`` / ``set_state``), and may add outp
 error naming the cause.
 """
 
+from typing import Any
+
 from .fmi_slave import AgvSlave
 
 #: measured pose and reference inputs, in declaration order
@@ -30,7 +32,7 @@ class TrackingSlave(AgvSlave):
     #: inputs it sees
     lazy_publish = True
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.input("x", 0.0, "m", "Measured x of the AGV centroid")
         self.input("y", 0.0, "m", "Measured y of the AGV centroid")
@@ -57,27 +59,27 @@ class TrackingSlave(AgvSlave):
                     depends_on=INPUTS)
         self.declare_extra_outputs()
 
-    def declare_parameters(self):
+    def declare_parameters(self) -> None:
         """Declare the controller's parameters (override)."""
 
-    def declare_extra_outputs(self):
+    def declare_extra_outputs(self) -> None:
         """Declare outputs only this controller has (override)."""
 
-    def publish_extra(self, out):
+    def publish_extra(self, out: dict[str, Any]) -> None:
         """Copy the extra outputs from the core's result ``out`` (override)."""
 
     def _ref(self):
         return {"x": self.x_ref, "y": self.y_ref, "heading": self.heading_ref,
                 "v": self.v_ref, "omega": self.omega_ref}
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         # commits the samples of [t, t + h) from the held inputs (agv_core.numerics.sampling)
         try:
             self.core.step(t, h, self.x, self.y, self.heading, self._ref())
         except self.solve_errors as error:
             self._fail(f"t={t:.9g} s: {error}")
 
-    def publish(self):
+    def publish(self) -> None:
         try:
             out = self.core.update(self.time, self.x, self.y, self.heading, self._ref())
         except self.solve_errors as error:

@@ -1,5 +1,7 @@
 """FMU slave: seed-001 comparison PID on the lateral error (agv_core.pid)."""
 
+from typing import Any
+
 from agv_boot import load_core
 
 core = load_core("fmi.fmi_slave", "fmi.tracking_fmi", "lateral_pid.pid", "fmi.defaults")
@@ -19,7 +21,7 @@ class AgvLateralPid(core.fmi.tracking_fmi.TrackingSlave):
                                                               step_size=0.2)
     reference_inputs = {"y": ((0.0, 0.1),), "v_ref": ((0.0, 0.4),)}
 
-    def declare_parameters(self):
+    def declare_parameters(self) -> None:
         p = self.parameter
         p("sample_time", DEFAULTS["sample_time"], "s", "Sample time T")
         p("kp", DEFAULTS["kp"], "rad/(s.m)",
@@ -28,13 +30,13 @@ class AgvLateralPid(core.fmi.tracking_fmi.TrackingSlave):
         p("kd", DEFAULTS["kd"], "rad/m", "Derivative gain")
         p("omega_max", DEFAULTS["omega_max"], "rad/s", "Yaw-rate limit")
 
-    def declare_extra_outputs(self):
+    def declare_extra_outputs(self) -> None:
         self.output("integral", "m.s", "Integral of e_lat (held while omega saturates)",
                     depends_on=core.fmi.tracking_fmi.INPUTS)
 
-    def make_core(self):
+    def make_core(self) -> Any:
         return core.lateral_pid.pid.LateralPid(self.kp, self.ki, self.kd, self.sample_time,
                                                self.omega_max)
 
-    def publish_extra(self, out):
+    def publish_extra(self, out: dict[str, Any]) -> None:
         self.integral = out["integral"]

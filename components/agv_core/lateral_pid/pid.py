@@ -18,6 +18,8 @@ Ki [rad/(s^2 m)], Kd [rad/m].
 """
 
 import math
+from collections.abc import Mapping
+from typing import Any
 
 from ..errors import ParameterError
 from ..ltv_mpc.ltv_mpc import LtvMpc, errors
@@ -39,7 +41,8 @@ class LateralPid:
         Yaw-rate limit [rad/s], > 0.
     """
 
-    def __init__(self, kp=0.76, ki=0.03, kd=1.8, sample_time=0.2, omega_max=0.6):
+    def __init__(self, kp: float = 0.76, ki: float = 0.03, kd: float = 1.8,
+                 sample_time: float = 0.2, omega_max: float = 0.6) -> None:
         for name, value in (("kp", kp), ("ki", ki), ("kd", kd)):
             if not math.isfinite(value):
                 raise ParameterError(name, f"must be finite, got {value}")
@@ -54,7 +57,9 @@ class LateralPid:
         self.e_prev = None           # e_lat(k-1) [m] of the last sample computed
         self._hold = SampleHold(self.T, memory=True)
 
-    def compute(self, x, y, heading, ref, integral, e_prev):
+    def compute(self, x: float, y: float, heading: float, ref: Mapping[str, float],
+                integral: float, e_prev: float | None
+                ) -> tuple[dict[str, Any], float, float]:
         """One sample from I(k-1) and e(k-1); returns (out, I(k), e(k))."""
         out = errors(x, y, heading, ref)
         e = out["e_lat"]
@@ -78,21 +83,23 @@ class LateralPid:
         out, i_new, e = self.compute(x, y, heading, ref, self.integral, self.e_prev)
         return {"out": out, "integral": i_new, "e": e}
 
-    def update(self, t, x, y, heading, ref):
+    def update(self, t: float, x: float, y: float, heading: float, ref: Mapping[str, float]
+               ) -> dict[str, Any]:
         """Output at time ``t`` [s], sampled at k T and held (the rule of
         :mod:`agv_core.numerics.sampling`, as :meth:`LtvMpc.update`)."""
         return dict(self._hold.output(t, LtvMpc._inputs(x, y, heading, ref), self._law)["out"])
 
-    def step(self, t, h, x, y, heading, ref):
+    def step(self, t: float, h: float, x: float, y: float, heading: float,
+             ref: Mapping[str, float]) -> None:
         """Commit the samples of the step from ``t`` to ``t + h`` [s], inputs held."""
         self._hold.step(t, h, LtvMpc._inputs(x, y, heading, ref), self._law)
 
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         """JSON-safe snapshot."""
         return {"hold": self._hold.get_state(), "integral": self.integral,
                 "e_prev": self.e_prev}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         """Restore a snapshot from :meth:`get_state`."""
         self._hold.set_state(state["hold"])
         self.integral, self.e_prev = state["integral"], state["e_prev"]

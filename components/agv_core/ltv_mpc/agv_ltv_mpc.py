@@ -1,5 +1,7 @@
 """FMU slave: seed-001 linear time-varying MPC (agv_core.ltv_mpc)."""
 
+from typing import Any
+
 from agv_boot import load_core
 
 core = load_core("fmi.fmi_slave", "fmi.tracking_fmi", "ltv_mpc.ltv_mpc", "fmi.defaults")
@@ -20,7 +22,7 @@ class AgvLtvMpc(core.fmi.tracking_fmi.TrackingSlave):
                                                               step_size=0.2)
     reference_inputs = {"y": ((0.0, 0.5),), "v_ref": ((0.0, 0.4),)}
 
-    def declare_parameters(self):
+    def declare_parameters(self) -> None:
         p = self.parameter
         p("sample_time", DEFAULTS["sample_time"], "s",
           "Sample time T (prediction step and output update)")
@@ -46,14 +48,14 @@ class AgvLtvMpc(core.fmi.tracking_fmi.TrackingSlave):
         p("max_iter", DEFAULTS["max_iter"], None, "OSQP iteration limit per sample",
           kind=core.fmi.fmi_slave.Integer)
 
-    def declare_extra_outputs(self):
+    def declare_extra_outputs(self) -> None:
         deps = core.fmi.tracking_fmi.INPUTS
         self.output("dv_c", "m/s", "Applied increment Delta v_c", depends_on=deps)
         self.output("domega", "rad/s", "Applied increment Delta omega", depends_on=deps)
         self.output("slack", "m", "Slack gamma of the last QP", depends_on=deps)
         self.output("iterations", "1", "OSQP iterations of the last QP", depends_on=deps)
 
-    def make_core(self):
+    def make_core(self) -> Any:
         return core.ltv_mpc.ltv_mpc.LtvMpc(
             sample_time=self.sample_time, horizon=self.horizon,
             control_horizon=self.control_horizon, q=(self.q_x, self.q_y, self.q_heading),
@@ -62,6 +64,6 @@ class AgvLtvMpc(core.fmi.tracking_fmi.TrackingSlave):
             du_min=(-self.dv_max, -self.domega_max), du_max=(self.dv_max, self.domega_max),
             eps=self.eps, max_iter=self.max_iter)
 
-    def publish_extra(self, out):
+    def publish_extra(self, out: dict[str, Any]) -> None:
         self.dv_c, self.domega = out["dv_c"], out["domega"]
         self.slack, self.iterations = out["slack"], float(out["iterations"])

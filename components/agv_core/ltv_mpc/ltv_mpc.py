@@ -26,8 +26,9 @@ The slack softens the optional "feasible region" bound e_max on the predicted po
 errors; with e_max = 0 (default: its value is lost from the paper) it appears in the
 cost only and the optimum has gamma = 0. The first increment is applied:
 u(k) = u(k-1) + Delta u(k) (eq 30); the controller output is held for T (sampled at
-k T by the rule of :mod:`agv_core.numerics.sampling`, :class:`~agv_core.numerics.sampling.SampleHold`
-with memory: u(k-1) and the warm start come from the committed sample before).
+k T by the rule of :mod:`agv_core.numerics.sampling`,
+:class:`~agv_core.numerics.sampling.SampleHold` with memory: u(k-1) and the warm start come
+from the committed sample before).
 
 The QP (1/2 z' P z + q' z, l <= A z <= u with z = [Delta U; gamma]) is solved by OSQP
 (operator splitting, with solution polishing), warm-started from the previous solution
@@ -38,6 +39,8 @@ status other than "solved" raises :class:`MpcSolveError`.
 """
 
 import math
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import osqp
@@ -52,7 +55,7 @@ class MpcSolveError(RuntimeError):
     """The QP of one sample was not solved (the message names the solver status)."""
 
 
-def error_model(v_r, alpha_r, T):
+def error_model(v_r: float, alpha_r: float, T: float) -> tuple[np.ndarray, np.ndarray]:
     """A(k) (3x3) and B(k) (3x2) of eq (18), forward-difference discretisation."""
     s, c = math.sin(alpha_r), math.cos(alpha_r)
     A = np.array([[1.0, 0.0, -v_r * s * T], [0.0, 1.0, v_r * c * T], [0.0, 0.0, 1.0]])
@@ -60,7 +63,8 @@ def error_model(v_r, alpha_r, T):
     return A, B
 
 
-def prediction_matrices(A, B, N, Nc):
+def prediction_matrices(A: np.ndarray, B: np.ndarray, N: int, Nc: int
+                        ) -> tuple[np.ndarray, np.ndarray]:
     """Phi (3N x 5) and Theta (3N x 2Nc) of eqs (22)-(24) for a frozen A, B.
 
     Parameters
@@ -118,10 +122,13 @@ class LtvMpc:
         for the benchmark).
     """
 
-    def __init__(self, sample_time=0.2, horizon=5, control_horizon=0, q=(1.0, 1.0, 0.5),
-                 lam=0.1, rho=10.0, slack_max=10.0, e_max=0.0, u_min=(0.0, -0.6),
-                 u_max=(0.8, 0.6), du_min=(-0.05, -0.05), du_max=(0.05, 0.05),
-                 eps=1e-7, max_iter=4000, warm_start=True):
+    def __init__(self, sample_time: float = 0.2, horizon: int = 5, control_horizon: int = 0,
+                 q: Sequence[float] = (1.0, 1.0, 0.5), lam: float = 0.1, rho: float = 10.0,
+                 slack_max: float = 10.0, e_max: float = 0.0,
+                 u_min: Sequence[float] = (0.0, -0.6), u_max: Sequence[float] = (0.8, 0.6),
+                 du_min: Sequence[float] = (-0.05, -0.05),
+                 du_max: Sequence[float] = (0.05, 0.05), eps: float = 1e-7,
+                 max_iter: int = 4000, warm_start: bool = True) -> None:
         if not (math.isfinite(sample_time) and sample_time > 0.0):
             raise ParameterError("sample_time", f"must be > 0 s, got {sample_time}")
         if int(horizon) != horizon or horizon < 1:
@@ -149,7 +156,7 @@ class LtvMpc:
                 if not (math.isfinite(lo[i]) and math.isfinite(hi[i]) and lo[i] <= hi[i]):
                     raise ParameterError(f"{label}_{part}", f"bounds [{lo[i]}, {hi[i]}] are "
                                                            "not an interval")
-            if label == "du" and not all(l <= 0.0 <= h for l, h in zip(lo, hi)):
+            if label == "du" and not all(low <= 0.0 <= high for low, high in zip(lo, hi)):
                 raise ParameterError("du", f"increment bounds {lo}..{hi} must contain 0")
             bounds[label] = (np.array(lo), np.array(hi))
         self.T = float(sample_time)
@@ -170,7 +177,9 @@ class LtvMpc:
         self._hold = SampleHold(self.T, memory=True)
 
     # ------------------------------------------------------------------ the QP
-    def qp(self, x_err, u_prev_err, v_r, alpha_r, u_r):
+    def qp(self, x_err: np.ndarray, u_prev_err: np.ndarray, v_r: float, alpha_r: float,
+           u_r: Sequence[float]
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """P, q, A, l, u of the sample's QP (dense numpy; see the module docstring)."""
         N, Nc = self.N, self.Nc
         A, B = error_model(v_r, alpha_r, self.T)
@@ -214,7 +223,9 @@ class LtvMpc:
             hi.append(self.e_max + E[pos])
         return P, qv, np.vstack(rows), np.concatenate(lo), np.concatenate(hi)
 
-    def solve(self, x_err, u_prev_err, v_r, alpha_r, u_r, warm=None):
+    def solve(self, x_err: Sequence[float], u_prev_err: Sequence[float], v_r: float,
+              alpha_r: float, u_r: Sequence[float], warm: Any = None
+              ) -> tuple[np.ndarray, np.ndarray, int]:
         """Solve one sample's QP.
 
         Returns
@@ -246,7 +257,8 @@ class LtvMpc:
         return result.x, result.y, int(result.info.iter)
 
     # ------------------------------------------------------------------ the law
-    def compute(self, x, y, heading, ref, u_prev):
+    def compute(self, x: float, y: float, heading: float, ref: Mapping[str, float],
+                u_prev: Sequence[float]) -> dict[str, Any]:
         """One sample: the command u(k) from the pose and the reference.
 
         Parameters
@@ -300,7 +312,8 @@ class LtvMpc:
         return (float(x), float(y), float(heading), float(ref["x"]), float(ref["y"]),
                 float(ref["heading"]), float(ref["v"]), float(ref["omega"]))
 
-    def update(self, t, x, y, heading, ref):
+    def update(self, t: float, x: float, y: float, heading: float, ref: Mapping[str, float]
+               ) -> dict[str, Any]:
         """Output at time ``t`` [s], sampled at k T and held in between.
 
         The project's one sampling rule (:mod:`agv_core.numerics.sampling`, a sample-and-hold
@@ -311,21 +324,22 @@ class LtvMpc:
         """
         return dict(self._hold.output(t, self._inputs(x, y, heading, ref), self._law)["out"])
 
-    def step(self, t, h, x, y, heading, ref):
+    def step(self, t: float, h: float, x: float, y: float, heading: float,
+             ref: Mapping[str, float]) -> None:
         """Commit the samples of the step from ``t`` to ``t + h`` [s], inputs held."""
         self._hold.step(t, h, self._inputs(x, y, heading, ref), self._law)
 
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         """JSON-safe snapshot: the sample-and-hold (held and prior samples)."""
         return {"hold": self._hold.get_state(), "u_prev": self.u_prev, "warm": self.warm}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         """Restore a snapshot from :meth:`get_state`."""
         self._hold.set_state(state["hold"])
         self.u_prev, self.warm = state["u_prev"], state["warm"]
 
 
-def errors(x, y, heading, ref):
+def errors(x: float, y: float, heading: float, ref: Mapping[str, float]) -> dict[str, float]:
     """Tracking errors of the pose against a reference sample (signs: pose - reference).
 
     Returns a dict: e_x, e_y [m], e_heading [rad] (wrapped), e_lat [m] (positive left of

@@ -16,13 +16,13 @@ import math
 TWO_PI = 2.0 * math.pi
 
 
-def wrap_angle(angle):
+def wrap_angle(angle: float) -> float:
     """Wrap ``angle`` [rad] to (-pi, pi] [rad] (exact)."""
     wrapped = math.remainder(angle, TWO_PI)
     return math.pi if wrapped == -math.pi else wrapped
 
 
-def heading_error(vehicle_heading, path_heading):
+def heading_error(vehicle_heading: float, path_heading: float) -> float:
     """Vehicle heading minus path heading [rad], wrapped to (-pi, pi]."""
     d = (float(vehicle_heading) - float(path_heading)) % TWO_PI
     return d - TWO_PI if d > math.pi else d

@@ -10,14 +10,15 @@ steps with it, the preview LQ controller predicts the pose over the measurement 
 import math
 
 
-def sinc(u):
+def sinc(u: float) -> float:
     """sin(u) / u, with its limit 1 at u = 0 (accurate to rounding near 0)."""
     if abs(u) < 1e-4:
         return 1.0 - u * u / 6.0
     return math.sin(u) / u
 
 
-def arc_pose(x, y, theta, alpha, speed, wheelbase, duration):
+def arc_pose(x: float, y: float, theta: float, alpha: float, speed: float, wheelbase: float,
+             duration: float) -> tuple[float, float, float]:
     """Exact pose of the rear-axle centre after ``duration`` [s], ``alpha``, ``speed`` held.
 
     Parameters: rear-axle centre ``x``, ``y`` [m], heading ``theta`` [rad], steering angle

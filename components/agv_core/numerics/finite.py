@@ -10,7 +10,7 @@ import math
 from ..errors import ParameterError
 
 
-def finite(name, value, parameter=None):
+def finite(name: str, value: float, parameter: str | None = None) -> float:
     """``value`` as a float if finite; else ParameterError.
 
     The error names ``name`` (``parameter 'name': must be finite, got nan``), or, where

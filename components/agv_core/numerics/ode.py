@@ -12,11 +12,13 @@ one call per FMU per 1-2 ms step; the tests hold this integrator against DOP853.
 """
 
 import math
+from collections.abc import Callable, Sequence
 
 MAX_SUBSTEPS = 1 << 16
 
 
-def rk4(f, y, h, n):
+def rk4(f: Callable[[list[float]], list[float]], y: Sequence[float], h: float, n: int
+        ) -> list[float]:
     """``n`` classical RK4 steps of ``h / n`` for the autonomous ODE y' = f(y) (lists)."""
     dt = h / n
     half = 0.5 * dt
@@ -32,7 +34,8 @@ def rk4(f, y, h, n):
     return y
 
 
-def rk4_doubling(f, y, h, tolerance, start=1):
+def rk4_doubling(f: Callable[[list[float]], list[float]], y: Sequence[float], h: float,
+                 tolerance: float, start: int = 1) -> tuple[list[float], int]:
     """Integrate y' = f(y) over ``h`` [s] within ``tolerance`` (see the module docstring).
 
     Parameters

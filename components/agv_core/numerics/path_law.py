@@ -15,6 +15,8 @@ error = vehicle minus path heading, wheel angle positive left.
 """
 
 import math
+from pathlib import Path
+from typing import Any
 
 from ..errors import ParameterError
 from . import paths
@@ -26,7 +28,7 @@ from .sampling import SampleHold
 INPUTS = ("x", "y", "heading", "v")
 
 
-def refuse_non_finite(x, y, heading, v):
+def refuse_non_finite(x: float, y: float, heading: float, v: float) -> None:
     """Raise FloatingPointError naming the first non-finite input; else nothing.
 
     The laws take atan, sin and comparisons of their inputs, each of which turns a NaN
@@ -56,7 +58,8 @@ class PathLaw:
         :mod:`agv_core.numerics.sampling`.
     """
 
-    def __init__(self, path, wheelbase=1.0, delta_max=math.pi / 4, sample_period=0.0):
+    def __init__(self, path: paths.ReferencePath, wheelbase: float = 1.0,
+                 delta_max: float = math.pi / 4, sample_period: float = 0.0) -> None:
         for name, value in (("wheelbase", wheelbase), ("delta_max", delta_max),
                             ("sample_period", sample_period)):
             finite(name, value)
@@ -75,13 +78,13 @@ class PathLaw:
         self.outputs = None
 
     # ------------------------------------------------------------------ to implement
-    def law(self, x, y, heading, v):
+    def law(self, x: float, y: float, heading: float, v: float) -> dict[str, Any]:
         """The unsaturated law: a dict with ``delta_law``, ``lateral_error``,
         ``heading_error`` and any diagnostics (override)."""
         raise NotImplementedError
 
     # ------------------------------------------------------------------ helpers
-    def project(self, key, x, y):
+    def project(self, key: str, x: float, y: float) -> paths.PathProjection:
         """The projection of (x, y) [m] on the path, searched near the last one of ``key``
         (one hint per tracked point: the rear axle and the front wheel differ)."""
         p = self.path.project(x, y, s_hint=self._hints.get(key))
@@ -102,7 +105,8 @@ class PathLaw:
         refuse_non_finite(x, y, heading, v)
         return x, y, heading, v
 
-    def pose_from_path(self, s, lateral_error, heading_error):
+    def pose_from_path(self, s: float, lateral_error: float, heading_error: float
+                       ) -> tuple[float, float, float]:
         """The rear-axle pose (x, y [m], heading [rad]) that a path-relative measurement
         describes: the path point at arc length ``s`` [m], ``lateral_error`` [m] to its
         left, heading = path heading + ``heading_error`` [rad] (a sensor's s, e, theta of
@@ -124,7 +128,7 @@ class PathLaw:
                 heading + theta)
 
     # ------------------------------------------------------------------ interface
-    def update(self, t, x, y, heading, v):
+    def update(self, t: float, x: float, y: float, heading: float, v: float) -> float:
         """Saturated wheel angle [rad] at time ``t`` [s] from the rear-axle pose (x, y [m],
         heading [rad]) and the speed ``v`` [m/s]; every output in ``self.outputs``.
 
@@ -136,30 +140,31 @@ class PathLaw:
         self.outputs = self._hold.output(t, self._inputs(x, y, heading, v), self._evaluate)
         return self.outputs["delta"]
 
-    def step(self, t, h, x, y, heading, v):
+    def step(self, t: float, h: float, x: float, y: float, heading: float, v: float
+             ) -> None:
         """Commit the samples of the step from ``t`` to ``t + h`` [s], inputs held."""
         self._hold.step(t, h, self._inputs(x, y, heading, v), self._evaluate)
         if self._hold.value is not None:
             self.outputs = self._hold.value
 
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         """JSON-safe snapshot: the held sample, its outputs and the projection hints."""
         return {"hold": self._hold.get_state(), "hints": dict(self._hints),
                 "outputs": None if self.outputs is None else dict(self.outputs)}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         """Restore a snapshot from :meth:`get_state`."""
         self._hold.set_state(state["hold"])
         self._hints = dict(state["hints"])
         self.outputs = None if state["outputs"] is None else dict(state["outputs"])
 
 
-def heading_difference(vehicle_heading, path_heading):
+def heading_difference(vehicle_heading: float, path_heading: float) -> float:
     """Vehicle minus path heading [rad], wrapped exactly to (-pi, pi]."""
     return wrap_angle(vehicle_heading - path_heading)
 
 
-def positive(name, value, unit):
+def positive(name: str, value: float, unit: str) -> float:
     """``value`` as a float if finite and > 0; else ParameterError naming ``name``."""
     finite(name, value)
     if not value > 0.0:
@@ -167,7 +172,7 @@ def positive(name, value, unit):
     return float(value)
 
 
-def non_negative(name, value, unit):
+def non_negative(name: str, value: float, unit: str) -> float:
     """``value`` as a float if finite and >= 0; else ParameterError naming ``name``."""
     finite(name, value)
     if not value >= 0.0:
@@ -175,7 +180,8 @@ def non_negative(name, value, unit):
     return float(value)
 
 
-def parse_path_parameter(spec, base_dir=None):
+def parse_path_parameter(spec: str, base_dir: str | Path | None = None
+                         ) -> paths.ReferencePath:
     """The path of an FMU's ``path`` parameter, every parse failure a ParameterError."""
     if not spec:
         raise ParameterError("path", "a path string is needed, e.g. 'line' or "

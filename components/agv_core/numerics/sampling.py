@@ -27,6 +27,8 @@ evaluated in turn, each from the same held inputs). The sampled sensors
 """
 
 import math
+from collections.abc import Callable, Sequence
+from typing import Any
 
 #: Time tolerance [s]: two instants closer than this are the same instant (1 ns: far
 #: above the rounding of t = start + k h in doubles for any run shorter than ~1e6 s,
@@ -34,17 +36,17 @@ import math
 TIME_EPS = 1e-9
 
 
-def at_instant(t_k, t):
+def at_instant(t_k: float, t: float) -> bool:
     """True when the instant ``t_k`` [s] is the communication point ``t`` [s]."""
     return abs(t_k - t) <= TIME_EPS
 
 
-def in_step(t_k, t, h):
+def in_step(t_k: float, t: float, h: float) -> bool:
     """True when the instant ``t_k`` [s] is sampled in the step [t, t + h) [s]."""
     return t - TIME_EPS <= t_k < t + h - TIME_EPS
 
 
-def last_index(t, period):
+def last_index(t: float, period: float) -> int:
     """k of the newest instant k ``period`` at or before ``t`` [s] (within TIME_EPS)."""
     return math.floor((t + TIME_EPS) / period)
 
@@ -72,7 +74,7 @@ class SampleHold:
     same inputs (the law is not evaluated twice for one sample).
     """
 
-    def __init__(self, period, memory=False):
+    def __init__(self, period: float, memory: bool = False) -> None:
         self.period = float(period)
         self.memory = bool(memory)
         if self.memory and not self.period > 0.0:
@@ -90,7 +92,7 @@ class SampleHold:
         self.index = index
         return self.value
 
-    def output(self, t, inputs, law):
+    def output(self, t: float, inputs: Sequence[Any], law: Callable[..., Any]) -> Any:
         """The value at ``t`` [s] for the current ``inputs``."""
         if self.period == 0.0:
             return law(*inputs)
@@ -99,7 +101,8 @@ class SampleHold:
             return self._evaluate(law, inputs, k)  # tentative at an instant, per call
         return self.value
 
-    def step(self, t, h, inputs, law):
+    def step(self, t: float, h: float, inputs: Sequence[Any], law: Callable[..., Any]
+             ) -> None:
         """Commit the samples of the step from ``t`` to ``t + h`` [s], ``inputs`` held.
 
         Every instant of the step sees the same held inputs, so for a memoryless law
@@ -120,12 +123,12 @@ class SampleHold:
                 continue                     # shown at t from these very inputs
             self._evaluate(law, inputs, index)
 
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         """JSON-safe snapshot."""
         return {"value": self.value, "index": self.index, "prior": self.prior,
                 "inputs": None if self.inputs is None else list(self.inputs)}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         """Restore a snapshot from :meth:`get_state`."""
         self.value, self.index, self.prior = state["value"], state["index"], state["prior"]
         self.inputs = None if state["inputs"] is None else tuple(state["inputs"])

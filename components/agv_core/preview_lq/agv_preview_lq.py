@@ -1,5 +1,7 @@
 """FMU slave: seed-004 preview + LQ path-tracking controller (agv_core.preview_lq)."""
 
+from typing import Any
+
 from agv_boot import load_core
 
 core = load_core("fmi.fmi_slave", "preview_lq.preview_lq", "numerics.paths", "fmi.defaults")
@@ -20,7 +22,7 @@ class AgvPreviewLq(core.fmi.fmi_slave.AgvSlave):
                                                               step_size=0.01)
     reference_inputs = {"y_meas": ((0.0, 0.1),), "heading_meas": ((0.0, 0.588), (1.0, 0.688))}
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         inputs = ("x_meas", "y_meas", "fix_age", "heading_meas", "alpha_meas")
         self.input("x_meas", 0.0, "m", "Measured x of the rear-axle centre (total station)")
@@ -67,7 +69,7 @@ class AgvPreviewLq(core.fmi.fmi_slave.AgvSlave):
                     "Lateral deviation of the future point, positive left of the path",
                     depends_on=inputs)
 
-    def make_core(self):
+    def make_core(self) -> Any:
         path = core.numerics.paths.parse_path(self.path)
         return core.preview_lq.preview_lq.PreviewLQ(
             path, wheelbase=self.wheelbase, speed=self.speed, tau=self.tau, ds=self.ds,
@@ -75,12 +77,12 @@ class AgvPreviewLq(core.fmi.fmi_slave.AgvSlave):
             alpha_max=self.alpha_max, sample_period=self.sample_period,
             dead_reckoning=self.dead_reckoning, alpha_fixed_point=self.alpha_fixed_point)
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         # the law is static; a sample instant inside this step uses the held inputs
         self.core.step(t, h, self.x_meas, self.y_meas, self.heading_meas, self.alpha_meas,
                        self.fix_age)
 
-    def publish(self):
+    def publish(self) -> None:
         out = self.core.update(self.time, self.x_meas, self.y_meas, self.heading_meas,
                                self.alpha_meas, self.fix_age)
         self.alpha_ref = out["alpha_ref"]

@@ -55,6 +55,8 @@ m ``gain_quantum`` (cache key (m, n)). Either way the gain used is a pure functi
 """
 
 import math
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -67,7 +69,8 @@ from ..numerics.sampling import SampleHold
 DEFAULT_PATH = "sine:amplitude=2,wavelength=18.84955592153876"
 
 
-def future_point(x, y, theta, alpha, speed, wheelbase, tau):
+def future_point(x: float, y: float, theta: float, alpha: float, speed: float,
+                 wheelbase: float, tau: float) -> tuple[float, float]:
     """Future point Q after ``tau`` at constant steering angle (seed 004 eq 5).
 
     Second-order Taylor expansion in ``tau`` of the exact arc; the position error is
@@ -102,7 +105,7 @@ def future_point(x, y, theta, alpha, speed, wheelbase, tau):
             theta + vt * t / wheelbase, alpha)
 
 
-def discretise(x, y, wheelbase):
+def discretise(x: Any, y: Any, wheelbase: float) -> tuple[np.ndarray, np.ndarray]:
     """Heading and steering angle along a polyline by central differences (eqs 3-4).
 
     Eq 3 (theta = atan(dy/dx)) and eq 4 (alpha = atan(L cos^3(theta) d2y/dx2)) are
@@ -139,7 +142,8 @@ def discretise(x, y, wheelbase):
     return theta, np.arctan(wheelbase * kappa)
 
 
-def variational_model(theta_p, alpha_p, speed, wheelbase):
+def variational_model(theta_p: float, alpha_p: float, speed: float, wheelbase: float
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """A(t), B(t) of the variational model about the target point (eqs 6-7).
 
     Returns
@@ -159,7 +163,8 @@ def variational_model(theta_p, alpha_p, speed, wheelbase):
     return A, B
 
 
-def lq_gain(theta_p, alpha_p, speed, wheelbase, q, r):
+def lq_gain(theta_p: float, alpha_p: float, speed: float, wheelbase: float,
+            q: Sequence[float], r: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
     """LQ gain of eqs 8-10 by :func:`control.lqr`.
 
     Parameters
@@ -214,7 +219,7 @@ class DiscretePath:
         Vertices per lazily built chunk.
     """
 
-    def __init__(self, source, ds, wheelbase, chunk=512):
+    def __init__(self, source: Any, ds: float, wheelbase: float, chunk: int = 512) -> None:
         self.ds = float(ds)
         self.wheelbase = float(wheelbase)
         self.chunk = int(chunk)
@@ -266,7 +271,7 @@ class DiscretePath:
             self._chunks[k] = data
         return data
 
-    def vertices(self, i0, i1):
+    def vertices(self, i0: int, i1: int) -> tuple[Any, ...]:
         """Arrays (x, y, theta, alpha) of vertices i0..i1 inclusive (clipped if finite)."""
         if self.count is not None:
             i0, i1 = max(i0, 0), min(i1, self.count - 1)
@@ -277,7 +282,7 @@ class DiscretePath:
         off = i0 - (i0 // self.chunk) * self.chunk
         return (i0,) + tuple(a[off:off + i1 - i0 + 1] for a in cat)
 
-    def initial_index(self, x, y):
+    def initial_index(self, x: float, y: float) -> int:
         """Index of a vertex near (x, y) [m] without a hint (global search)."""
         if self.count is not None:
             vx, vy = self._chunks[None][:2]
@@ -286,7 +291,7 @@ class DiscretePath:
             return int(np.flatnonzero(dist <= dist.min() + 1e-6)[0])
         return int(round(self.path.project(x, y).s / self.ds))
 
-    def nearest(self, x, y, hint, radius=2.0):
+    def nearest(self, x: float, y: float, hint: int, radius: float = 2.0) -> dict[str, Any]:
         """Point of the polyline closest to (x, y) [m], searched around vertex ``hint``.
 
         The nearest vertex is searched within ``radius`` [m] of arc length around the
@@ -368,11 +373,13 @@ class PreviewLQ:
         Arc-length window of the nearest-vertex search [m], > 0.
     """
 
-    def __init__(self, path, wheelbase=1.6, speed=1.5, tau=0.65, ds=0.05,
-                 q=(10.0, 10.0, 10.0, 1.0), r=(10000.0, 1.0), alpha_max=0.61,
-                 sample_period=0.0, dead_reckoning=False, alpha_fixed_point=True,
-                 gain_quantum=0.01,
-                 search_radius=2.0):
+    def __init__(self, path: Any, wheelbase: float = 1.6, speed: float = 1.5,
+                 tau: float = 0.65, ds: float = 0.05,
+                 q: Sequence[float] = (10.0, 10.0, 10.0, 1.0),
+                 r: Sequence[float] = (10000.0, 1.0), alpha_max: float = 0.61,
+                 sample_period: float = 0.0, dead_reckoning: bool = False,
+                 alpha_fixed_point: bool = True, gain_quantum: float = 0.01,
+                 search_radius: float = 2.0) -> None:
         for name, value in (("wheelbase", wheelbase), ("speed", speed), ("tau", tau),
                             ("ds", ds), ("gain_quantum", gain_quantum),
                             ("search_radius", search_radius)):
@@ -411,7 +418,7 @@ class PreviewLQ:
         self._hold = SampleHold(self.sample_period)
 
     # ------------------------------------------------------------------ gain
-    def gain(self, theta_p, alpha_p):
+    def gain(self, theta_p: float, alpha_p: float) -> np.ndarray:
         """Steering-rate gain row k_u (eq 10, shape (4,)) at the target state [rad].
 
         Linear interpolation in alpha_p between gains computed by :func:`lq_gain` at the
@@ -439,7 +446,8 @@ class PreviewLQ:
         return k_u
 
     # ------------------------------------------------------------------ law
-    def compute(self, x_meas, y_meas, heading_meas, alpha_meas, fix_age=0.0):
+    def compute(self, x_meas: float, y_meas: float, heading_meas: float, alpha_meas: float,
+                fix_age: float = 0.0) -> dict[str, Any]:
         """Evaluate the law once (no sample-and-hold).
 
         Parameters
@@ -482,7 +490,8 @@ class PreviewLQ:
         self.hint = hint  # every trial starts its search from the same vertex
         return self.law(x, y, heading, alpha, clip=False)["alpha_ref"] - alpha
 
-    def law(self, x, y, heading, alpha, clip=True):
+    def law(self, x: float, y: float, heading: float, alpha: float, clip: bool = True
+            ) -> dict[str, Any]:
         """Eqs 5 and 12 for the pose (x, y [m], heading [rad]) and steering angle
         ``alpha`` [rad]: alpha_ref = alpha_p + tau k_u . dx (clipped if ``clip``).
 
@@ -507,7 +516,8 @@ class PreviewLQ:
         return {"alpha_ref": alpha_ref, "target_x": target["x"], "target_y": target["y"],
                 "preview_error": float(lateral)}
 
-    def update(self, t, x_meas, y_meas, heading_meas, alpha_meas, fix_age=0.0):
+    def update(self, t: float, x_meas: float, y_meas: float, heading_meas: float,
+               alpha_meas: float, fix_age: float = 0.0) -> dict[str, Any]:
         """Output at time ``t`` [s], with sample-and-hold when ``sample_period`` > 0.
 
         The rule is :mod:`agv_core.numerics.sampling`'s: at an instant k T the law is evaluated
@@ -518,18 +528,19 @@ class PreviewLQ:
         args = (x_meas, y_meas, heading_meas, alpha_meas, fix_age)
         return dict(self._hold.output(t, args, self.compute))
 
-    def step(self, t, h, x_meas, y_meas, heading_meas, alpha_meas, fix_age=0.0):
+    def step(self, t: float, h: float, x_meas: float, y_meas: float, heading_meas: float,
+             alpha_meas: float, fix_age: float = 0.0) -> None:
         """Commit the samples of the step from ``t`` to ``t + h`` [s] (inputs held)."""
         self._hold.step(t, h, (x_meas, y_meas, heading_meas, alpha_meas, fix_age),
                         self.compute)
 
     # ------------------------------------------------------------------ state
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         """JSON-safe snapshot (search hint and held sample; the gain cache is a pure
         function of its keys and is not state)."""
         return {"hint": self.hint, "hold": self._hold.get_state()}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         """Restore a snapshot from :meth:`get_state`."""
         self.hint = state["hint"]
         self._hold.set_state(state["hold"])

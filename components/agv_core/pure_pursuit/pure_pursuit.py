@@ -22,6 +22,8 @@ ahead (a circle of diameter < Ld) takes the farthest point found, again with its
 """
 
 import math
+from pathlib import Path
+from typing import Any
 
 from scipy.optimize import brentq
 
@@ -32,6 +34,7 @@ from ..numerics.path_law import (
     parse_path_parameter,
     positive,
 )
+from ..numerics.paths import PathProjection, ReferencePath
 
 #: arc-length step of the forward search, as a fraction of Ld
 SEARCH_STEP = 0.25
@@ -39,7 +42,7 @@ SEARCH_STEP = 0.25
 SEARCH_SPAN = 10.0
 
 
-def pursuit_angle(wheelbase, alpha, lookahead):
+def pursuit_angle(wheelbase: float, alpha: float, lookahead: float) -> float:
     """The pure-pursuit wheel angle atan(2 L sin(alpha) / Ld) [rad].
 
     Parameters
@@ -54,7 +57,7 @@ def pursuit_angle(wheelbase, alpha, lookahead):
     return math.atan(2.0 * wheelbase * math.sin(alpha) / lookahead)
 
 
-def circle_steady_curvature(radius, lookahead, r):
+def circle_steady_curvature(radius: float, lookahead: float, r: float) -> float:
     """Commanded curvature [1/m] of the chord law for a rear axle on the circle of radius
     ``r`` [m] concentric with a path circle of radius ``radius`` [m], heading along it
     (left turn), goal on the path at chord ``lookahead`` [m]:
@@ -77,17 +80,19 @@ class PurePursuit(PathLaw):
         As for :class:`agv_core.numerics.path_law.PathLaw` ([m], [rad], [s]).
     """
 
-    def __init__(self, path, k_ld=0.1, L_min=2.0, wheelbase=1.0, delta_max=math.pi / 4,
-                 sample_period=0.0):
+    def __init__(self, path: ReferencePath, k_ld: float = 0.1, L_min: float = 2.0,
+                 wheelbase: float = 1.0, delta_max: float = math.pi / 4,
+                 sample_period: float = 0.0) -> None:
         super().__init__(path, wheelbase, delta_max, sample_period)
         self.k_ld = non_negative("k_ld", k_ld, "s")
         self.L_min = positive("L_min", L_min, "m")
 
-    def lookahead(self, v):
+    def lookahead(self, v: float) -> float:
         """Ld [m] at speed ``v`` [m/s] (reversing counts as standstill)."""
         return self.k_ld * max(v, 0.0) + self.L_min
 
-    def goal(self, p, x, y, v):
+    def goal(self, p: PathProjection, x: float, y: float, v: float
+             ) -> tuple[tuple[float, float], float, float, float, bool]:
         """The goal point of the rear axle (x, y) [m] at speed ``v`` [m/s], whose projection
         on the path is ``p``: ((gx, gy) [m], its arc length [m], its distance d [m], Ld [m],
         on_chord), ``on_chord`` true when d = Ld."""
@@ -95,7 +100,7 @@ class PurePursuit(PathLaw):
         if abs(p.offset) >= ld:
             return (p.x, p.y), p.s, abs(p.offset), ld, False
 
-        def excess(s):
+        def excess(s: float) -> float:
             q = self.path.point(s)
             return math.hypot(q.x - x, q.y - y) - ld
 
@@ -114,7 +119,7 @@ class PurePursuit(PathLaw):
         q = self.path.point(far[1])
         return (q.x, q.y), far[1], far[0] + ld, ld, False
 
-    def law(self, x, y, heading, v):
+    def law(self, x: float, y: float, heading: float, v: float) -> dict[str, Any]:
         rear = self.project("rear", x, y)
         (gx, gy), s_goal, d, ld, on_chord = self.goal(rear, x, y, v)
         alpha = heading_difference(math.atan2(gy - y, gx - x), heading)
@@ -125,8 +130,10 @@ class PurePursuit(PathLaw):
                 "goal_y": gy, "goal_s": s_goal, "on_chord": on_chord}
 
 
-def make_controller(path="line", k_ld=0.1, L_min=2.0, wheelbase=1.0, delta_max=math.pi / 4,
-                    sample_period=0.0, base_dir=None):
+def make_controller(path: str = "line", k_ld: float = 0.1, L_min: float = 2.0,
+                    wheelbase: float = 1.0, delta_max: float = math.pi / 4,
+                    sample_period: float = 0.0, base_dir: str | Path | None = None
+                    ) -> PurePursuit:
     """A :class:`PurePursuit` from FMU-style parameters (``path`` a path string).
 
     Raises

@@ -26,11 +26,15 @@ speed input is not used).
 """
 
 import math
+from pathlib import Path
+from typing import Any
 
 from ..numerics.path_law import PathLaw, heading_difference, parse_path_parameter, positive
+from ..numerics.paths import ReferencePath
 
 
-def rear_wheel_angle(lateral_error, heading_error, curvature, k_theta, k_e, wheelbase):
+def rear_wheel_angle(lateral_error: float, heading_error: float, curvature: float,
+                     k_theta: float, k_e: float, wheelbase: float) -> float:
     """The unsaturated wheel angle [rad] of the law (module docstring), for 1 - c e > 0.
 
     Parameters
@@ -54,7 +58,7 @@ def rear_wheel_angle(lateral_error, heading_error, curvature, k_theta, k_e, whee
     return math.atan(wheelbase * per_length)
 
 
-def distance_poles(k_theta, k_e):
+def distance_poles(k_theta: float, k_e: float) -> tuple[complex, complex]:
     """Roots [1/m] of the linearised distance-domain error dynamics s^2 + k_theta s + k_e."""
     disc = complex(k_theta * k_theta - 4.0 * k_e) ** 0.5
     return (-k_theta + disc) / 2.0, (-k_theta - disc) / 2.0
@@ -75,13 +79,14 @@ class RearWheelFeedback(PathLaw):
         As for :class:`agv_core.numerics.path_law.PathLaw` ([m], [rad], [s]).
     """
 
-    def __init__(self, path, k_theta=1.0, k_e=0.5, wheelbase=1.0, delta_max=math.pi / 4,
-                 sample_period=0.0):
+    def __init__(self, path: ReferencePath, k_theta: float = 1.0, k_e: float = 0.5,
+                 wheelbase: float = 1.0, delta_max: float = math.pi / 4,
+                 sample_period: float = 0.0) -> None:
         super().__init__(path, wheelbase, delta_max, sample_period)
         self.k_theta = positive("k_theta", k_theta, "1/m")
         self.k_e = positive("k_e", k_e, "1/m2")
 
-    def law(self, x, y, heading, v):
+    def law(self, x: float, y: float, heading: float, v: float) -> dict[str, Any]:
         p = self.project("rear", x, y)
         e, c = float(p.offset), float(p.curvature)
         theta = heading_difference(heading, p.heading)
@@ -94,8 +99,10 @@ class RearWheelFeedback(PathLaw):
                 "curvature": c, "in_domain": in_domain}
 
 
-def make_controller(path="line", k_theta=1.0, k_e=0.5, wheelbase=1.0, delta_max=math.pi / 4,
-                    sample_period=0.0, base_dir=None):
+def make_controller(path: str = "line", k_theta: float = 1.0, k_e: float = 0.5,
+                    wheelbase: float = 1.0, delta_max: float = math.pi / 4,
+                    sample_period: float = 0.0, base_dir: str | Path | None = None
+                    ) -> RearWheelFeedback:
     """A :class:`RearWheelFeedback` from FMU-style parameters (``path`` a path string).
 
     Raises

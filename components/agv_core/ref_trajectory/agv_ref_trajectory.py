@@ -1,5 +1,7 @@
 """FMU slave: seed-001 time-parameterised reference trajectory (agv_core.ref_trajectory)."""
 
+from typing import Any
+
 from agv_boot import load_core
 
 core = load_core("fmi.fmi_slave", "ref_trajectory.ref_trajectory", "fmi.defaults")
@@ -17,7 +19,7 @@ class AgvRefTrajectory(core.fmi.fmi_slave.AgvSlave):
     default_experiment = core.fmi.fmi_slave.DefaultExperiment(start_time=0.0, stop_time=85.0,
                                                               step_size=0.1)
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.parameter("kind", DEFAULTS["kind"], None, "'circle' or 'scurve'",
                        kind=core.fmi.fmi_slave.String)
@@ -36,15 +38,15 @@ class AgvRefTrajectory(core.fmi.fmi_slave.AgvSlave):
         self.output("curvature_ref", "1/m", "Path curvature kappa_r, positive turning left")
         self.output("s_ref", "m", "Arc length travelled along the reference")
 
-    def make_core(self):
+    def make_core(self) -> Any:
         return core.ref_trajectory.ref_trajectory.RefTrajectory(self.kind, self.speed, self.omega,
                                                                 self.amplitude, self.wavelength,
                                                                 self.peak_time)
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         pass  # a function of time; publish() evaluates it at the new time
 
-    def publish(self):
+    def publish(self) -> None:
         r = self.core.at(self.time)
         self.x_ref, self.y_ref, self.heading_ref = r["x"], r["y"], r["heading"]
         self.v_ref, self.omega_ref = r["v"], r["omega"]

@@ -22,6 +22,7 @@ the yaw rate omega_r = kappa_r v_r [rad/s].
 """
 
 import math
+from typing import Any
 
 from ..errors import ParameterError
 from ..numerics.paths import CirclePath, sine_path
@@ -51,8 +52,9 @@ class RefTrajectory:
         straight length v_r peak_time - s_crest must be >= 0.
     """
 
-    def __init__(self, kind="circle", speed=0.4, omega=0.074, amplitude=1.5,
-                 wavelength=12.0, peak_time=33.7):
+    def __init__(self, kind: str = "circle", speed: float = 0.4, omega: float = 0.074,
+                 amplitude: float = 1.5, wavelength: float = 12.0, peak_time: float = 33.7
+                 ) -> None:
         if kind not in KINDS:
             raise ParameterError("kind", f"must be one of {KINDS}, got '{kind}'")
         if not (math.isfinite(speed) and speed > 0.0):
@@ -89,7 +91,7 @@ class RefTrajectory:
             self.s_start = -straight
             self.omega = 0.0
 
-    def at(self, t):
+    def at(self, t: float) -> RefSample:
         """The reference at time ``t`` [s] (a :class:`RefSample`)."""
         s = self.s_start + self.speed * float(t)
         p = self.path.point(s)
@@ -97,7 +99,7 @@ class RefTrajectory:
                          omega=p.curvature * self.speed, curvature=p.curvature,
                          s=s - self.s_start)
 
-    def peak_time(self):
+    def peak_time(self) -> float | None:
         """Time [s] of the first curvature maximum (S-curve), None for the circle."""
         if self.kind == "circle":
             return None
@@ -105,9 +107,9 @@ class RefTrajectory:
                                            + self.path.pieces[1].wavelength / 4.0)
         return (crest - self.s_start) / self.speed
 
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         """No state: the reference is a function of time (JSON-safe empty snapshot)."""
         return {}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         """Nothing to restore."""

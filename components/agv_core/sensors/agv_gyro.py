@@ -1,6 +1,7 @@
 """FMU slave: fibre-optic gyro heading (agv_core.sensors.InstantSensor)."""
 
 from math import isfinite
+from typing import Any
 
 from agv_boot import load_core
 
@@ -22,7 +23,7 @@ class AgvGyro(core.fmi.fmi_slave.AgvSlave):
                                                               step_size=1.0)
     reference_inputs = {"heading": ((0.0, 0.5),)}
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.input("heading", 0.0, "rad", "True heading, counter-clockwise from x")
         self.parameter("drift", core.sensors.sensors.GYRO_DRIFT, "rad/s",
@@ -33,14 +34,14 @@ class AgvGyro(core.fmi.fmi_slave.AgvSlave):
         self.parameter("seed", 0, None, "Random seed (>= 0)", kind=core.fmi.fmi_slave.Integer)
         self.output("heading_meas", "rad", "Measured heading", depends_on=("heading",))
 
-    def make_core(self):
+    def make_core(self) -> Any:
         return core.sensors.sensors.InstantSensor(self.drift, self.noise, self.resolution,
                                                   self.seed, self.time)
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         self.core.step(t, h)
 
-    def publish(self):
+    def publish(self) -> None:
         self.heading_meas = self.core.measure(self.time, self.heading)
         if not isfinite(self.heading_meas):
             self.finite_or_fail(heading_meas=self.heading_meas)

@@ -1,6 +1,7 @@
 """FMU slave: steering-angle sensor (agv_core.sensors.InstantSensor)."""
 
 from math import isfinite
+from typing import Any
 
 from agv_boot import load_core
 
@@ -22,7 +23,7 @@ class AgvSteerSensor(core.fmi.fmi_slave.AgvSlave):
                                                               step_size=0.01)
     reference_inputs = {"alpha": ((0.0, 0.0), (0.5, 0.1))}
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.input("alpha", 0.0, "rad", "True steered-wheel angle, positive left")
         self.parameter("noise", core.sensors.sensors.STEER_NOISE, "rad",
@@ -33,14 +34,14 @@ class AgvSteerSensor(core.fmi.fmi_slave.AgvSlave):
         self.output("alpha_meas", "rad", "Measured steered-wheel angle",
                     depends_on=("alpha",))
 
-    def make_core(self):
+    def make_core(self) -> Any:
         return core.sensors.sensors.InstantSensor(0.0, self.noise, self.resolution, self.seed,
                                                   self.time)
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         self.core.step(t, h)
 
-    def publish(self):
+    def publish(self) -> None:
         self.alpha_meas = self.core.measure(self.time, self.alpha)
         if not isfinite(self.alpha_meas):
             self.finite_or_fail(alpha_meas=self.alpha_meas)

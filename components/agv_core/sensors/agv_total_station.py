@@ -1,6 +1,7 @@
 """FMU slave: robotic total station (agv_core.sensors.TotalStation)."""
 
 from math import isfinite
+from typing import Any
 
 from agv_boot import load_core
 
@@ -25,7 +26,7 @@ class AgvTotalStation(core.fmi.fmi_slave.AgvSlave):
                                                               step_size=0.01)
     reference_inputs = {"x": ((0.0, 1.0),), "y": ((0.0, 2.0),)}
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.input("x", 0.0, "m", "x of the prism (tracked point)")
         self.input("y", 0.0, "m", "y of the prism (tracked point)")
@@ -43,15 +44,15 @@ class AgvTotalStation(core.fmi.fmi_slave.AgvSlave):
         self.output("y_meas", "m", "Measured y of the newest fix", depends_on=("y",))
         self.output("fix_age", "s", "Time since the shown fix was measured")
 
-    def make_core(self):
+    def make_core(self) -> Any:
         return core.sensors.sensors.TotalStation(self.mean_interval, self.jitter, self.latency,
                                                  self.noise, self.seed, self.time)
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         self.core.available = bool(self.available)
         self.core.step(t, h, self.x, self.y)
 
-    def publish(self):
+    def publish(self) -> None:
         self.core.available = bool(self.available)
         self.x_meas, self.y_meas, self.fix_age = self.core.measure(self.time, self.x, self.y)
         if not isfinite(self.x_meas + self.y_meas):  # finite iff every term is

@@ -1,6 +1,7 @@
 """FMU slave: camera measuring path deviation (agv_core.sensors.VisionSensor)."""
 
 from math import isfinite
+from typing import Any
 
 from agv_boot import load_core
 
@@ -26,7 +27,7 @@ class AgvVisionSensor(core.fmi.fmi_slave.AgvSlave):
                                                               step_size=0.01)
     reference_inputs = {"y": ((0.0, 0.1), (0.5, 0.2)), "heading": ((0.0, 0.05),)}
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.input("x", 0.0, "m", "x of the tracked point")
         self.input("y", 0.0, "m", "y of the tracked point")
@@ -56,16 +57,16 @@ class AgvVisionSensor(core.fmi.fmi_slave.AgvSlave):
         self.output("curvature_rate", "1/m2", "Path curvature derivative dc/ds at s",
                     depends_on=_POSE)
 
-    def make_core(self):
+    def make_core(self) -> Any:
         path = core.numerics.paths.parse_path(self.path)
         return core.sensors.sensors.VisionSensor(path, self.frame_period, self.latency,
                                                  self.noise_lateral, self.noise_heading, self.seed,
                                                  self.time)
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         self.core.step(t, h, self.x, self.y, self.heading)
 
-    def publish(self):
+    def publish(self) -> None:
         (self.lateral_error, self.heading_error, self.s, self.curvature,
          self.curvature_rate) = self.core.measure(self.time, self.x, self.y, self.heading)
         if not isfinite(self.lateral_error + self.s):  # finite iff every term is

@@ -18,11 +18,15 @@ cos(delta); the two differ by 1 % at delta = 8 deg).
 """
 
 import math
+from pathlib import Path
+from typing import Any
 
 from ..numerics.path_law import PathLaw, heading_difference, parse_path_parameter, positive
+from ..numerics.paths import ReferencePath
 
 
-def stanley_angle(lateral_error, heading_error, k, k_soft, v):
+def stanley_angle(lateral_error: float, heading_error: float, k: float, k_soft: float,
+                  v: float) -> float:
     """The unsaturated Stanley wheel angle [rad] (module docstring).
 
     Parameters
@@ -41,7 +45,7 @@ def stanley_angle(lateral_error, heading_error, k, k_soft, v):
     return -heading_error - math.atan(k * lateral_error / (k_soft + max(v, 0.0)))
 
 
-def straight_line_rate(k, k_soft, v):
+def straight_line_rate(k: float, k_soft: float, v: float) -> float:
     """Decay rate [1/s] of a small front-wheel offset on a straight path,
     v k / (k_soft + v) (README.md)."""
     return v * k / (k_soft + v)
@@ -62,13 +66,14 @@ class Stanley(PathLaw):
         As for :class:`agv_core.numerics.path_law.PathLaw` ([m], [rad], [s]).
     """
 
-    def __init__(self, path, k=2.5, k_soft=1.0, wheelbase=1.0, delta_max=math.pi / 4,
-                 sample_period=0.0):
+    def __init__(self, path: ReferencePath, k: float = 2.5, k_soft: float = 1.0,
+                 wheelbase: float = 1.0, delta_max: float = math.pi / 4,
+                 sample_period: float = 0.0) -> None:
         super().__init__(path, wheelbase, delta_max, sample_period)
         self.k = positive("k", k, "1/s")
         self.k_soft = positive("k_soft", k_soft, "m/s")
 
-    def law(self, x, y, heading, v):
+    def law(self, x: float, y: float, heading: float, v: float) -> dict[str, Any]:
         xf = x + self.wheelbase * math.cos(heading)
         yf = y + self.wheelbase * math.sin(heading)
         p = self.project("front", xf, yf)
@@ -78,8 +83,10 @@ class Stanley(PathLaw):
                 "lateral_error": e, "heading_error": theta, "x_front": xf, "y_front": yf}
 
 
-def make_controller(path="line", k=2.5, k_soft=1.0, wheelbase=1.0, delta_max=math.pi / 4,
-                    sample_period=0.0, base_dir=None):
+def make_controller(path: str = "line", k: float = 2.5, k_soft: float = 1.0,
+                    wheelbase: float = 1.0, delta_max: float = math.pi / 4,
+                    sample_period: float = 0.0, base_dir: str | Path | None = None
+                    ) -> Stanley:
     """A :class:`Stanley` from FMU-style parameters (``path`` a path string).
 
     Raises

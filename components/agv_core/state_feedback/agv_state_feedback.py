@@ -1,6 +1,7 @@
 """FMU slave: seed-000 state-feedback steering controller (agv_core.state_feedback)."""
 
 from math import isfinite
+from typing import Any
 
 from agv_boot import load_core
 
@@ -26,7 +27,7 @@ class AgvStateFeedback(core.fmi.fmi_slave.AgvSlave):
                         "heading_error": ((0.0, 0.0), (0.5, 0.05)),
                         "alpha": ((0.0, 0.0), (1.0, -0.02))}
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.input("alpha", 0.0, "rad", "Steered-wheel angle, positive steers left")
         self.input("heading_error", 0.0, "rad",
@@ -42,15 +43,15 @@ class AgvStateFeedback(core.fmi.fmi_slave.AgvSlave):
         self.output("u", "V", "Actuator command, positive drives alpha positive",
                     depends_on=("alpha", "heading_error", "lateral_error"))
 
-    def make_core(self):
+    def make_core(self) -> Any:
         return core.state_feedback.state_feedback.StateFeedback(self.Ka, self.Kb, self.Ke,
                                                                 self.sample_period, self.u_max)
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         # a sample instant inside this step is taken from the inputs held over it
         self.core.step(t, h, self.alpha, self.heading_error, self.lateral_error)
 
-    def publish(self):
+    def publish(self) -> None:
         self.u = self.core.update(self.time, self.alpha, self.heading_error,
                                   self.lateral_error)
         if not isfinite(self.u):

@@ -21,6 +21,9 @@ for every V0, L and K: the loop transfer function from u to e is
 the wheelbase L then moves Ka and Kb only (:func:`find_wheelbase`).
 """
 
+from collections.abc import Sequence
+from typing import Any
+
 import numpy as np
 
 from ..errors import ParameterError
@@ -52,8 +55,9 @@ class StateFeedback:
         Output limit [V], >= 0; 0 = off.
     """
 
-    def __init__(self, Ka=PAPER_GAINS[0], Kb=PAPER_GAINS[1], Ke=PAPER_GAINS[2],
-                 sample_period=0.0, u_max=0.0):
+    def __init__(self, Ka: float = PAPER_GAINS[0], Kb: float = PAPER_GAINS[1],
+                 Ke: float = PAPER_GAINS[2], sample_period: float = 0.0, u_max: float = 0.0
+                 ) -> None:
         self.gains = np.array([_finite("Ka", Ka), _finite("Kb", Kb), _finite("Ke", Ke)])
         self.sample_period = _finite("sample_period", sample_period)
         if self.sample_period < 0.0:
@@ -68,34 +72,36 @@ class StateFeedback:
         # the three agrees within rounding: tests/components/test_fast_step.py)
         self._ka, self._kb, self._ke = (float(g) for g in self.gains)
 
-    def law(self, alpha, heading_error, lateral_error):
+    def law(self, alpha: float, heading_error: float, lateral_error: float) -> float:
         """The control law without sampling [V] (limited by ``u_max`` if set)."""
         u = -(self._ka * alpha + self._kb * heading_error + self._ke * lateral_error)
         if self.u_max > 0.0:
             u = min(max(u, -self.u_max), self.u_max)
         return u
 
-    def update(self, t, alpha, heading_error, lateral_error):
+    def update(self, t: float, alpha: float, heading_error: float, lateral_error: float
+               ) -> float:
         """Output [V] at time ``t`` [s] for the current inputs (the sample, or held)."""
         self.u = self._hold.output(t, (alpha, heading_error, lateral_error), self.law)
         return self.u
 
-    def step(self, t, h, alpha, heading_error, lateral_error):
+    def step(self, t: float, h: float, alpha: float, heading_error: float,
+             lateral_error: float) -> None:
         """Commit the samples of the step from ``t`` to ``t + h`` [s] (inputs held)."""
         self._hold.step(t, h, (alpha, heading_error, lateral_error), self.law)
 
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         """JSON-safe snapshot of the state."""
         return {"u": self.u, "hold": self._hold.get_state()}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         """Restore a snapshot from :meth:`get_state`."""
         self.u = float(state["u"])
         self._hold.set_state(state["hold"])
 
 
 # ---------------------------------------------------------------------- design
-def model_b(V0, L, K):
+def model_b(V0: float, L: float, K: float) -> tuple[np.ndarray, np.ndarray]:
     """State-space matrices of seed 000 model b, states (alpha, beta, e).
 
     Parameters
@@ -121,7 +127,7 @@ def model_b(V0, L, K):
     return A, B
 
 
-def lqr_gains(V0, L, K, Q, R):
+def lqr_gains(V0: float, L: float, K: float, Q: Any, R: Any) -> np.ndarray:
     """LQR gains [Ka [V/rad], Kb [V/rad], Ke [V/m]] for model b (python-control).
 
     Parameters
@@ -149,13 +155,15 @@ def lqr_gains(V0, L, K, Q, R):
     return np.asarray(gains, dtype=float).ravel()
 
 
-def find_wheelbase(target=PAPER_GAINS, V0=1.0, K=0.6, q=20.0, r=1.0, bounds=(0.2, 5.0)):
+def find_wheelbase(target: Sequence[float] = PAPER_GAINS, V0: float = 1.0, K: float = 0.6,
+                   q: float | None = 20.0, r: float = 1.0,
+                   bounds: tuple[float, float] = (0.2, 5.0)) -> dict[str, Any]:
     """The wheelbase L for which LQR on model b reproduces ``target`` gains.
 
     Uses ``Q = diag(0, 0, q)``, ``R = r``; ``q = 20`` reproduces the paper's
     ``Ke = 4.472 = sqrt(20)`` (``Ke = sqrt(q / r)`` exactly, see the module docstring;
-    ``q=None`` takes ``q = r * Ke^2`` from ``target``). It then minimises the squared error of (Ka, Kb) over L with
-    :func:`scipy.optimize.minimize_scalar`.
+    ``q=None`` takes ``q = r * Ke^2`` from ``target``). It then minimises the squared error
+    of (Ka, Kb) over L with :func:`scipy.optimize.minimize_scalar`.
 
     Parameters
     ----------
@@ -196,7 +204,7 @@ def find_wheelbase(target=PAPER_GAINS, V0=1.0, K=0.6, q=20.0, r=1.0, bounds=(0.2
             "residual": float(np.max(np.abs(gains - target)))}
 
 
-def closed_loop(gains, V0, L, K):
+def closed_loop(gains: Sequence[float], V0: float, L: float, K: float) -> dict[str, Any]:
     """Closed-loop poles of model b under ``u = -gains @ (alpha, beta, e)``.
 
     Parameters
@@ -223,7 +231,8 @@ def closed_loop(gains, V0, L, K):
             "min_damping": float(np.min(damping)), "stable": bool(np.all(poles.real < 0.0))}
 
 
-def loop_poles(gains, V0, L, K, single_track=None, delay=0.0, pade_order=7):
+def loop_poles(gains: Sequence[float], V0: float, L: float, K: float, single_track: Any = None,
+               delay: float = 0.0, pade_order: int = 7) -> dict[str, Any]:
     """Closed-loop poles of seed 000's loop u = -gains @ (alpha, heading, e) around a
     linear plant: the actuator alpha' = K u (with a dead time ``delay`` [s] on u as a
     Pade approximant of ``pade_order``, model a) and either the linear kinematic vehicle

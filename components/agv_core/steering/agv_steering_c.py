@@ -1,5 +1,7 @@
 """FMU slave: steering actuator model c of seed 000 (agv_core.actuator)."""
 
+from typing import Any
+
 from agv_boot import load_core
 
 core = load_core("fmi.actuator_fmi", "fmi.defaults", "steering.actuator")
@@ -14,7 +16,7 @@ class AgvSteeringC(core.fmi.actuator_fmi.ActuatorSlave):
     model = "c"
     rate_depends_on = ()  # the rate is a state of the second-order model: no feedthrough
 
-    def declare_model_parameters(self):
+    def declare_model_parameters(self) -> None:
         d = core.fmi.defaults.defaults_of(core.steering.actuator.IdentifiedActuator)
         self.parameter("num1", d["num1"], "rad/(V.s2)",
                        "Rate transfer function (num1 s + num0)/(s^2 + den1 s + den0) "
@@ -28,6 +30,6 @@ class AgvSteeringC(core.fmi.actuator_fmi.ActuatorSlave):
                        "function is scaled by K den0/num0 to steady rate gain K)")
         self.parameter("tau", d["tau"], "s", "Dead time of the command, >= 0 (0 = none)")
 
-    def model_parameters(self):
+    def model_parameters(self) -> Any:
         return {"num1": self.num1, "num0": self.num0, "den1": self.den1, "den0": self.den0,
                 "tau": self.tau}

@@ -1,5 +1,7 @@
 """FMU slave: seed 003's three-car articulated train, four steered axles (agv_core.train)."""
 
+from typing import Any
+
 from agv_boot import load_core
 
 core = load_core("fmi.fmi_slave", "train.train", "ackermann.ackermann", "fmi.defaults")
@@ -27,7 +29,7 @@ class AgvTrain(core.fmi.fmi_slave.AgvSlave):
                                                               step_size=0.05)
     reference_inputs = {"delta1": ((0.0, 0.05),), "dv": ((0.0, 0.0), (5.0, 1.0))}
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         S = core.fmi.fmi_slave.String
         self.input("dv", 0.0, "m/s", "Speed added to v0 (a speed profile; with v0 = 0 the "
@@ -85,7 +87,7 @@ class AgvTrain(core.fmi.fmi_slave.AgvSlave):
                 self.output(f"speed{i}_{side}", "m/s",
                             f"Ground speed of axle {i}'s {side} wheel over the last step")
 
-    def make_core(self):
+    def make_core(self) -> Any:
         if self.steering_input not in ("axle", "wheels"):
             raise core.errors.ParameterError(
                 "steering_input", f"must be 'axle' or 'wheels', got '{self.steering_input}'")
@@ -95,7 +97,7 @@ class AgvTrain(core.fmi.fmi_slave.AgvSlave):
         train.u1 = float(self.v0 + self.dv)  # moving before the start: u1, u3 outputs at t0
         return train
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         speed = self.v0 + self.dv
         if self.steering_input == "wheels":
             pairs = [(getattr(self, f"delta{i}_left"), getattr(self, f"delta{i}_right"))
@@ -105,7 +107,7 @@ class AgvTrain(core.fmi.fmi_slave.AgvSlave):
         else:
             self.core.step(speed, [getattr(self, f"delta{i}") for i in _AXLES], h)
 
-    def publish(self):
+    def publish(self) -> None:
         c = self.core
         self.x_J1, self.y_J1 = c.x1, c.y1
         self.x_J2, self.y_J2 = c.hinge2()

@@ -1,6 +1,7 @@
 """FMU slave: kinematic single-track vehicle (agv_core.vehicle)."""
 
 from math import isfinite
+from typing import Any
 
 from agv_boot import load_core
 
@@ -21,7 +22,7 @@ class AgvVehicle(core.fmi.fmi_slave.AgvSlave):
                                                               step_size=0.01)
     reference_inputs = {"alpha": ((0.0, 0.2),)}
 
-    def __init__(self, **kwargs):
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.input("alpha", 0.0, "rad", "Steered-wheel angle, positive turns left")
         self.input("dv", 0.0, "m/s", "Speed added to v0 (a speed profile; with v0 = 0 the "
@@ -48,14 +49,14 @@ class AgvVehicle(core.fmi.fmi_slave.AgvSlave):
         self.output("y_front", "m", "y of the front-wheel centre")
         self.output("distance", "m", "Distance travelled by the rear-axle centre")
 
-    def make_core(self):
+    def make_core(self) -> Any:
         return core.vehicle.vehicle.Vehicle(self.wheelbase, self.x0, self.y0, self.heading0,
                                             self.reference_point, self.linear)
 
-    def advance(self, t, h):
+    def advance(self, t: float, h: float) -> None:
         self.core.step(self.alpha, self.v0 + self.dv, h)
 
-    def publish(self):
+    def publish(self) -> None:
         c = self.core
         self.x, self.y, self.heading = c.x, c.y, c.heading
         self.x_rear, self.y_rear = c.rear()

@@ -19,7 +19,8 @@ SHIPPED = {
     "fmu_loader": ("components/fmu_loader", ("*.c", "*.h")),
 }
 
-_PACKAGE = Path(__file__).resolve().parent
+#: agv_cosim/ (this module is agv_cosim/build/shipped.py).
+_PACKAGE = Path(__file__).resolve().parent.parent
 
 
 def shipped_dir(kind: str) -> Path:

@@ -6,7 +6,7 @@ components/README.md). Each FMU bundles its slave script, the boot loader
 ``agv_core/fmi/agv_boot.py`` (at the top of ``resources/``) and the part of the ``agv_core``
 package that the script reaches (its modules and package ``__init__`` files, tagged with a
 content hash in ``agv_core_bundle/BUILD_ID``), a ``requirements.txt`` that pins the Python
-distributions that code imports (both derived from the imports: agv_cosim/bundle.py), and
+distributions that code imports (both derived from the imports: agv_cosim/build/bundle.py), and
 ``agv_build.json`` with a GUID derived from every source that goes into the FMU. A rebuild
 with unchanged sources is skipped (the FMU's GUID already matches, computed with the
 requirement list the FMU ships as long as exactly those versions are installed), and a
@@ -25,7 +25,7 @@ over the Python slave) with gcc, the build Python's headers and fmpy's FMI heade
 temporary folder, and puts them into each FMU as ``binaries/<platform>/<modelIdentifier>.so``
 and ``<modelIdentifier>.bridge.so`` (see the C sources for how a Python is found). Neither
 holds a path of this machine; the GUID hashes contents only. ``standalone=True`` adds a
-Python runtime (agv_cosim.standalone).
+Python runtime (agv_cosim.build.standalone).
 
 ``fmi_version=3`` builds the FMI 3.0 twin of each slave script with pythonfmu3 instead
 (``agv-cosim build --fmi 3``): the same slave script and core, run on the FMI 3.0 adapter
@@ -52,7 +52,7 @@ import sysconfig
 import tempfile
 import uuid
 import zipfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -61,10 +61,20 @@ from xml.etree import ElementTree
 import pythonfmu
 from pythonfmu.builder import FmuBuilder
 
-from .bundle import bundle_of, installed_requirements, requirements_text
-from .errors import BuildError, BundleError, OutputError, did_you_mean
-from .files import create_beside
+from ..errors import BuildError, BundleError, OutputError, did_you_mean
+from ..files import create_beside
+from .bundle import Bundle, Requirements, bundle_of, installed_requirements, requirements_text
 from .shipped import shipped_dir
+
+__all__ = ["BOOT_SCRIPT", "BOOT_SOURCE", "BRIDGE_SOURCE", "BRIDGE_SUFFIX", "BUILD_FORMAT",
+           "BUNDLE_FOLDER", "FMI3_ALIAS", "FMI3_BODY_SUFFIX", "FMI3_WRAPPER_SUFFIX",
+           "FMI_VERSIONS", "INDEX_FILE", "LOADER_SOURCE", "RECORD_FORMAT", "REFERENCE_DIR",
+           "REFERENCE_MANIFEST", "SLAVE_PATTERN", "BuildError", "BuildResult",
+           "build_fmus", "build_one", "check_replaceable", "component_scripts",
+           "default_components_dir", "fmi3_wrapper_source", "fmu_guid", "fmu_guid_of",
+           "host_python", "loader_binary", "read_record", "reference_experiment",
+           "reference_input_rows", "simulate_reference", "slave_class_name",
+           "slave_script", "slave_scripts"]
 
 #: The folder in resources/ that holds the bundled part of agv_core (agv_boot.py).
 BUNDLE_FOLDER = "agv_core_bundle"
@@ -157,14 +167,15 @@ def host_python() -> dict[str, Any]:
             "libpython": str(Path(libdir) / soname)}
 
 
-def _binary_sources():
+def _binary_sources() -> dict[str, str]:
     """The C sources of the FMU binary: ``{file name: text}`` (the loader and the bridge)."""
     folder = shipped_dir("fmu_loader")
     return {name: (folder / name).read_text() for name in (LOADER_SOURCE.name, BRIDGE_SOURCE)}
 
 
 @functools.lru_cache(maxsize=4)
-def _compile_binaries(sources, python_include):
+def _compile_binaries(sources: tuple[tuple[str, str], ...], python_include: str
+                      ) -> tuple[bytes, bytes]:
     """Compile the loader and the bridge; ``(loader bytes, bridge bytes)``.
 
     ``sources`` is ``_binary_sources()`` as a tuple of items. Neither binary holds a path of
@@ -179,7 +190,7 @@ def _compile_binaries(sources, python_include):
     if compiler is None:
         raise BuildError("cannot build the FMU binaries: no C compiler (gcc) on PATH")
     fmi_headers = Path(fmpy.__file__).parent / "c-code"
-    built = []
+    built: list[bytes] = []
     with tempfile.TemporaryDirectory(prefix="agv_loader_") as tmp:
         for name, text in sources:
             (Path(tmp) / name).write_text(text)
@@ -197,7 +208,8 @@ def _compile_binaries(sources, python_include):
                 raise BuildError(f"cannot build the FMU binary {name}: "
                                  + (done.stderr.strip().splitlines() or ["gcc failed"])[-1])
             built.append(target.read_bytes())
-    return tuple(built)
+    loader, bridge = built
+    return loader, bridge
 
 
 def loader_binary() -> tuple[bytes, bytes]:
@@ -278,8 +290,9 @@ def reference_input_rows(experiment: dict[str, Any]
     names = list(experiment["inputs"])
     start, stop = experiment["start"], experiment["stop"]
 
-    def held(name, t):
-        return [v for time, v in experiment["inputs"][name] if time <= t][-1]
+    def held(name: str, t: float) -> float:
+        value: float = [v for time, v in experiment["inputs"][name] if time <= t][-1]
+        return value
 
     rows = [(start, *(held(n, start) for n in names))]
     steps = sorted({t for n in names for t, _ in experiment["inputs"][n] if start < t < stop})
@@ -290,14 +303,14 @@ def reference_input_rows(experiment: dict[str, Any]
     return names, rows
 
 
-def _csv(header, rows):
+def _csv(header: list[str], rows: Iterable[Iterable[float]]) -> str:
     lines = [",".join(header)]
     lines += [",".join(repr(float(x)) for x in row) for row in rows]
     return "\n".join(lines) + "\n"
 
 
 def simulate_reference(fmu_path: str | Path, input_csv: str | Path | None,
-                       output_csv: str | Path) -> Any:
+                       output_csv: str | Path) -> None:
     """Run an FMU's reference experiment with fmpy; write its Real outputs as CSV.
 
     The build calls this in a child process (pythonfmu loads a slave module once per
@@ -313,7 +326,7 @@ def simulate_reference(fmu_path: str | Path, input_csv: str | Path | None,
     outputs = [v.name for v in md.modelVariables
                if v.causality == "output" and v.type in ("Real", "Float64")]
     signals = read_csv(input_csv) if input_csv else None
-    errors = []
+    errors: list[str] = []
 
     # FMI 2.0: (env, instance, status, category, message); FMI 3.0: no instance
     def logger(*args: Any) -> None:
@@ -334,7 +347,7 @@ def simulate_reference(fmu_path: str | Path, input_csv: str | Path | None,
     Path(output_csv).write_text(_csv(["time", *outputs], rows))
 
 
-def _ship_reference(fmu_path):
+def _ship_reference(fmu_path: Path) -> None:
     """Run the FMU's reference experiment and put it in the FMU (fmi-ls-ref layout)."""
     with zipfile.ZipFile(fmu_path) as archive:
         md_xml = archive.read("modelDescription.xml")
@@ -395,7 +408,7 @@ def fmu_guid(script: Path, boot: Path, tag: str, fmi_version: int = 2,
     return str(uuid.UUID(digest.hexdigest()[:32]))
 
 
-def _model_description(fmu_path):
+def _model_description(fmu_path: str | Path) -> Any:
     """fmpy's reading of an FMU's model description (no schema check: the build checks
     a new FMU with fmpy's ``validate_fmu``)."""
     from fmpy import read_model_description
@@ -458,9 +471,10 @@ def fmi3_wrapper_source(script: Path) -> str:
             "    __doc__ = _Body.__doc__\n")
 
 
-def _bundle(script, core_dir, boot, fmi_version, requirements=None):
+def _bundle(script: Path, core_dir: Path, boot: Path, fmi_version: int,
+            requirements: Requirements | None = None) -> Bundle:
     """The part of ``agv_core`` the FMU of ``script`` ships, and its requirements
-    (agv_cosim.bundle); ``requirements`` as there."""
+    (agv_cosim.build.bundle); ``requirements`` as there."""
     overrides = (("fmi/fmi_slave.py", FMI3_ALIAS),) if fmi_version == 3 else ()
     try:
         return bundle_of(script, core_dir, overrides, extra_sources=[boot],
@@ -472,7 +486,7 @@ def _bundle(script, core_dir, boot, fmi_version, requirements=None):
         raise BuildError(f"{script.name}: {error}") from None
 
 
-def _shipped_requirements(fmu_path):
+def _shipped_requirements(fmu_path: Path) -> Requirements | None:
     """The requirements of a built FMU, if still what this Python has installed."""
     try:
         with zipfile.ZipFile(fmu_path) as archive:
@@ -483,7 +497,7 @@ def _shipped_requirements(fmu_path):
 
 
 def _stage(script: Path, core_dir: Path, boot: Path, tag: str, guid: str, stage_dir: Path,
-           fmi_version: int = 2, bundle: Any = None) -> tuple[Path, list[Path]]:
+           bundle: Bundle, fmi_version: int = 2) -> tuple[Path, list[Path]]:
     """Stage the FMU's files (``bundle``: what :func:`_bundle` says the FMU ships); return
     (the script to build from, the project files)."""
     if fmi_version == 3:
@@ -527,7 +541,7 @@ def _validate(fmu_path: Path, fmi_version: int = 2) -> None:
                          + "; ".join(problems))
 
 
-def _fmi_version_of(fmu_path):
+def _fmi_version_of(fmu_path: Path) -> str | None:
     """The fmiVersion an existing FMU declares, or None if unreadable.
 
     ElementTree, not fmpy: fmpy 0.3.32 refuses a version it does not know (and this FMU
@@ -687,7 +701,7 @@ def build_one(script: str | Path, out_dir: str | Path, core_dir: str | Path | No
     """Build the FMU (FMI ``fmi_version``) of one slave script into ``out_dir``.
 
     ``standalone`` adds a Python runtime with the packages the slave imports
-    (agv_cosim.standalone), so that the FMU needs no Python on the machine that runs it.
+    (agv_cosim.build.standalone), so that the FMU needs no Python on the machine that runs it.
     Skipped if up to date. An FMU of the other FMI version of the same name in
     ``out_dir`` is never replaced (BuildError): the twins go into separate folders.
     """
@@ -720,7 +734,7 @@ def build_one(script: str | Path, out_dir: str | Path, core_dir: str | Path | No
         stage_dir = Path(tmp) / "stage"
         stage_dir.mkdir()
         staged_script, project_files = _stage(script, core_dir, boot, tag, guid, stage_dir,
-                                              fmi_version, bundle)
+                                              bundle, fmi_version)
         saved_path = list(sys.path)
         own_modules = {script.stem, script.stem + FMI3_WRAPPER_SUFFIX,
                        script.stem + FMI3_BODY_SUFFIX}
@@ -756,7 +770,7 @@ def build_one(script: str | Path, out_dir: str | Path, core_dir: str | Path | No
         _validate(fmu_path, fmi_version)
         _ship_reference(fmu_path)
         if standalone:
-            from .errors import StandaloneError
+            from ..errors import StandaloneError
             from .standalone import add_runtime
 
             try:

@@ -53,9 +53,8 @@ import zipfile
 from collections.abc import Iterable
 from importlib import _bootstrap_external
 from pathlib import Path
-from typing import Any
 
-from .errors import StandaloneError
+from ..errors import StandaloneError
 
 #: The runtime's folder inside ``binaries/<platform>/`` (the loader looks for it there).
 RUNTIME_FOLDER = "python"
@@ -166,7 +165,7 @@ def _left_out_modules() -> list[str]:
                   if DYNLOAD_EXCLUDED.match(path.name))
 
 
-def _site_packages():
+def _site_packages() -> list[Path]:
     """The building environment's site-packages folders."""
     return [Path(p).resolve() for p in {sysconfig.get_paths()["purelib"],
                                         sysconfig.get_paths()["platlib"]}]
@@ -177,14 +176,14 @@ def needed_distributions(fmu_path: str | Path,
     """Names of the installed distributions whose modules the FMU's slave imports
     (``used``: :func:`imported_files`, found again when not given)."""
     sites = _site_packages()
-    top_names = set()
+    top_names: set[str] = set()
     for path in (imported_files(fmu_path) if used is None else used):
         path = path.resolve()
         for site in sites:
             if site in path.parents:
                 top_names.add(path.relative_to(site).parts[0].split(".")[0])
     owners = importlib.metadata.packages_distributions()
-    names = set()
+    names: set[str] = set()
     for top in top_names:
         for dist in owners.get(top, ()):
             names.add(dist)
@@ -195,7 +194,7 @@ def distribution_files(name: str) -> list[tuple[Path, str]]:
     """``[(absolute path, path inside site-packages)]`` of an installed distribution, less
     what a run never reads (PACKAGE_EXCLUDED)."""
     dist = importlib.metadata.distribution(name)
-    files = []
+    files: list[tuple[Path, str]] = []
     for entry in dist.files or ():
         relative = entry.as_posix()
         if relative.startswith("..") or PACKAGE_EXCLUDED.search(relative):
@@ -207,7 +206,7 @@ def distribution_files(name: str) -> list[tuple[Path, str]]:
 
 
 # ------------------------------------------------------------------------ the runtime
-def _python_facts():
+def _python_facts() -> tuple[str, Path, Path]:
     version = sysconfig.get_python_version()
     libdir = Path(sysconfig.get_config_var("LIBDIR") or "")
     soname = sysconfig.get_config_var("INSTSONAME") or f"libpython{version}.so.1.0"
@@ -220,14 +219,14 @@ def _python_facts():
     return version, libpython, stdlib
 
 
-def _tool(name):
+def _tool(name: str) -> str:
     found = shutil.which(name) or shutil.which(name, path=str(Path(sys.executable).parent))
     if found is None:
         raise StandaloneError(f"'{name}' is not installed (needed for a standalone build)")
     return found
 
 
-def _run(command):
+def _run(command: list[str]) -> str:
     done = subprocess.run(command, capture_output=True, text=True)
     if done.returncode != 0:
         raise StandaloneError(f"{Path(command[0]).name} failed on {command[-1]}: "
@@ -235,15 +234,10 @@ def _run(command):
     return done.stdout
 
 
-def _is_elf(path):
-    with open(path, "rb") as handle:
-        return handle.read(4) == b"\x7fELF"
-
-
-def _shared_dependencies(paths):
+def _shared_dependencies(paths: Iterable[Path]) -> dict[str, Path]:
     """Resolved non-system libraries that the ELF files ``paths`` need (``ldd``)."""
     ldd = _tool("ldd")
-    found = {}
+    found: dict[str, Path] = {}
     for path in paths:
         for line in _run([ldd, str(path)]).splitlines():
             match = re.match(r"\s*(\S+) => (/\S+)", line)
@@ -263,7 +257,7 @@ def build_prefixes() -> list[str]:
     return sorted((p for p in prefixes if len(p) > 4), key=len, reverse=True)
 
 
-def _neutral(text):
+def _neutral(text: bytes) -> bytes:
     """``text`` (a path, bytes) with all but its last component overwritten by a neutral
     folder of the same length (/agv-cosim-python/, padded with slashes).
 
@@ -275,7 +269,7 @@ def _neutral(text):
     return (head + b"/" * max(0, cut - len(head)))[:cut] + text[cut:]
 
 
-def _scrubbed(data, prefixes):
+def _scrubbed(data: bytes, prefixes: Iterable[str]) -> bytes:
     """``data`` with every prefix overwritten (:func:`_neutral`, same length)."""
     for prefix in prefixes:
         raw = prefix.encode()
@@ -291,26 +285,27 @@ def _scrub(path: Path, prefixes: Iterable[str]) -> None:
         path.write_bytes(changed)
 
 
-#: The runtime folders assembled by this process (platform folder -> temporary folder).
-_RUNTIMES: dict[str, Path] = {}
+#: The runtime folder assembled by this process (empty, or one temporary folder).
+_RUNTIMES: list[Path] = []
 
 
 def discard_runtimes() -> None:
-    """Remove the temporary runtime folders of :func:`runtime_base` (also at exit)."""
+    """Remove the temporary runtime folder of :func:`runtime_base` (also at exit)."""
     while _RUNTIMES:
-        _, root = _RUNTIMES.popitem()
-        shutil.rmtree(root, ignore_errors=True)
+        shutil.rmtree(_RUNTIMES.pop(), ignore_errors=True)
 
 
 atexit.register(discard_runtimes)
 
 
-def runtime_base(platform_dir: str) -> Path:
+def runtime_base() -> Path:
     """A temporary folder with the runtime less its packages, assembled once per process
-    (removed by :func:`discard_runtimes`, which ``build_fmus`` calls when done):
-    ``{relative path: absolute file}`` to put under ``binaries/<platform>/python/``."""
-    if platform_dir in _RUNTIMES and _RUNTIMES[platform_dir].is_dir():
-        return _RUNTIMES[platform_dir]
+    (removed by :func:`discard_runtimes`, which ``build_fmus`` calls when done): the files
+    to put under ``binaries/<platform>/python/`` (the same for every platform folder: the
+    runtime is the building Python's)."""
+    if _RUNTIMES and _RUNTIMES[0].is_dir():
+        return _RUNTIMES[0]
+    discard_runtimes()
     version, libpython, stdlib = _python_facts()
     patchelf, strip = _tool("patchelf"), _tool("strip")
     root = Path(tempfile.mkdtemp(prefix="agv_runtime_"))
@@ -319,11 +314,12 @@ def runtime_base(platform_dir: str) -> Path:
     except BaseException:
         shutil.rmtree(root, ignore_errors=True)
         raise
-    _RUNTIMES[platform_dir] = root
+    _RUNTIMES.append(root)
     return root
 
 
-def _assemble_runtime(root, version, libpython, stdlib, patchelf, strip):
+def _assemble_runtime(root: Path, version: str, libpython: Path, stdlib: Path, patchelf: str,
+                      strip: str) -> Path:
     lib = root / "lib"
     target_stdlib = lib / f"python{version}"
     excluded = {stdlib / part for part in STDLIB_EXCLUDED}
@@ -357,7 +353,7 @@ def _assemble_runtime(root, version, libpython, stdlib, patchelf, strip):
     return root
 
 
-def runtime_files(fmu_path: str | Path, platform_dir: str) -> tuple[dict[str, Path], Any]:
+def runtime_files(fmu_path: str | Path, platform_dir: str) -> tuple[dict[str, Path], list[str]]:
     """``{path inside the FMU: file}`` of the standalone runtime for ``fmu_path``, and the
     distributions shipped (name==version).
 
@@ -367,7 +363,7 @@ def runtime_files(fmu_path: str | Path, platform_dir: str) -> tuple[dict[str, Pa
     the libraries these link; of each distribution it imports, the files it loads, opens
     or maps, and the distribution's metadata (``*.dist-info``, less RECORD).
     """
-    base = runtime_base(platform_dir)
+    base = runtime_base()
     prefix = f"binaries/{platform_dir}/{RUNTIME_FOLDER}/"
     version = sysconfig.get_python_version()
     _, libpython, stdlib = _python_facts()
@@ -375,7 +371,7 @@ def runtime_files(fmu_path: str | Path, platform_dir: str) -> tuple[dict[str, Pa
     base_stdlib = base / "lib" / f"python{version}"
     used = {Path(p).resolve() for p in imported_files(fmu_path)}
     chosen = {p for p in (base_stdlib / "encodings").rglob("*") if p.is_file()}
-    dynload = []
+    dynload: list[Path] = []
     for path in used:
         if not path.is_relative_to(stdlib):
             continue
@@ -391,7 +387,7 @@ def runtime_files(fmu_path: str | Path, platform_dir: str) -> tuple[dict[str, Pa
             chosen.add(base / "lib" / name)
     files = {prefix + p.relative_to(base).as_posix(): p for p in sorted(chosen)}
     site = f"{prefix}lib/python{version}/site-packages/"
-    shipped = []
+    shipped: list[str] = []
     for name in needed_distributions(fmu_path, used):
         dist = importlib.metadata.distribution(name)
         shipped.append(f"{dist.metadata['Name']}=={dist.version}")
@@ -402,7 +398,7 @@ def runtime_files(fmu_path: str | Path, platform_dir: str) -> tuple[dict[str, Pa
     return files, shipped
 
 
-def _packaged_bytes(path, prefixes):
+def _packaged_bytes(path: Path, prefixes: Iterable[str]) -> bytes:
     """The bytes to ship for an installed file, build paths scrubbed. Packages' ELF files
     are shipped as installed: wheels come stripped, and ``strip`` breaks libraries that
     auditwheel has patched (measured: numpy's OpenBLAS no longer loads)."""

@@ -27,9 +27,11 @@ import os
 import re
 import tempfile
 import tomllib
+from collections.abc import Callable, Iterator
 from pathlib import Path, PurePosixPath
+from typing import Any
 
-from .errors import ExamplesError
+from ..errors import ExamplesError
 from .shipped import shipped_dir
 
 __all__ = ["RECORD", "ExamplesError", "copy_examples", "example_files"]
@@ -40,7 +42,7 @@ RECORD = ".agv-cosim-examples.json"
 _WAYPOINTS = re.compile(r"waypoints:(?:[^\"']*,)?file=([^,\"']+)")
 
 
-def _strings(value):
+def _strings(value: object) -> Iterator[str]:
     if isinstance(value, str):
         yield value
     elif isinstance(value, dict):
@@ -51,24 +53,24 @@ def _strings(value):
             yield from _strings(item)
 
 
-def _components(data):
+def _components(data: dict[str, Any]) -> Iterator[Any]:
     """Every component table of a manifest: the top-level ones and the variants'."""
     yield from (data.get("components") or {}).values()
     for variant in (data.get("variants") or {}).values():
         yield from ((variant or {}).get("components") or {}).values()
 
 
-def _with_fmus(data, point):
+def _with_fmus(data: dict[str, Any], point: Callable[[str], str]) -> dict[str, Any]:
     """A deep copy of manifest ``data`` with each component's ``fmu`` replaced by
     ``point(fmu)``."""
-    copy = json.loads(json.dumps(data))
+    copy: dict[str, Any] = json.loads(json.dumps(data))
     for table in _components(copy):
         if isinstance(table, dict) and isinstance(table.get("fmu"), str):
             table["fmu"] = point(table["fmu"])
     return copy
 
 
-def _referenced_files(data):
+def _referenced_files(data: dict[str, Any]) -> list[str]:
     """Relative file names the manifest refers to beside its FMUs (tables, waypoints)."""
     names = {table["table"] for table in _components(data)
              if isinstance(table, dict) and isinstance(table.get("table"), str)}
@@ -77,7 +79,7 @@ def _referenced_files(data):
     return sorted(names)
 
 
-def _localised(source, fmu_folder):
+def _localised(source: Path, fmu_folder: str) -> tuple[str, list[str]]:
     """Text of the shipped manifest ``source`` with its FMUs in ``fmu_folder`` (a posix
     path as the manifest should name it); its referenced files."""
     text = source.read_text(encoding="utf-8")
@@ -86,7 +88,7 @@ def _localised(source, fmu_folder):
     except tomllib.TOMLDecodeError as error:
         raise ExamplesError(f"shipped manifest {source.name}: {error}") from None
 
-    def point(fmu):
+    def point(fmu: str) -> str:
         return str(PurePosixPath(fmu_folder) / PurePosixPath(fmu).name)
 
     new = text
@@ -105,7 +107,7 @@ def _localised(source, fmu_folder):
     return new, _referenced_files(data)
 
 
-def _digest(data):
+def _digest(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
@@ -113,7 +115,7 @@ def example_files(fmu_folder: str) -> dict[str, bytes]:
     """What :func:`copy_examples` writes: relative path -> bytes (``fmu_folder``: the
     FMU folder as the manifests should name it)."""
     source_dir = shipped_dir("experiments")
-    files = {}
+    files: dict[str, bytes] = {}
     for source in sorted(source_dir.glob("*.toml")):
         text, referenced = _localised(source, fmu_folder)
         files[source.name] = text.encode("utf-8")
@@ -126,7 +128,7 @@ def example_files(fmu_folder: str) -> dict[str, bytes]:
     return files
 
 
-def _record_of(folder):
+def _record_of(folder: Path) -> dict[str, str]:
     path = folder / RECORD
     if not path.exists():
         return {}
@@ -157,7 +159,7 @@ def copy_examples(folder: str | Path, fmus: str = "fmus") -> list[Path]:
                                        os.path.realpath(folder))).as_posix())
     files = example_files(fmu_folder)
     record = _record_of(folder) if folder.is_dir() else {}
-    in_the_way = []
+    in_the_way: list[str] = []
     for name, data in files.items():
         path = folder / name
         if path.is_symlink() or (path.exists() and not path.is_file()):
@@ -173,7 +175,7 @@ def copy_examples(folder: str | Path, fmus: str = "fmus") -> list[Path]:
                             "examples (or was changed since); nothing was copied: move it "
                             "away or choose another folder")
     folder.mkdir(parents=True, exist_ok=True)
-    written = []
+    written: list[Path] = []
     for name, data in files.items():
         path = folder / name
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -186,7 +188,7 @@ def copy_examples(folder: str | Path, fmus: str = "fmus") -> list[Path]:
     return written
 
 
-def _write(path, data):
+def _write(path: Path, data: bytes) -> None:
     """Write ``path`` whole or not at all (a temporary file of our own, then a rename)."""
     handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.",
                                          suffix=".partial")

@@ -34,15 +34,18 @@ import json
 import re
 import subprocess
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-from .errors import BundleError
+from ..errors import BundleError
 
 __all__ = ["Bundle", "BundleError", "bundle_of", "installed_requirements",
            "requirements_text"]
+
+
+#: (direct, indirect) distributions of an FMU, each sorted ((name, version), ...).
+Requirements = tuple[tuple[tuple[str, str], ...], tuple[tuple[str, str], ...]]
 
 
 @dataclass(frozen=True)
@@ -50,27 +53,27 @@ class Bundle:
     """What one FMU ships of ``agv_core`` and what it needs installed."""
 
     #: bundled files, paths relative to the ``agv_core`` folder (posix), sorted
-    files: tuple
+    files: tuple[str, ...]
     #: absolute imports of the FMU's code (dotted names as written), sorted
-    imports: tuple
+    imports: tuple[str, ...]
     #: distributions the FMU's code imports itself: ((name, version), ...), sorted
-    direct: tuple
+    direct: tuple[tuple[str, str], ...]
     #: distributions that those import when they load (not already in ``direct``)
-    indirect: tuple
+    indirect: tuple[tuple[str, str], ...]
     #: content hash of the staged files and the requirements (16 hex digits)
     tag: str
 
 
-def _parse(source, where):
+def _parse(source: str, where: str) -> ast.Module:
     try:
         return ast.parse(source, filename=where)
     except SyntaxError as error:
         raise BundleError(f"{where}: {error}") from None
 
 
-def _load_core_arguments(tree, where):
+def _load_core_arguments(tree: ast.AST, where: str) -> list[str]:
     """The submodule names of the ``load_core(...)`` calls of a slave script."""
-    names = []
+    names: list[str] = []
     for node in ast.walk(tree):
         if not isinstance(node, ast.Call):
             continue
@@ -88,7 +91,7 @@ def _load_core_arguments(tree, where):
     return names
 
 
-def _absolute_imports(tree):
+def _absolute_imports(tree: ast.AST) -> list[str]:
     """Dotted names of the absolute imports in ``tree``; for ``from X import Y`` both
     ``X`` and ``X.Y`` (Y may be a submodule; the child process tells)."""
     return list(_imports_of(tree).absolute)
@@ -98,22 +101,26 @@ def _absolute_imports(tree):
 class _Imports:
     """The import statements of one source, from one pass over its tree."""
 
-    absolute: tuple   # dotted names, as _absolute_imports says
-    relative: tuple   # (line, level, module or None, (names...)) of `from .x import ...`
+    absolute: tuple[str, ...]   # dotted names, as _absolute_imports says
+    # (line, level, module or None, (names...)) of `from .x import ...`
+    relative: tuple[tuple[int, int, str | None, tuple[str, ...]], ...]
     own: int          # line of an absolute import of agv_core (0: none)
     dynamic: int      # line of an importlib.import_module / __import__ call (0: none)
 
 
-def _imports_of(tree):
-    absolute, relative, own, dynamic = [], [], 0, 0
+def _imports_of(tree: ast.AST) -> "_Imports":
+    absolute: list[str] = []
+    relative: list[tuple[int, int, str | None, tuple[str, ...]]] = []
+    own, dynamic = 0, 0
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             names = [alias.name for alias in node.names]
             absolute += names
         elif isinstance(node, ast.ImportFrom) and node.level == 0:
-            names = [node.module or ""]
-            absolute.append(node.module)
-            absolute += [f"{node.module}.{alias.name}" for alias in node.names
+            module = node.module or ""  # an absolute `from X import` always names X
+            names = [module]
+            absolute.append(module)
+            absolute += [f"{module}.{alias.name}" for alias in node.names
                          if alias.name != "*"]
         elif isinstance(node, ast.ImportFrom):
             relative.append((node.lineno, node.level, node.module,
@@ -133,7 +140,7 @@ def _imports_of(tree):
 
 
 @functools.cache
-def _module_imports(text, where):
+def _module_imports(text: str, where: str) -> _Imports:
     """:class:`_Imports` of a package module's source (parsed once per process)."""
     return _imports_of(_parse(text, where))
 
@@ -142,19 +149,19 @@ class _CoreView:
     """The package's files as the FMU will hold them (``overrides``: relative path ->
     text that replaces or adds a file, e.g. the FMI 3.0 alias of ``fmi/fmi_slave.py``)."""
 
-    def __init__(self, core_dir: Path, overrides: dict[str, Any]) -> None:
+    def __init__(self, core_dir: Path, overrides: Iterable[tuple[str, str]]) -> None:
         self.core_dir = Path(core_dir)
         self.overrides = dict(overrides)
 
-    def exists(self, relative):
+    def exists(self, relative: str) -> bool:
         return relative in self.overrides or (self.core_dir / relative).is_file()
 
-    def text(self, relative):
+    def text(self, relative: str) -> str:
         if relative in self.overrides:
             return self.overrides[relative]
         return (self.core_dir / relative).read_text(encoding="utf-8")
 
-    def module_file(self, dotted):
+    def module_file(self, dotted: str) -> str | None:
         """The file of module ``dotted`` (relative to the package), or None."""
         parts = [p for p in dotted.split(".") if p]
         if not parts:
@@ -165,14 +172,16 @@ class _CoreView:
         return None
 
 
-def _package_of(relative):
+def _package_of(relative: str) -> str:
     """Dotted package (relative to agv_core) that the module file ``relative`` is in."""
     return ".".join(relative[:-3].split("/")[:-1])  # a/b.py and a/__init__.py: "a"
 
 
-def _walk(view, roots, where):
+def _walk(view: _CoreView, roots: list[str], where: str) -> tuple[list[str], list[str]]:
     """Files of the package reached from the module names ``roots``; absolute imports."""
-    pending, files, external = [], set(), []
+    pending: list[str] = []
+    files: set[str] = set()
+    external: list[str] = []
     for name in roots:
         relative = view.module_file(name)
         if relative is None:
@@ -273,7 +282,8 @@ print(json.dumps({"found": found, "direct": sorted(direct), "provides": provides
 
 
 @functools.cache
-def _distributions(python, names, shipped=()):
+def _distributions(python: str, names: tuple[str, ...], shipped: tuple[str, ...] = ()
+                   ) -> tuple[tuple[tuple[str, str], ...], tuple[tuple[str, str], ...]]:
     """(direct, indirect): the distributions providing ``names`` themselves, and those
     their loading brings in besides, each as sorted ((name, version), ...); leaving out
     those whose every top-level package is in ``shipped`` (the FMU carries them)."""
@@ -290,7 +300,7 @@ def _distributions(python, names, shipped=()):
         raise BundleError("no installed distribution provides the module(s) "
                           f"{', '.join(answer['unowned'])} that the FMU's code loads")
 
-    def ordered(pairs):
+    def ordered(pairs: Iterable[tuple[str, str]]) -> tuple[tuple[str, str], ...]:
         return tuple(sorted(pairs, key=lambda kv: kv[0].lower()))
 
     found = {d: v for d, v in answer["found"].items()
@@ -299,9 +309,10 @@ def _distributions(python, names, shipped=()):
             ordered((d, v) for d, v in found.items() if d not in answer["direct"]))
 
 
-def bundle_of(script: Path, core_dir: Path, overrides: Any = (), extra_sources: Any = (),
-              local: Any = (), shipped: Any = (), requirements: Any = None,
-              python: str | None = None) -> "Bundle":
+def bundle_of(script: Path, core_dir: Path, overrides: Iterable[tuple[str, str]] = (),
+              extra_sources: Sequence[str | Path] = (), local: Iterable[str] = (),
+              shipped: Iterable[str] = (), requirements: Requirements | None = None,
+              python: str | None = None) -> Bundle:
     """The :class:`Bundle` of slave script ``script`` over the package in ``core_dir``.
 
     ``overrides``: (path relative to the package, text) pairs that the FMU holds instead
@@ -327,6 +338,8 @@ def bundle_of(script: Path, core_dir: Path, overrides: Any = (), extra_sources: 
     own = {script.stem, *(Path(p).stem for p in extra_sources), *local}
     imports = tuple(sorted({n for n in external if n.partition(".")[0] not in own
                             and n.partition(".")[0] not in sys.stdlib_module_names}))
+    direct: Sequence[tuple[str, str]]
+    indirect: Sequence[tuple[str, str]]
     if requirements is not None:
         direct, indirect = requirements
     elif imports:
@@ -342,8 +355,7 @@ def bundle_of(script: Path, core_dir: Path, overrides: Any = (), extra_sources: 
                   digest.hexdigest()[:16])
 
 
-def installed_requirements(text: str) -> tuple[tuple[tuple[str, str], ...],
-                                               tuple[tuple[str, str], ...]] | None:
+def installed_requirements(text: str) -> Requirements | None:
     """(direct, indirect) of a ``requirements.txt`` written by :func:`requirements_text`,
     or None if it is not one or if some pinned version is not the one installed in this
     Python (then the list must be derived again)."""
@@ -364,14 +376,14 @@ def installed_requirements(text: str) -> tuple[tuple[tuple[str, str], ...],
     return tuple(groups["direct"]), tuple(groups["indirect"])
 
 
-def _normal(name):
+def _normal(name: str) -> str:
     return re.sub(r"[-_.]+", "-", name).lower()
 
 
 @functools.lru_cache(maxsize=1)
-def _installed():
+def _installed() -> dict[str, str]:
     """Normalised distribution name -> version, of this Python (read once per process)."""
-    versions = {}
+    versions: dict[str, str] = {}
     for dist in importlib.metadata.distributions():
         versions.setdefault(_normal(dist.metadata["Name"] or ""), dist.version)
     return versions
