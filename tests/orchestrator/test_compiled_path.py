@@ -6,6 +6,7 @@ inside a stretch reported as before, with the rows recorded before them."""
 import ctypes
 import shutil
 from multiprocessing.sharedctypes import RawArray
+from pathlib import Path
 
 import pytest
 
@@ -200,3 +201,36 @@ def test_a_program_refuses_malformed_operations():
                             0, 8, ctypes.addressof(buf), None, "", None, None)], *args[1:])
     copy(0.0)  # a copy onto itself: nothing changes
     assert buf[0] == 1.0
+
+
+#: the test FMUs built as FMI 3.0 twins (source and types are FMI 2.0 only)
+FMI3_TWINS = ("agv_test_gain", "agv_test_integrator", "agv_test_pair", "agv_test_fail",
+              "agv_test_nan")
+
+
+@pytest.fixture(scope="module")
+def mixed(fmus, tmp_path_factory):
+    """The test FMUs with FMI 3.0 twins where they have one (FMI 2.0 otherwise)."""
+    from agv_cosim.build import build_one
+
+    sources = Path(__file__).resolve().parent.parent / "fmu_src"
+    out = tmp_path_factory.mktemp("fmi3_twins")
+    return dict(fmus, **{stem: build_one(sources / f"{stem}.py", out,
+                                         fmi_version=3).fmu for stem in FMI3_TWINS})
+
+
+@pytest.mark.parametrize("text", [SYSTEM, FAILING], ids=["paths", "failing"])
+@pytest.mark.parametrize("algorithm", ["gauss-seidel", "jacobi"])
+def test_fmi3_units_run_compiled_with_the_same_bytes(mixed, tmp_path, monkeypatch,
+                                                    stretches, text, algorithm):
+    job = _manifest(tmp_path, text, mixed, algorithm, nan_time=0.253)
+    assert {m.fmi_version for m in job.plan.models.values() if m.table is None} == \
+        {"2.0", "3.0"}
+    plain, plain_csv = _run(job, tmp_path / "ctypes", monkeypatch, off=True)
+    fast, fast_csv = _run(job, tmp_path / "compiled", monkeypatch, off=False)
+    assert stretches[1] >= 20
+    assert fast_csv == plain_csv
+    assert (fast["status"], fast["error"], fast["rows"]) == \
+        (plain["status"], plain["error"], plain["rows"])
+    if text is FAILING:
+        assert fast["error"] == "component 'n': output 'y' is nan at t=0.26 s"
