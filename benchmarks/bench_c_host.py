@@ -48,6 +48,7 @@ import sys
 import tempfile
 import time
 import zipfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -92,7 +93,7 @@ def run_master(plan: Any) -> dict[str, Any]:
     rows: list[list[float]] = []
     marks: list[float] = []
 
-    def keep(row: list[float]) -> None:
+    def keep(row: Sequence[Any]) -> None:
         rows.append(list(row))
         marks.append(time.process_time())
 
