@@ -22,7 +22,12 @@ Jacobi (what libcosim does)
 
 Each algorithm has a plain loop, the reference, and the generated functions of
 :mod:`agv_cosim.execution.fastpath` (``fast=True``), which make the same calls in the
-same order.
+same order. With ``fast=True`` and the compiled call path available
+(:mod:`agv_cosim.execution.compiled`), those functions are compiled programs
+(:mod:`agv_cosim.execution.programs`: the same calls made from C without ctypes) when
+the run's units allow it, the generated Python functions otherwise; :attr:`exchanges`
+then says what one exchange runs, so that whole stretches of macro steps can run in C
+(:func:`agv_cosim.execution.simulation._loop`).
 """
 
 from collections.abc import Callable, Iterable
@@ -30,7 +35,7 @@ from math import isfinite
 from typing import Protocol
 
 from ..system import System
-from . import fastpath
+from . import fastpath, programs
 from .track import DO_STEP, EXCHANGE, GET, GS_PASS, SET, Track
 from .units import FmuUnit, Unit, check_finite, failed
 
@@ -81,9 +86,14 @@ class GaussSeidel:
         self.read_once = {u.name for u in self.pre_read
                           if not any(system.models[u.name].dependencies.get(o)
                                      for o in u.out_names)}
-        self._pass: Callable[[float], None] = (
+        compiled = programs.gauss_seidel_pass(self.pre_read, self.ordered, self.read_once,
+                                              track) if fast else None
+        self._pass: Callable[[float], None] = compiled or (
             fastpath.gauss_seidel_pass(self.pre_read, self.ordered, self.read_once, track)
             if fast else self.pass_at)
+        #: ((phase, program), ...) of one exchange when it is compiled, else None
+        self.exchanges: tuple[tuple[int, object], ...] | None = (
+            ((GS_PASS, compiled),) if compiled is not None else None)
 
     def pass_at(self, t: float, stopped: Iterable[str] = ()) -> None:
         """The pass at ``t`` [s], the reference loop; units in ``stopped`` get no sets."""
@@ -132,8 +142,10 @@ class GaussSeidel:
         self.track[1] = GS_PASS
         stopped = set(stopped)
         if self.fast:
-            fastpath.gauss_seidel_pass(self.pre_read, self.ordered, self.read_once,
-                                       self.track, stopped)(t)
+            (programs.gauss_seidel_pass(self.pre_read, self.ordered, self.read_once,
+                                        self.track, stopped)
+             or fastpath.gauss_seidel_pass(self.pre_read, self.ordered, self.read_once,
+                                           self.track, stopped))(t)
         else:
             self.pass_at(t, stopped)
 
@@ -145,10 +157,15 @@ class Jacobi:
                  fast: bool) -> None:
         self.track = track
         self.units = list(units.values())
-        self._read: Callable[[float], None] = (
+        read = programs.jacobi_get(self.units, track) if fast else None
+        write = programs.jacobi_set(self.units, track) if fast else None
+        self._read: Callable[[float], None] = read or (
             fastpath.jacobi_get(self.units, track) if fast else self.read_all)
-        self._set: Callable[[], None] = (
+        self._set: Callable[[], None] = write or (
             fastpath.jacobi_set(self.units, track) if fast else self.set_all)
+        #: ((phase, program), ...) of one exchange when it is compiled, else None
+        self.exchanges: tuple[tuple[int, object], ...] | None = (
+            ((GET, read), (SET, write)) if read is not None and write is not None else None)
 
     def read_all(self, t: float) -> None:
         """Every unit's outputs read, then checked for NaN/inf (the reference loop)."""
@@ -231,7 +248,10 @@ class Stepper:
         self.units = [u for u in units if isinstance(u, FmuUnit)]
         self.track = track
         self.requests: list[StopRequest] = []
-        self.step: Callable[[float, float], None] = (
+        #: the compiled step program, or None
+        self.compiled = programs.step_all(self.units, track, DO_STEP, fmi2_stepped,
+                                          fmi3_stepped, self.requests) if fast else None
+        self.step: Callable[[float, float], None] = self.compiled or (
             fastpath.step_all(self.units, track, DO_STEP, fmi2_stepped, fmi3_stepped,
                               self.requests) if fast else self.step_reference)
 

@@ -49,6 +49,17 @@ class Grid:
         """t_k [s] (t_0 = start, t_steps = stop exactly)."""
         return (self._base + self._slope * k) / self._den
 
+    def exact_parts(self) -> tuple[int, int, int, float] | None:
+        """``(base, slope, den, step)`` with t_k = (base + slope k) / den, when every
+        numerator of the run and the denominator are integers below 2**53 in magnitude
+        (then exact as doubles, so one double division gives the correctly rounded t_k
+        that :meth:`time` computes: the compiled loop's grid); else None."""
+        limit = 2 ** 53
+        ends = (abs(self._base), abs(self._base + self._slope * self.steps))
+        if max(ends) >= limit or not 0 < self._den < limit:
+            return None
+        return self._base, self._slope, self._den, self.step
+
     def step_size(self, t: float, t_next: float) -> float:
         """The step size h [s] from ``t`` = t_k to ``t_next`` = t_{k+1}: the manifest's
         step when ``t + step == t_next``, else a double h with ``t + h == t_next`` found

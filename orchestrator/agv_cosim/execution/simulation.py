@@ -24,6 +24,7 @@ from typing import Any
 from ..errors import SimulationError
 from ..system import System
 from ..system.model import ModelInfo
+from . import compiled
 from .algorithm import Algorithm, Stepper, StopRequest, algorithm_for
 from .grid import Grid
 from .instance import FmuInstance, extract_ahead
@@ -107,6 +108,40 @@ def _reached(request: StopRequest, t: float) -> bool:
     return when is not None and abs(when - t) <= 1e-9 * max(1.0, abs(t))
 
 
+def _ended(request: StopRequest) -> tuple[str, float | None]:
+    """``(Outcome.ended_by, Outcome.stop_time)`` of a stop request."""
+    name, when = request
+    return f"{name} requested stop at t={when!r} s", when
+
+
+def _stretch(algorithm: Algorithm, stepper: Stepper, grid: Grid,
+             pace: Pacer | None) -> Callable[[int, int], int] | None:
+    """``run(k0, k1)``: macro steps k0 .. k1 - 1 (step, then exchange) in C, returning
+    how many were completed with their exchange (fewer when a step brought a stop
+    request: that step is made, its exchange is not); None when the run cannot use it.
+
+    The compiled loop (:func:`agv_cosim.execution.compiled.module`'s ``run_stretch``)
+    is used when the stepper and the algorithm's exchange are compiled programs (every
+    unit an FMI 2.0 / 3.0 co-simulation FMU or a table, called without fmpy's wrapper:
+    :mod:`.programs`), the run is not paced and its time grid is exact in doubles
+    (:meth:`.grid.Grid.exact_parts`). Otherwise every macro step runs in Python.
+    """
+    exchanges = getattr(algorithm, "exchanges", None)
+    program = getattr(stepper, "compiled", None)
+    parts = grid.exact_parts()
+    module = compiled.module()
+    if pace is not None or exchanges is None or program is None or parts is None or \
+            module is None:
+        return None
+    run_stretch, requests = module.run_stretch, stepper.requests
+
+    def run(k0: int, k1: int) -> int:
+        ran: int = run_stretch(program, exchanges, parts, k0, k1, requests)
+        return ran
+
+    return run
+
+
 def _loop(system: System, algorithm: Algorithm, stepper: Stepper, scenario: Scenario,
           record: Callable[[float], None], progress: list[Callable[[int], None]],
           track: Track, pace: Pacer | None = None) -> Outcome:
@@ -117,10 +152,39 @@ def _loop(system: System, algorithm: Algorithm, stepper: Stepper, scenario: Scen
     time, step_size = grid.time, grid.step_size
     requests = stepper.requests
     step = stepper.step if pace is None else pace.wrap(stepper.step)
+    stretch = _stretch(algorithm, stepper, grid, pace)
     done = 0
     outcome = Outcome(rows=0)
     t = system.start
-    for k in range(steps):
+    k = 0
+    while k < steps:
+        if stretch is not None and k + 1 != scenario.next_step:
+            # the macro steps up to the next event, recording point or progress report
+            # in C: each of k .. end - 1 steps and exchanges (stopping after a step that
+            # brought a stop request)
+            end = min(steps, k + every - k % every,
+                      k + PROGRESS_EVERY - done if progress else steps)
+            if scenario.next_step > k + 1:
+                end = min(end, scenario.next_step - 1)
+            ran = stretch(k, end)
+            k += ran
+            done += ran if progress else 0
+            if ran and not requests:
+                t = time(k)
+                if k % every == 0 or k == steps:
+                    record(t)
+                if progress and done >= PROGRESS_EVERY:
+                    for report in progress:
+                        report(done)
+                    done = 0
+                continue
+            if requests:  # macro step k stepped (no exchange): its stop request below
+                t = time(k + 1)
+                outcome.ended_by, outcome.stop_time = _ended(requests[0])
+                if _reached(requests[0], t):
+                    algorithm.last(t, {n for n, _ in requests})
+                    record(t)
+                break
         t_next = time(k + 1)
         step(t, step_size(t, t_next))
         t = t_next
@@ -128,9 +192,7 @@ def _loop(system: System, algorithm: Algorithm, stepper: Stepper, scenario: Scen
         if k + 1 == scenario.next_step and not requests:
             scenario.apply(k + 1)
         if requests:
-            name, when = requests[0]
-            outcome.ended_by = f"{name} requested stop at t={when!r} s"
-            outcome.stop_time = when
+            outcome.ended_by, outcome.stop_time = _ended(requests[0])
             algorithm_last = _reached(requests[0], t_next)
             if algorithm_last:
                 algorithm.last(t_next, {n for n, _ in requests})
@@ -145,6 +207,7 @@ def _loop(system: System, algorithm: Algorithm, stepper: Stepper, scenario: Scen
                 for report in progress:
                     report(done)
                 done = 0
+        k += 1
     if progress and done:
         for report in progress:
             report(done)
