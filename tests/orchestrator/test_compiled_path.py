@@ -13,7 +13,7 @@ import pytest
 from agv_cosim.execution import compiled, simulate
 from agv_cosim.execution.algorithm import Stepper
 from agv_cosim.pipeline import prepare
-from agv_cosim.pipeline.job import run_job
+from agv_cosim.workers.job import run_job
 
 pytestmark = pytest.mark.slow  # seconds: builds the test FMUs
 
