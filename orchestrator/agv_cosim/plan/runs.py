@@ -30,8 +30,9 @@ from ..manifest import (
     parse_toml,
     split_name,
 )
+from ..manifest.load import MAX_DEPTH, nesting_problem
 from .sampling import expand_runs
-from .spec import MAX_RUNS, Origin, RunSpec, run_label
+from .spec import MAX_RUNS, Origin, Override, RunSpec, run_label
 
 
 def _apply_event_key(events: dict[str, EventSpec], name: str, value: Any) -> None:
@@ -103,15 +104,21 @@ def run_events(manifest: Manifest, spec: Variant | None) -> dict[str, EventSpec]
     return events
 
 
-def parse_set(manifest: Manifest, text: str) -> tuple[str, Any]:
-    """Parse one ``--set comp.param=VALUE`` (VALUE as a TOML value, else a string)."""
+def parse_set(manifest: Manifest, text: str | Override) -> tuple[str, Any]:
+    """One ``--set``: ``comp.param=VALUE`` text (VALUE as a TOML value, else a string),
+    or an :class:`Override` whose value is already typed; its name checked."""
+    if isinstance(text, Override):
+        name, value = text.name.strip(), text.value
+        _check_set_name(manifest, name)
+        deep = nesting_problem({"v": value})
+        if deep is not None:
+            raise manifest.error("--set", f"{name}: {deep}: nested more than {MAX_DEPTH} "
+                                 "levels deep")
+        return name, value
     if "=" not in text:
         raise manifest.error("--set", f"{text!r} is not comp.param=VALUE")
     name, value = text.split("=", 1)
-    if name.strip().startswith("events."):
-        event_key(manifest.path, "--set", name.strip(), manifest.events)
-    else:
-        dotted_name(manifest.path, "--set", name.strip())
+    _check_set_name(manifest, name.strip())
     try:
         parsed = parse_toml(f"v = {value}")["v"]
     except tomllib.TOMLDecodeError:
@@ -121,8 +128,16 @@ def parse_set(manifest: Manifest, text: str) -> tuple[str, Any]:
     return name.strip(), parsed
 
 
+def _check_set_name(manifest: Manifest, name: str) -> None:
+    """A ``--set`` name is an event field of the manifest or ``component.parameter``."""
+    if name.startswith("events."):
+        event_key(manifest.path, "--set", name, manifest.events)
+    else:
+        dotted_name(manifest.path, "--set", name)
+
+
 def plan_runs(manifest: Manifest, variants: list[str] | None = None,
-              sets: Iterable[str] = ()) -> list[RunSpec]:
+              sets: Iterable[str | Override] = ()) -> list[RunSpec]:
     """Expand a manifest into its runs: (chosen variants or all, or the base) x sweep.
 
     Parameters
@@ -131,8 +146,8 @@ def plan_runs(manifest: Manifest, variants: list[str] | None = None,
     variants : list of str, optional
         Variant names to run (default: every declared variant, or the base when there
         are none).
-    sets : iterable of str
-        ``comp.param=VALUE`` overrides applied to every run.
+    sets : iterable of str or Override
+        ``comp.param=VALUE`` overrides applied to every run (text, or typed values).
     """
     overrides = dict(parse_set(manifest, s) for s in sets)
     _check_names(manifest, overrides)

@@ -9,7 +9,17 @@ from typing import Any
 
 from ..manifest import Component, Connection, EventSpec, Variant
 
-__all__ = ["MAX_LABEL", "MAX_RUNS", "Origin", "RunSpec", "run_label"]
+__all__ = ["MAX_LABEL", "MAX_RUNS", "Origin", "Override", "RunSpec", "run_label"]
+
+
+@dataclass(frozen=True)
+class Override:
+    """One ``--set`` given as a typed value (the API's mapping, :func:`agv_cosim.run`):
+    ``name`` (``"component.parameter"`` or an event field) = ``value`` (a bool, int,
+    float or str, or a list of them), used as it is: no text to parse."""
+
+    name: str
+    value: Any
 
 
 class Origin(Enum):

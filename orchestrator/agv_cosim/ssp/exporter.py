@@ -38,7 +38,7 @@ from .. import fmitypes
 from ..errors import ManifestError, OutputError
 from ..files import user_mode
 from ..manifest import Manifest, load_manifest
-from ..plan import plan_runs
+from ..plan import Override, plan_runs
 from ..system import validate
 from .common import (
     AGV_ANNOTATION,
@@ -214,7 +214,7 @@ def build_ssd(name: str, models: dict[str, Any], parameters: dict[str, dict[str,
 
 
 def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
-               variant: str | None = None, sets: Iterable[str] = ()) -> Path:
+               variant: str | None = None, sets: Iterable[str | Override] = ()) -> Path:
     """Write one run of a manifest as a self-contained SSP 1.0 package.
 
     Parameters
