@@ -3,11 +3,15 @@
 :func:`plan_runs` expands a :class:`~agv_cosim.manifest.Manifest` into one
 :class:`RunSpec` per (chosen variant, or the base) x sweep point, each with its variant's
 components (:func:`run_components`) and wiring, applying ``--set`` overrides
-(:func:`parse_set`). A sweep, ``--set`` or Monte Carlo name must name a component of
-every run. Parameter precedence for one run: FMU default <
-``[components.X.parameters]`` < the variant's parameters < ``--set`` < the sweep point (a
-``--set`` on a swept parameter is an error). Nothing here opens an FMU: the runs are
-checked against the FMUs by :func:`agv_cosim.system.validate`.
+(:func:`parse_set`: ``comp.param=VALUE`` text, or the API's typed
+:class:`~agv_cosim.plan.spec.Override` values), and its events (:func:`run_events`). A
+sweep, ``--set`` or Monte Carlo name must name a component of every run. Parameter
+precedence for one run: FMU default < ``[components.X.parameters]`` < the variant's
+parameters < ``--set`` < the sweep point (a ``--set`` on a swept parameter is an error);
+each run records which of them gave each value (:attr:`RunSpec.origins`), and carries its
+:class:`~agv_cosim.manifest.Variant`, so that the system stage names a problem's key
+without reading the manifest's variants. Nothing here opens an FMU: the runs are checked
+against the FMUs by :func:`agv_cosim.system.validate`.
 """
 
 import copy

@@ -54,42 +54,50 @@ def check_events(manifest: Manifest, run: RunSpec, models: dict[str, ModelInfo],
         if at != manifest.start and not whole_multiple(at - manifest.start, manifest.step):
             raise err(f"{key}.at", f"{at!r} s is not a communication point (start + k * "
                       f"{manifest.step!r} s)")
-        sets = []
-        for target, value in event.set.items():
-            cname, vname = split_name(target)
-            vkey = f"{key}.set.{target}"
-            if cname not in models:
-                raise err(vkey, f"unknown component '{cname}'{did_you_mean(cname, models)}")
-            var = models[cname].variables.get(vname)
-            if var is None:
-                raise err(vkey, f"unknown variable '{target}'"
-                          f"{did_you_mean(vname, models[cname].variables)}")
-            if var.causality == "parameter":
-                if var.variability != "tunable":
-                    raise err(vkey, f"'{target}' is a {var.variability} parameter (an "
-                              "event can change only a tunable one)")
-            elif var.causality == "input":
-                if (cname, vname) in targets:
-                    raise err(vkey, f"input '{target}' is driven by "
-                              f"{targets[(cname, vname)].key} (an event can set only an "
-                              "unconnected input)")
-            else:
-                raise err(vkey, f"'{target}' is {_article(var.causality)} (an event sets a "
-                          "tunable parameter or an unconnected input)")
-            why = var.unsupported()
-            if why:
-                raise err(vkey, f"'{target}' is {why}")
-            try:
-                sets.append((cname, vname, fmitypes.parse(var.ftype, value, var)))
-            except ValueError as error:
-                raise err(vkey, f"'{target}' {error}") from None
-            problem = file_problem(sets[-1][2], manifest.files_dir)
-            if problem:
-                raise err(vkey, f"'{target}': {problem}")
+        sets = [_event_value(manifest, models, targets, f"{key}.set.{target}", target,
+                             value) for target, value in event.set.items()]
         resolved.append(Event(k=k, at=at, name=name, sets=tuple(sets)))
     position = {name: i for i, name in enumerate(run.events)}
     resolved.sort(key=lambda e: (e.k, position[e.name]))
     return resolved
+
+
+def _event_value(manifest: Manifest, models: dict[str, ModelInfo],
+                 targets: dict[tuple[str, str], Connection], vkey: str, target: str,
+                 value: Any) -> tuple[str, str, Any]:
+    """One value an event sets, ``target`` = ``value``, checked (see
+    :func:`check_events`): ``(component, variable, value parsed)``."""
+    err = manifest.error
+    cname, vname = split_name(target)
+    if cname not in models:
+        raise err(vkey, f"unknown component '{cname}'{did_you_mean(cname, models)}")
+    var = models[cname].variables.get(vname)
+    if var is None:
+        raise err(vkey, f"unknown variable '{target}'"
+                  f"{did_you_mean(vname, models[cname].variables)}")
+    if var.causality == "parameter":
+        if var.variability != "tunable":
+            raise err(vkey, f"'{target}' is a {var.variability} parameter (an "
+                      "event can change only a tunable one)")
+    elif var.causality == "input":
+        if (cname, vname) in targets:
+            raise err(vkey, f"input '{target}' is driven by "
+                      f"{targets[(cname, vname)].key} (an event can set only an "
+                      "unconnected input)")
+    else:
+        raise err(vkey, f"'{target}' is {_article(var.causality)} (an event sets a "
+                  "tunable parameter or an unconnected input)")
+    why = var.unsupported()
+    if why:
+        raise err(vkey, f"'{target}' is {why}")
+    try:
+        parsed = fmitypes.parse(var.ftype, value, var)
+    except ValueError as error:
+        raise err(vkey, f"'{target}' {error}") from None
+    problem = file_problem(parsed, manifest.files_dir)
+    if problem:
+        raise err(vkey, f"'{target}': {problem}")
+    return cname, vname, parsed
 
 
 def read_models(manifest: Manifest, run: RunSpec) -> dict[str, ModelInfo]:
