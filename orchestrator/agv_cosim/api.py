@@ -38,6 +38,8 @@ from .files import CSV_LIMIT, JSON_LIMIT, open_regular, printable, read_bytes, r
 if TYPE_CHECKING:
     import pandas
 
+    from .plan import Override
+
 __all__ = ["Results", "Run", "identify", "open_results", "run"]
 
 _SUMMARY = "summary.csv"
@@ -364,27 +366,32 @@ def open_results(folder: str | Path) -> Results:
     return Results(folder)
 
 
-def _toml_value(value: Any) -> str:
-    """A Python value as the TOML text ``--set`` takes."""
+def _set_value(value: Any) -> Any:
+    """A Python value of ``sets`` as the typed value of an override (a bool, int,
+    float or str, or a list of them)."""
     if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, float) and not math.isfinite(value):
-        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
-    if isinstance(value, (int, float)):
-        return repr(value)
+        return bool(value)
+    if isinstance(value, float):
+        return float(value)
+    if isinstance(value, int):
+        return int(value)
     if isinstance(value, str):
-        return json.dumps(value)
+        return str(value)
     if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+        return [_set_value(v) for v in value]
     raise AgvCosimError(f"set: {value!r}: not a number, boolean, string or list")
 
 
-def _set_items(sets: Mapping[str, Any] | Iterable[str]) -> list[str]:
+def _set_items(sets: Mapping[str, Any] | Iterable[str]) -> "list[str | Override]":
+    """``sets`` as the plan takes them: a mapping's values typed (:class:`Override`),
+    text as it is (parsed by :func:`agv_cosim.plan.parse_set`)."""
+    from .plan import Override
+
     if isinstance(sets, str):
         return [sets]
     if isinstance(sets, Mapping):
-        return [f"{name}={_toml_value(value)}" for name, value in sets.items()]
-    return _strings(sets, "sets", "an override 'component.parameter=value'")
+        return [Override(str(name), _set_value(value)) for name, value in sets.items()]
+    return list(_strings(sets, "sets", "an override 'component.parameter=value'"))
 
 
 def _strings(values: Any, option: str, what: str) -> list[str]:
@@ -503,7 +510,8 @@ def run(manifest: str | Path, *, out: str | Path | None = None,
 
 
 def _run(manifest: str | Path, out: str | Path | None, variants: list[str] | None,
-         sets: list[str], jobs: int | None, quiet: bool, overwrite: bool, dask: str | None,
+         sets: "list[str | Override]", jobs: int | None, quiet: bool, overwrite: bool,
+         dask: str | None,
          timeout: float | None, init_check: bool) -> tuple[Path, list[Any], list[str]]:
     """``agv-cosim run``'s steps: prepare, the initialisation check, execute."""
     from .pipeline import INIT_TIMEOUT, execute, prepare

@@ -11,7 +11,9 @@ from .load import (
                    MAX_STEPS,
                    Component,
                    Connection,
+                   EventSpec,
                    Manifest,
+                   Variant,
                    dotted_name,
                    event_key,
                    event_parts,
@@ -24,6 +26,7 @@ from .load import (
 )
 from .montecarlo import MonteCarlo
 
-__all__ = ["MAX_STEPS", "Component", "Connection", "Manifest", "ManifestError", "MonteCarlo",
-           "dotted_name", "event_key", "event_parts", "load_manifest", "manifest_from_data",
-           "parse_toml", "read_regular_file", "split_name", "whole_multiple"]
+__all__ = ["MAX_STEPS", "Component", "Connection", "EventSpec", "Manifest", "ManifestError",
+           "MonteCarlo", "Variant", "dotted_name", "event_key", "event_parts",
+           "load_manifest", "manifest_from_data", "parse_toml", "read_regular_file",
+           "split_name", "whole_multiple"]

@@ -65,6 +65,40 @@ class Connection:
         return f"{'.'.join(self.source)} -> {'.'.join(self.target)}"
 
 
+@dataclass(frozen=True)
+class EventSpec:
+    """One checked ``[events.<name>]`` table: at ``at`` [s] the values ``set``
+    (``"component.variable"`` -> value) are set. A variant's change of a base event may
+    give only one of them (the other None)."""
+
+    at: Any = None
+    set: dict[str, Any] | None = None
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One checked ``[variants.<name>]`` table."""
+
+    name: str
+    description: str
+    #: the variant's components: changes of the base's and new ones, by name
+    components: dict[str, Component]
+    #: the events it changes (field by field) or adds, by name
+    events: dict[str, EventSpec]
+    #: the base's components it removes, in the manifest's order
+    remove: tuple[str, ...]
+    #: the names in :attr:`components` that are new components, not changes
+    new: tuple[str, ...]
+    #: the variant's whole wiring: the base's connections not disconnected, then its own
+    connections: tuple[Connection, ...]
+
+    @property
+    def replaced(self) -> set[str]:
+        """The base's components to which the variant gives another FMU or table."""
+        return {c for c, sub in self.components.items() if c not in self.new
+                and (sub.fmu is not None or sub.table is not None)}
+
+
 @dataclass
 class Manifest:
     """A parsed manifest (before variants and sweeps are applied)."""
@@ -79,11 +113,8 @@ class Manifest:
     algorithm: str
     components: dict[str, Component]
     connections: list[Connection]
-    #: name -> {"description": str, "components": {name: Component} (changed or new),
-    #: "events": {...}, "remove": [component], "new": [component] (the names of
-    #: "components" that are new components, not changes), "connections": [Connection]
-    #: (the variant's whole wiring: the base's not disconnected, then its own)}
-    variants: dict[str, dict[str, Any]]
+    #: name -> the checked ``[variants.<name>]`` table
+    variants: dict[str, "Variant"]
     sweep: dict[str, list[Any]]
     record: list[str] | None
     record_interval: float
@@ -91,8 +122,8 @@ class Manifest:
     metrics: schema.MetricsTable | None
     #: the ``[plots]`` table as the schema checked it; None when absent or empty
     plots: schema.PlotsTable | None
-    #: name -> {"at": s, "set": {"c.v": value}}
-    events: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: name -> the checked ``[events.<name>]`` table
+    events: dict[str, "EventSpec"] = field(default_factory=dict)
     #: the folder an .ssp archive was unpacked into (run.json names its FMUs
     #: ``<package>!/<entry>``); None for a manifest file
     unpacked: Path | None = None
@@ -142,10 +173,12 @@ def split_name(text: str) -> tuple[str, str]:
     return component, variable
 
 
-def dotted_name(manifest: object, key: str, text: object,
-                what: str = "component.variable") -> tuple[str, str]:
+def dotted_name(manifest: object, key: str, text: object) -> tuple[str, str]:
+    """``text``, a ``"component.parameter"`` name, as ``(component, parameter)``;
+    raises ManifestError (``key``) for anything else."""
     if not isinstance(text, str) or not all(text.partition(".")[::2]) or "." not in text:
-        raise ManifestError(manifest, key, f"{text!r} is not of the form '{what}'")
+        raise ManifestError(manifest, key, f"{text!r} is not of the form "
+                            "'component.parameter'")
     return split_name(text)
 
 
@@ -167,8 +200,8 @@ def _component(manifest: object, base_dir: Path, name: str, table: Any,
 
 def _variant(path: Path, base_dir: Path, name: str, vtable: Any,
              components: dict[str, Component], connections: list[Connection],
-             events: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    """One checked ``[variants.<name>]`` table (see :attr:`Manifest.variants`).
+             events: dict[str, EventSpec]) -> Variant:
+    """One checked ``[variants.<name>]`` table.
 
     Checked here, by name: removed components and disconnected inputs exist in the base,
     a removed component keeps no connection of the base, a new component names an FMU or
@@ -181,17 +214,51 @@ def _variant(path: Path, base_dir: Path, name: str, vtable: Any,
         check_name(name, "variant name")
     except ValueError as error:
         raise ManifestError(path, key, f"{error} (it names the run's folder)") from None
+    removed = _removed(path, key, vtable.remove, components)
+    dropped = _disconnected(path, key, vtable.disconnect, components, connections)
+    for i, cname in enumerate(removed):
+        kept = [conn for j, conn in enumerate(connections) if j not in dropped
+                and cname in (conn.source[0], conn.target[0])]
+        if kept:
+            listed = ", ".join(f"{conn.key} ({conn})" for conn in kept)
+            raise ManifestError(path, f"{key}.remove[{i}]", f"'{cname}' is removed but "
+                                f"{listed} still connect it; disconnect them (disconnect = "
+                                f'["{cname}"])')
+    comps, new = _variant_components(path, base_dir, key, vtable.components, components,
+                                     removed)
+    # an event of the base is changed field by field; a new one needs both
+    variant_events = {ename: _event(path, f"{key}.events.{ename}", etable,
+                                    partial=ename in events)
+                      for ename, etable in vtable.events.items()}
+    wiring = [conn for j, conn in enumerate(connections) if j not in dropped]
+    wiring += [Connection(split_name(c.source), split_name(c.target),
+                          f"{key}.connections[{i}]") for i, c in enumerate(vtable.connections)]
+    return Variant(name=name, description=vtable.description, components=comps,
+                   events=variant_events, remove=tuple(removed), new=tuple(new),
+                   connections=tuple(wiring))
+
+
+def _removed(path: Path, key: str, names: list[str],
+             components: dict[str, Component]) -> list[str]:
+    """A variant's ``remove`` list checked: components of the base, each once."""
     removed: list[str] = []
-    for i, cname in enumerate(vtable.remove):
+    for i, cname in enumerate(names):
         if cname not in components:
             raise ManifestError(path, f"{key}.remove[{i}]", f"unknown component '{cname}'"
                                 f"{did_you_mean(cname, components)}")
         if cname in removed:
             raise ManifestError(path, f"{key}.remove[{i}]", f"'{cname}' is listed twice")
         removed.append(cname)
+    return removed
+
+
+def _disconnected(path: Path, key: str, names: list[str], components: dict[str, Component],
+                  connections: list[Connection]) -> set[int]:
+    """The indices of the base's connections a variant's ``disconnect`` list drops: of an
+    input, the connection driving it; of a component, every connection touching it."""
     dropped: set[int] = set()
     seen: set[str] = set()
-    for i, text in enumerate(vtable.disconnect):
+    for i, text in enumerate(names):
         dkey = f"{key}.disconnect[{i}]"
         if text in seen:
             raise ManifestError(path, dkey, f"'{text}' is listed twice")
@@ -213,16 +280,17 @@ def _variant(path: Path, base_dir: Path, name: str, vtable: Any,
             if not found:
                 raise ManifestError(path, dkey, f"no connection of the base touches '{text}'")
         dropped.update(found)
-    for i, cname in enumerate(removed):
-        kept = [conn for j, conn in enumerate(connections) if j not in dropped
-                and cname in (conn.source[0], conn.target[0])]
-        if kept:
-            listed = ", ".join(f"{conn.key} ({conn})" for conn in kept)
-            raise ManifestError(path, f"{key}.remove[{i}]", f"'{cname}' is removed but "
-                                f"{listed} still connect it; disconnect them (disconnect = "
-                                f'["{cname}"])')
-    comps, new = {}, []
-    for cname, ctable in vtable.components.items():
+    return dropped
+
+
+def _variant_components(path: Path, base_dir: Path, key: str, tables: dict[str, Any],
+                        components: dict[str, Component],
+                        removed: list[str]) -> tuple[dict[str, Component], list[str]]:
+    """A variant's ``components`` checked: each a change of the base's or a new one (an
+    identifier with an FMU or a table); with the names of the new ones."""
+    comps: dict[str, Component] = {}
+    new: list[str] = []
+    for cname, ctable in tables.items():
         ckey = f"{key}.components.{cname}"
         comp = _component(path, base_dir, cname, ctable, ckey)
         if cname in components and cname not in removed:
@@ -239,31 +307,18 @@ def _variant(path: Path, base_dir: Path, name: str, vtable: Any,
             raise ManifestError(path, ckey, problem)
         comps[cname] = comp
         new.append(cname)
-    # an event of the base is changed field by field; a new one needs both
-    variant_events = {ename: _event(path, f"{key}.events.{ename}", etable,
-                                    partial=ename in events)
-                      for ename, etable in vtable.events.items()}
-    wiring = [conn for j, conn in enumerate(connections) if j not in dropped]
-    wiring += [Connection(split_name(c.source), split_name(c.target),
-                          f"{key}.connections[{i}]") for i, c in enumerate(vtable.connections)]
-    return {"description": vtable.description, "components": comps,
-            "events": variant_events, "remove": removed, "new": new,
-            "connections": wiring}
+    return comps, new
 
 
-def _event(manifest: object, key: str, table: Any, partial: bool = False) -> dict[str, Any]:
+def _event(manifest: object, key: str, table: Any, partial: bool = False) -> EventSpec:
     """One checked ``[events.<name>]`` table: ``at`` [s] and ``set`` ("comp.var" -> value);
     a variant's change of a base event (``partial``) may give only one of them."""
-    event = {}
     for sub in ("at", "set"):
-        value = getattr(table, sub)
-        if value is None and not partial:
+        if getattr(table, sub) is None and not partial:
             raise ManifestError(manifest, f"{key}.{sub}",
                                 "missing (a number is required)" if sub == "at" else
                                 'must be a non-empty table of "component.variable" = value')
-        if value is not None:
-            event[sub] = dict(value) if sub == "set" else value
-    return event
+    return EventSpec(at=table.at, set=None if table.set is None else dict(table.set))
 
 
 def event_parts(name: str) -> list[str]:
@@ -505,7 +560,7 @@ def manifest_from_data(data: dict[str, Any], path: str | Path, sha256: str,
         if name.startswith("events."):
             event_key(path, key, name, events)
         else:
-            dotted_name(path, key, name, "component.parameter")
+            dotted_name(path, key, name)
         sweep[name] = list(values)
 
     variables = table.record.variables
@@ -522,7 +577,7 @@ def manifest_from_data(data: dict[str, Any], path: str | Path, sha256: str,
         raise ManifestError(path, "name", f"{error} (it names the default output folder "
                             "results/<name>)") from None
     # a sampled component is the base's or a variant's (each run must have it: plan)
-    known = list(components) + [c for v in variants.values() for c in v["new"]
+    known = list(components) + [c for v in variants.values() for c in v.new
                                 if c not in components]
     sampling = parse_montecarlo(path, data.get("montecarlo"), known, sweep)
     return Manifest(path=path, sha256=sha256, name=name,

@@ -9,7 +9,7 @@ from typing import Any
 
 from .. import fmitypes
 from ..manifest import Manifest, load_manifest
-from ..plan import plan_runs
+from ..plan import Override, plan_runs
 from ..report import metrics, plots
 from ..system import CheckedRun, Event, Job, System, Variable, validate
 from ..system.files import hash_files, resolved
@@ -52,7 +52,7 @@ def _signal_sources(manifest: Manifest) -> list[tuple[str, list[str]]]:
 
 
 def prepare(manifest: str | Path | Manifest, variants: list[str] | None = None,
-            sets: Iterable[str] = (),
+            sets: Iterable[str | Override] = (),
             timeout: float | None = None) -> tuple[Manifest, list[Job], list[str]]:
     """Load, plan and check a manifest into its jobs.
 

@@ -7,6 +7,7 @@ here opens an FMU.
 """
 
 from .runs import parse_set, plan_runs
-from .spec import MAX_LABEL, MAX_RUNS, RunSpec, run_label
+from .spec import MAX_LABEL, MAX_RUNS, Origin, Override, RunSpec, run_label
 
-__all__ = ["MAX_LABEL", "MAX_RUNS", "RunSpec", "parse_set", "plan_runs", "run_label"]
+__all__ = ["MAX_LABEL", "MAX_RUNS", "Origin", "Override", "RunSpec", "parse_set", "plan_runs",
+           "run_label"]

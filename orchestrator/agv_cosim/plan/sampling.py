@@ -61,9 +61,9 @@ from typing import Any
 import numpy as np
 
 from ..errors import SamplingError
-from ..manifest import Manifest
+from ..manifest import Component, Manifest
 from ..manifest.montecarlo import MonteCarlo
-from .spec import RunSpec, run_label
+from .spec import Origin, RunSpec, run_label
 
 __all__ = ["SAMPLE", "choice_edges", "draw", "expand_runs", "group_name", "ppf",
            "run_seeds", "unit_samples"]
@@ -211,6 +211,7 @@ def expand_runs(manifest: Manifest, runs: list[RunSpec]) -> list[RunSpec]:
         base = [run.variant or "base"] + [f"{k}={v!r}" for k, v in run.point.items()]
         for index, sample in enumerate(values):
             comps = {cname: _copy_component(comp) for cname, comp in run.components.items()}
+            origins = dict(run.origins)
             for name, value in sample.items():
                 cname, _, pname = name.partition(".")
                 if cname not in comps:
@@ -219,17 +220,19 @@ def expand_runs(manifest: Manifest, runs: list[RunSpec]) -> list[RunSpec]:
                                          f"has no component '{cname}' (it removes it or "
                                          "the base has none)")
                 comps[cname].parameters[pname] = value
+                origins[name] = Origin.MONTECARLO
             point = dict(run.point)
             point[SAMPLE] = index
             point.update(sample)
             expanded.append(type(run)(label=run_label(base + [f"mc{index:0{width}d}"]),
                                       variant=run.variant, point=point, components=comps,
                                       overrides=run.overrides,
-                                      connections=run.connections, events=run.events))
+                                      connections=run.connections, events=run.events,
+                                      spec=run.spec, origins=origins))
     return expanded
 
 
-def _copy_component(comp):
+def _copy_component(comp: Component) -> Component:
     copy_ = copy.copy(comp)
     copy_.parameters = dict(comp.parameters)
     return copy_

@@ -4,27 +4,77 @@ import hashlib
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from enum import Enum
 from typing import Any
 
-from ..manifest import Component, Connection
+from ..manifest import Component, Connection, EventSpec, Variant
 
-__all__ = ["MAX_LABEL", "MAX_RUNS", "RunSpec", "run_label"]
+__all__ = ["MAX_LABEL", "MAX_RUNS", "Origin", "Override", "RunSpec", "run_label"]
+
+
+@dataclass(frozen=True)
+class Override:
+    """One ``--set`` given as a typed value (the API's mapping, :func:`agv_cosim.run`):
+    ``name`` (``"component.parameter"`` or an event field) = ``value`` (a bool, int,
+    float or str, or a list of them), used as it is: no text to parse."""
+
+    name: str
+    value: Any
+
+
+class Origin(Enum):
+    """Where a run's parameter value came from (the last to set it wins, in this order:
+    the manifest's ``[components]``, the variant's, ``--set``, the sweep point, the
+    Monte Carlo draw)."""
+
+    MANIFEST = "manifest"
+    VARIANT = "variant"
+    SET = "--set"
+    SWEEP = "sweep"
+    MONTECARLO = "montecarlo"
 
 
 @dataclass
 class RunSpec:
-    """One run: the resolved components and connections of a variant at one sweep
-    point."""
+    """One run, self-contained: the resolved components and connections of a variant at
+    one sweep point, its events, and where each parameter value came from."""
 
     label: str
     variant: str | None
     point: dict[str, Any]
     components: dict[str, Component]
     overrides: dict[str, Any]
-    #: the run's wiring: the base's connections, or the variant's (see
-    #: :attr:`agv_cosim.manifest.Manifest.variants`)
+    #: the run's wiring: the base's connections, or the variant's
+    #: (:attr:`agv_cosim.manifest.Variant.connections`)
     connections: list[Connection]
-    events: dict[str, dict[str, Any]] = field(default_factory=dict)
+    events: dict[str, EventSpec] = field(default_factory=dict)
+    #: the checked ``[variants.<name>]`` table of :attr:`variant` (None: the base)
+    spec: Variant | None = None
+    #: ``"component.parameter"`` -> where the value in :attr:`components` came from
+    origins: dict[str, Origin] = field(default_factory=dict)
+
+    def parameter_key(self, cname: str, pname: str) -> str:
+        """The manifest key that gave the value of ``cname.pname`` (named in a problem
+        of that value)."""
+        full = f"{cname}.{pname}"
+        origin = self.origins.get(full, Origin.MANIFEST)
+        if origin is Origin.MONTECARLO:
+            return f"montecarlo.parameters.{full}"
+        if origin is Origin.SWEEP:
+            return f"sweep.{full}"
+        if origin is Origin.SET:
+            return "--set"
+        if origin is Origin.VARIANT:
+            return f"variants.{self.variant}.components.{cname}.parameters.{pname}"
+        return f"components.{cname}.parameters.{pname}"
+
+    def component_key(self, cname: str, what: str = "fmu") -> str:
+        """The key of a component's ``fmu`` (or ``table``): the variant's when it gives
+        one."""
+        sub = self.spec.components.get(cname) if self.spec is not None else None
+        if sub is not None and getattr(sub, what) is not None:
+            return f"variants.{self.variant}.components.{cname}.{what}"
+        return f"components.{cname}.{what}"
 
 
 def _slug(text: str) -> str:

@@ -38,7 +38,7 @@ from .. import fmitypes
 from ..errors import ManifestError, OutputError
 from ..files import user_mode
 from ..manifest import Manifest, load_manifest
-from ..plan import plan_runs
+from ..plan import Override, plan_runs
 from ..system import validate
 from .common import (
     AGV_ANNOTATION,
@@ -214,7 +214,7 @@ def build_ssd(name: str, models: dict[str, Any], parameters: dict[str, dict[str,
 
 
 def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
-               variant: str | None = None, sets: Iterable[str] = ()) -> Path:
+               variant: str | None = None, sets: Iterable[str | Override] = ()) -> Path:
     """Write one run of a manifest as a self-contained SSP 1.0 package.
 
     Parameters
@@ -299,7 +299,7 @@ def _refuse_what_ssp_cannot_hold(manifest: Manifest, one: Any) -> None:
     """A time-table component (an SSP component is an FMU) or a scenario event (SSP 1.0
     has none) is refused, named by the variant's key when the variant gives it."""
     variant = one.run.variant
-    changes = manifest.variants[variant] if variant else None
+    changes = one.run.spec
 
     def refuse(own: str | None, base: str, problem: str) -> ManifestError:
         if own is not None:
@@ -308,14 +308,14 @@ def _refuse_what_ssp_cannot_hold(manifest: Manifest, one: Any) -> None:
 
     for cname, info in one.models.items():
         if info.table is not None:
-            sub = changes["components"].get(cname) if changes else None
+            sub = changes.components.get(cname) if changes else None
             own = f"variants.{variant}.components.{cname}.table" \
                 if sub is not None and sub.table is not None else None
             raise refuse(own, f"components.{cname}.table", "a time table cannot be written "
                          "to an SSP package (SSP components are FMUs)")
     for event in one.events:
         own = f"variants.{variant}.events.{event.name}" \
-            if changes and event.name in changes["events"] else None
+            if changes and event.name in changes.events else None
         raise refuse(own, f"events.{event.name}", "a scenario event cannot be written to "
                      "an SSP package (SSP 1.0 has no events)")
 

@@ -15,7 +15,7 @@ from typing import Any, TypeVar
 
 from .. import fmitypes
 from ..errors import ManifestError, ModelError, TableError, did_you_mean
-from ..manifest import Component, Connection, Manifest, split_name, whole_multiple
+from ..manifest import Connection, Manifest, Variant, split_name, whole_multiple
 from ..plan import RunSpec, plan_runs
 from .checked import Checked, CheckedRun, Event
 from .files import file_problem
@@ -27,28 +27,6 @@ _T = TypeVar("_T")
 
 __all__ = ["check_connections", "check_events", "check_parameters", "check_run",
            "raise_all", "read_models", "validate"]
-
-
-def _parameter_key(manifest: Manifest, run: RunSpec, cname: str, pname: str) -> str:
-    full = f"{cname}.{pname}"
-    if full in run.point:  # a sampled value is named by its [montecarlo] key
-        sampled = manifest.montecarlo is not None and full in manifest.montecarlo.names
-        return f"montecarlo.parameters.{full}" if sampled else f"sweep.{full}"
-    if full in run.overrides:
-        return "--set"
-    if run.variant and pname in manifest.variants[run.variant]["components"].get(
-            cname, Component(cname, None)).parameters:
-        return f"variants.{run.variant}.components.{cname}.parameters.{pname}"
-    return f"components.{cname}.parameters.{pname}"
-
-
-def _fmu_key(manifest: Manifest, run: RunSpec, cname: str, what: str = "fmu") -> str:
-    """The key of a component's ``fmu`` (or ``table``): the variant's when it gives one."""
-    if run.variant:
-        sub = manifest.variants[run.variant]["components"].get(cname)
-        if sub is not None and getattr(sub, what) is not None:
-            return f"variants.{run.variant}.components.{cname}.{what}"
-    return f"components.{cname}.{what}"
 
 
 def check_events(manifest: Manifest, run: RunSpec, models: dict[str, ModelInfo],
@@ -63,8 +41,8 @@ def check_events(manifest: Manifest, run: RunSpec, models: dict[str, ModelInfo],
     resolved = []
     for name, event in run.events.items():
         key = f"events.{name}"
-        at = event.get("at")
-        if at is None or not event.get("set"):
+        at = event.at
+        if at is None or not event.set:
             raise err(key, "an event needs 'at' and 'set'")
         if isinstance(at, bool) or not isinstance(at, (int, float)) or not math.isfinite(at):
             raise err(f"{key}.at", f"{at!r} is not a number")
@@ -76,42 +54,50 @@ def check_events(manifest: Manifest, run: RunSpec, models: dict[str, ModelInfo],
         if at != manifest.start and not whole_multiple(at - manifest.start, manifest.step):
             raise err(f"{key}.at", f"{at!r} s is not a communication point (start + k * "
                       f"{manifest.step!r} s)")
-        sets = []
-        for target, value in event["set"].items():
-            cname, vname = split_name(target)
-            vkey = f"{key}.set.{target}"
-            if cname not in models:
-                raise err(vkey, f"unknown component '{cname}'{did_you_mean(cname, models)}")
-            var = models[cname].variables.get(vname)
-            if var is None:
-                raise err(vkey, f"unknown variable '{target}'"
-                          f"{did_you_mean(vname, models[cname].variables)}")
-            if var.causality == "parameter":
-                if var.variability != "tunable":
-                    raise err(vkey, f"'{target}' is a {var.variability} parameter (an "
-                              "event can change only a tunable one)")
-            elif var.causality == "input":
-                if (cname, vname) in targets:
-                    raise err(vkey, f"input '{target}' is driven by "
-                              f"{targets[(cname, vname)].key} (an event can set only an "
-                              "unconnected input)")
-            else:
-                raise err(vkey, f"'{target}' is {_article(var.causality)} (an event sets a "
-                          "tunable parameter or an unconnected input)")
-            why = var.unsupported()
-            if why:
-                raise err(vkey, f"'{target}' is {why}")
-            try:
-                sets.append((cname, vname, fmitypes.parse(var.ftype, value, var)))
-            except ValueError as error:
-                raise err(vkey, f"'{target}' {error}") from None
-            problem = file_problem(sets[-1][2], manifest.files_dir)
-            if problem:
-                raise err(vkey, f"'{target}': {problem}")
+        sets = [_event_value(manifest, models, targets, f"{key}.set.{target}", target,
+                             value) for target, value in event.set.items()]
         resolved.append(Event(k=k, at=at, name=name, sets=tuple(sets)))
     position = {name: i for i, name in enumerate(run.events)}
     resolved.sort(key=lambda e: (e.k, position[e.name]))
     return resolved
+
+
+def _event_value(manifest: Manifest, models: dict[str, ModelInfo],
+                 targets: dict[tuple[str, str], Connection], vkey: str, target: str,
+                 value: Any) -> tuple[str, str, Any]:
+    """One value an event sets, ``target`` = ``value``, checked (see
+    :func:`check_events`): ``(component, variable, value parsed)``."""
+    err = manifest.error
+    cname, vname = split_name(target)
+    if cname not in models:
+        raise err(vkey, f"unknown component '{cname}'{did_you_mean(cname, models)}")
+    var = models[cname].variables.get(vname)
+    if var is None:
+        raise err(vkey, f"unknown variable '{target}'"
+                  f"{did_you_mean(vname, models[cname].variables)}")
+    if var.causality == "parameter":
+        if var.variability != "tunable":
+            raise err(vkey, f"'{target}' is a {var.variability} parameter (an "
+                      "event can change only a tunable one)")
+    elif var.causality == "input":
+        if (cname, vname) in targets:
+            raise err(vkey, f"input '{target}' is driven by "
+                      f"{targets[(cname, vname)].key} (an event can set only an "
+                      "unconnected input)")
+    else:
+        raise err(vkey, f"'{target}' is {_article(var.causality)} (an event sets a "
+                  "tunable parameter or an unconnected input)")
+    why = var.unsupported()
+    if why:
+        raise err(vkey, f"'{target}' is {why}")
+    try:
+        parsed = fmitypes.parse(var.ftype, value, var)
+    except ValueError as error:
+        raise err(vkey, f"'{target}' {error}") from None
+    problem = file_problem(parsed, manifest.files_dir)
+    if problem:
+        raise err(vkey, f"'{target}': {problem}")
+    return cname, vname, parsed
 
 
 def read_models(manifest: Manifest, run: RunSpec) -> dict[str, ModelInfo]:
@@ -123,14 +109,14 @@ def read_models(manifest: Manifest, run: RunSpec) -> dict[str, ModelInfo]:
             try:
                 models[cname] = read_table(comp.table, comp.interpolation, comp.units)
             except TableError as error:
-                raise err(_fmu_key(manifest, run, cname, "table"), str(error)) from None
+                raise err(run.component_key(cname, "table"), str(error)) from None
             continue
         if comp.fmu is None:  # the manifest gives an FMU or a table (checked there)
             raise err(f"components.{cname}.fmu", "missing")
         try:
             models[cname] = read_model(comp.fmu)
         except ModelError as error:
-            raise err(_fmu_key(manifest, run, cname), str(error)) from None
+            raise err(run.component_key(cname), str(error)) from None
     return models
 
 
@@ -146,7 +132,7 @@ def check_parameters(manifest: Manifest, run: RunSpec,
         info = models[cname]
         values: dict[str, Any] = {}
         for pname, value in comp.parameters.items():
-            key = _parameter_key(manifest, run, cname, pname)
+            key = run.parameter_key(cname, pname)
             var = info.variables.get(pname)
             if var is None:
                 names = [v.name for v in info.parameters]
@@ -291,8 +277,8 @@ def check_run(manifest: Manifest, run: RunSpec) -> tuple[CheckedRun, list[str]]:
     try:
         return _check_run(manifest, run)
     except ManifestError as error:
-        first = _in_variant(manifest, run.variant, error)
-        first.others = [_in_variant(manifest, run.variant, other) for other in error.others]
+        first = _in_variant(manifest, run.spec, error)
+        first.others = [_in_variant(manifest, run.spec, other) for other in error.others]
         raise first from None
 
 
@@ -318,18 +304,17 @@ def _check_run(manifest: Manifest, run: RunSpec) -> tuple[CheckedRun, list[str]]
                       events=events, record=record), unconnected
 
 
-def _in_variant(manifest: Manifest, variant: str | None,
+def _in_variant(manifest: Manifest, spec: Variant | None,
                 error: ManifestError) -> ManifestError:
-    """``error`` of a run of ``variant`` naming the variant (unchanged for a base run or
-    a key of the variant's own)."""
-    if variant is None:
+    """``error`` of a run of the variant ``spec`` naming the variant (unchanged for a
+    base run or a key of the variant's own)."""
+    if spec is None:
         return error
+    variant = spec.name
     own = f"variants.{variant}"
     if error.key == own or error.key.startswith((f"{own}.", f"{own}[")):
         return error
-    changes = manifest.variants[variant]["components"]
-    replaced = {c for c, sub in changes.items() if c not in manifest.variants[variant]["new"]
-                and (sub.fmu is not None or sub.table is not None)}
+    replaced = spec.replaced
     hint = ""
     index = error.key.removeprefix("connections[").partition("]")[0]
     if error.key.startswith("connections[") and index.isdigit() and \
@@ -379,6 +364,7 @@ def validate(manifest: Manifest, runs: list[RunSpec],
     sources = [(source, list(names)) for source, names in extra_signals]
     #: each problem as the base's keys give it -> (the problem, the variants it is in)
     found: dict[str, tuple[ManifestError, list[str | None]]] = {}
+    specs = {run.variant: run.spec for run in runs}
     for run in runs:
         problems: list[ManifestError] = []
         try:
@@ -406,7 +392,8 @@ def validate(manifest: Manifest, runs: list[RunSpec],
     # else once per variant, naming it
     raise_all([one for problem, having in found.values()
                for one in ([problem] if having == every and len(every) > 1 else
-                           [_in_variant(manifest, variant, problem) for variant in having])])
+                           [_in_variant(manifest, specs[variant], problem)
+                            for variant in having])])
     held = _check_held(manifest, checked)
     warnings = []
     for inputs, variants in unconnected_by.items():
