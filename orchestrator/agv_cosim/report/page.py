@@ -44,7 +44,7 @@ import math
 import os
 import stat
 import tomllib
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from functools import partial
 from importlib import resources
 from pathlib import Path
@@ -703,7 +703,7 @@ def _checked_folder(folder: str | Path) -> Path:
 
 
 def _draw(folder: Path, figures: list[Drawing], dpi: int,
-          drawn: set[str] | tuple[()] = ()) -> list[str]:
+          drawn: Collection[str] = ()) -> list[str]:
     """Check the page's files (``drawn``: figures of ours written already), record
     them, and draw the figures not in ``drawn``. A figure that fails leaves no file;
     its name and error go into :data:`FIGURES_ERROR` (one line each), which a later
