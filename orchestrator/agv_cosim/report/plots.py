@@ -908,7 +908,8 @@ def describe_runs(runs: list["RunData"], folder: str | Path) -> dict[str, str]:
         if run.point is None:
             point = info.get("sweep_point")
             run.point = point if isinstance(point, dict) else {}
-        for component, path in (info.get("fmus") or {}).items():
+        named = info.get("fmus")  # a damaged run.json's: no FMU known
+        for component, path in (named if isinstance(named, dict) else {}).items():
             fmus.setdefault(component, path)
     return fmus
 
