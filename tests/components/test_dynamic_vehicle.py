@@ -549,8 +549,9 @@ to = "vehicle.alpha"
 
 def test_fmu_run_fails_naming_the_lifting_wheel_and_the_time(component_fmus, tmp_path):
     """The FMU: a three-wheel AgvDynamicVehicle at 4 m/s with the wheel held at 0.45 rad
-    (kinematic a_y 7.7 m/s^2 > its tip-over limit 6.54 m/s^2): fmi2DoStep fails and the
-    run's error names the component, the time and the lifting wheel."""
+    (kinematic a_y 7.7 m/s^2 > its tip-over limit 6.54 m/s^2): fmi2DoStep returns Error
+    (a modelling limit, not Fatal) and the run's one-line error names the component, the
+    status, the time and the lifting wheel."""
     import json
 
     from agv_cosim import cli
@@ -559,6 +560,7 @@ def test_fmu_run_fails_naming_the_lifting_wheel_and_the_time(component_fmus, tmp
                                vehicle=component_fmus["agv_dynamic_vehicle"]))
     cli.main(["run", str(path), "--quiet", "--out", str(tmp_path / "o")])
     error = json.loads((tmp_path / "o" / "base" / "run.json").read_text())["error"]
-    assert "component 'vehicle'" in error
+    assert "\n" not in error
+    assert error.startswith("component 'vehicle': fmi2DoStep returned status 3 (Error)")
     assert "step at t=0.44 s failed: WheelLiftError: the rear left wheel lifts" in error
     assert "tip-over limit 6.540 m/s2" in error
