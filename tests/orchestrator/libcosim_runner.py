@@ -1,7 +1,7 @@
 """Run an SSP package in libcosim (libcosimpy): the third-party master the tests compare
-our orchestrator with (tests/orchestrator/test_ssp.py). Not part of agv_cosim: users run SSP packages
-with ``agv-cosim run PACKAGE.ssp``; libcosim is only a cross-check, and libcosimpy is a
-test dependency.
+our orchestrator with (tests/orchestrator/test_ssp.py). Not part of agv_cosim: users run
+SSP packages with ``agv-cosim run PACKAGE.ssp``; libcosim is only a cross-check, and
+libcosimpy is a test dependency.
 """
 
 import tempfile

@@ -1,10 +1,11 @@
 """Memory independent of run length, by structure: the parent reads a run's file only in
 chunks into decimated lines, and the run's metrics are streamed from its file."""
 
-import pytest
 import numpy as np
+import pytest
 
-from agv_cosim import pipeline as runner, timeseries as results
+from agv_cosim import pipeline as runner
+from agv_cosim import timeseries as results
 from agv_cosim.report import metrics, plots
 
 PLOTS = """
@@ -53,7 +54,7 @@ def test_parent_reads_runs_in_chunks_into_bounded_lines(chain, tmp_path, monkeyp
     (run,) = drawn
     assert run.time.size == 0 and not run.signals
     # dpi 10: a signal line keeps at most 4 points in each of 160 buckets (< rows)
-    for (x, y), (xs, ys) in run.lines.items():
+    for (x, _), (xs, ys) in run.lines.items():
         bound = 4 * 160 if x == "time" else rows
         assert xs.size == ys.size <= bound
     assert run.lines[("time", "int.y")][0].size < rows

@@ -9,8 +9,8 @@ import pytest
 from test_resume import folder_contents
 
 from agv_cosim import cli
-from agv_cosim.workers.pool import call_concurrently
 from agv_cosim.report import plots
+from agv_cosim.workers.pool import call_concurrently
 
 SWEEP_PLOTS = """
 [sweep]

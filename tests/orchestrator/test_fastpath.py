@@ -9,8 +9,7 @@ import linecache
 
 import pytest
 
-from agv_cosim.execution import RowObserver, simulate
-from agv_cosim.execution import fastpath
+from agv_cosim.execution import RowObserver, fastpath, simulate
 from agv_cosim.execution.instance import FmuInstance
 from agv_cosim.execution.units import c_function
 from agv_cosim.pipeline import prepare

@@ -11,10 +11,12 @@ from pathlib import Path
 
 import pytest
 
-from agv_cosim import cli, errors, files as results, lifetime, pipeline as runner
-from agv_cosim.workers import pool
+from agv_cosim import cli, errors, lifetime
+from agv_cosim import files as results
+from agv_cosim import pipeline as runner
 from agv_cosim.errors import OutputError
 from agv_cosim.files import MARKER, AtomicDir
+from agv_cosim.workers import pool
 
 
 def _run(path, out, *extra):

@@ -12,12 +12,14 @@ import zipfile
 from pathlib import Path
 
 import pytest
-from processes import ended
 
-from agv_cosim import cli, pipeline as runner
+from agv_cosim import cli
+from agv_cosim import pipeline as runner
 from agv_cosim.errors import RunsStopped
 from agv_cosim.files import MARKER
 from agv_cosim.workers import channels, initcheck, pool
+
+from processes import ended
 
 HANG = """
 name = "hang"

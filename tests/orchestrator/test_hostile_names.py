@@ -8,7 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from agv_cosim import cli, files, fmitypes, timeseries as results
+from agv_cosim import cli, files, fmitypes
+from agv_cosim import timeseries as results
 
 NAMES = """
 name = "names"

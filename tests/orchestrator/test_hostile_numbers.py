@@ -47,7 +47,7 @@ def test_a_non_finite_manifest_value_is_refused(chain, capsys, text):
 @pytest.mark.parametrize("text", ["nan", "inf", "1e999"])
 def test_a_non_finite_set_or_sweep_value_is_refused(chain, capsys, text):
     line = _fail(capsys, ["validate", str(chain()), "--no-init", "--set", f"gain.k={text}"])
-    assert f": --set: 'gain.k' = " in line and NOT_FINITE in line
+    assert ": --set: 'gain.k' = " in line and NOT_FINITE in line
     swept = chain(extra=f'[sweep]\n"gain.k" = [1.0, {text}]\n', name="swept.toml")
     line = _fail(capsys, ["validate", str(swept), "--no-init"])
     assert ": sweep.gain.k: 'gain.k' = " in line and NOT_FINITE in line

@@ -5,7 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from agv_cosim.report.metrics import compute_metrics, referenced_signals, saturated_time, settling_time
+from agv_cosim.report.metrics import (
+    compute_metrics,
+    referenced_signals,
+    saturated_time,
+    settling_time,
+)
 
 FULL_SPEC = {
     "lateral_error": "sensor.lateral_error",

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from agv_cosim.manifest import montecarlo as montecarlo_table
-from agv_cosim.plan import sampling as montecarlo
 from agv_cosim.cli import main
 from agv_cosim.manifest import ManifestError, load_manifest
+from agv_cosim.manifest import montecarlo as montecarlo_table
 from agv_cosim.plan import plan_runs
+from agv_cosim.plan import sampling as montecarlo
 
 
 def _unplaced(text):

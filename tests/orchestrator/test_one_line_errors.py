@@ -5,13 +5,13 @@ import errno
 import os
 import shutil
 import zipfile
-from pathlib import Path
 
 import pytest
 
-from agv_cosim import cli, files, pipeline as runner, timeseries
-from agv_cosim.pipeline import run as runner_run
+from agv_cosim import cli, files, timeseries
+from agv_cosim import pipeline as runner
 from agv_cosim.manifest import whole_multiple
+from agv_cosim.pipeline import run as runner_run
 
 
 def _fail(capsys, argv, code=2):

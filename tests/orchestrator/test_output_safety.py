@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 
 from agv_cosim import cli
-from agv_cosim.plan import MAX_LABEL, run_label
 from agv_cosim.errors import OutputError
 from agv_cosim.files import MARKER, AtomicDir, check_name
+from agv_cosim.plan import MAX_LABEL, run_label
 
 
 def _run(path, out, *extra):

@@ -11,16 +11,16 @@ import sys
 import time
 
 import pytest
-from processes import Collected, wait_until
 
 from agv_cosim import cli
 from agv_cosim.errors import OutputError, RunsStopped, SimulationError
-from agv_cosim.execution import Pacer, simulate
-from agv_cosim.execution import pacing
+from agv_cosim.execution import Pacer, pacing, simulate
 from agv_cosim.files import MARKER
 from agv_cosim.pipeline import execute, prepare
-from agv_cosim.workers import pool
 from agv_cosim.report.records import TIMINGS, read_timings
+from agv_cosim.workers import pool
+
+from processes import Collected, wait_until
 
 
 @pytest.mark.parametrize("factor", ["1e-308", "1e-12", "5e-7", "2e6", "1e308"])

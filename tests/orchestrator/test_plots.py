@@ -6,8 +6,13 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from agv_cosim.report.plots import (RunData, plot_runs, referenced_signals, signals_figure,
-                             trajectory_figure)
+from agv_cosim.report.plots import (
+    RunData,
+    plot_runs,
+    referenced_signals,
+    signals_figure,
+    trajectory_figure,
+)
 
 
 def _has_paths():

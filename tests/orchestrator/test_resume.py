@@ -19,11 +19,12 @@ import zipfile
 from pathlib import Path
 
 import pytest
-from processes import GUARD, Collected, wait_until
 
 from agv_cosim import cli
 from agv_cosim.pipeline import execute, prepare
 from agv_cosim.report.records import TIMING_COLUMNS, TIMINGS, read_timings, write_timings
+
+from processes import GUARD, Collected, wait_until
 
 #: two variants (the second with its own copy of the gain FMU) x two sweep points
 VARIANTS = """

@@ -2,8 +2,7 @@
 dotted, with [i] for array items and without pydantic's union tags), strict scalars."""
 import pytest
 
-from agv_cosim.manifest import schema
-from agv_cosim.manifest import ManifestError, manifest_from_data
+from agv_cosim.manifest import ManifestError, manifest_from_data, schema
 
 BASE = {"simulation": {"stop": 1.0, "step": 0.1}, "components": {"a": {"fmu": "a.fmu"}}}
 

@@ -15,14 +15,17 @@ from xml.etree import ElementTree
 import numpy as np
 import pytest
 
-from agv_cosim.ssp import common as ssp, exporter as ssp_export, importer as ssp_import
-from agv_cosim.manifest import ManifestError, load_manifest
-from agv_cosim.plan import plan_runs
-from agv_cosim.execution import RowObserver, simulate
-from agv_cosim.pipeline import prepare
 from agv_cosim.cli import make_parser
-from manifests import localise_text
+from agv_cosim.execution import RowObserver, simulate
+from agv_cosim.manifest import ManifestError, load_manifest
+from agv_cosim.pipeline import prepare
+from agv_cosim.plan import plan_runs
+from agv_cosim.ssp import common as ssp
+from agv_cosim.ssp import exporter as ssp_export
+from agv_cosim.ssp import importer as ssp_import
+
 from libcosim_runner import run_libcosim
+from manifests import localise_text
 
 ROOT = Path(__file__).resolve().parents[2]
 SEED000 = ROOT / "experiments" / "seed000_models_abc.toml"
@@ -41,7 +44,12 @@ fmu = "../fmus/AgvVehicle.fmu"
 parameters = { wheelbase = 1.4944, v0 = 1.0, y0 = 0.1, reference_point = "front" }
 [components.sensor]
 fmu = "../fmus/AgvVisionSensor.fmu"
-parameters = { path = "line:", frame_period = 0.0, latency = 0.0, noise_lateral = 0.0, noise_heading = 0.0 }
+[components.sensor.parameters]
+path = "line:"
+frame_period = 0.0
+latency = 0.0
+noise_lateral = 0.0
+noise_heading = 0.0
 [components.ctrl]
 fmu = "../fmus/AgvStateFeedback.fmu"
 parameters = { Ka = 4.828, Kb = 3.767, Ke = 4.472 }

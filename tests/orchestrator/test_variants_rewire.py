@@ -21,7 +21,10 @@ from agv_cosim.execution import RowObserver, simulate
 from agv_cosim.manifest import load_manifest
 from agv_cosim.pipeline import prepare, run_manifest
 from agv_cosim.plan import plan_runs
-from agv_cosim.ssp import common as ssp, exporter as ssp_export, importer as ssp_import
+from agv_cosim.ssp import common as ssp
+from agv_cosim.ssp import exporter as ssp_export
+from agv_cosim.ssp import importer as ssp_import
+
 from manifests import assert_complete, localise
 
 ROOT = Path(__file__).resolve().parents[2]
