@@ -6,11 +6,12 @@ import subprocess
 import sys
 
 import pytest
-from test_resume import folder_contents
 
 from agv_cosim import cli
 from agv_cosim.report import plots
 from agv_cosim.workers.pool import call_concurrently
+
+from result_folders import folder_contents
 
 SWEEP_PLOTS = """
 [sweep]

@@ -13,12 +13,13 @@ import json
 import time
 
 import pytest
-from test_resume import folder_contents
 
 from agv_cosim import cli
 from agv_cosim.execution import Pacer
 from agv_cosim.pipeline import execute, prepare
 from agv_cosim.report.records import REAL_TIME_FIELDS, TIMINGS, read_timings
+
+from result_folders import folder_contents
 
 SWEEP = '[sweep]\n"gain.k" = [1.0, 2.0]\n'
 

@@ -25,6 +25,7 @@ from agv_cosim.pipeline import execute, prepare
 from agv_cosim.report.records import TIMING_COLUMNS, TIMINGS, read_timings, write_timings
 
 from processes import GUARD, Collected, wait_until
+from result_folders import assert_same_folder
 
 #: two variants (the second with its own copy of the gain FMU) x two sweep points
 VARIANTS = """
@@ -38,23 +39,6 @@ parameters = {{ k = 5.0 }}
 [plots]
 signals = ["int.y", "gain.y"]
 """
-
-
-def folder_contents(root):
-    """Relative path -> bytes of every file under ``root`` but timings.csv (which must
-    be there)."""
-    root = Path(root)
-    assert (root / TIMINGS).is_file()
-    return {str(path.relative_to(root)): path.read_bytes()
-            for path in sorted(root.rglob("*")) if path.is_file() and path.name != TIMINGS}
-
-
-def assert_same_folder(resumed, clean):
-    mine, theirs = folder_contents(resumed), folder_contents(clean)
-    assert sorted(mine) == sorted(theirs)
-    for name in theirs:
-        assert mine[name] == theirs[name], name
-    return len(theirs)
 
 
 #: a sweep of three runs with metrics, the figures and a Monte Carlo-free summary

@@ -12,11 +12,12 @@ import shutil
 from pathlib import Path
 
 import pytest
-from test_resume import assert_same_folder, folder_contents
 
 from agv_cosim import cli
 from agv_cosim.build import build_one, default_components_dir
 from agv_cosim.report.records import TIMINGS, read_timings
+
+from result_folders import assert_same_folder, folder_contents
 
 #: two variants of the chain (tests/orchestrator/conftest.py), one run each
 TWO_VARIANTS = """

@@ -7,9 +7,10 @@ import zipfile
 from pathlib import Path
 
 import pytest
-from test_resume import folder_contents
 
 from agv_cosim import cli
+
+from result_folders import folder_contents
 
 SWEEP = """
 [variants.one.components.gain2]
