@@ -213,7 +213,7 @@ def mixed(fmus, tmp_path_factory):
     """The test FMUs with FMI 3.0 twins where they have one (FMI 2.0 otherwise)."""
     from agv_cosim.build import build_one
 
-    sources = Path(__file__).resolve().parent.parent / "fmu_src"
+    sources = Path(__file__).resolve().parents[2] / "fmu_src"
     out = tmp_path_factory.mktemp("fmi3_twins")
     return dict(fmus, **{stem: build_one(sources / f"{stem}.py", out,
                                          fmi_version=3).fmu for stem in FMI3_TWINS})

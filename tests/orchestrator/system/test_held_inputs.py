@@ -54,7 +54,7 @@ def test_quiet_run_prints_no_warning(chain, capsys, tmp_path):
     assert captured.err == "" and captured.out == ""
 
 
-ROOT = __import__("pathlib").Path(__file__).resolve().parents[2]
+ROOT = __import__("pathlib").Path(__file__).resolve().parents[3]
 
 
 @pytest.mark.skipif(not (ROOT / "fmus" / "AgvVehicle.fmu").is_file(),

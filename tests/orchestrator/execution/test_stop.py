@@ -40,11 +40,11 @@ fmu = "{fmus['agv_test_source']}"
     assert info["rows"] == 4
 
 
-C_FMU = Path(__file__).resolve().parent.parent / "c_fmu"
+C_FMU = Path(__file__).resolve().parents[2] / "c_fmu"
 #: the Reference FMUs' sources lie in the shared folder beside the checkout (as in CI)
 FMI_HEADERS = Path(os.environ.get(
     "AGV_REFERENCE_FMUS",
-    Path(__file__).resolve().parents[3] / "shared" / "third-party" / "Reference-FMUs")) / "include"
+    Path(__file__).resolve().parents[4] / "shared" / "third-party" / "Reference-FMUs")) / "include"
 
 
 @pytest.fixture(scope="session")

@@ -1,5 +1,5 @@
 """Run an SSP package in libcosim (libcosimpy): the third-party master the tests compare
-our orchestrator with (tests/orchestrator/test_ssp.py). Not part of agv_cosim: users run
+our orchestrator with (tests/orchestrator/ssp/test_ssp.py). Not part of agv_cosim: users run
 SSP packages with ``agv-cosim run PACKAGE.ssp``; libcosim is only a cross-check, and
 libcosimpy is a test dependency.
 """

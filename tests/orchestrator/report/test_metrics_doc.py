@@ -10,7 +10,7 @@ import numpy as np
 from agv_cosim.report.metrics import METRICS, compute_metrics
 from agv_cosim.report.page import MAIN_METRICS
 
-DOC = Path(__file__).resolve().parents[2] / "docs" / "metrics.md"
+DOC = Path(__file__).resolve().parents[3] / "docs" / "metrics.md"
 FULL_SPEC = {"lateral_error": "s.e", "heading_error": "s.h", "steering_angle": "a.alpha",
              "steering_rate": "a.rate", "control": "c.u", "settle_band": 0.02,
              "saturation": {"signal": "a.alpha", "limit": 0.3},

@@ -11,7 +11,7 @@ from pydantic_core import PydanticUndefined
 
 from agv_cosim.manifest import manifest_from_data, schema
 
-DOC = Path(__file__).resolve().parents[2] / "docs" / "manifest.md"
+DOC = Path(__file__).resolve().parents[3] / "docs" / "manifest.md"
 
 #: the page's section headings -> the schema's model of that table
 SECTIONS = {

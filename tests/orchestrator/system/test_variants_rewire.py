@@ -27,7 +27,7 @@ from agv_cosim.ssp import importer as ssp_import
 
 from manifests import assert_complete, localise
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 #: ``gain`` replaced by ``p`` (pair): src.y -> p.u1, p.y1 -> gain2.u; p.y1 = u1, so the
 #: variant is the chain with a unit gain, which the variant ``unit`` is directly
