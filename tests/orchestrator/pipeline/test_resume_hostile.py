@@ -235,12 +235,8 @@ table = "pose.csv"
 units = {{ x = "m", y = "m", heading = "rad" }}
 [components.sensor]
 fmu = "{sensor}"
-[components.sensor.parameters]
-path = "waypoints:file=wp.csv"
-frame_period = 0.0
-latency = 0.0
-noise_lateral = 0.0
-noise_heading = 0.0
+parameters = {{ path = "waypoints:file=wp.csv", frame_period = 0.0, latency = 0.0, \
+noise_lateral = 0.0, noise_heading = 0.0 }}
 [[connections]]
 from = "pose.x"
 to = "sensor.x"
