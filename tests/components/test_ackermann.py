@@ -4,35 +4,42 @@ import math
 
 import pytest
 
-from agv_core.ackermann.ackermann import axle_angle, turning_curvature, wheel_angles, wheel_distances
+from agv_core.ackermann.ackermann import (
+    axle_angle,
+    turning_curvature,
+    wheel_angles,
+    wheel_distances,
+)
 
-CASES = [(d, l) for d in (0.12, -0.05, 0.3, -0.4, 1e-9) for l in (8.0, 3.0, -3.0, -8.0)]
+CASES = [(d, offset) for d in (0.12, -0.05, 0.3, -0.4, 1e-9)
+         for offset in (8.0, 3.0, -3.0, -8.0)]
 
 
-@pytest.mark.parametrize("delta,l", CASES)
-def test_wheel_angles_match_the_turning_centre_construction(delta, l):
-    """Closed form: O at lateral R = l / tan(delta) on the baseline; each wheel
-    perpendicular to its line to O: tan(delta_w) = l / (R -+ d/2). 1e-14 rad: rounding."""
+@pytest.mark.parametrize("delta,offset", CASES)
+def test_wheel_angles_match_the_turning_centre_construction(delta, offset):
+    """Closed form (offset: wheel_angles' axle offset l): O at lateral R = offset /
+    tan(delta) on the baseline; each wheel perpendicular to its line to O: tan(delta_w) =
+    offset / (R -+ d/2). 1e-14 rad: rounding."""
     d = 2.1
-    R = l / math.tan(delta)
-    left, right = wheel_angles(delta, l, d)
-    assert left == pytest.approx(math.atan(l / (R - d / 2)), abs=1e-14)
-    assert right == pytest.approx(math.atan(l / (R + d / 2)), abs=1e-14)
-    assert turning_curvature(delta, l) == pytest.approx(1.0 / R, rel=1e-14)
+    R = offset / math.tan(delta)
+    left, right = wheel_angles(delta, offset, d)
+    assert left == pytest.approx(math.atan(offset / (R - d / 2)), abs=1e-14)
+    assert right == pytest.approx(math.atan(offset / (R + d / 2)), abs=1e-14)
+    assert turning_curvature(delta, offset) == pytest.approx(1.0 / R, rel=1e-14)
 
 
-@pytest.mark.parametrize("delta,l", CASES)
-def test_ackermann_identity_and_exact_inverse(delta, l):
+@pytest.mark.parametrize("delta,offset", CASES)
+def test_ackermann_identity_and_exact_inverse(delta, offset):
     d = 2.1
-    left, right = wheel_angles(delta, l, d)
-    R = l / math.tan(delta)
+    left, right = wheel_angles(delta, offset, d)
+    R = offset / math.tan(delta)
     inner, outer = (left, right) if R > 0 else (right, left)   # inner: nearer O
     assert abs(inner) > abs(outer)
     if abs(delta) > 1e-6:   # cotangents of ~1e-9 rad lose the identity to rounding
         # both wheels steer the same way, so in magnitudes (the paper's angles are >= 0)
         cot_outer, cot_inner = 1 / abs(math.tan(outer)), 1 / abs(math.tan(inner))
-        assert cot_outer - cot_inner == pytest.approx(d / abs(l), rel=1e-12)
-    # the inverse needs neither d nor l, and is exact to rounding
+        assert cot_outer - cot_inner == pytest.approx(d / abs(offset), rel=1e-12)
+    # the inverse needs neither d nor offset, and is exact to rounding
     assert axle_angle(left, right) == pytest.approx(delta, rel=1e-14, abs=1e-22)
 
 

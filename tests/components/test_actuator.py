@@ -11,10 +11,16 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from agv_core.steering.actuator import (EQ6_DC_GAIN, EQ6_DEN, EQ6_NUM, DelayedIntegratorActuator,
-                               IdentifiedActuator, IntegratorActuator, make_actuator)
 from agv_core.errors import ParameterError
-
+from agv_core.steering.actuator import (
+    EQ6_DC_GAIN,
+    EQ6_DEN,
+    EQ6_NUM,
+    DelayedIntegratorActuator,
+    IdentifiedActuator,
+    IntegratorActuator,
+    make_actuator,
+)
 
 
 def run(act, h, n, u=0.0, alpha_ref=0.0, t0=0.0):

@@ -47,12 +47,10 @@ def test_law_reproduces_the_chained_system_on_random_states():
         assert ok
         dy, dtheta = cf.distance_derivatives(y, theta, c, delta, L)
         eps = 1e-5
-
-        def a(sign):
-            return cf.chained_coordinates(y + sign * eps * dy, theta + sign * eps * dtheta,
-                                          c + sign * eps * dc)
-
-        (p2, p3), (n2, n3) = a(+1), a(-1)
+        (p2, p3), (n2, n3) = [
+            cf.chained_coordinates(y + sign * eps * dy, theta + sign * eps * dtheta,
+                                   c + sign * eps * dc)
+            for sign in (+1, -1)]
         a2_0, a3_0 = cf.chained_coordinates(y, theta, c)
         assert m3 == pytest.approx(-KD * a3_0 - KP * a2_0, rel=1e-14, abs=1e-15)
         worst2 = max(worst2, abs((p2 - n2) / (2 * eps) - a3_0) / (1 + abs(a3_0)))

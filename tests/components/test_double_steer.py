@@ -4,8 +4,12 @@ import math
 
 import pytest
 
-from agv_core.double_steer.double_steer import (DoubleSteerVehicle, body_twist, inverse_kinematics,
-                                   turning_radius)
+from agv_core.double_steer.double_steer import (
+    DoubleSteerVehicle,
+    body_twist,
+    inverse_kinematics,
+    turning_radius,
+)
 from agv_core.errors import ParameterError
 
 

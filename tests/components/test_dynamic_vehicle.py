@@ -19,8 +19,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from agv_core.dynamic_vehicle.dynamic_vehicle import (G, DynamicVehicle,
-                                                      SingleTrackParameters)
+from agv_core.dynamic_vehicle.dynamic_vehicle import DynamicVehicle, G, SingleTrackParameters
 from agv_core.dynamic_vehicle.tyres import fiala_force, linear_force, sliding_slip
 from agv_core.errors import ParameterError
 from agv_core.vehicle.vehicle import Vehicle

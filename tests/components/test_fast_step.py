@@ -10,15 +10,14 @@ the sum by CPU, see there).
 import json
 import math
 import random
-import sys
 
 import numpy as np
 import pytest
 
-from agv_core.steering.actuator import DelayedIntegratorActuator
 from agv_core.numerics.paths import LinePath, heading_error, parse_path
 from agv_core.sensors.sensors import InstantSensor, TotalStation, VisionSensor
 from agv_core.state_feedback.state_feedback import StateFeedback
+from agv_core.steering.actuator import DelayedIntegratorActuator
 from agv_core.vehicle.vehicle import Vehicle
 
 

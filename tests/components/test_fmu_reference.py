@@ -17,8 +17,13 @@ import pytest
 from fmpy import read_model_description, simulate_fmu
 from fmpy.util import read_csv
 
-from agv_cosim.build import (REFERENCE_DIR, default_components_dir, reference_experiment,
-                             reference_input_rows, slave_scripts)
+from agv_cosim.build import (
+    REFERENCE_DIR,
+    default_components_dir,
+    reference_experiment,
+    reference_input_rows,
+    slave_scripts,
+)
 
 SCRIPTS = [p.stem for p in slave_scripts(default_components_dir())]
 LS_NAMESPACE = "{http://fmi-standard.org/fmi-ls-manifest}"
@@ -149,14 +154,14 @@ def test_seed003_references_hold_the_closed_forms(component_fmus):
 
     ack = _reference(component_fmus, "agv_ackermann")
     delta = math.asin(5.0 / 40.0)
-    for i, sign, l in ((1, 1.0, 8.0), (2, -1.0, 3.0), (3, 1.0, -3.0), (4, -1.0, -8.0)):
+    for i, sign, offset in ((1, 1.0, 8.0), (2, -1.0, 3.0), (3, 1.0, -3.0), (4, -1.0, -8.0)):
         for row, held in ((4, 0.0), (6, sign * delta), (11, -sign * delta)):  # 0.4, 0.6, 1.1 s
             tt = math.tan(held)
             assert ack[f"delta{i}_left"][row] == pytest.approx(
-                math.atan(l * tt / (l - 1.05 * tt)), abs=1e-12)
+                math.atan(offset * tt / (offset - 1.05 * tt)), abs=1e-12)
             assert ack[f"delta{i}_right"][row] == pytest.approx(
-                math.atan(l * tt / (l + 1.05 * tt)), abs=1e-12)
-            assert ack[f"centre_curvature{i}"][row] == pytest.approx(tt / l, abs=1e-12)
+                math.atan(offset * tt / (offset + 1.05 * tt)), abs=1e-12)
+            assert ack[f"centre_curvature{i}"][row] == pytest.approx(tt / offset, abs=1e-12)
 
     errors = _reference(component_fmus, "agv_axle_errors")   # default path: the x axis
     for i, (y_before, y_after, x_before) in enumerate(

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from agv_core.errors import ParameterError
 from agv_core.axle_pd.fuzzy_pd import AxlePD, FixedGains, FuzzySchedule
+from agv_core.errors import ParameterError
 
 #: Bilinear interpolation bounds on the default grid (1 mm x 2 km/h): Kp 15 deg/m, Kd
 #: 6.5 deg s/m. The surfaces have kinks where min(mu_e, mu_v) switches operand, along

@@ -8,8 +8,8 @@ import pytest
 from scipy.optimize import lsq_linear
 
 from agv_core.errors import ParameterError
-from agv_core.ltv_mpc.ltv_mpc import LtvMpc, MpcSolveError, error_model, prediction_matrices
 from agv_core.lateral_pid.pid import LateralPid
+from agv_core.ltv_mpc.ltv_mpc import LtvMpc, MpcSolveError, error_model, prediction_matrices
 
 BIG = dict(u_min=(-1e3, -1e3), u_max=(1e3, 1e3), du_min=(-1e3, -1e3), du_max=(1e3, 1e3))
 

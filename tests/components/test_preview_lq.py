@@ -7,8 +7,15 @@ import pytest
 
 from agv_core.errors import ParameterError
 from agv_core.numerics.paths import parse_path
-from agv_core.preview_lq.preview_lq import (DiscretePath, PreviewLQ, arc_pose, discretise, future_point,
-                                 lq_gain, variational_model)
+from agv_core.preview_lq.preview_lq import (
+    DiscretePath,
+    PreviewLQ,
+    arc_pose,
+    discretise,
+    future_point,
+    lq_gain,
+    variational_model,
+)
 from agv_core.vehicle.vehicle import Vehicle
 
 L, V, TAU = 1.6, 1.5, 0.65

@@ -13,11 +13,11 @@ import math
 import pytest
 
 from agv_core.chained_form import chained_form as cf
+from agv_core.lateral_pid.pid import LateralPid
 from agv_core.ltv_mpc.ltv_mpc import LtvMpc
 from agv_core.numerics.paths import parse_path
-from agv_core.lateral_pid.pid import LateralPid
-from agv_core.preview_lq.preview_lq import PreviewLQ
 from agv_core.numerics.sampling import TIME_EPS, SampleHold, at_instant, in_step, last_index
+from agv_core.preview_lq.preview_lq import PreviewLQ
 from agv_core.sensors.sensors import EPS, TotalStation, VisionSensor
 from agv_core.state_feedback.state_feedback import StateFeedback
 

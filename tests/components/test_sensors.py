@@ -4,14 +4,12 @@ import hashlib
 import json
 import math
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from agv_core.numerics.paths import heading_error, parse_path
-from agv_core.sensors.sensors import GYRO_DRIFT, EPS, InstantSensor, TotalStation, VisionSensor
-
+from agv_core.sensors.sensors import EPS, GYRO_DRIFT, InstantSensor, TotalStation, VisionSensor
 
 
 def pose(t):
@@ -297,15 +295,10 @@ def _trace(sensor, kind, h=0.01, n=300):
     for i in range(n + 1):
         t = i * h
         x, y, hd = pose(t)
-        if kind == "vision":
-            read = lambda: sensor.measure(t, x, y, hd)  # noqa: E731
-        elif kind == "station":
-            read = lambda: sensor.measure(t, x, y)  # noqa: E731
-        else:
-            read = lambda: (sensor.measure(t, hd),)  # noqa: E731
-        first = read()
-        assert read() == first
-        rows.append(tuple(first))
+        args = {"vision": (t, x, y, hd), "station": (t, x, y)}.get(kind, (t, hd))
+        first = sensor.measure(*args)
+        assert sensor.measure(*args) == first
+        rows.append(tuple(first) if kind in ("vision", "station") else (first,))
         if i < n:
             if kind == "vision":
                 sensor.step(t, h, x, y, hd)

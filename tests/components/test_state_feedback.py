@@ -10,9 +10,14 @@ import numpy as np
 import pytest
 
 from agv_core.errors import ParameterError
-from agv_core.state_feedback.state_feedback import (PAPER_GAINS, StateFeedback, closed_loop,
-                                     find_wheelbase, lqr_gains, model_b)
-
+from agv_core.state_feedback.state_feedback import (
+    PAPER_GAINS,
+    StateFeedback,
+    closed_loop,
+    find_wheelbase,
+    lqr_gains,
+    model_b,
+)
 
 
 def test_law_sign_and_value():

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.special import fresnel
 
-from agv_core.errors import ParameterError
 from agv_core.axle_pd.track_path import PointErrors, parse_track_path
+from agv_core.errors import ParameterError
 
 QUARTER = math.pi / 2
 

@@ -88,6 +88,18 @@ def test_every_axle_rolls_without_side_slip_and_the_link_is_rigid():
         assert math.hypot(train.x1 - x2, train.y1 - y2) == pytest.approx(GEOM.Lm, rel=1e-15)
 
 
+def _train_rhs(t, s, ref, u1, deltas):
+    """The train's ODE at state ``s`` (x1, y1, psi1, psi2, psi3) for speed ``u1`` and axle
+    angles ``deltas``, evaluated through the scratch train ``ref``."""
+    ref.x1, ref.y1, ref.psi1, ref.psi2, ref.psi3 = s
+    omega1, vyj = ref.head_rates(u1, deltas)
+    g3, k3 = ref.tail_factors(deltas)
+    c, sn = math.cos(s[2]), math.sin(s[2])
+    vx, vy = u1 * c - vyj * sn, u1 * sn + vyj * c
+    _, r2, r3 = ref.link_rates(vx, vy, s[3], s[4], g3, k3)
+    return [vx, vy, omega1, r2, r3]
+
+
 def test_integration_error_bound_against_dop853():
     """Piecewise-constant inputs (0.05 s each) for 20 s, around the 20 m steady state
     (open loop the articulation is only neutrally stable, so arbitrary steering drifts
@@ -104,18 +116,8 @@ def test_integration_error_bound_against_dop853():
     for k in range(400):
         deltas = tuple(steady[i] + 0.02 * math.sin(0.5 * k * h + i) for i in range(4))
         u1 = rng.uniform(1, 8)
-        ref = Train(GEOM, *y)
-
-        def rhs(t, s):
-            ref.x1, ref.y1, ref.psi1, ref.psi2, ref.psi3 = s
-            omega1, vyj = ref.head_rates(u1, deltas)
-            g3, k3 = ref.tail_factors(deltas)
-            c, sn = math.cos(s[2]), math.sin(s[2])
-            vx, vy = u1 * c - vyj * sn, u1 * sn + vyj * c
-            _, r2, r3 = ref.link_rates(vx, vy, s[3], s[4], g3, k3)
-            return [vx, vy, omega1, r2, r3]
-
-        y = solve_ivp(rhs, (0, h), y, method="DOP853", rtol=1e-12, atol=1e-13).y[:, -1]
+        y = solve_ivp(_train_rhs, (0, h), y, method="DOP853", rtol=1e-12, atol=1e-13,
+                      args=(Train(GEOM, *y), u1, deltas)).y[:, -1]
         train.step(u1, deltas, h)
     assert [train.x1, train.y1, train.psi1, train.psi2, train.psi3] == pytest.approx(
         list(y), abs=1e-9)

@@ -1,6 +1,7 @@
 """The interop tests' fixture: the Reference FMUs' ``fmusim`` host (fmusim_host.py)."""
 
 import pytest
+
 from fmusim_host import build_fmusim
 
 

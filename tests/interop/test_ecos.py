@@ -29,9 +29,10 @@ import zipfile
 
 import numpy as np
 import pytest
-from fmusim_host import ATOL, RTOL, reference_of
 
 from agv_cosim.build import default_components_dir, reference_experiment, slave_scripts
+
+from fmusim_host import ATOL, RTOL, reference_of
 
 pytestmark = pytest.mark.interop
 

@@ -9,8 +9,8 @@ the host exit with status 0.
 """
 
 import math
-import re
 import os
+import re
 import shutil
 import subprocess
 import sys

@@ -19,9 +19,10 @@ import shutil
 
 import numpy as np
 import pytest
-from fmusim_host import RTOL, ATOL, assert_matches, run_fmusim, unavailable
 
 from agv_cosim.build import default_components_dir, slave_scripts
+
+from fmusim_host import ATOL, RTOL, assert_matches, run_fmusim, unavailable
 
 pytestmark = pytest.mark.interop
 

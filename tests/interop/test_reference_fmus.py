@@ -14,7 +14,6 @@ difference (a different step or a one-step lag moves these values by 1e-4 or mor
 """
 
 import csv
-import io
 import json
 import os
 import shutil
@@ -292,8 +291,9 @@ def test_ssp_enumeration_connectors_round_trip(reference_fmus, tmp_path):
     same one), read back into the same connections, and the .ssp runs like the manifest."""
     from xml.etree import ElementTree
 
-    from agv_cosim.ssp import common as ssp, exporter as ssp_export, importer as ssp_import
-    from agv_cosim.manifest import load_manifest
+    from agv_cosim.ssp import common as ssp
+    from agv_cosim.ssp import exporter as ssp_export
+    from agv_cosim.ssp import importer as ssp_import
 
     ft2, ft3 = (reference_fmus[v] / "Feedthrough.fmu" for v in ("2", "3"))
     manifest = tmp_path / "enum.toml"

@@ -24,10 +24,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fmusim_host import assert_matches, read_output, reference_of, unavailable
 
 from agv_cosim.build import build_one, slave_script
 from agv_cosim.build.standalone import distribution_files
+
+from fmusim_host import assert_matches, read_output, reference_of, unavailable
 
 pytestmark = pytest.mark.interop
 
@@ -85,7 +86,7 @@ def test_standalone_fmus_run_where_no_python_is(fmusim, standalone_fmus, tmp_pat
     stage.mkdir()
     shutil.copy2(fmusim, stage / "fmusim")
     references = {}
-    for stem, fmu in standalone_fmus.items():
+    for fmu in standalone_fmus.values():
         name = fmu.stem
         shutil.copy2(fmu, stage / fmu.name)
         folder = tmp_path / f"ref_{name}"

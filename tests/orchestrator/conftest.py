@@ -2,7 +2,6 @@
 
 import pytest
 
-
 CHAIN = """
 name = "chain"
 [simulation]

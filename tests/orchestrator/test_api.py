@@ -10,11 +10,12 @@ import textwrap
 from pathlib import Path
 
 import pytest
-from manifests import localise
 
 import agv_cosim
 from agv_cosim import cli
 from agv_cosim.timeseries import read_timeseries
+
+from manifests import localise
 
 EXPERIMENTS = Path(__file__).resolve().parents[2] / "experiments"
 

@@ -9,10 +9,11 @@ import signal
 import time
 
 import pytest
-from processes import ended
 
 from agv_cosim import cli
 from agv_cosim.lifetime import Orphans, descendants
+
+from processes import ended
 
 ROGUE = """
 name = "helpers"

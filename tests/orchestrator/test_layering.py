@@ -176,7 +176,7 @@ def test_every_public_function_is_annotated():
     and the return annotated (``__init__``'s return may be left out)."""
     missing = []
     for name, path in modules().items():
-        def visit(body, owner, public):
+        def visit(body, owner, public, name=name):
             for node in body:
                 if isinstance(node, ast.ClassDef):
                     visit(node.body, node.name, public and not node.name.startswith("_"))

@@ -7,11 +7,17 @@ import sys
 import zipfile
 
 import fmpy
-from fmpy.fmi1 import FMICallException
 import pytest
+from fmpy.fmi1 import FMICallException
 
-from agv_cosim.build import (BuildError, build_fmus, build_one, default_components_dir,
-                             fmu_guid_of, slave_script)
+from agv_cosim.build import (
+    BuildError,
+    build_fmus,
+    build_one,
+    default_components_dir,
+    fmu_guid_of,
+    slave_script,
+)
 
 pytestmark = pytest.mark.slow  # every test builds FMUs (seconds each) or runs the built ones
 
@@ -127,8 +133,8 @@ def test_bad_parameter_fails_initialisation_naming_it(tmp_path):
         messages.append(message.decode())
 
     with pytest.raises(FMICallException, match="ExitInitializationMode"):
-        fmpy.simulate_fmu(str(fmu), stop_time=0.1, start_values={"wheelbase": -2.0}, debug_logging=True,
-                          logger=logger)
+        fmpy.simulate_fmu(str(fmu), stop_time=0.1, start_values={"wheelbase": -2.0},
+                          debug_logging=True, logger=logger)
     assert any("wheelbase" in m and "-2.0" in m for m in messages), messages
 
 

@@ -6,15 +6,20 @@ The refusals are checked before anything is built, so those tests build nothing 
 fast tier); the tests that build use the small test FMU of ``tests/fmu_src``."""
 
 import json
-import re
 import os
+import re
 import zipfile
 
 import pytest
 
 from agv_cosim import cli
-from agv_cosim.build import (INDEX_FILE, build_fmus, component_scripts,
-                             default_components_dir, slave_script)
+from agv_cosim.build import (
+    INDEX_FILE,
+    build_fmus,
+    component_scripts,
+    default_components_dir,
+    slave_script,
+)
 from agv_cosim.errors import OutputError
 
 GAIN = default_components_dir().parent / "tests" / "fmu_src" / "agv_test_gain.py"

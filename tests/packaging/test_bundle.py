@@ -8,8 +8,8 @@ import textwrap
 
 import pytest
 
-from agv_cosim.errors import BundleError
 from agv_cosim.build.bundle import bundle_of, installed_requirements, requirements_text
+from agv_cosim.errors import BundleError
 
 NONE = ((), ())  # no child process: the requirement list given
 BOOT = ["agv_boot"]  # the boot loader: shipped by the FMU, not a distribution

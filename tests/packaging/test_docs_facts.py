@@ -15,7 +15,8 @@ ROOT = Path(__file__).resolve().parents[2]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")),
         ROOT / "components" / "README.md", ROOT / "fmus" / "README.md"]
 #: "all 23 FMUs", "23 FMI 3.0 twins", "all 23 components", "23 component FMUs"
-COUNT = re.compile(r"\b(?:all )?(?<![.\d])(\d+) (?:component FMUs|FMI [23]\.0 twins|FMUs|components)\b")
+COUNT = re.compile(r"\b(?:all )?(?<![.\d])(\d+) "
+                   r"(?:component FMUs|FMI [23]\.0 twins|FMUs|components)\b")
 #: a count of something else than the build's FMUs (a benchmark's subset, an example)
 NOT_THE_BUILD = re.compile(r"\b(?:of|the) (?:\d+ )?(?:test|Reference)\b")
 

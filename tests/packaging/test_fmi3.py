@@ -31,8 +31,13 @@ import pytest
 from fmpy.validation import validate_fmu
 
 from agv_cosim import cli
-from agv_cosim.build import BuildError, build_one, default_components_dir, \
-    slave_script, slave_scripts
+from agv_cosim.build import (
+    BuildError,
+    build_one,
+    default_components_dir,
+    slave_script,
+    slave_scripts,
+)
 
 SCRIPTS = [p.stem for p in slave_scripts(default_components_dir())]
 

@@ -1,18 +1,17 @@
 """Every FMU runs in a Python that has nothing installed but its ``resources/requirements.txt``.
 
-The build derives each FMU's requirement list from the imports of its code (agv_cosim/build/bundle.py).
-Here every component FMU, FMI 2.0 and FMI 3.0 twin, is run in a fresh venv into which
-exactly its pinned list was installed with ``pip install --no-deps`` (one venv per distinct
-list, shared by the FMUs that declare the same; an FMU and its FMI 3.0 twin declare the same
-list), through a host that imports nothing but the
-standard library (fmu_driver.py, run by that venv's interpreter). Each runs its default
-experiment with its reference inputs held, and must give bit for bit what the same driver
-gives in the test's own venv (everything installed), and the reference result shipped in the
-FMU within the band 1e-12 + 1e-9 |ref| (fmpy, which computed it, interpolates between the
-input table's rows, so a held input may be off by an ulp: 0.19999999999999998 for 0.2).
-An FMU whose Python lacks a package
-of its list fails with the module's name in an FMI error message (checked by uninstalling
-one package from a venv).
+The build derives each FMU's requirement list from the imports of its code
+(agv_cosim/build/bundle.py). Here every component FMU, FMI 2.0 and FMI 3.0 twin, is run in a
+fresh venv into which exactly its pinned list was installed with ``pip install --no-deps``
+(one venv per distinct list, shared by the FMUs that declare the same; an FMU and its FMI
+3.0 twin declare the same list), through a host that imports nothing but the standard
+library (fmu_driver.py, run by that venv's interpreter). Each runs its default experiment
+with its reference inputs held, and must give bit for bit what the same driver gives in the
+test's own venv (everything installed), and the reference result shipped in the FMU within
+the band 1e-12 + 1e-9 |ref| (fmpy, which computed it, interpolates between the input table's
+rows, so a held input may be off by an ulp: 0.19999999999999998 for 0.2). An FMU whose
+Python lacks a package of its list fails with the module's name in an FMI error message
+(checked by uninstalling one package from a venv).
 
 pip installs from its cache where it can (the versions are those of the test's own venv);
 ``--no-compile`` skips byte-compiling what the runs never import.

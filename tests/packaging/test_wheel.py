@@ -23,6 +23,7 @@ import pytest
 
 from agv_cosim.build import default_components_dir, slave_scripts
 from agv_cosim.build.shipped import SHIPPED
+
 from manifests import localise
 
 pytestmark = pytest.mark.slow

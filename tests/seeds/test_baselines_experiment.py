@@ -16,9 +16,10 @@ import tomllib
 from pathlib import Path
 
 import pytest
-from manifests import assert_complete, fmus_by_model, localise
 
 from agv_cosim.pipeline import run_manifest
+
+from manifests import assert_complete, fmus_by_model, localise
 
 pytestmark = pytest.mark.seed
 

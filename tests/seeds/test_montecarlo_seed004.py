@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from agv_cosim.pipeline import run_manifest
+
 from manifests import assert_complete
 
 pytestmark = pytest.mark.seed

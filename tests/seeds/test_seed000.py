@@ -16,6 +16,7 @@ import scipy.linalg
 
 from agv_core.state_feedback.state_feedback import PAPER_GAINS, closed_loop, model_b
 from agv_cosim.pipeline import run_manifest
+
 from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed

@@ -1,11 +1,12 @@
 """Seed 001 experiments (issue 13): the claims 001-R1 ... 001-P3 as numbers.
 
 The shipped manifests experiments/seed001_circle_lambda.toml, seed001_circle_horizon.toml
-and seed001_scurve.toml (and seed001_rate_limit.toml, shortened) are copied into tmp_path with their FMU paths pointed at the
-session-built FMUs and run in full through the orchestrator (step 0.2 s: about 4 s per
-manifest), once per module. Runs are deterministic (no noise), so every bound below holds
-with the margin stated beside it on every machine; the margins absorb changes of the
-solver's rounding (OSQP tolerance 1e-7, polished), not randomness.
+and seed001_scurve.toml (and seed001_rate_limit.toml, shortened) are copied into tmp_path
+with their FMU paths pointed at the session-built FMUs and run in full through the
+orchestrator (step 0.2 s: about 4 s per manifest), once per module. Runs are deterministic
+(no noise), so every bound below holds with the margin stated beside it on every machine;
+the margins absorb changes of the solver's rounding (OSQP tolerance 1e-7, polished), not
+randomness.
 
 Definitions (as experiments/figures/seed001_figures.py, which makes the results page):
 first-10-s error = time mean of e_pos over [0, 10] s; late error = time mean of e_pos over
@@ -22,12 +23,13 @@ import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
 
-from agv_core.ltv_mpc.ltv_mpc import LtvMpc
-from agv_core.lateral_pid.pid import LateralPid
-from agv_core.ref_trajectory.ref_trajectory import RefTrajectory
 from agv_core.double_steer.seed001_loop import run_loop
-from agv_cosim.timeseries import read_timeseries
+from agv_core.lateral_pid.pid import LateralPid
+from agv_core.ltv_mpc.ltv_mpc import LtvMpc
+from agv_core.ref_trajectory.ref_trajectory import RefTrajectory
 from agv_cosim.pipeline import run_manifest
+from agv_cosim.timeseries import read_timeseries
+
 from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed

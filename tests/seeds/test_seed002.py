@@ -23,8 +23,9 @@ import numpy as np
 import pytest
 
 from agv_core.numerics.paths import parse_path, project_trajectory
-from agv_cosim.timeseries import read_timeseries
 from agv_cosim.pipeline import run_manifest
+from agv_cosim.timeseries import read_timeseries
+
 from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed
@@ -118,6 +119,7 @@ def sf_linear_response(v0, wheelbase=1.4944, K=0.6, tau=0.05, step=STEP, stop=30
     after which the rear-axle offset stays inside 2 cm.
     """
     import scipy.linalg
+
     from agv_core.state_feedback.state_feedback import PAPER_GAINS, model_b
 
     A, B = model_b(v0, wheelbase, K)

@@ -17,8 +17,9 @@ import pytest
 from agv_core.axle_pd.fuzzy_pd import AxlePD, FixedGains, FuzzySchedule
 from agv_core.axle_pd.track_path import PointErrors, parse_track_path
 from agv_core.train.train import Train, TrainGeometry, steady_offsets
-from agv_cosim.timeseries import read_timeseries
 from agv_cosim.pipeline import run_manifest
+from agv_cosim.timeseries import read_timeseries
+
 from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed

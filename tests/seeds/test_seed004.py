@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 from agv_core.numerics.paths import parse_path
-from agv_cosim.timeseries import read_timeseries
 from agv_cosim.pipeline import run_manifest
+from agv_cosim.timeseries import read_timeseries
+
 from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed

@@ -18,12 +18,12 @@ import pytest
 from agv_core.axle_pd.fuzzy_pd import AxlePD, FixedGains, FuzzySchedule
 from agv_core.axle_pd.track_path import PointErrors, parse_track_path
 from agv_core.dynamic_train.dynamic_train import DynamicTrain, TrainDynamics
-from agv_core.dynamic_vehicle.dynamic_vehicle import WheelLiftError
-from agv_core.dynamic_vehicle.dynamic_vehicle import SingleTrackParameters
+from agv_core.dynamic_vehicle.dynamic_vehicle import SingleTrackParameters, WheelLiftError
 from agv_core.state_feedback.state_feedback import PAPER_GAINS, loop_poles
 from agv_core.train.train import TrainGeometry
-from agv_cosim.timeseries import read_timeseries
 from agv_cosim.pipeline import run_manifest
+from agv_cosim.timeseries import read_timeseries
+
 from manifests import assert_complete, localise
 
 pytestmark = pytest.mark.seed

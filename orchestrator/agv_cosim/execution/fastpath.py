@@ -6,7 +6,7 @@ for the run's FMUs, one line per call: every function, argument and buffer is a 
 variable of the generated function (a fast local load), and the batched get/set calls
 skip ctypes' per-call argument conversion (:func:`bare_call`). The same values reach
 the same C functions in the same order, so both give bit-identical results
-(tests/orchestrator/test_fastpath.py runs both side by side).
+(tests/orchestrator/execution/test_fastpath.py runs both side by side).
 
 Only made-up identifiers (``f0``, ``a1``, ``b2``) and integers go into the source text;
 component, variable and function names stay data in the closure. The source of each
@@ -15,7 +15,7 @@ generated function is registered with :mod:`linecache` under the function's file
 ``inspect.getsource`` returns it.
 
 Private ctypes names used (ctypes has no public ones for them), each pinned by
-tests/orchestrator/test_fastpath.py: ``ctypes._CFuncPtr`` (base of a library function),
+tests/orchestrator/execution/test_fastpath.py: ``ctypes._CFuncPtr`` (base of a library function),
 ``ctypes._Pointer`` (base of ``POINTER(T)``), ``ctypes._SimpleCData`` (base of
 ``c_double`` and the other scalars).
 """

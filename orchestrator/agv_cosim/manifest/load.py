@@ -1,7 +1,7 @@
 """A manifest file read and checked into a :class:`Manifest`.
 
 The format is documented, key by key, in ``docs/manifest.md`` (checked against the
-schema by tests/orchestrator/test_manifest_doc.py) and ``experiments/example.toml``.
+schema by tests/orchestrator/manifest/test_manifest_doc.py) and ``experiments/example.toml``.
 :func:`load_manifest` checks the syntax, the shape (the schema of
 :mod:`agv_cosim.manifest.schema`: unknown keys, types) and the numbers (no FMU is
 opened). Every problem is a :class:`~agv_cosim.errors.ManifestError` whose text is

@@ -123,9 +123,9 @@ signal:
   two samples around it), and the settled standard deviation (a third pass).
 
 So the streamed result equals :func:`compute_metrics` bit for bit (no tolerance), which
-``tests/orchestrator/test_metrics_streaming.py`` checks with chunk boundaries on the settling and
-overshoot samples (and :class:`PairwiseSum` against ``numpy.sum``, so a numpy that changed
-its summation order would be caught there). Memory: a chunk, the per-level partial sums
+``tests/orchestrator/report/test_metrics_streaming.py`` checks with chunk boundaries on the
+settling and overshoot samples (and :class:`PairwiseSum` against ``numpy.sum``, so a numpy
+that changed its summation order would be caught there). Memory: a chunk, the per-level partial sums
 (about log2(n / 128)) and one pending block of at most 128 values per sum. Disk: 8 bytes
 per sample per spooled signal.
 

@@ -10,10 +10,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fitting_models import SECOND_PARAMETERS, SECOND_TRUE, TIME, data_of, second_order
 
 from agv_cosim.errors import AgvCosimError, FitDataError, FitError
 from agv_cosim.fitting import Parameter, check_interval, fit, measured_data, read_data
+
+from fitting_models import SECOND_PARAMETERS, SECOND_TRUE, TIME, data_of, second_order
 
 
 def one_line(error: pytest.ExceptionInfo[AgvCosimError], *parts: str) -> None:

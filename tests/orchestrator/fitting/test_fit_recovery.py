@@ -12,6 +12,10 @@ import math
 
 import numpy as np
 import pytest
+
+from agv_cosim.errors import FitNotConverged
+from agv_cosim.fitting import Parameter, fit, interpolate, measured_data
+
 from fitting_models import (
     SECOND_PARAMETERS,
     SECOND_TRUE,
@@ -23,9 +27,6 @@ from fitting_models import (
     mass_spring,
     second_order,
 )
-
-from agv_cosim.errors import FitNotConverged
-from agv_cosim.fitting import Parameter, fit, interpolate, measured_data
 
 SPRING_COLUMNS = {"position": "p_measured", "acceleration": "a_measured"}
 #: (model, truth, parameters, signals -> columns, noise standard deviations)
@@ -208,9 +209,9 @@ def test_the_steering_actuator_core_is_fitted() -> None:
     """The project's own core (agv_core.steering.actuator model a, the code the
     AgvSteeringA FMU runs, stepped every 2 ms) as the simulation: K and a dead time that
     the step does not divide recovered from its record."""
-    from fitting_models import command
-
     from agv_core.steering.actuator import make_actuator
+
+    from fitting_models import command
 
     h = 0.002
     t = h * np.arange(751)

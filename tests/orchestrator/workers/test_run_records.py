@@ -2,6 +2,7 @@
 report/records.py, for a local run, a run ended by its process and a Dask run."""
 
 import json
+from multiprocessing import get_context
 
 from agv_cosim.pipeline import prepare
 from agv_cosim.report import records
@@ -80,6 +81,10 @@ def test_a_run_whose_process_died_is_recorded_by_the_records(chain, tmp_path,
 
     monkeypatch.setattr(pool, "finish_run", die_after_rows)
     monkeypatch.setattr("agv_cosim.workers.job.finish_run", die_after_rows)
+    # the worker forked from this process, so that the patches above are in it: a thread
+    # an earlier test left here (a Dask client's) would make the pool start its workers
+    # from the fork server, which has the modules unpatched
+    monkeypatch.setattr(pool, "process_context", lambda: get_context("fork"))
     [result] = pool.run_isolated([job], tmp_path, 1, lambda s: None, lambda: None)
     info = json.loads((tmp_path / job.label / "run.json").read_text())
     assert result["status"] == "partial" and "exit code 3" in result["error"]
