@@ -128,7 +128,10 @@ def compile_fmu(fmu, out, compiler, venv, work, modules=MODULES, as_is=False):
         command = [str(venv / "bin" / "cythonize"), "-i", "-3", "-q", *sources]
     done = subprocess.run(command, cwd=work, capture_output=True, text=True)
     if done.returncode != 0:
-        last = (done.stderr.strip() or done.stdout.strip() or "no output").splitlines()[-1]
+        lines = (done.stderr.strip() or done.stdout.strip() or "no output").splitlines()
+        # the compiler's own error line, not the notes that may follow it
+        errors = [line for line in lines if re.search(r"(error|Error):", line)]
+        last = (errors or lines)[-1]
         raise CompileFailed(f"{compiler} failed on {fmu.name}: {last}")
     extras = {}
     for library in package.rglob("*.so"):
