@@ -48,15 +48,22 @@ each category, and the digest of the recorded rows (the two paths must agree, el
 status 1).
 
 Run: ``python benchmarks/profile_split.py [--fmus fmus] [--stop 10] [--repeats 3]
-[--freq 4999] [--paths compiled,ctypes] [--keep DIR]``. Needs ``perf`` (Debian:
-``apt-get install linux-perf``) allowed to sample the process (``perf_event_paranoid``
-<= 2 for one's own processes, or root).
+[--freq 4999] [--paths compiled,ctypes] [--keep DIR] [--py-spy PATH]``. Needs ``perf``
+(Debian: ``apt-get install linux-perf``) allowed to sample the process
+(``perf_event_paranoid`` <= 2 for one's own processes, or root).
+
+With ``--py-spy PATH`` (py-spy, e.g. installed into a venv of its own), one more run of
+the compiled path under ``py-spy record`` splits the FMUs' own Python into the agv_core
+cores and the adapters (slave scripts and ``agv_core/fmi``) by the innermost FMU frame
+of each sample taken in a stretch. py-spy samples wall-clock time and sees Python frames
+only, so this split is of shares within the FMUs' Python, not of the step.
 """
 
 import argparse
 import collections
 import json
 import os
+import re
 import shutil
 import statistics
 import subprocess
@@ -127,9 +134,11 @@ def save_libraries(folder: Path) -> dict[str, str]:
 
 def samples(data: Path) -> Iterator[tuple[int, float, list[tuple[str, str]]]]:
     """(tid, time, frames from leaf to root as (symbol, dso)) of every sample in ``data``."""
-    done = subprocess.Popen(["perf", "script", "-i", str(data), "-F", "tid,time,ip,sym,dso",
-                             "--no-inline"], stdout=subprocess.PIPE,
-                            stderr=subprocess.DEVNULL, text=True, errors="replace")
+    errors = data.with_suffix(".script-errors")
+    with errors.open("w") as sink:
+        done = subprocess.Popen(["perf", "script", "-i", str(data), "-F",
+                                 "tid,time,ip,sym,dso", "--no-inline"], stdout=subprocess.PIPE,
+                                stderr=sink, text=True, errors="replace")
     assert done.stdout is not None
     head: tuple[int, float] | None = None
     frames: list[tuple[str, str]] = []
@@ -150,7 +159,9 @@ def samples(data: Path) -> Iterator[tuple[int, float, list[tuple[str, str]]]]:
             frames.append((sym.rsplit("+0x", 1)[0], dso))
     if head is not None:
         yield head[0], head[1], frames
-    done.wait()
+    if done.wait() != 0:
+        raise SystemExit(f"perf script failed on {data}: "
+                         f"{errors.read_text().strip()[-800:] or 'no message'}")
 
 
 def kind_of(dso: str) -> str:
@@ -248,6 +259,9 @@ def profile(path: str, args: argparse.Namespace, out: Path, keep: bool) -> dict[
         if not keep:
             out.unlink(missing_ok=True)
             shutil.rmtree(saved, ignore_errors=True)
+    if not counts:
+        raise SystemExit(f"{path}: no sample of pid {info['pid']} between its first and last "
+                         f"row in {out} (--keep DIR keeps it)")
     info["counts"] = counts
     info["leaves"] = leaves
     return info
@@ -287,6 +301,44 @@ def report(path: str, runs: list[dict[str, Any]], plain: list[dict[str, Any]],
         print(f"  {category:38s} {share:6.1%} {share * cpu:6.2f} us   {tops}")
 
 
+def python_split(py_spy: str, args: argparse.Namespace, out: Path) -> str:
+    """One run of the compiled path under py-spy (Python frames, wall-clock samples):
+    the FMUs' own Python split by the innermost FMU frame of each sample in a stretch,
+    an agv_core core (``agv_core_bundle/`` but ``fmi/``) or an adapter (the slave script,
+    ``agv_core_bundle/fmi/``)."""
+    command = [py_spy, "record", "-r", "1000", "-f", "raw", "-o", str(out), "--",
+               sys.executable, __file__, "--child", "--stop", str(args.stop),
+               "--fmus", args.fmus]
+    done = subprocess.run(command, capture_output=True, text=True, env=path_env("compiled"),
+                          check=False)
+    if done.returncode != 0:
+        raise SystemExit(f"py-spy failed: {done.stderr.strip()[-800:]}")
+    parts: collections.Counter[str] = collections.Counter()
+    modules: collections.Counter[str] = collections.Counter()
+    for line in out.read_text().splitlines():
+        stack, _, count = line.rpartition(" ")
+        frames = [(f.partition(" (")[0], f.rpartition(" (")[2].partition(":")[0])
+                  for f in stack.split(";")]
+        names = [name for name, _ in frames]
+        if "_stretch.<locals>.run" not in names:
+            continue
+        fmu = [file for _, file in frames[names.index("_stretch.<locals>.run") + 1:]
+               if "agv_core_bundle/" in file or re.fullmatch(r"agv_\w+\.py", file)]
+        if not fmu:
+            continue
+        inner = fmu[-1]
+        core = "agv_core_bundle/" in inner and "agv_core_bundle/fmi/" not in inner
+        parts["cores" if core else "adapters"] += int(count)
+        modules[inner.replace("agv_core_bundle/", "")] += int(count)
+    total = sum(parts.values())
+    if not total:
+        return "\npy-spy: no sample of the FMUs' Python in a stretch"
+    return (f"\nthe FMUs' own Python, compiled path, by py-spy (wall-clock samples of Python "
+            f"frames, one run, {total} samples in the FMUs' Python): cores "
+            f"{parts['cores'] / total:.0%}, adapters {parts['adapters'] / total:.0%}; "
+            + ", ".join(f"{name} {n / total:.0%}" for name, n in modules.most_common(8)))
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fmus", default=str(ROOT / "fmus"))
@@ -297,6 +349,8 @@ def main() -> int:
     parser.add_argument("--paths", default="compiled,ctypes")
     parser.add_argument("--top", type=int, default=4, help="leaf functions per category")
     parser.add_argument("--keep", help="keep the perf.data files in this folder")
+    parser.add_argument("--py-spy", help="py-spy executable: also split the FMUs' Python "
+                        "into cores and adapters (one more run under py-spy)")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--save", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -321,6 +375,7 @@ def main() -> int:
                 runs[path].append(profile(path, args, tmp / f"{path}-{repeat}.data",
                                           keep=bool(args.keep)))
                 plain[path].append(unprofiled(path, args))
+        spy = python_split(args.py_spy, args, tmp / "py-spy.txt") if args.py_spy else ""
     finally:
         if not args.keep:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -330,6 +385,8 @@ def main() -> int:
           f"recorded row to the last; us = share x CPU per step without perf")
     for path in paths:
         report(path, runs[path], plain[path], args.top)
+    if spy:
+        print(spy)
     digests = {run["digest"] for path in paths for run in runs[path] + plain[path]}
     if len(digests) != 1:
         print(f"\nRECORDINGS DIFFER: {sorted(digests)}")
