@@ -1,0 +1,128 @@
+"""``agv-cosim tune`` and :func:`agv_cosim.tune`: the parameters of a manifest's
+``[tune]`` table that minimise its objective over all of the manifest's runs (docs/tune.md).
+(The package is ``tuning`` so that ``agv_cosim.tune`` stays the function.)
+
+:mod:`.setup` checks ``[tune]`` against the runs; the candidates become runs through
+:class:`agv_cosim.pipeline.tune_trials.TrialRuns` (the same workers as a sweep: the local
+pool, its workers kept between batches, or a Dask cluster); the search is
+:func:`agv_cosim.fitting.tune`; then the original and the tuned parameters run once more
+on every run for the comparison, and :mod:`.output` writes the folder.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..errors import OutputError
+from ..files import AtomicDir, printable
+from ..fitting import TuneResult, tune
+from ..manifest import Manifest, load_manifest
+from ..pipeline import prepare
+from ..pipeline.tune_trials import RunJobs, TrialRuns, jobs_at
+from ..report.records import RunResult
+from ..system import Job
+from ..workers.pool import IdleWorkers, run_isolated
+from ..workers.runner import DaskRunner
+from .setup import Setup, available_metrics, check_tune
+
+__all__ = ["Tuning", "Setup", "available_metrics", "check_tune", "tune_manifest"]
+
+
+@dataclass
+class Tuning:
+    """What a tuning found and wrote: the search's :class:`~agv_cosim.fitting.TuneResult`,
+    tune.json's content (``record``), the runs of the original and the tuned parameters
+    (their jobs and results, in the manifest's run order), the runs that failed during
+    the trials, and the folder written."""
+
+    result: TuneResult
+    record: dict[str, Any]
+    setup: Setup
+    original: list[tuple[Job, RunResult]]
+    tuned: list[tuple[Job, RunResult]]
+    failures: list[dict[str, Any]]
+    folder: Path
+
+
+def _run_jobs(workers: int, dask: str | None, idle: IdleWorkers) -> RunJobs:
+    """Run a list of jobs under a folder: on the Dask cluster at ``dask``, else in up to
+    ``workers`` local worker processes, kept between calls in ``idle``."""
+    def nothing(*_: Any) -> None:
+        return None
+
+    if dask:
+        runner = DaskRunner(dask)
+        return lambda jobs, root: runner.run(jobs, root, nothing, nothing)
+    return lambda jobs, root: run_isolated(jobs, root, max(1, min(workers, len(jobs))),
+                                           nothing, nothing, idle=idle)
+
+
+def tune_manifest(manifest: str | Path | Manifest, out: str | Path, *,
+                  workers: int | None = None, dask: str | None = None,
+                  overwrite: bool = False, quiet: bool = False,
+                  timeout: float | None = None) -> Tuning:
+    """Tune the parameters of ``manifest``'s ``[tune]`` over all of its runs and write
+    the folder ``out`` (see the package docstring and docs/tune.md).
+
+    Raises :class:`~agv_cosim.errors.ManifestError` for a bad manifest or ``[tune]``,
+    :class:`~agv_cosim.errors.OutputError` for a folder that is not ours,
+    :class:`~agv_cosim.errors.TuneError` for a search that cannot be set up."""
+    from .output import tune_record, write_folder
+
+    if not isinstance(manifest, Manifest):
+        manifest = load_manifest(manifest)
+    manifest, jobs, _ = prepare(manifest, timeout=timeout)
+    setup = check_tune(manifest, jobs)
+    count = max(1, workers or os.cpu_count() or 1)
+    about = {"command": "tune", "manifest": manifest.name,
+             "manifest_sha256": manifest.sha256}
+    idle = IdleWorkers()
+    with AtomicDir(out, overwrite=overwrite, about=about) as folder:
+        assert folder.path is not None
+        run_jobs = _run_jobs(count, dask, idle)
+        try:
+            with tempfile.TemporaryDirectory(prefix=".trials-", dir=folder.path) as scratch:
+                trials = TrialRuns(manifest, setup.names, tuple(setup.objective.metrics),
+                                   run_jobs, Path(scratch), timeout,
+                                   on_batch=None if quiet else _say_batch(len(jobs)))
+                result = tune(trials, setup.parameters, setup.objective,
+                              method=setup.method,  # type: ignore[arg-type]
+                              seed=setup.seed, generations=setup.generations,
+                              popsize=setup.popsize, tol=setup.tol)
+            original = _final_runs(manifest, setup, result.start, run_jobs,
+                                   folder.path / "original", timeout)
+            tuned = _final_runs(manifest, setup, result.best, run_jobs,
+                                folder.path / "tuned", timeout)
+        finally:
+            idle.close()
+        record = tune_record(manifest, setup, result, trials.failures, len(jobs))
+        write_folder(folder.path, manifest, setup, result, record, original, tuned)
+        target = folder.commit()
+    return Tuning(result=result, record=record, setup=setup, original=original,
+                  tuned=tuned, failures=trials.failures, folder=target)
+
+
+def _final_runs(manifest: Manifest, setup: Setup, values: dict[str, float],
+                run_jobs: RunJobs, root: Path, timeout: float | None
+                ) -> list[tuple[Job, RunResult]]:
+    """Every run of ``manifest`` at the parameter ``values``, into ``root/<run>``."""
+    jobs = jobs_at(manifest, setup.names, [values[n] for n in setup.names], timeout)
+    try:
+        root.mkdir()
+    except OSError as error:
+        raise OutputError(f"{root}: cannot create: {error.strerror}") from None
+    return list(zip(jobs, run_jobs(jobs, root)))
+
+
+def _say_batch(runs: int) -> Any:
+    """A line on stderr after each batch of trials."""
+    def say(evaluated: int, batch_runs: int) -> None:
+        print(printable(f"agv-cosim tune: {evaluated} candidate(s) evaluated "
+                        f"({batch_runs} run(s) in the last batch, {runs} per candidate)"),
+              file=sys.stderr)
+    return say
