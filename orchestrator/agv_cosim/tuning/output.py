@@ -203,7 +203,7 @@ def render(manifest: Manifest, setup: Setup, record: dict[str, Any],
             f"{record['evaluations']} candidate(s) ({record['generations']} generation(s) "
             f"after the first), {record['infeasible_trials']} infeasible. "
             f"{'Converged' if record['converged'] else 'Stopped'}: "
-            f"{_e(record['message'])}.</p>",
+            f"{_e(str(record['message']).rstrip('.'))}.</p>",
             "<h2 id=parameters>Parameters</h2><table><thead><tr><th>parameter</th>"
             "<th>min</th><th>max</th><th>original</th><th>tuned</th></tr></thead><tbody>"]
     for name, entry in record["parameters"].items():
