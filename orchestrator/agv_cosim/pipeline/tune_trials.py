@@ -78,20 +78,23 @@ class TrialRuns:
         out: list[dict[str, dict[str, float]]] = [{} for _ in batch]
         for job, owner, result in zip(jobs, owners, results):
             label = job.label.split("__", 1)[1]
-            out[owner][label] = self._metrics(self.evaluated + owner, label, result)
+            out[owner][label] = self._metrics(self.evaluated + owner, label, result,
+                                              str(root / job.label))
         self.evaluated += len(batch)
         if self.on_batch is not None:
             self.on_batch(self.evaluated, len(jobs))
         return out
 
-    def _metrics(self, trial: int, label: str, result: RunResult) -> dict[str, float]:
+    def _metrics(self, trial: int, label: str, result: RunResult,
+                 folder: str) -> dict[str, float]:
         """The asked-for metrics of one run's result; all ``inf`` for a run that did
-        not complete or whose metrics failed (recorded in :attr:`failures`)."""
+        not complete or whose metrics failed (recorded in :attr:`failures`, the run's
+        temporary ``folder`` named ``<run folder>`` in its reason)."""
         if result["status"] != "complete" or result.get("metrics_error"):
+            reason = result.get("error") or result.get("metrics_error") or ""
             self.failures.append({"trial": trial, "run": label,
                                   "status": result["status"],
-                                  "error": result.get("error")
-                                  or result.get("metrics_error")})
+                                  "error": reason.replace(folder, "<run folder>")})
             return {name: math.inf for name in self.metrics}
         values = result["metrics"]
         out = {}

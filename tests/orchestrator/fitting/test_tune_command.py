@@ -262,6 +262,14 @@ def test_the_page_and_the_api(fmus, tmp_path):
     for run in ("near", "far"):
         assert summary.loc[run, "lateral_error_mean"] == \
             found["record"]["best"]["runs"][run]
+    # the fragment is a variant of the manifest with the tuned value
+    from agv_cosim.pipeline import prepare
+
+    fragment = (folder / "tuned_variant.toml").read_text()
+    with_tuned = tmp_path / "with_tuned.toml"
+    with_tuned.write_text(path.read_text() + fragment)
+    _, jobs, _ = prepare(with_tuned, ["tuned"])
+    assert [job.parameters["gain"]["k"] for job in jobs] == [found["best"]["gain.k"]]
     # a folder that is not ours is refused, one line, before any run
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "notes.txt").write_text("keep")
