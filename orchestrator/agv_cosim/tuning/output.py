@@ -199,7 +199,8 @@ def render(manifest: Manifest, setup: Setup, record: dict[str, Any],
     body = [f"<h1>{_e(title)}</h1>",
             f'<p class="description">Minimised: the {setup.objective.aggregate} over the '
             f"{record['runs_per_candidate']} run(s) of <code>{_e(manifest.path.name)}"
-            f"</code> of {objective}; {_e(record['optimiser'])}, seed {record['seed']}, "
+            f"</code> of {objective}; {_e(record['optimiser'])}"
+            f"{', seed ' + str(record['seed']) if record['method'] == 'evolution' else ''}, "
             f"{record['evaluations']} candidate(s) ({record['generations']} generation(s) "
             f"after the first), {record['infeasible_trials']} infeasible. "
             f"{'Converged' if record['converged'] else 'Stopped'}: "
