@@ -3,9 +3,9 @@ through a gain k into an integrator from y0 = -a, so the lateral error is e = k 
 exact at every recorded step, and its mean |e| over [0, T] has a closed form:
 (a^2 + (k T - a)^2) / (2 k T), least at k = sqrt(2) a / T. The tuner finds that optimum
 (the mean and the worst case over runs differ), the same manifest and seed give the same
-tune.json bytes, a candidate whose run fails is infeasible and the search goes on, the
-page compares the original and the tuned parameters, and each bad [tune] is one line,
-exit 2."""
+tune.json bytes (local, and on a Dask cluster), a candidate whose run fails is
+infeasible and the search goes on, the page compares the original and the tuned
+parameters, and each bad [tune] is one line, exit 2."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from test_dask import cluster  # noqa: F401 - the Dask cluster fixture
 
 from agv_cosim.cli import main
 
@@ -341,3 +342,17 @@ def test_bad_tune_input_is_one_line_exit_2(fmus, tmp_path, capsys, tune, options
     assert str(path) in lines[0]
     assert "Traceback" not in err and out == ""
     assert not (tmp_path / "out").exists()
+
+
+
+@pytest.mark.slow
+def test_on_dask_the_same_tune_json_as_local(cluster, fmus, tmp_path,  # noqa: F811
+                                             capsys):
+    path = write(tmp_path, fmus, tune=TUNE_SMALL.format(seed=4))
+    for out, options in (("local", []), ("dask", ["--dask", cluster])):
+        code, _, err = tune_cli([str(path), "--out", str(tmp_path / out), "--quiet",
+                                 *options], capsys)
+        assert code == 0, err
+    assert (tmp_path / "local" / "tune.json").read_bytes() == \
+        (tmp_path / "dask" / "tune.json").read_bytes()
+    assert sorted(p.name for p in (tmp_path / "dask" / "tuned").iterdir()) == ["base"]
