@@ -356,3 +356,35 @@ def test_on_dask_the_same_tune_json_as_local(cluster, fmus, tmp_path,  # noqa: F
     assert (tmp_path / "local" / "tune.json").read_bytes() == \
         (tmp_path / "dask" / "tune.json").read_bytes()
     assert sorted(p.name for p in (tmp_path / "dask" / "tuned").iterdir()) == ["base"]
+
+
+@pytest.mark.parametrize("change, expected", [
+    ({"variability": "constant"}, "'gain.k' is a constant parameter, not tunable"),
+    ({"causality": "calculatedParameter"}, "'gain.k' is calculatedParameter, not a "
+                                           "parameter"),
+    ({"max": "2.5"}, "tune.parameters.gain.k: max 3.0 is outside the FMU's range (its "
+                     "max is 2.5)"),
+    ({"min": "0.5"}, "tune.parameters.gain.k: min 0.2 is outside the FMU's range (its "
+                     "min is 0.5)"),
+])
+def test_what_the_fmu_declares_is_checked(fmus, tmp_path, change, expected):
+    # the test FMUs declare no range and no constant: the model description read is
+    # changed as such an FMU's would read
+    import copy
+    from dataclasses import replace
+
+    from agv_cosim.errors import ManifestError
+    from agv_cosim.pipeline import prepare
+    from agv_cosim.tuning import check_tune
+
+    manifest, jobs, _ = prepare(write(tmp_path, fmus, tune=GOOD))
+    check_tune(manifest, jobs)  # as declared: fine
+    for job in jobs:
+        info = copy.copy(job.plan.models["gain"])
+        info.variables = dict(info.variables)
+        info.variables["k"] = replace(info.variables["k"], **change)
+        job.plan.models["gain"] = info
+    with pytest.raises(ManifestError) as error:
+        check_tune(manifest, jobs)
+    text = str(error.value)
+    assert expected in text and "\n" not in text, text
