@@ -12,6 +12,8 @@ on every run for the comparison, and :mod:`.output` writes the folder.
 from __future__ import annotations
 
 import os
+import re
+import shutil
 import sys
 import tempfile
 from dataclasses import dataclass
@@ -19,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import OutputError
-from ..files import AtomicDir, printable
+from ..files import AtomicDir, marker_data, printable
 from ..fitting import TuneResult, tune
 from ..manifest import Manifest, load_manifest
 from ..pipeline import prepare
@@ -30,7 +32,8 @@ from ..workers.pool import IdleWorkers, run_isolated
 from ..workers.runner import DaskRunner
 from .setup import Setup, available_metrics, check_tune
 
-__all__ = ["Tuning", "Setup", "available_metrics", "check_tune", "tune_manifest"]
+__all__ = ["Setup", "Tuning", "available_metrics", "check_tune", "keep_users",
+           "tune_manifest"]
 
 
 @dataclass
@@ -84,6 +87,10 @@ def tune_manifest(manifest: str | Path | Manifest, out: str | Path, *,
     idle = IdleWorkers()
     with AtomicDir(out, overwrite=overwrite, about=about) as folder:
         assert folder.path is not None
+        kept = keep_users(folder.target, folder.path)
+        if kept and not quiet:
+            print(printable(f"agv-cosim tune: kept {len(kept)} file(s) not written by "
+                            f"agv-cosim: {', '.join(kept[:5])}"), file=sys.stderr)
         run_jobs = _run_jobs(count, dask, idle)
         try:
             with tempfile.TemporaryDirectory(prefix=".trials-", dir=folder.path) as scratch:
@@ -105,6 +112,41 @@ def tune_manifest(manifest: str | Path | Manifest, out: str | Path, *,
         target = folder.commit()
     return Tuning(result=result, record=record, setup=setup, original=original,
                   tuned=tuned, failures=trials.failures, folder=target)
+
+
+#: What ``tune`` writes into its folder (the rest of a folder it replaces is the user's).
+_OURS = re.compile(r"^(tune\.json|tuned_variant\.toml|index\.html|original|tuned|"
+                   r"tune_history\.png|tune_run\d+\.png|\.agv-cosim)$")
+
+
+def keep_users(target: Path, root: Path) -> list[str]:
+    """Carry every entry of the earlier tune folder ``target`` that ``tune`` does not
+    write into the new folder ``root`` (hard links, else copies; a link stays a link):
+    replacing a folder of ours never deletes a user's file. Nothing when ``target`` is
+    not a tune folder with our marker. Returns the entries kept."""
+    about = marker_data(target) if target.is_dir() and not target.is_symlink() else None
+    if about is None or about.get("command") != "tune":
+        return []
+    kept = []
+    for entry in sorted(os.listdir(target)):
+        if _OURS.match(entry):
+            continue
+        old, new = target / entry, root / entry
+        if old.is_dir() and not old.is_symlink():
+            shutil.copytree(old, new, symlinks=True, copy_function=_link_or_copy)
+        elif old.is_symlink():
+            os.symlink(os.readlink(old), new)
+        else:
+            _link_or_copy(str(old), str(new))
+        kept.append(entry)
+    return kept
+
+
+def _link_or_copy(source: str, destination: str) -> None:
+    try:
+        os.link(source, destination, follow_symlinks=False)
+    except OSError:
+        shutil.copy2(source, destination, follow_symlinks=False)
 
 
 def _final_runs(manifest: Manifest, setup: Setup, values: dict[str, float],

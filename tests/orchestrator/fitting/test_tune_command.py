@@ -185,12 +185,21 @@ popsize = 4
 @pytest.mark.slow
 def test_same_manifest_and_seed_give_the_same_tune_json(fmus, tmp_path, capsys):
     path = write(tmp_path, fmus, tune=TUNE_SMALL.format(seed=5))
-    for out in ("one", "two"):
-        code, _, err = tune_cli([str(path), "--out", str(tmp_path / out), "--jobs",
-                                 "1" if out == "one" else "2"], capsys)
-        assert code == 0, err
-    first = (tmp_path / "one" / "tune.json").read_bytes()
-    assert first == (tmp_path / "two" / "tune.json").read_bytes()
+    out = tmp_path / "one"
+    code, _, err = tune_cli([str(path), "--out", str(out), "--jobs", "1"], capsys)
+    assert code == 0, err
+    first = (out / "tune.json").read_bytes()
+    # the folder replaced by the same tuning, with 2 workers: the same bytes, and the
+    # user's files in it kept
+    (out / "notes.txt").write_text("mine")
+    (out / "mine").mkdir()
+    (out / "mine" / "data.csv").write_text("1,2")
+    code, _, err = tune_cli([str(path), "--out", str(out), "--jobs", "2"], capsys)
+    assert code == 0, err
+    assert first == (out / "tune.json").read_bytes()
+    assert (out / "notes.txt").read_text() == "mine"
+    assert (out / "mine" / "data.csv").read_text() == "1,2"
+    assert "kept 2 file(s) not written by agv-cosim: mine, notes.txt" in err
     found = json.loads(first)
     # 4 generations of at least 5 candidates
     assert found["seed"] == 5 and len(found["history"]) == found["evaluations"] == 4 * 5
