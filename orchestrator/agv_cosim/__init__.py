@@ -53,6 +53,7 @@ _API = {
     "Results": "agv_cosim.api", "Run": "agv_cosim.api", "open_results": "agv_cosim.api",
     "run": "agv_cosim.api",
     "identify": "agv_cosim.api", "IdentifyError": "agv_cosim.errors",
+    "tune": "agv_cosim.api", "TuneError": "agv_cosim.errors",
 }
 
 __all__ = ["__version__", *sorted(_API)]

@@ -40,7 +40,7 @@ if TYPE_CHECKING:
 
     from .plan import Override
 
-__all__ = ["Results", "Run", "identify", "open_results", "run"]
+__all__ = ["Results", "Run", "identify", "open_results", "run", "tune"]
 
 _SUMMARY = "summary.csv"
 _PARTIAL = "partial.txt"
@@ -572,3 +572,62 @@ def identify(data: str | Path, *, input: str, output: str, out: str | Path | Non
     return {"models": found.result, "parameters": pandas.DataFrame(rows),
             "responses": responses, "settings": found.record["settings"],
             "folder": found.folder}
+
+
+def tune(manifest: str | Path, *, out: str | Path, jobs: int | None = None,
+         dask: str | None = None, overwrite: bool = False, quiet: bool = True,
+         timeout: float | None = None) -> dict[str, Any]:
+    """Tune the parameters of a manifest's ``[tune]`` table as ``agv-cosim tune`` does
+    (docs/tune.md) and write the folder ``out``.
+
+    Returns a dict: ``"best"`` (parameter -> tuned value), ``"best_value"`` and
+    ``"start_value"`` (the objective, tuned and original; ``inf`` when infeasible),
+    ``"record"`` (tune.json's content), ``"history"`` (a DataFrame, one row per trial:
+    ``number``, ``generation``, the parameters, ``value``), ``"comparison"`` (a
+    DataFrame, one row per run and ``which`` = original/tuned, with its status and
+    metrics), ``"failed_runs"`` (the runs that failed during the search: their
+    candidates were infeasible), ``"folder"``.
+
+    Raises
+    ------
+    AgvCosimError
+        For everything ``agv-cosim tune`` reports as an error (a bad manifest or
+        ``[tune]``, an output folder that is not ours); ``str()`` is its line.
+    """
+    import pandas
+
+    from .lifetime import (
+        clean_stale_scratch,
+        termination_signals,
+        use_own_scratch_for_multiprocessing,
+    )
+    from .ssp.importer import opened
+    from .tuning import tune_manifest
+
+    if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
+        raise AgvCosimError(f"jobs: must be an integer >= 1, not {jobs!r}")
+    _path_option(manifest, "manifest")
+    _path_option(out, "out")
+    try:
+        with termination_signals():
+            use_own_scratch_for_multiprocessing()
+            clean_stale_scratch()
+            with opened(manifest) as source:
+                found = tune_manifest(source, out,
+                                      workers=jobs, dask=dask, overwrite=overwrite,
+                                      quiet=quiet, timeout=timeout)
+    except (ManifestError, OutputError, UnreadableFile, FolderLost, ClusterError,
+            OSError) as error:
+        lines = error_lines(error)
+        raise AgvCosimError(lines[0], lines, exit_code(error)) from error
+    result = found.result
+    history = pandas.DataFrame([{"number": t.number, "generation": t.generation,
+                                 **t.parameters, "value": t.value}
+                                for t in result.history])
+    rows = [{"run": run, "which": which, "status": entry["status"], **entry["metrics"]}
+            for run, pair in found.record["comparison"].items()
+            for which, entry in pair.items()]
+    return {"best": dict(result.best), "best_value": result.best_value,
+            "start_value": result.start_value, "record": found.record,
+            "history": history, "comparison": pandas.DataFrame(rows),
+            "failed_runs": list(found.failures), "folder": found.folder}

@@ -289,6 +289,49 @@ def _cmd_identify(args):
     return 0
 
 
+def _cmd_tune(args):
+    import math
+    import time
+
+    from .errors import ClusterError, TuneError
+    from .tuning import tune_manifest
+
+    if args.jobs is not None and args.jobs < 1:
+        return _error("--jobs: must be >= 1")
+    start = time.perf_counter()
+    try:
+        found = tune_manifest(args.manifest, args.out, workers=args.jobs, dask=args.dask,
+                              overwrite=args.overwrite, quiet=args.quiet,
+                              timeout=args.timeout)
+    except TuneError as error:
+        return _error(str(error))
+    except ClusterError as error:
+        _say(f"agv-cosim: error: {error_lines(error)[0]}")
+        return exit_code(error)
+    result = found.result
+
+    def shown(value):
+        return f"{value:.6g}" if math.isfinite(value) else "infeasible"
+
+    if found.failures:
+        trials = len({f["trial"] for f in found.failures})
+        _say(f"agv-cosim tune: {len(found.failures)} run(s) of {trials} candidate(s) "
+             "failed during the search: those candidates were infeasible and the "
+             f"search went on (tune.json: failed_runs; first: trial "
+             f"{found.failures[0]['trial']}, run {found.failures[0]['run']}: "
+             f"{found.failures[0]['status']}: {found.failures[0]['error']})")
+    for name, value in result.best.items():
+        print(printable(f"{name}: {result.start[name]!r} -> {value!r}"))
+    print(printable(f"objective ({result.objective.aggregate} over "
+                    f"{len(result.best_runs)} run(s)): {shown(result.start_value)} -> "
+                    f"{shown(result.best_value)} after {result.evaluations} candidate(s)"))
+    print(printable(f"{found.folder}: tune.json, tuned_variant.toml, index.html "
+                    f"({time.perf_counter() - start:.1f} s)"))
+    bad = [job.label for job, r in found.original + found.tuned
+           if r["status"] != "complete"]
+    return 1 if bad or not math.isfinite(result.best_value) else 0
+
+
 def make_parser() -> argparse.ArgumentParser:
     """The argument parser of ``agv-cosim`` with all its subcommands."""
     parser = _Parser(prog="agv-cosim", description=_plain(__doc__),
@@ -469,6 +512,35 @@ def make_parser() -> argparse.ArgumentParser:
     ident.add_argument("--overwrite", action="store_true",
                        help="replace DIR even if it is not a result folder of agv-cosim")
     ident.set_defaults(func=_cmd_identify)
+
+    tuner = sub.add_parser(
+        "tune", help="tune parameters (a controller's gains) to minimise a metric over "
+                     "every run of a manifest", parents=[debug],
+        description="Minimise the [tune] objective of a manifest (a metric of its "
+                    "[metrics], or a weighted sum) over the bounded [tune.parameters], "
+                    "its mean or worst case over every run (variants and sweep points). "
+                    "Each batch of candidates runs through the workers as a sweep "
+                    "does; a candidate whose run fails is infeasible and the search goes "
+                    "on. Writes DIR/tune.json (best parameters and objective, every "
+                    "trial, the seed: the same manifest gives the same bytes), "
+                    "tuned_variant.toml, index.html comparing the original and the "
+                    "tuned parameters on every run, and their runs under original/ and "
+                    "tuned/. Exit 2, one line, for a bad [tune]. docs/tune.md.")
+    tuner.add_argument("manifest", help="experiment manifest (TOML) with a [tune] table")
+    tuner.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    tuner.add_argument("--jobs", type=int, metavar="N",
+                       help="runs at once, in worker processes (default: one per core)")
+    tuner.add_argument("--dask", metavar="ADDRESS",
+                       help="run on the Dask cluster whose scheduler is at ADDRESS "
+                            "(tcp://HOST:PORT; docs/dask.md)")
+    tuner.add_argument("--timeout", type=_timeout, metavar="SECONDS",
+                       help="wall-clock limit of each run (a run over it makes its "
+                            "candidate infeasible)")
+    tuner.add_argument("--overwrite", action="store_true",
+                       help="replace DIR even if it is not a result folder of agv-cosim")
+    tuner.add_argument("--quiet", action="store_true",
+                       help="no progress lines on stderr")
+    tuner.set_defaults(func=_cmd_tune)
     parser.commands = dict(sub.choices)
     return parser
 

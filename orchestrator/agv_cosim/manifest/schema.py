@@ -277,6 +277,31 @@ class MonteCarloTable(_Table):
     band: Dotted | None = None
 
 
+class TuneBounds(_Table):
+    """A tuned parameter's bounds (``[tune.parameters]``); its start is the manifest's
+    value."""
+
+    min: Number
+    max: Number
+
+
+class TuneTable(_Table):
+    """``[tune]`` (``agv-cosim tune``, docs/tune.md): the objective (a metric of
+    ``[metrics]``, or metric -> weight summed), its aggregate over the runs, the
+    optimiser and its budget, and the bounded parameters; names are checked against the
+    runs by :mod:`agv_cosim.tuning`."""
+
+    objective: StrictStr | Annotated[dict[str, Number], Field(min_length=1)]
+    aggregate: Literal["mean", "worst"] = "mean"
+    method: Literal["evolution", "gradient"] = "evolution"
+    generations: Annotated[StrictInt, Field(ge=1, le=10_000)] = 30
+    popsize: Annotated[StrictInt, Field(ge=1, le=1_000)] = 10
+    seed: Annotated[StrictInt, Field(ge=0)] = 0
+    tol: Annotated[Number, Field(ge=0)] = 1e-6
+    parameters: Annotated[dict[Annotated[StrictStr, _dotted("component.parameter")],
+                               TuneBounds], Field(min_length=1)]
+
+
 class ManifestTable(_Table):
     """The top level of a manifest."""
 
@@ -295,6 +320,7 @@ class ManifestTable(_Table):
     metrics: MetricsTable = MetricsTable()
     plots: PlotsTable = PlotsTable()
     montecarlo: MonteCarloTable | None = None
+    tune: TuneTable | None = None
 
 
 # --------------------------------------------------------------------------- errors
