@@ -139,6 +139,8 @@ class Manifest:
     #: manifest file's, links resolved; of an SSP package, its unpacked SSD's); None:
     #: ``path``'s (:attr:`files_dir`)
     base_dir: Path | None = None
+    #: the ``[fit]`` table as the schema checked it (``agv-cosim fit``), or None
+    fit: schema.FitTable | None = None
 
     def error(self, key: str, problem: str) -> ManifestError:
         """A :class:`ManifestError` of ``key``, with its line when known."""
@@ -588,5 +590,5 @@ def manifest_from_data(data: dict[str, Any], path: str | Path, sha256: str,
                     metrics=table.metrics if data.get("metrics") else None,
                     plots=table.plots if data.get("plots") else None,
                     events=events, montecarlo=sampling, timeout=sim.timeout,
-                    base_dir=base_dir, held=list(table.held))
+                    base_dir=base_dir, held=list(table.held), fit=table.fit)
 

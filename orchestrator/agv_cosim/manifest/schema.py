@@ -277,6 +277,26 @@ class MonteCarloTable(_Table):
     band: Dotted | None = None
 
 
+class FitParameterTable(_Table):
+    """``[fit.parameters."<c.p>"]``: the bounds of a fitted parameter (its start is the
+    manifest's value; checked by :mod:`agv_cosim.pipeline.fit`)."""
+
+    min: Number
+    max: Number
+
+
+class FitTable(_Table):
+    """``[fit]`` (``agv-cosim fit``, docs/fit.md): the measured data, the signals fitted
+    to its columns, their weights and the fitted parameters; names are checked against
+    the run's FMUs and the data by :mod:`agv_cosim.pipeline.fit`."""
+
+    data: StrictStr
+    signals: Annotated[dict[Dotted, StrictStr], Field(min_length=1)]
+    weights: dict[Dotted, Number] = {}
+    parameters: Annotated[dict[Annotated[StrictStr, _dotted("component.parameter")],
+                               FitParameterTable], Field(min_length=1)]
+
+
 class ManifestTable(_Table):
     """The top level of a manifest."""
 
@@ -295,6 +315,7 @@ class ManifestTable(_Table):
     metrics: MetricsTable = MetricsTable()
     plots: PlotsTable = PlotsTable()
     montecarlo: MonteCarloTable | None = None
+    fit: FitTable | None = None
 
 
 # --------------------------------------------------------------------------- errors
