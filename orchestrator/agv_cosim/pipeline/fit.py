@@ -255,7 +255,7 @@ def _solve(fit_set: FitSetup, chosen: Any, root: Path,
     fitted = at_point(job, parameters, values, FITTED)
     outcome = chosen.run([fitted], root, lambda steps: None, lambda: None)[0]
     if outcome["status"] != "complete":
-        raise TrialFailed(f"the run at the fitted values {outcome['status']}: "
+        raise TrialFailed(f"fit: the run at the fitted values {outcome['status']}: "
                           f"{outcome['error']}")
     return result, trials.runs + 1
 

@@ -183,10 +183,11 @@ def runner(jobs: int | None, dask: str | None) -> Runner:
 class Trials:
     """Batches of runs through ``runner`` into ``root/<batch>/<label>``; each batch's
     folder is removed once its signals are read (it is ours: made here). ``runs`` counts
-    the runs made."""
+    the runs made; ``what`` (the command) starts the message of a failed run."""
 
-    def __init__(self, runner: Runner, root: Path) -> None:
+    def __init__(self, runner: Runner, root: Path, what: str = "fit") -> None:
         self.runner = runner
+        self.what = what
         self.root = root
         self.batches = 0
         self.runs = 0
@@ -206,7 +207,7 @@ class Trials:
             out = []
             for job, result, point in zip(jobs, results, points):
                 if result["status"] != "complete":
-                    raise TrialFailed(f"run at {describe(parameters, point)} "
+                    raise TrialFailed(f"{self.what}: run at {describe(parameters, point)} "
                                       f"{result['status']}: {result['error']}")
                 time, columns = read_timeseries(folder / job.label / "timeseries.csv",
                                                 signals)
