@@ -32,6 +32,8 @@ SECTIONS = {
     '`[montecarlo.parameters."<c.p>"]` uniform': schema.Uniform,
     '`[montecarlo.parameters."<c.p>"]` truncnormal': schema.TruncNormal,
     '`[montecarlo.parameters."<c.p>"]` choice': schema.Choice,
+    "`[fit]`": schema.FitTable,
+    '`[fit.parameters."<c.p>"]`': schema.FitParameterTable,
 }
 
 
