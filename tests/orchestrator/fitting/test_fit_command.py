@@ -216,3 +216,25 @@ signals = {{ "f.y" = "y" }}
     assert "deliberate failure at t=0.5" in err
     assert not (tmp_path / "out").exists()
     assert not list(tmp_path.glob(".out.*"))
+
+
+def test_the_api_raises_not_converged_with_the_folder_kept(
+        tmp_path: Path, steering_a: Path) -> None:
+    import agv_cosim
+    from agv_cosim.errors import FitNotConverged
+
+    measured(tmp_path, noise=0.002)
+    path = manifest(tmp_path, steering_a)
+    with pytest.raises(FitNotConverged) as error:
+        agv_cosim.fit(path, out=tmp_path / "fitted", jobs=1, max_evaluations=1)
+    assert error.value.exit_code == 2 and "not converged" in str(error.value)
+    assert error.value.kept == tmp_path / "fitted"
+    assert error.value.result.converged is False
+    assert json.loads((tmp_path / "fitted" / "fit.json").read_text())["converged"] is False
+    # without out: no folder, the result as a dict
+    found = agv_cosim.fit(path, jobs=1)
+    assert found["folder"] is None and found["fit"]["converged"] is True
+    assert list(found["parameters"]["parameter"]) == ["act.K", "act.tau"]
+    assert list(found["signals"].columns) == ["act.alpha measured", "act.alpha fitted",
+                                              "act.alpha residual"]
+    assert found["runs"] == found["fit"]["runs"] + 1
