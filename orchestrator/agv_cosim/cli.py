@@ -292,7 +292,7 @@ def _cmd_identify(args):
 def _cmd_fit(args):
     import time
 
-    from .errors import AgvCosimError
+    from .errors import AgvCosimError, ClusterError
     from .pipeline.fit import fit_manifest, setup
 
     if args.jobs is not None and args.jobs < 1:
@@ -308,6 +308,8 @@ def _cmd_fit(args):
                              checked=checked)
     except AgvCosimError as error:
         return _report(args, f"error: {error}", error.exit_code)
+    except ClusterError as error:  # the cluster cannot be reached, or went away
+        return _report(args, f"error: {error_lines(error)[0]}", exit_code(error))
     result = found.result
     for name in result.names:
         stderr = result.stderr[name]

@@ -14,7 +14,9 @@ for a batch of parameter vectors, the runs at each vector. This module
   local worker pool or a Dask cluster, as a sweep's runs) into folders of a scratch
   folder (:class:`Trials`), and reads back each run's recorded signals; a run that is not
   ``complete`` raises :class:`~agv_cosim.errors.TrialFailed` naming its parameter values
-  and its reason.
+  and its reason. A batch stopped (a termination signal, a cluster gone) raises the
+  runner's :class:`~agv_cosim.errors.RunsStopped` with the termination signals restored:
+  nothing of a batch is kept.
 
 The local pool keeps its worker processes between batches (:class:`KeptLocalRunner`), so
 the runs of one iteration do not pay for new processes and FMU loads each time.
@@ -30,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import TrialFailed
+from ..errors import RunsStopped, TrialFailed
 from ..manifest import Manifest
 from ..report.records import RunResult
 from ..system import Job
@@ -202,7 +204,11 @@ class Trials:
         self.batches += 1
         folder.mkdir(parents=True)
         try:
-            results = self.runner.run(jobs, folder, lambda steps: None, lambda: None)
+            try:
+                results = self.runner.run(jobs, folder, lambda steps: None, lambda: None)
+            except RunsStopped as stop:  # nothing of a batch is kept: signals back now
+                stop.restore()
+                raise
             self.runs += len(jobs)
             out = []
             for job, result, point in zip(jobs, results, points):

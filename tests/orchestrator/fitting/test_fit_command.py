@@ -238,3 +238,14 @@ def test_the_api_raises_not_converged_with_the_folder_kept(
     assert list(found["signals"].columns) == ["act.alpha measured", "act.alpha fitted",
                                               "act.alpha residual"]
     assert found["runs"] == found["fit"]["runs"] + 1
+
+
+def test_an_unreachable_cluster_is_one_line_exit_1(
+        tmp_path: Path, steering_a: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    measured(tmp_path)
+    path = manifest(tmp_path, steering_a)
+    code, out, err = fit_cli(capsys, str(path), "--out", str(tmp_path / "out"), "--dask",
+                             "tcp://127.0.0.1:9")
+    assert code == 1 and err.count("\n") == 1, err
+    assert "--dask: cannot reach the scheduler at tcp://127.0.0.1:9" in err
+    assert not (tmp_path / "out").exists()
