@@ -18,7 +18,8 @@ def _error(**tables):
 
 @pytest.mark.parametrize("tables, message", [
     ({"zzz": 1}, "zzz: unknown key 'zzz' (allowed: name, description, simulation, components, "
-                 "connections, held, variants, sweep, record, events, metrics, plots, montecarlo)"),
+                 "connections, held, variants, sweep, record, events, metrics, plots, "
+                 "montecarlo, fit)"),
     ({"simulation": {"stop": "1", "step": 0.1}}, "simulation.stop: '1' is not a number"),
     ({"simulation": {"stop": True, "step": 0.1}}, "simulation.stop: True is not a number"),
     ({"simulation": {"stop": float("inf"), "step": 0.1}}, "simulation.stop: inf is not finite"),
@@ -88,7 +89,7 @@ def test_every_schema_problem_is_reported_once():
         "simulation.stp: unknown key 'stp' (did you mean 'stop'?)",
         "components.a.fmu: 1 is not a string",
         "zzz: unknown key 'zzz' (allowed: name, description, simulation, components, "
-        "connections, held, variants, sweep, record, events, metrics, plots, montecarlo)",
+        "connections, held, variants, sweep, record, events, metrics, plots, montecarlo, fit)",
     ]
     # a missing key with no misspelt neighbour is still reported as missing
     assert _errors({"simulation": {"step": 0.1}, "components": {"a": {"fmu": "a"}},
