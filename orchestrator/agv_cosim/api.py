@@ -3,10 +3,12 @@ pandas DataFrames (docs/api.md).
 
 :func:`run` does what ``agv-cosim run`` does (the same checks, the same result folder)
 and returns :class:`Results`; :func:`open_results` reads a result folder written
-before. Every mistake and failure that the command reports as an error raises
-:class:`~agv_cosim.errors.AgvCosimError`, whose text is the command's line. A script
-needs no ``if __name__ == "__main__":`` guard: the worker processes do not import the
-caller's main module. pandas is imported here only, when a DataFrame is asked for.
+before; :func:`identify` and :func:`fit` do what ``agv-cosim identify`` and
+``agv-cosim fit`` do and return dicts. Every mistake and failure that the command
+reports as an error raises :class:`~agv_cosim.errors.AgvCosimError`, whose text is
+the command's line. A script needs no ``if __name__ == "__main__":`` guard: the worker
+processes do not import the caller's main module. pandas is imported here only, when a
+DataFrame is asked for.
 """
 
 import csv
