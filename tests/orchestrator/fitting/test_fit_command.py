@@ -249,3 +249,21 @@ def test_an_unreachable_cluster_is_one_line_exit_1(
     assert code == 1 and err.count("\n") == 1, err
     assert "--dask: cannot reach the scheduler at tcp://127.0.0.1:9" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_weights_of_the_manifest_are_used(tmp_path: Path, steering_a: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    measured(tmp_path, noise=0.002)
+    path = manifest(tmp_path, steering_a, replace=((
+        'signals = { "act.alpha" = "alpha" }',
+        'signals = { "act.alpha" = "alpha" }\nweights = { "act.alpha" = 500.0 }'),))
+    code, out, err = fit_cli(capsys, str(path), "--out", str(tmp_path / "fitted"))
+    assert code == 0, err
+    result = json.loads((tmp_path / "fitted" / "fit.json").read_text())
+    assert result["weights"] == {"act.alpha": 500.0}
+    # the cost is half the sum of the squared weighted residuals
+    rms = result["rms"]["act.alpha"]
+    assert result["cost"] == pytest.approx(0.5 * 301 * (500.0 * rms) ** 2, rel=1e-9)
+    for name, true in TRUE.items():
+        entry = result["parameters"][name]
+        assert abs(entry["value"] - true) <= 3 * entry["stderr"], (name, entry)
