@@ -14,9 +14,10 @@ for a batch of parameter vectors, the runs at each vector. This module
   local worker pool or a Dask cluster, as a sweep's runs) into folders of a scratch
   folder (:class:`Trials`), and reads back each run's recorded signals; a run that is not
   ``complete`` raises :class:`~agv_cosim.errors.TrialFailed` naming its parameter values
-  and its reason. A batch stopped (a termination signal, a cluster gone) raises the
-  runner's :class:`~agv_cosim.errors.RunsStopped` with the termination signals restored:
-  nothing of a batch is kept.
+  and its reason (:meth:`Trials.run`; :meth:`Trials.results` returns the runs' results,
+  metrics included, whatever their status). A batch stopped (a termination signal, a
+  cluster gone) raises the runner's :class:`~agv_cosim.errors.RunsStopped` with the
+  termination signals restored: nothing of a batch is kept.
 
 The local pool keeps its worker processes between batches (:class:`KeptLocalRunner`), so
 the runs of one iteration do not pay for new processes and FMU loads each time.
@@ -29,6 +30,7 @@ import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -45,6 +47,7 @@ __all__ = ["KeptLocalRunner", "Trials", "Tunable", "at_point", "describe", "runn
 
 #: The variabilities of a parameter that can be set before a run.
 SETTABLE = ("fixed", "tunable")
+T = TypeVar("T")
 #: The FMI types of a Real parameter (FMI 2.0, FMI 3.0).
 REAL_TYPES = ("Real", "Float64", "Float32")
 
@@ -194,12 +197,34 @@ class Trials:
         self.batches = 0
         self.runs = 0
 
+    def results(self, jobs: list[Job]) -> list[RunResult]:
+        """Run ``jobs`` as one batch and return their results (status, error, metrics:
+        a tuning reads the metrics and may take a run not complete as infeasible); the
+        batch's folder is removed."""
+        return self._batch(jobs, lambda folder, results: results)
+
     def run(self, jobs: list[Job], parameters: Sequence[Tunable],
             points: Sequence[Sequence[float]], signals: Sequence[str]
             ) -> list[dict[str, tuple[np.ndarray, np.ndarray]]]:
         """Run ``jobs`` (one per point of ``points``, made by :func:`at_point`
         recording ``signals``) and return each run's ``{signal: (time, values)}``;
         :class:`~agv_cosim.errors.TrialFailed` for a run not complete."""
+        def read(folder: Path, results: list[RunResult]
+                 ) -> list[dict[str, tuple[np.ndarray, np.ndarray]]]:
+            out = []
+            for job, result, point in zip(jobs, results, points):
+                if result["status"] != "complete":
+                    raise TrialFailed(f"{self.what}: run at {describe(parameters, point)} "
+                                      f"{result['status']}: {result['error']}")
+                time, columns = read_timeseries(folder / job.label / "timeseries.csv",
+                                                signals)
+                out.append({s: (time, columns[s]) for s in signals})
+            return out
+
+        return self._batch(jobs, read)
+
+    def _batch(self, jobs: list[Job], read: Callable[[Path, list[RunResult]], T]) -> T:
+        """Run ``jobs`` into a new batch folder, ``read`` what is needed, remove it."""
         folder = self.root / f"batch-{self.batches:05d}"
         self.batches += 1
         folder.mkdir(parents=True)
@@ -210,15 +235,6 @@ class Trials:
                 stop.restore()
                 raise
             self.runs += len(jobs)
-            out = []
-            for job, result, point in zip(jobs, results, points):
-                if result["status"] != "complete":
-                    raise TrialFailed(f"{self.what}: run at {describe(parameters, point)} "
-                                      f"{result['status']}: {result['error']}")
-                time, columns = read_timeseries(folder / job.label / "timeseries.csv",
-                                                signals)
-                out.append({s: (time, columns[s]) for s in signals})
-            return out
+            return read(folder, results)
         finally:
             shutil.rmtree(folder, ignore_errors=True)
-
