@@ -606,7 +606,7 @@ def fit(manifest: str | Path, *, out: str | Path | None = None, variant: str | N
         termination_signals,
         use_own_scratch_for_multiprocessing,
     )
-    from .pipeline.fit import fit_manifest
+    from .manifest_fit import fit_manifest
 
     if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
         raise AgvCosimError(f"jobs: must be an integer >= 1, not {jobs!r}")

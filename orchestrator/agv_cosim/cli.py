@@ -293,7 +293,7 @@ def _cmd_fit(args):
     import time
 
     from .errors import AgvCosimError, ClusterError
-    from .pipeline.fit import fit_manifest, setup
+    from .manifest_fit import fit_manifest, setup
 
     if args.jobs is not None and args.jobs < 1:
         return _error("--jobs: must be >= 1")

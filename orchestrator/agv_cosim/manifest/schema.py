@@ -279,7 +279,7 @@ class MonteCarloTable(_Table):
 
 class FitParameterTable(_Table):
     """``[fit.parameters."<c.p>"]``: the bounds of a fitted parameter (its start is the
-    manifest's value; checked by :mod:`agv_cosim.pipeline.fit`)."""
+    manifest's value; checked by :mod:`agv_cosim.manifest_fit.checks`)."""
 
     min: Number
     max: Number
@@ -288,7 +288,7 @@ class FitParameterTable(_Table):
 class FitTable(_Table):
     """``[fit]`` (``agv-cosim fit``, docs/fit.md): the measured data, the signals fitted
     to its columns, their weights and the fitted parameters; names are checked against
-    the run's FMUs and the data by :mod:`agv_cosim.pipeline.fit`."""
+    the run's FMUs and the data by :mod:`agv_cosim.manifest_fit.checks`."""
 
     data: StrictStr
     signals: Annotated[dict[Dotted, StrictStr], Field(min_length=1)]

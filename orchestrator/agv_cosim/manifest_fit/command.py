@@ -5,7 +5,7 @@ model (output error; docs/fit.md).
 The manifest's ``[fit]`` table names the data (a CSV file relative to the manifest), the
 signals fitted to its columns, optional weights and the parameters with their bounds
 (the start is the run's value). The set-up is checked before any run, each problem one
-line, exit 2 (:func:`setup`): the run (one: a variant chosen with ``--variant`` when the
+line, exit 2 (:func:`.checks.setup`): the run (one: a variant chosen with ``--variant`` when the
 manifest has several), each signal an output of it, each weight a fitted signal's, each
 parameter a settable Real parameter (:func:`agv_cosim.pipeline.trials.tunable`) with
 min < max and its start within them, the data readable with a column per signal, time
@@ -51,26 +51,16 @@ from typing import Any
 import numpy as np
 
 from ..errors import FitNotConverged, OutputError, TrialFailed
-from ..files import (
-    MARKER,
-    AtomicDir,
-    _write_marker,
-    marker_data,
-    read_json_object,
-    write_json,
-    write_text,
-)
-from ..fitting import FitResult, MeasuredData, Parameter, check_interval, read_data
+from ..files import MARKER, AtomicDir, write_json, write_text
+from ..fitting import FitResult, Parameter
 from ..fitting import fit as fit_signals
 from ..manifest import Manifest
-from ..report import fit_page
-from ..report.page import RECORD as PAGE_RECORD
+from ..pipeline.resume import keep_user_files
+from ..pipeline.trials import KeptLocalRunner, Trials, at_point, runner
 from ..report.records import versions
-from ..system import Job
 from ..system.files import file_sha256
-from .prepare import prepare
-from .resume import FOLDER_FILES, _carry
-from .trials import KeptLocalRunner, Trials, Tunable, at_point, runner, signal_problem, tunable
+from . import output
+from .checks import FitSetup, setup
 
 __all__ = ["FITTED", "OURS", "FitOutcome", "FitSetup", "fit_manifest", "setup"]
 
@@ -90,22 +80,6 @@ VARIANT = "fitted"
 
 
 @dataclass
-class FitSetup:
-    """A fit checked and ready: the manifest, its one run (``job``), the parameters,
-    the signals (signal -> column), the weights given, the data (and its file)."""
-
-    manifest: Manifest
-    job: Job
-    parameters: list[Tunable]
-    bounds: dict[str, tuple[float, float]]
-    signals: dict[str, str]
-    weights: dict[str, float]
-    data: MeasuredData
-    data_path: Path
-    warnings: list[str]
-
-
-@dataclass
 class FitOutcome:
     """What :func:`fit_manifest` did: the engine's ``result``, the ``folder`` written
     (None without ``out``), the ``setup``, the ``runs`` made (the fitted run too)."""
@@ -114,68 +88,6 @@ class FitOutcome:
     folder: Path | None
     setup: FitSetup
     runs: int
-
-
-def setup(manifest: str | Path | Manifest, variant: str | None = None) -> FitSetup:
-    """The fit of ``manifest`` checked (see the module); ManifestError (a key of
-    ``[fit]`` and its line) or FitDataError (the data file, line, column), one line."""
-    loaded, jobs, warnings = prepare(manifest, [variant] if variant else None)
-    spec = loaded.fit
-    if spec is None:
-        raise loaded.error("fit", "missing: a fit needs a [fit] table (data, signals, "
-                           "parameters; docs/fit.md)")
-    if len(jobs) != 1:
-        raise loaded.error("fit", f"the manifest has {len(jobs)} runs (variants x sweep "
-                           "points x samples); a fit needs one: choose a variant with "
-                           "--variant, and no sweep or [montecarlo]")
-    job = jobs[0]
-    for signal in spec.signals:
-        problem = signal_problem(job, signal)
-        if problem is not None:
-            raise loaded.error(f"fit.signals.{signal}", problem)
-    for signal in spec.weights:
-        if signal not in spec.signals:
-            raise loaded.error(f"fit.weights.{signal}", "not a fitted signal (signals: "
-                               f"{', '.join(spec.signals)})")
-        if not spec.weights[signal] > 0:
-            raise loaded.error(f"fit.weights.{signal}",
-                               f"{spec.weights[signal]!r} must be > 0")
-    parameters = tunable(loaded, [job], list(spec.parameters), "fit.parameters")
-    bounds = {}
-    for p in parameters:
-        table = spec.parameters[p.name]
-        key = f"fit.parameters.{p.name}"
-        if not table.min < table.max:
-            raise loaded.error(key, f"min {table.min!r} >= max {table.max!r}")
-        if not table.min <= p.start <= table.max:
-            raise loaded.error(key, f"start {p.start!r} (the run's value) is outside the "
-                               f"bounds [{table.min!r}, {table.max!r}]")
-        bounds[p.name] = (table.min, table.max)
-    data_path = loaded.files_dir / spec.data
-    data = read_data(data_path, list(dict.fromkeys(spec.signals.values())))
-    check_interval(data, loaded.start, loaded.stop)
-    return FitSetup(manifest=loaded, job=job, parameters=parameters, bounds=bounds,
-                    signals=dict(spec.signals), weights=dict(spec.weights), data=data,
-                    data_path=data_path, warnings=warnings)
-
-
-def _keep_users(target: Path, root: Path) -> list[str]:
-    """Carry into ``root`` every entry of the folder of ours ``target`` that neither a
-    fit nor a run writes (a user's file is never deleted); the entries kept."""
-    if target.is_symlink() or not target.is_dir() or marker_data(target) is None:
-        return []
-    report = read_json_object(target / PAGE_RECORD) or {}
-    figures = {n for n in report.get("files", []) if isinstance(n, str)}
-    kept = []
-    for entry in sorted(os.listdir(target)):
-        old = target / entry
-        if entry in OURS or entry in FOLDER_FILES or entry in figures:
-            continue
-        if old.is_dir() and not old.is_symlink() and (old / "run.json").is_file():
-            continue  # a run folder of ours
-        _carry(old, root / entry)
-        kept.append(entry)
-    return kept
 
 
 def fit_manifest(manifest: str | Path | Manifest, out: str | Path | None, *,
@@ -197,19 +109,19 @@ def fit_manifest(manifest: str | Path | Manifest, out: str | Path | None, *,
     try:
         root = folder.path if folder is not None else Path(scratch.name)  # type: ignore
         assert root is not None
-        users = _keep_users(folder.target, root) if folder is not None else []
+        users = keep_user_files(folder.target, root, OURS) if folder is not None else []
         result, runs = _solve(fit_set, chosen, root, max_evaluations)
         if folder is None:
             return FitOutcome(result, None, fit_set, runs)
         record = _record(fit_set, result, runs, jobs, dask, max_evaluations, users)
         write_json(root / RESULT, result.as_json())
         write_json(root / RECORD, record)
-        write_text(root / FRAGMENT, fit_page.fragment(fit_set, result, VARIANT))
-        fit_page.draw(root / FIGURE, fit_set, result)
-        write_text(root / PAGE, fit_page.render(fit_set, result, record))
+        write_text(root / FRAGMENT, output.fragment(fit_set, result, VARIANT))
+        output.draw(root / FIGURE, fit_set, result)
+        write_text(root / PAGE, output.render(fit_set, result, record))
         if not result.converged:
             reason = f"fit not converged ({result.message}); the best point found is kept"
-            _write_marker(root, **about, complete=False, reason=reason)
+            folder.mark(complete=False, reason=reason)
             write_text(root / NOT_CONVERGED, reason + "\n")
         written = folder.commit()
     except BaseException:

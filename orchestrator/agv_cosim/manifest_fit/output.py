@@ -1,4 +1,4 @@
-"""What ``agv-cosim fit`` shows (:mod:`agv_cosim.pipeline.fit`): the manifest fragment
+"""What ``agv-cosim fit`` shows (:mod:`.command`): the manifest fragment
 of the fitted variant, the figure (measured and fitted signals overlaid, the residuals)
 and the page (the run page's template and style)."""
 
@@ -17,7 +17,7 @@ from ..files import open_output
 
 if TYPE_CHECKING:
     from ..fitting import FitResult
-    from ..pipeline.fit import FitSetup
+    from .checks import FitSetup
 
 __all__ = ["draw", "fragment", "render"]
 
