@@ -54,6 +54,9 @@ _API = {
     "run": "agv_cosim.api",
     "identify": "agv_cosim.api", "IdentifyError": "agv_cosim.errors",
     "tune": "agv_cosim.api", "TuneError": "agv_cosim.errors",
+    "fit": "agv_cosim.api", "FitDataError": "agv_cosim.errors",
+    "FitError": "agv_cosim.errors", "FitNotConverged": "agv_cosim.errors",
+    "TrialFailed": "agv_cosim.errors",
 }
 
 __all__ = ["__version__", *sorted(_API)]

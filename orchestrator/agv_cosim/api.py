@@ -3,10 +3,12 @@ pandas DataFrames (docs/api.md).
 
 :func:`run` does what ``agv-cosim run`` does (the same checks, the same result folder)
 and returns :class:`Results`; :func:`open_results` reads a result folder written
-before. Every mistake and failure that the command reports as an error raises
-:class:`~agv_cosim.errors.AgvCosimError`, whose text is the command's line. A script
-needs no ``if __name__ == "__main__":`` guard: the worker processes do not import the
-caller's main module. pandas is imported here only, when a DataFrame is asked for.
+before; :func:`identify` and :func:`fit` do what ``agv-cosim identify`` and
+``agv-cosim fit`` do and return dicts. Every mistake and failure that the command
+reports as an error raises :class:`~agv_cosim.errors.AgvCosimError`, whose text is
+the command's line. A script needs no ``if __name__ == "__main__":`` guard: the worker
+processes do not import the caller's main module. pandas is imported here only, when a
+DataFrame is asked for.
 """
 
 import csv
@@ -40,7 +42,7 @@ if TYPE_CHECKING:
 
     from .plan import Override
 
-__all__ = ["Results", "Run", "identify", "open_results", "run", "tune"]
+__all__ = ["Results", "Run", "fit", "identify", "open_results", "run", "tune"]
 
 _SUMMARY = "summary.csv"
 _PARTIAL = "partial.txt"
@@ -631,3 +633,65 @@ def tune(manifest: str | Path, *, out: str | Path, jobs: int | None = None,
             "start_value": result.start_value, "record": found.record,
             "history": history, "comparison": pandas.DataFrame(rows),
             "failed_runs": list(found.failures), "folder": found.folder}
+
+
+
+def fit(manifest: str | Path, *, out: str | Path | None = None, variant: str | None = None,
+        jobs: int | None = None, dask: str | None = None, overwrite: bool = False,
+        max_evaluations: int | None = None) -> dict[str, Any]:
+    """Fit the parameters of a manifest's ``[fit]`` table to its measured data, as
+    ``agv-cosim fit`` does (docs/fit.md).
+
+    Returns a dict: ``"fit"``, fit.json's content (``{"parameters": {name: {"value",
+    "stderr"[, "reason"]}}, "correlation", "cost", "iterations", "evaluations", "runs",
+    "converged", ...}``); ``"parameters"``, a DataFrame with one row per parameter
+    (``parameter``, ``unit``, ``start``, ``min``, ``max``, ``value``, ``stderr``,
+    ``reason``); ``"signals"``, a DataFrame indexed by the data's time with, per fitted
+    signal, the measured, fitted and residual values (columns ``"<signal> measured"``,
+    ``"<signal> fitted"``, ``"<signal> residual"``); ``"runs"``, the runs made;
+    ``"folder"``, the folder written (None without ``out``).
+
+    Raises
+    ------
+    AgvCosimError
+        For everything ``agv-cosim fit`` reports as an error, ``str()`` its line: bad
+        input (exit code 2), a run that failed (1), a fit that did not converge
+        (:class:`~agv_cosim.errors.FitNotConverged`, 2; ``kept`` the folder written,
+        marked, ``result`` the best point).
+    """
+    import pandas
+
+    from .lifetime import (
+        clean_stale_scratch,
+        termination_signals,
+        use_own_scratch_for_multiprocessing,
+    )
+    from .manifest_fit import fit_manifest
+
+    if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
+        raise AgvCosimError(f"jobs: must be an integer >= 1, not {jobs!r}")
+    _path_option(manifest, "manifest")
+    _path_option(out, "out", optional=True)
+    try:
+        with termination_signals():
+            use_own_scratch_for_multiprocessing()
+            clean_stale_scratch()
+            found = fit_manifest(manifest, out, variant=variant, jobs=jobs, dask=dask,
+                                 overwrite=overwrite, max_evaluations=max_evaluations)
+    except (ManifestError, OutputError, UnreadableFile, FolderLost, ClusterError,
+            OSError) as error:
+        lines = error_lines(error)
+        raise AgvCosimError(lines[0], lines, exit_code(error)) from error
+    result, setup = found.result, found.setup
+    rows = [{"parameter": p.name, "unit": p.unit, "start": p.start,
+             "min": setup.bounds[p.name][0], "max": setup.bounds[p.name][1],
+             "value": result.values[p.name], "stderr": result.stderr[p.name],
+             "reason": result.reasons.get(p.name)} for p in setup.parameters]
+    columns: dict[str, Any] = {"time": setup.data.time}
+    for signal, column in setup.signals.items():
+        columns[f"{signal} measured"] = setup.data.columns[column]
+        columns[f"{signal} fitted"] = result.fitted[signal]
+        columns[f"{signal} residual"] = result.residuals[signal]
+    return {"fit": result.as_json(), "parameters": pandas.DataFrame(rows),
+            "signals": pandas.DataFrame(columns).set_index("time"), "runs": found.runs,
+            "folder": found.folder}

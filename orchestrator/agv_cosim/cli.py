@@ -332,6 +332,39 @@ def _cmd_tune(args):
     return 1 if bad or not math.isfinite(result.best_value) else 0
 
 
+def _cmd_fit(args):
+    import time
+
+    from .errors import AgvCosimError, ClusterError
+    from .manifest_fit import fit_manifest, setup
+
+    if args.jobs is not None and args.jobs < 1:
+        return _error("--jobs: must be >= 1")
+    if args.max_evaluations is not None and args.max_evaluations < 1:
+        return _error("--max-evaluations: must be >= 1")
+    start = time.perf_counter()
+    try:
+        checked = setup(args.manifest, args.variant)
+        _warn(checked.warnings)
+        found = fit_manifest(args.manifest, args.out, jobs=args.jobs, dask=args.dask,
+                             overwrite=args.overwrite, max_evaluations=args.max_evaluations,
+                             checked=checked)
+    except AgvCosimError as error:
+        return _report(args, f"error: {error}", error.exit_code)
+    except ClusterError as error:  # the cluster cannot be reached, or went away
+        return _report(args, f"error: {error_lines(error)[0]}", exit_code(error))
+    result = found.result
+    for name in result.names:
+        stderr = result.stderr[name]
+        shown = (f"{result.values[name]:.6g} +- {stderr:.2g}" if stderr is not None else
+                 f"{result.values[name]:.6g} ({result.reasons.get(name, '')})")
+        print(printable(f"{name} = {shown}"))
+    print(printable(f"{found.folder}: fit.json, fit_variant.toml, fit.png, index.html: "
+                    f"{result.iterations} iteration(s), {found.runs} run(s), cost "
+                    f"{result.cost:.6g} ({time.perf_counter() - start:.1f} s)"))
+    return 0
+
+
 def make_parser() -> argparse.ArgumentParser:
     """The argument parser of ``agv-cosim`` with all its subcommands."""
     parser = _Parser(prog="agv-cosim", description=_plain(__doc__),
@@ -541,6 +574,35 @@ def make_parser() -> argparse.ArgumentParser:
     tuner.add_argument("--quiet", action="store_true",
                        help="no progress lines on stderr")
     tuner.set_defaults(func=_cmd_tune)
+
+    fitting = sub.add_parser(
+        "fit", help="fit parameters of a manifest's run to measured data ([fit] table)",
+        parents=[debug],
+        description="Fit the [fit] table's parameters (bounds; start: the manifest's "
+                    "value) so that the run's signals match the measured columns of "
+                    "[fit] data, the co-simulation itself the model (output error, "
+                    "bounded least squares). The runs of each iteration go through the "
+                    "worker pool (--jobs) or a Dask cluster (--dask). Writes DIR/fit.json, "
+                    "fit_variant.toml (a variant with the fitted values), fitted/ (the run "
+                    "at the fitted values), fit.png, fit_run.json and index.html. Exit 2 "
+                    "on bad input and when the fit does not converge (the folder is kept, "
+                    "marked), 1 when a run fails. docs/fit.md.")
+    fitting.add_argument("manifest", metavar="MANIFEST", help="the manifest (TOML) with a "
+                                                              "[fit] table")
+    fitting.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    fitting.add_argument("--variant", metavar="NAME",
+                         help="the variant whose run is fitted (a manifest with several)")
+    fitting.add_argument("--jobs", type=int, metavar="N",
+                         help="runs at once, in worker processes (default: one per core)")
+    fitting.add_argument("--dask", metavar="ADDRESS",
+                         help="run on the Dask cluster whose scheduler is at ADDRESS "
+                              "(tcp://HOST:PORT; docs/dask.md)")
+    fitting.add_argument("--max-evaluations", type=int, metavar="N",
+                         help="the solver's budget of evaluations (default: 100 per "
+                              "parameter); a fit that needs more is not converged")
+    fitting.add_argument("--overwrite", action="store_true",
+                         help="replace DIR even if it is not a result folder of agv-cosim")
+    fitting.set_defaults(func=_cmd_fit)
     parser.commands = dict(sub.choices)
     return parser
 

@@ -17,7 +17,7 @@ __all__ = [
     "OutputError", "ReportError", "RunsStopped", "SamplingError", "SchemaError",
     "SimulationError", "SspError", "StandaloneError", "TableError", "UnreadableFile",
     "WorkerUnfit", "closest", "did_you_mean", "error_lines", "exit_code", "kept_summary",
-    "FitDataError", "FitError", "FitNotConverged", "TuneError",
+    "FitDataError", "FitError", "FitNotConverged", "TrialFailed", "TuneError",
 ]
 
 #: Most problems of one manifest reported at once (one line each).
@@ -197,6 +197,14 @@ class FitNotConverged(FitError):
     def __init__(self, message: str, result: object = None) -> None:
         super().__init__(message)
         self.result = result
+
+
+class TrialFailed(AgvCosimError):
+    """A run of a fit or a tuning (:mod:`agv_cosim.pipeline.trials`) did not complete:
+    one line naming its parameter values and its reason, exit 1 (the command stops)."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message, exit_code=1)
 
 
 class TuneError(AgvCosimError):

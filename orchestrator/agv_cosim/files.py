@@ -512,6 +512,12 @@ class AtomicDir:
                    f"partial result: {reason}; {complete} of {total} run(s) complete "
                    "(status of each run: summary.csv)\n")
 
+    def mark(self, **extra: Any) -> None:
+        """Write the folder's marker again with ``extra`` keys besides ``about`` (e.g.
+        ``complete=False`` and a ``reason``: a fit that did not converge)."""
+        assert self.path is not None, "the folder was committed or discarded"
+        _write_marker(self.path, **self.about, **extra)
+
     def commit(self) -> Path:
         with signals_blocked():  # the renames are not cut half-way by a Ctrl-C/SIGTERM
             return self._commit()

@@ -141,6 +141,8 @@ class Manifest:
     base_dir: Path | None = None
     #: the ``[tune]`` table as the schema checked it (``agv-cosim tune``), or None
     tune: schema.TuneTable | None = None
+    #: the ``[fit]`` table as the schema checked it (``agv-cosim fit``), or None
+    fit: schema.FitTable | None = None
 
     def error(self, key: str, problem: str) -> ManifestError:
         """A :class:`ManifestError` of ``key``, with its line when known."""
@@ -590,5 +592,6 @@ def manifest_from_data(data: dict[str, Any], path: str | Path, sha256: str,
                     metrics=table.metrics if data.get("metrics") else None,
                     plots=table.plots if data.get("plots") else None,
                     events=events, montecarlo=sampling, timeout=sim.timeout,
-                    base_dir=base_dir, held=list(table.held), tune=table.tune)
+                    base_dir=base_dir, held=list(table.held), tune=table.tune,
+                    fit=table.fit)
 

@@ -277,9 +277,10 @@ class MonteCarloTable(_Table):
     band: Dotted | None = None
 
 
-class TuneBounds(_Table):
-    """A tuned parameter's bounds (``[tune.parameters]``); its start is the manifest's
-    value."""
+class Bounds(_Table):
+    """The bounds of a fitted or tuned parameter (``[fit.parameters."<c.p>"]``,
+    ``[tune.parameters."<c.p>"]``); its start is the manifest's value (checked against
+    the runs by :mod:`agv_cosim.manifest_fit.checks` and :mod:`agv_cosim.tuning`)."""
 
     min: Number
     max: Number
@@ -299,7 +300,19 @@ class TuneTable(_Table):
     seed: Annotated[StrictInt, Field(ge=0)] = 0
     tol: Annotated[Number, Field(ge=0)] = 1e-6
     parameters: Annotated[dict[Annotated[StrictStr, _dotted("component.parameter")],
-                               TuneBounds], Field(min_length=1)]
+                               Bounds], Field(min_length=1)]
+
+
+class FitTable(_Table):
+    """``[fit]`` (``agv-cosim fit``, docs/fit.md): the measured data, the signals fitted
+    to its columns, their weights and the fitted parameters; names are checked against
+    the run's FMUs and the data by :mod:`agv_cosim.manifest_fit.checks`."""
+
+    data: StrictStr
+    signals: Annotated[dict[Dotted, StrictStr], Field(min_length=1)]
+    weights: dict[Dotted, Number] = {}
+    parameters: Annotated[dict[Annotated[StrictStr, _dotted("component.parameter")],
+                               Bounds], Field(min_length=1)]
 
 
 class ManifestTable(_Table):
@@ -321,6 +334,7 @@ class ManifestTable(_Table):
     plots: PlotsTable = PlotsTable()
     montecarlo: MonteCarloTable | None = None
     tune: TuneTable | None = None
+    fit: FitTable | None = None
 
 
 # --------------------------------------------------------------------------- errors

@@ -53,8 +53,8 @@ from ..report.records import TIMINGS, RunResult, finish_run, read_timings, recor
 from ..system import Job
 from ..system.files import file_sha256
 
-__all__ = ["FOLDER_FILES", "RUN_FILES", "check_resumable", "keep_others", "keep_users",
-           "listed", "reusable", "reuse_runs"]
+__all__ = ["FOLDER_FILES", "RUN_FILES", "check_resumable", "keep_others",
+           "keep_user_files", "keep_users", "listed", "reusable", "reuse_runs"]
 
 #: Files of a run folder a reused run keeps as they are (the others are written again).
 KEPT_FILES = ("timeseries.csv", "output.txt")
@@ -209,6 +209,29 @@ def keep_users(target: str | Path, jobs: list[Job], root: Path) -> list[str]:
     if previous.is_symlink() or not previous.is_dir() or marker_data(previous) is None:
         return []
     return _keep_from(previous, {job.label for job in jobs}, set(), root)[1]
+
+
+def keep_user_files(target: str | Path, root: Path, ours: tuple[str, ...]) -> list[str]:
+    """Carry into the new folder ``root`` every entry of the result folder ``target``
+    that neither this command (its top-level names ``ours``) nor ``run`` writes (its
+    files, figures and run folders), for a command other than ``run`` (``fit``) that
+    replaces it: a user's file is never deleted. Nothing when ``target`` is not a folder
+    with our marker. Returns the entries kept."""
+    previous = Path(os.path.abspath(target))
+    if previous.is_symlink() or not previous.is_dir() or marker_data(previous) is None:
+        return []
+    report = read_json_object(previous / RECORD) or {}
+    figures = {name for name in report.get("files", []) if isinstance(name, str)}
+    kept = []
+    for entry in _names(previous):
+        old = previous / entry
+        if entry in ours or entry in FOLDER_FILES or entry in figures:
+            continue
+        if old.is_dir() and not old.is_symlink() and (old / "run.json").is_file():
+            continue  # a run folder of ours
+        _carry(old, root / entry)
+        kept.append(entry)
+    return kept
 
 
 def _keep_from(previous: Path, labels: set[str], others: set[str],

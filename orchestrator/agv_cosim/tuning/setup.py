@@ -75,7 +75,7 @@ def _objective(manifest: Manifest, table: schema.TuneTable) -> Objective:
 
 
 def _parameter(manifest: Manifest, jobs: Sequence[Job], name: str,
-               bounds: schema.TuneBounds) -> Parameter:
+               bounds: schema.Bounds) -> Parameter:
     key = f"tune.parameters.{name}"
     cname, _, pname = name.partition(".")
     low, high = bounds.min, bounds.max

@@ -33,7 +33,9 @@ SECTIONS = {
     '`[montecarlo.parameters."<c.p>"]` truncnormal': schema.TruncNormal,
     '`[montecarlo.parameters."<c.p>"]` choice': schema.Choice,
     "`[tune]`": schema.TuneTable,
-    '`[tune.parameters."<c.p>"]`': schema.TuneBounds,
+    '`[tune.parameters."<c.p>"]`': schema.Bounds,
+    "`[fit]`": schema.FitTable,
+    '`[fit.parameters."<c.p>"]`': schema.Bounds,
 }
 
 

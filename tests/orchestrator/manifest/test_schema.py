@@ -18,7 +18,7 @@ def _error(**tables):
 @pytest.mark.parametrize("tables, message", [
     ({"zzz": 1}, "zzz: unknown key 'zzz' (allowed: name, description, simulation, components, "
                  "connections, held, variants, sweep, record, events, metrics, plots, montecarlo, "
-                 "tune)"),
+                 "tune, fit)"),
     ({"simulation": {"stop": "1", "step": 0.1}}, "simulation.stop: '1' is not a number"),
     ({"simulation": {"stop": True, "step": 0.1}}, "simulation.stop: True is not a number"),
     ({"simulation": {"stop": float("inf"), "step": 0.1}}, "simulation.stop: inf is not finite"),
@@ -89,7 +89,7 @@ def test_every_schema_problem_is_reported_once():
         "components.a.fmu: 1 is not a string",
         "zzz: unknown key 'zzz' (allowed: name, description, simulation, components, "
         "connections, held, variants, sweep, record, events, metrics, plots, montecarlo, "
-                 "tune)",
+                 "tune, fit)",
     ]
     # a missing key with no misspelt neighbour is still reported as missing
     assert _errors({"simulation": {"step": 0.1}, "components": {"a": {"fmu": "a"}},
