@@ -15,6 +15,7 @@ holds. Tolerance 1e-12 (m roundings of the composed exponential).
 """
 
 import filecmp
+import json
 import math
 from pathlib import Path
 
@@ -230,3 +231,37 @@ def test_a_step_equal_to_the_simulations_is_the_same_run(fmus, tmp_path):
     assert any(f.name == "timeseries.csv" for f in compared)
     for name in compared:
         assert filecmp.cmp(outs[0] / name, outs[1] / name, shallow=False), name
+
+
+def _reused(path: Path, out: Path, resume: bool = True) -> dict[str, bool]:
+    manifest, jobs, _ = prepare(path)
+    _, results = execute(manifest, jobs, out, workers=1, quiet=True, resume=resume)
+    assert all(r["status"] == "complete" for r in results), results
+    return {r["label"]: bool(r.get("reused", False)) for r in results}
+
+
+def test_the_step_is_an_input_of_a_run_for_resume(fmus, tmp_path):
+    """run.json records the component's step; a changed step runs the run again, the
+    same one keeps it."""
+    path = _write(tmp_path, fmus, extra="""
+[variants.sampled]
+description = "the controller at the base's step"
+[variants.other]
+components.plant.parameters = { tau = 0.25 }
+""")
+    out = tmp_path / "out"
+    assert _reused(path, out, resume=False) == {"sampled": False, "other": False}
+    record = json.loads((out / "sampled" / "run.json").read_text())
+    assert record["component_steps"] == {"ctrl": 0.1}
+    assert record["inputs"]["simulation"]["component_steps"] == {"ctrl": 0.1}
+    assert _reused(path, out) == {"sampled": True, "other": True}
+    path.write_text(path.read_text().replace(
+        '[variants.other]\n', '[variants.other]\ncomponents.ctrl.step = 0.05\n'))
+    assert _reused(path, out) == {"sampled": True, "other": False}
+    record = json.loads((out / "other" / "run.json").read_text())
+    assert record["component_steps"] == {"ctrl": 0.05}
+    # a single-rate run's run.json has no such key (its inputs are as before)
+    path.write_text(path.read_text().replace("step = 0.1\n", "").replace(
+        "components.ctrl.step = 0.05\n", ""))
+    assert _reused(path, out) == {"sampled": False, "other": False}
+    assert "component_steps" not in json.loads((out / "sampled" / "run.json").read_text())
