@@ -194,6 +194,13 @@ def step_multiple(step: float, base: float) -> int | None:
     return int(ratio) if ratio.denominator == 1 and ratio >= 1 else None
 
 
+def component_steps(components: dict[str, Component], step: float) -> dict[str, float]:
+    """Component -> its own step [s], for those whose ``step`` is a multiple > 1 of the
+    simulation's ``step`` (one equal to it is the simulation's: the same run)."""
+    return {cname: comp.step for cname, comp in components.items()
+            if comp.step is not None and (step_multiple(comp.step, step) or 1) > 1}
+
+
 def _component_step(manifest: object, key: str, step: float | None,
                     base: float) -> float | None:
     """A component's checked ``step``: a whole multiple of the simulation's ``base`` step."""

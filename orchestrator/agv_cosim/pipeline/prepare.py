@@ -8,8 +8,8 @@ from pathlib import Path
 from typing import Any
 
 from .. import fmitypes
-from ..manifest import Component, Manifest, load_manifest
-from ..manifest.load import step_multiple
+from ..manifest import Manifest, load_manifest
+from ..manifest.load import component_steps
 from ..plan import Override, plan_runs
 from ..report import metrics, plots
 from ..system import CheckedRun, Event, Job, System, Variable, validate
@@ -101,13 +101,6 @@ def prepare(manifest: str | Path | Manifest, variants: list[str] | None = None,
                         timeout=manifest.timeout if timeout is None else timeout,
                         base_dir=manifest.files_dir, files=files))
     return manifest, jobs, checked.warnings
-
-
-def component_steps(components: dict[str, Component], step: float) -> dict[str, float]:
-    """Component -> its own step [s], for those whose ``step`` is a multiple > 1 of the
-    simulation's ``step`` (one equal to it is the simulation's: the same run)."""
-    return {cname: comp.step for cname, comp in components.items()
-            if comp.step is not None and (step_multiple(comp.step, step) or 1) > 1}
 
 
 def _with_files(manifest: Manifest, one: CheckedRun, hashes: dict[Path, str]

@@ -16,6 +16,7 @@ holds. Tolerance 1e-12 (m roundings of the composed exponential).
 
 import filecmp
 import json
+import zipfile
 import math
 from pathlib import Path
 
@@ -265,3 +266,32 @@ components.plant.parameters = { tau = 0.25 }
         "components.ctrl.step = 0.05\n", ""))
     assert _reused(path, out) == {"sampled": False, "other": False}
     assert "component_steps" not in json.loads((out / "sampled" / "run.json").read_text())
+
+
+def test_ssp_export_keeps_the_step_in_an_annotation_our_import_reads(fmus, tmp_path):
+    from xml.etree import ElementTree
+
+    from agv_cosim.ssp import common as ssp
+    from agv_cosim.ssp import exporter, importer
+
+    path = _write(tmp_path, fmus)
+    package = tmp_path / "sampled.ssp"
+    exporter.export_ssp(path, package)
+    with zipfile.ZipFile(package) as archive:
+        root = ElementTree.fromstring(archive.read("SystemStructure.ssd"))
+    ns = ssp.NS
+    ctrl = root.find("ssd:System/ssd:Elements/ssd:Component[@name='ctrl']", ns)
+    note = ctrl.find("ssd:Annotations/ssc:Annotation", ns)
+    assert note.get("type") == ssp.AGV_ANNOTATION
+    assert note.find("agv:Component", ns).get("stepSize") == "0.1"
+    plant = root.find("ssd:System/ssd:Elements/ssd:Component[@name='plant']", ns)
+    assert plant.find("ssd:Annotations", ns) is None
+    again = importer.load_ssp(package, tmp_path / "unpacked")
+    assert again.components["ctrl"].step == 0.1
+    assert again.components["plant"].step is None
+    # the imported package runs the same sampled loop, row for row (the algorithm,
+    # Gauss-Seidel, travels in our annotation too)
+    _, jobs, _ = prepare(again)
+    rows: list[list[float]] = []
+    simulate(jobs[0].plan, [RowObserver(lambda row: rows.append(list(row)))])
+    assert rows == _rows(path)
