@@ -97,7 +97,8 @@ def run_inputs(job: Job) -> dict[str, Any]:
     per column (``tables``), the SHA-256 of every file a parameter or event names
     (``files``, :mod:`agv_cosim.system.files`), simulation settings (with
     ``component_steps``, each multirate component's own step, when there is one),
-    connections, events and package versions. Equal inputs (:func:`inputs_sha256`) give an equal result."""
+    connections, events and package versions. Equal inputs (:func:`inputs_sha256`)
+    give an equal result."""
     plan = job.plan
     simulation: dict[str, Any] = {
         "start": plan.start, "stop": plan.stop, "step": plan.step,

@@ -16,8 +16,8 @@ holds. Tolerance 1e-12 (m roundings of the composed exponential).
 
 import filecmp
 import json
-import zipfile
 import math
+import zipfile
 from pathlib import Path
 
 import pytest
