@@ -41,9 +41,12 @@ The semantics are libcosim's fixed-step algorithm with a step-size multiplier
 - A stop request (:class:`.algorithm.Stepper`) ends the run after the base step in
   which the FMU asked (its last row when it reached that base point).
 
-The macro steps run in Python (each exchange through the compiled or generated
-per-step functions when ``fast``); the compiled stretches of
-:func:`agv_cosim.execution.simulation._loop` are not used for a multirate system.
+With ``fast``, the macro steps in which only the components at the simulation's step
+step and exchange (neither t_k nor t_{k+1} a point of a slower one) run in C, in
+stretches, as :func:`agv_cosim.execution.simulation._loop` runs a single-rate system's
+(the same calls: :func:`agv_cosim.execution.compiled.module`'s ``run_stretch`` over the
+base-rate components' step program and exchange); the others run in Python, each
+exchange through the compiled or generated per-step functions.
 """
 
 from collections.abc import Callable
@@ -94,8 +97,14 @@ class _Rates:
 
     def at(self, k: int) -> Algorithm:
         """The algorithm over the components whose communication point t_k is."""
-        due = frozenset(m for m in set(self.multiple.values())
-                        if k % m == 0 or k == self.steps)
+        return self._over(frozenset(m for m in set(self.multiple.values())
+                                    if k % m == 0 or k == self.steps))
+
+    def base_only(self) -> Algorithm:
+        """The algorithm over the components at the simulation's step alone."""
+        return self._over(frozenset((1,)))
+
+    def _over(self, due: frozenset[int]) -> Algorithm:
         found = self._algorithms.get(due)
         if found is None:
             active = {name: unit for name, unit in self.units.items()
@@ -103,6 +112,19 @@ class _Rates:
             found = algorithm_for(self.system, active, self.track, self.fast)
             self._algorithms[due] = found
         return found
+
+
+def _fast_stretch(rates: _Rates, grid: Grid,
+                  pace: Pacer | None) -> Callable[[int, int], int] | None:
+    """``run(k0, k1)``: macro steps k0 .. k1 - 1 in which only the components at the
+    simulation's step step and exchange, run in C
+    (:func:`agv_cosim.execution.simulation._stretch`); None when the run cannot use it
+    (no base-rate component, or their stepper or exchange not compiled)."""
+    from .simulation import _stretch
+
+    if rates.steppers[0][0] != 1:
+        return None
+    return _stretch(rates.base_only(), rates.steppers[0][2], grid, pace)
 
 
 def run_multirate(system: System, units: dict[str, Unit], algorithm: Algorithm,
@@ -138,11 +160,41 @@ def run_multirate(system: System, units: dict[str, Unit], algorithm: Algorithm,
             stepper.step(t, step_size(t, t_reach, own if reach == k + m else None))
 
     step = step_due if pace is None else pace.wrap(step_due)
+    stretch = _fast_stretch(rates, grid, pace)
+    slow = sorted({m for m in rates.multiple.values() if m > 1})
     done = 0
     t = system.start
     ended_by: str | None = None
     stop_time: float | None = None
     while k < steps:
+        if stretch is not None and k + 1 != scenario.next_step:
+            # the macro steps in which only the base-rate components step and exchange,
+            # up to the next slow point, event, recording point or progress report, in
+            # C (the calls of the Python loop below)
+            end = min(steps - 1, k + every - k % every,
+                      k + every_progress - done if progress else steps,
+                      *(k + (m - 1 - k % m) if k % m else k for m in slow))
+            if scenario.next_step > k + 1:
+                end = min(end, scenario.next_step - 1)
+            if end > k:
+                ran = stretch(k, end)
+                k += ran
+                done += ran if progress else 0
+                if requests:  # macro step k stepped (no exchange): its stop request
+                    t = time(k + 1)
+                    ended_by, stop_time = _ended(requests[0])
+                    if _reached(requests[0], t):
+                        rates.at(k + 1).last(t, {n for n, _ in requests})
+                        record(t)
+                    break
+                t = time(k)
+                if k % every == 0:
+                    record(t)
+                if progress and done >= every_progress:
+                    for report in progress:
+                        report(done)
+                    done = 0
+                continue
         t_next = time(k + 1)
         step(t, step_size(t, t_next))
         t = t_next

@@ -295,3 +295,49 @@ def test_ssp_export_keeps_the_step_in_an_annotation_our_import_reads(fmus, tmp_p
     rows: list[list[float]] = []
     simulate(jobs[0].plan, [RowObserver(lambda row: rows.append(list(row)))])
     assert rows == _rows(path)
+
+
+@pytest.mark.parametrize("algorithm", ["gauss-seidel", "jacobi"])
+def test_the_compiled_stretches_give_the_python_loops_rows(fmus, tmp_path, monkeypatch,
+                                                           algorithm):
+    """With the compiled call path, the macro steps between the controller's points run
+    in C stretches: the rows are those of the reference loop, bit for bit."""
+    from agv_cosim.execution import compiled, simulation
+
+    if not compiled.available():
+        pytest.skip(f"no compiled call path here: {compiled.why_not()}")
+    stretched: list[tuple[int, int]] = []
+    original = simulation._stretch
+
+    def counted(*args, **kwargs):
+        run = original(*args, **kwargs)
+        if run is None:
+            return None
+
+        def counting(k0: int, k1: int) -> int:
+            stretched.append((k0, k1))
+            return run(k0, k1)
+        return counting
+
+    monkeypatch.setattr(simulation, "_stretch", counted)
+    # a base-rate probe (a second lag) whose input an event sets at 0.55 s, between
+    # the controller's points
+    path = _write(tmp_path, fmus, algorithm=algorithm, extra=f"""
+[components.probe]
+fmu = "{fmus['agv_test_lag']}"
+[events.kick]
+at = 0.55
+set = {{ "probe.u" = 1.0 }}
+""")
+    reference = _rows(path, fast=False)
+    assert not stretched
+    fast = _rows(path, fast=True)
+    assert fast == reference
+    # the macro steps from a controller point (k = 10 j) and to one (k = 10 j + 9), and
+    # the one to the event's point (k = 54), are made in Python; the 79 others in C
+    assert stretched and all(k0 % 10 not in (0, 9) and (k1 - 1) % 10 not in (0, 9)
+                             for k0, k1 in stretched)
+    assert sum(k1 - k0 for k0, k1 in stretched) == 79
+    assert not any(k0 <= 54 < k1 for k0, k1 in stretched)
+    monkeypatch.setenv(compiled.DISABLE, "1")
+    assert _rows(path, fast=True) == reference
