@@ -15,8 +15,9 @@ of parts as in libcosim.
   point it is (Jacobi: their outputs read, then their inputs set, as libcosim;
   Gauss-Seidel: they are visited in feedthrough order, the others' outputs held);
   an event off a component's points is refused, a recorded row between them shows
-  its held outputs; such a run's macro steps run in Python (the compiled stretches
-  are for single-rate systems); details in that module;
+  its held outputs; the macro steps in which only base-rate components step and
+  exchange run in the compiled stretches, the others in Python; details in that
+  module;
 - :mod:`.scenario`: the events, applied at their communication points;
 - :mod:`.observers`: what takes each recorded row and the progress (CSV, callbacks);
 - :mod:`.fastpath`: the opt-in generated per-step functions (the same calls);
