@@ -22,6 +22,9 @@ from pathlib import Path
 
 import pytest
 
+# the built Reference FMUs (session fixture) of the Model Exchange tests beside this file
+from test_model_exchange import reference  # noqa: F401
+
 from agv_cosim.errors import ManifestError
 from agv_cosim.execution import RowObserver, simulate
 from agv_cosim.execution.multirate import multiples
@@ -329,10 +332,10 @@ fmu = "{fmus['agv_test_lag']}"
 at = 0.55
 set = {{ "probe.u" = 1.0 }}
 """)
-    reference = _rows(path, fast=False)
+    python_rows = _rows(path, fast=False)
     assert not stretched
     fast = _rows(path, fast=True)
-    assert fast == reference
+    assert fast == python_rows
     # the macro steps from a controller point (k = 10 j) and to one (k = 10 j + 9), and
     # the one to the event's point (k = 54), are made in Python; the 79 others in C
     assert stretched and all(k0 % 10 not in (0, 9) and (k1 - 1) % 10 not in (0, 9)
@@ -340,4 +343,30 @@ set = {{ "probe.u" = 1.0 }}
     assert sum(k1 - k0 for k0, k1 in stretched) == 79
     assert not any(k0 <= 54 < k1 for k0, k1 in stretched)
     monkeypatch.setenv(compiled.DISABLE, "1")
-    assert _rows(path, fast=True) == reference
+    assert _rows(path, fast=True) == python_rows
+
+
+@pytest.mark.parametrize("version", ["2", "3"])
+def test_a_model_exchange_component_at_its_own_step(reference, tmp_path,  # noqa: F811
+                                                    version):
+    """Dahlquist (x' = -x, x0 = 1) integrated as Model Exchange at 0.1 s in a run at
+    0.01 s (solver tolerance 1e-9): exp(-t) at its points within 1e-7, held between them."""
+    from test_model_exchange import me_only
+
+    from agv_cosim.execution.model_exchange import use_model_exchange
+
+    fmu = me_only(reference, version, "Dahlquist", tmp_path)
+    path = tmp_path / "me.toml"
+    # a model-exchange-only FMU: integrated by the orchestrator
+    path.write_text(f'[simulation]\nstop = 1.0\nstep = 0.01\n[components.m]\nfmu = "{fmu}"\n'
+                    'step = 0.1\n[record]\nvariables = ["m.x"]\n')
+    _, jobs, _ = prepare(path)
+    system = jobs[0].plan
+    assert system.component_steps == {"m": 0.1}
+    system.models["m"] = use_model_exchange(system.models["m"], tolerance=1e-9)
+    rows: list[list[float]] = []
+    simulate(system, [RowObserver(lambda row: rows.append(list(row)))])
+    assert len(rows) == 101
+    for i, (t, x) in enumerate(rows):
+        point = 0.1 * (i // 10)
+        assert x == pytest.approx(math.exp(-point), abs=1e-7), t
