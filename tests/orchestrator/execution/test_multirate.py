@@ -370,3 +370,17 @@ def test_a_model_exchange_component_at_its_own_step(reference, tmp_path,  # noqa
     for i, (t, x) in enumerate(rows):
         point = 0.1 * (i // 10)
         assert x == pytest.approx(math.exp(-point), abs=1e-7), t
+
+
+def test_the_command_refuses_a_non_multiple_in_one_line(fmus, tmp_path, capsys):
+    from agv_cosim import cli
+
+    path = _write(tmp_path, fmus, ctrl_step=0.025)
+    code = cli.main(["validate", str(path)])
+    err = capsys.readouterr().err
+    assert code != 0
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "components.ctrl.step: 0.025 s is not a whole multiple of the simulation " \
+           "step (0.01 s)" in lines[0]
+    assert "Traceback" not in err
