@@ -24,8 +24,10 @@ interval and the manifest's ``[metrics]`` and ``[plots]`` tables (``agv:Metrics`
 ``agv:Plots``: each table as JSON text; a path string is carried as written, a file it
 names is not packed). Other tools ignore it. A component with a ``step`` of its own
 (multirate) carries it in an ``org.agv-cosim`` annotation of its ``ssd:Component``
-(``agv:Component stepSize``), which our import reads back; other tools ignore it and
-step that component at the base step.
+(``agv:Component stepSize``), which our import reads back, and in libcosim's
+``com.opensimulationplatform`` one (``osp:StepSizeHint value``), from which libcosim
+steps it at that step (its decimation factor); other tools ignore both and step the
+component at the base step.
 """
 
 import json
@@ -182,8 +184,12 @@ def build_ssd(name: str, models: dict[str, Any], parameters: dict[str, dict[str,
                 if var.ftype.is_float and var.unit:
                     attrs["unit"] = var.unit
                 ElementTree.SubElement(param, q("ssv", str(ssp_type(var))), attrs)
-        if steps and cname in steps:  # our multirate step; other tools ignore it
+        if steps and cname in steps:  # a multirate component's own step
             notes = ElementTree.SubElement(comp, q("ssd", "Annotations"))
+            hint = ElementTree.SubElement(notes, q("ssc", "Annotation"),
+                                          {"type": OSP_ANNOTATION})
+            ElementTree.SubElement(hint, q("osp", "StepSizeHint"),
+                                   {"value": number_text(steps[cname])})
             note = ElementTree.SubElement(notes, q("ssc", "Annotation"),
                                           {"type": AGV_ANNOTATION})
             ElementTree.SubElement(note, q("agv", "Component"),

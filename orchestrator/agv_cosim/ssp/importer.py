@@ -282,14 +282,19 @@ def _component(package, base, node, ssd_units):
 
 def _own_step(package, node):
     """The component's own communication step [s] from our annotation (``agv:Component
-    stepSize``), or None."""
+    stepSize``), else from libcosim's (``osp:StepSizeHint value``), or None."""
+    found = None
+    key = f"Component '{node.get('name')}'"
     for note in node.iterfind("ssd:Annotations/ssc:Annotation", NS):
         ours = note.find("agv:Component", NS) if note.get("type") == AGV_ANNOTATION \
             else None
         if ours is not None and ours.get("stepSize"):
-            return _float_attr(package, f"Component '{node.get('name')}': agv:Component",
-                               ours, "stepSize")
-    return None
+            return _float_attr(package, f"{key}: agv:Component", ours, "stepSize")
+        hint = note.find("osp:StepSizeHint", NS) if note.get("type") == OSP_ANNOTATION \
+            else None
+        if hint is not None and hint.get("value") and found is None:
+            found = _float_attr(package, f"{key}: osp:StepSizeHint", hint, "value")
+    return found
 
 
 def _check_connectors(package, cname, fmu, node):

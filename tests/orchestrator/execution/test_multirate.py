@@ -284,9 +284,11 @@ def test_ssp_export_keeps_the_step_in_an_annotation_our_import_reads(fmus, tmp_p
         root = ElementTree.fromstring(archive.read("SystemStructure.ssd"))
     ns = ssp.NS
     ctrl = root.find("ssd:System/ssd:Elements/ssd:Component[@name='ctrl']", ns)
-    note = ctrl.find("ssd:Annotations/ssc:Annotation", ns)
-    assert note.get("type") == ssp.AGV_ANNOTATION
-    assert note.find("agv:Component", ns).get("stepSize") == "0.1"
+    notes = {note.get("type"): note
+             for note in ctrl.findall("ssd:Annotations/ssc:Annotation", ns)}
+    assert notes[ssp.AGV_ANNOTATION].find("agv:Component", ns).get("stepSize") == "0.1"
+    # libcosim's own hint (its decimation factor)
+    assert notes[ssp.OSP_ANNOTATION].find("osp:StepSizeHint", ns).get("value") == "0.1"
     plant = root.find("ssd:System/ssd:Elements/ssd:Component[@name='plant']", ns)
     assert plant.find("ssd:Annotations", ns) is None
     again = importer.load_ssp(package, tmp_path / "unpacked")
@@ -384,3 +386,27 @@ def test_the_command_refuses_a_non_multiple_in_one_line(fmus, tmp_path, capsys):
     assert "components.ctrl.step: 0.025 s is not a whole multiple of the simulation " \
            "step (0.01 s)" in lines[0]
     assert "Traceback" not in err
+
+
+def test_libcosim_steps_the_exported_package_as_our_jacobi_does(fmus, tmp_path):
+    """The reference: libcosim (libcosimpy) runs the exported package with the
+    controller's decimation factor from ``osp:StepSizeHint``; the lag's state at every
+    base step equals our Jacobi's (libcosim's observer samples a simulator only at its
+    own steps: the fast lag is the one compared)."""
+    pytest.importorskip("libcosimpy")
+    from libcosim_runner import run_libcosim
+
+    from agv_cosim.ssp import exporter
+
+    path = _write(tmp_path, fmus, algorithm="jacobi")
+    package = tmp_path / "sampled.ssp"
+    exporter.export_ssp(path, package)
+    times, series = run_libcosim(package, ["plant.x"])
+    ours = _rows(path)
+    assert [row[0] for row in ours] == list(times)
+    theirs = series["plant.x"]
+    assert max(abs(row[1] - x) for row, x in zip(ours, theirs)) < 1e-12
+    # and it is the sampled loop, not the single-rate one
+    single = _rows(_write(tmp_path, fmus, algorithm="jacobi", ctrl_step=None,
+                          name="single.toml"))
+    assert max(abs(row[1] - x) for row, x in zip(single, theirs)) > 1e-3
