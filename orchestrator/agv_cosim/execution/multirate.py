@@ -20,7 +20,9 @@ The semantics are libcosim's fixed-step algorithm with a step-size multiplier
   Jacobi (libcosim's): the outputs of those components are read, then their inputs
   are set from the values then current. libcosim transfers a simulator's outputs when
   its step ends and applies a simulator's inputs when its next step begins: the same
-  values reach the same calls.
+  values reach the same calls (tests/orchestrator/execution/test_multirate.py runs an
+  exported package in libcosim, its decimation factors from ``osp:StepSizeHint``, and
+  finds our Jacobi's values).
   Gauss-Seidel: those components are visited in the feedthrough order of the whole
   system; each gets its inputs from the current values (its sources already visited at
   this point give this instant's, the others their held ones), then its outputs are
