@@ -410,3 +410,17 @@ def test_libcosim_steps_the_exported_package_as_our_jacobi_does(fmus, tmp_path):
     single = _rows(_write(tmp_path, fmus, algorithm="jacobi", ctrl_step=None,
                           name="single.toml"))
     assert max(abs(row[1] - x) for row, x in zip(single, theirs)) > 1e-3
+
+
+def test_a_paced_multirate_run_gives_the_same_rows(fmus, tmp_path):
+    """Pacing (``--real-time``) waits after each base step; the rows are unchanged."""
+    from agv_cosim.execution import Pacer
+
+    path = _write(tmp_path, fmus, stop=0.2)
+    _, jobs, _ = prepare(path)
+    rows: list[list[float]] = []
+    pacer = Pacer(20.0, 0.0)
+    simulate(jobs[0].plan, [RowObserver(lambda row: rows.append(list(row)))], fast=True,
+             pace=pacer)
+    assert rows == _rows(path)
+    assert pacer.figures[3] == pytest.approx(0.2)  # the last base step it paced ended there
