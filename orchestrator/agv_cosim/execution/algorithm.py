@@ -70,16 +70,18 @@ class GaussSeidel:
                  fast: bool) -> None:
         self.track = track
         self.fast = fast
-        self.ordered = [units[name] for name in system.order]
+        # ``units``: every unit, or (multirate) those at a communication point of theirs
+        order = [name for name in system.order if name in units]
+        self.ordered = [units[name] for name in order]
         # Units whose outputs feed a unit visited before them (or themselves): their
         # outputs are read first, so that unit sees the value of this instant and not
         # the one read in the previous pass. Such an output cannot depend directly on an
         # input (the order puts every feedthrough source first), so reading it early is
         # exact.
-        position = {name: i for i, name in enumerate(system.order)}
+        position = {name: i for i, name in enumerate(order)}
         backward = {src.name for unit in units.values() for _, src, _ in unit.sources
-                    if position[src.name] >= position[unit.name]}
-        self.pre_read = [units[name] for name in system.order if name in backward]
+                    if src.name in position and position[src.name] >= position[unit.name]}
+        self.pre_read = [units[name] for name in order if name in backward]
         # A pre-read unit none of whose read outputs depends directly on an input shows
         # the same values after its sets (FMI: only a step changes them): it is read
         # once, at the start, and its values are checked there.
@@ -244,10 +246,12 @@ class Stepper:
     :attr:`step` is ``step(t, h)``: t the communication point t_k, h the step size to
     t_{k+1} (:meth:`.grid.Grid.step_size`)."""
 
-    def __init__(self, units: Iterable[Unit], track: Track, fast: bool) -> None:
+    def __init__(self, units: Iterable[Unit], track: Track, fast: bool,
+                 requests: list[StopRequest] | None = None) -> None:
         self.units = [u for u in units if isinstance(u, FmuUnit)]
         self.track = track
-        self.requests: list[StopRequest] = []
+        #: the stop requests (``requests``: a list shared with other steppers)
+        self.requests: list[StopRequest] = [] if requests is None else requests
         #: the compiled step program, or None
         self.compiled = programs.step_all(self.units, track, DO_STEP, fmi2_stepped,
                                           fmi3_stepped, self.requests) if fast else None

@@ -60,11 +60,14 @@ class Grid:
             return None
         return self._base, self._slope, self._den, self.step
 
-    def step_size(self, t: float, t_next: float) -> float:
+    def step_size(self, t: float, t_next: float, step: float | None = None) -> float:
         """The step size h [s] from ``t`` = t_k to ``t_next`` = t_{k+1}: the manifest's
         step when ``t + step == t_next``, else a double h with ``t + h == t_next`` found
-        from their difference (the difference itself when no double reaches it)."""
-        h = self.step
+        from their difference (the difference itself when no double reaches it).
+
+        ``step``: a component's own step [s] instead of the manifest's, for its step
+        from t_k to t_{k+m} (``t_next``), m its multiple of the manifest's step."""
+        h = self.step if step is None else step
         if t + h == t_next:
             return h
         return _reaching(t, t_next)

@@ -6,7 +6,8 @@ which the orchestrator integrates (:mod:`.model_exchange`: the same unit interfa
 (:mod:`.instance`), wires their value buffers (:mod:`.units`), initialises them
 (``fmi2SetupExperiment``, parameters, enter / exit initialisation; for FMI 3.0 the
 parameters before ``fmi3EnterInitializationMode``), then at every communication point
-(t_k = start + k step, :mod:`.grid`) lets the :mod:`scenario <.scenario>` apply its
+(t_k = start + k step, :mod:`.grid`; components with a step of their own at theirs,
+:mod:`.multirate`) lets the :mod:`scenario <.scenario>` apply its
 events, the :mod:`algorithm <.algorithm>` exchange the values, the observers
 (:mod:`.observers`) take the recorded row, and the stepper step every FMU; an FMU's
 stop request ends the run after that macro step.
@@ -29,6 +30,7 @@ from .algorithm import Algorithm, Stepper, StopRequest, algorithm_for
 from .grid import Grid
 from .instance import FmuInstance, extract_ahead
 from .model_exchange import ModelExchangeUnit
+from .multirate import multiples, run_multirate
 from .observers import Observer
 from .pacing import Pacer
 from .scenario import Scenario
@@ -272,13 +274,20 @@ def simulate(system: System, observers: Iterable[Observer] = (), *,
         _initialise(system, instances, algorithm, track)
         recorder = _Recorder(system, units, observers)
         scenario = Scenario(system.events, instances, system.models)
-        stepper = Stepper(units.values(), track, fast)
+        multirate = any(m > 1 for m in multiples(system).values())
+        stepper = None if multirate else Stepper(units.values(), track, fast)
         track[1] = PROPAGATION
         if scenario.next_step == 0:
             scenario.apply(0)
         algorithm.start(system.start, recorder.record)
-        outcome = _loop(system, algorithm, stepper, scenario, recorder.record, progress,
-                        track, pace)
+        if stepper is not None:
+            outcome = _loop(system, algorithm, stepper, scenario, recorder.record,
+                            progress, track, pace)
+        else:
+            outcome = Outcome(rows=0)
+            outcome.ended_by, outcome.stop_time, _ = run_multirate(
+                system, units, algorithm, scenario, recorder.record, progress, track,
+                fast, pace, PROGRESS_EVERY)
         outcome.rows = recorder.rows
         return outcome
     except FMICallException as error:

@@ -12,6 +12,7 @@ import hashlib
 import re
 import tomllib
 from dataclasses import dataclass, field
+from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
@@ -51,6 +52,9 @@ class Component:
     table: Path | None = None
     interpolation: dict[str, str] = field(default_factory=dict)
     units: dict[str, str] = field(default_factory=dict)
+    #: its own communication step [s] (``step``), a whole multiple of the simulation's;
+    #: None: the simulation's step
+    step: float | None = None
 
 
 @dataclass(frozen=True)
@@ -186,25 +190,52 @@ def dotted_name(manifest: object, key: str, text: object) -> tuple[str, str]:
     return split_name(text)
 
 
+def step_multiple(step: float, base: float) -> int | None:
+    """``step`` / ``base`` when it is a whole number >= 1, in exact decimal arithmetic
+    (the shortest decimals of both doubles, as :mod:`agv_cosim.execution.grid` reads
+    them: 0.03 is 3 times 0.01); else None."""
+    ratio = Fraction(repr(float(step))) / Fraction(repr(float(base)))
+    return int(ratio) if ratio.denominator == 1 and ratio >= 1 else None
+
+
+def component_steps(components: dict[str, Component], step: float) -> dict[str, float]:
+    """Component -> its own step [s], for those whose ``step`` is a multiple > 1 of the
+    simulation's ``step`` (one equal to it is the simulation's: the same run)."""
+    return {cname: comp.step for cname, comp in components.items()
+            if comp.step is not None and (step_multiple(comp.step, step) or 1) > 1}
+
+
+def _component_step(manifest: object, key: str, step: float | None,
+                    base: float) -> float | None:
+    """A component's checked ``step``: a whole multiple of the simulation's ``base`` step."""
+    if step is not None and step_multiple(step, base) is None:
+        raise ManifestError(manifest, f"{key}.step", f"{step!r} s is not a whole multiple "
+                            f"of the simulation step ({base!r} s)")
+    return step
+
+
 def _component(manifest: object, base_dir: Path, name: str, table: Any,
-               key: str) -> Component:
+               key: str, base_step: float) -> Component:
     """A checked :class:`schema.ComponentTable` as a :class:`Component`: an FMU or a table."""
+    step = _component_step(manifest, key, table.step, base_step)
     if table.table is not None:
         if table.fmu is not None or "parameters" in table.model_fields_set:
             raise ManifestError(manifest, f"{key}.table", "a component is an FMU or a "
                                 "table, not both")
         return Component(name, None, {}, table=(base_dir / table.table).resolve(),
-                         interpolation=dict(table.interpolation), units=dict(table.units))
+                         interpolation=dict(table.interpolation), units=dict(table.units),
+                         step=step)
     for sub in ("interpolation", "units"):
         if sub in table.model_fields_set:
             raise ManifestError(manifest, f"{key}.interpolation", "only for a table component")
     fmu = table.fmu
-    return Component(name, (base_dir / fmu).resolve() if fmu else None, dict(table.parameters))
+    return Component(name, (base_dir / fmu).resolve() if fmu else None, dict(table.parameters),
+                     step=step)
 
 
 def _variant(path: Path, base_dir: Path, name: str, vtable: Any,
              components: dict[str, Component], connections: list[Connection],
-             events: dict[str, EventSpec]) -> Variant:
+             events: dict[str, EventSpec], base_step: float) -> Variant:
     """One checked ``[variants.<name>]`` table.
 
     Checked here, by name: removed components and disconnected inputs exist in the base,
@@ -229,7 +260,7 @@ def _variant(path: Path, base_dir: Path, name: str, vtable: Any,
                                 f"{listed} still connect it; disconnect them (disconnect = "
                                 f'["{cname}"])')
     comps, new = _variant_components(path, base_dir, key, vtable.components, components,
-                                     removed)
+                                     removed, base_step)
     # an event of the base is changed field by field; a new one needs both
     variant_events = {ename: _event(path, f"{key}.events.{ename}", etable,
                                     partial=ename in events)
@@ -288,15 +319,15 @@ def _disconnected(path: Path, key: str, names: list[str], components: dict[str, 
 
 
 def _variant_components(path: Path, base_dir: Path, key: str, tables: dict[str, Any],
-                        components: dict[str, Component],
-                        removed: list[str]) -> tuple[dict[str, Component], list[str]]:
+                        components: dict[str, Component], removed: list[str],
+                        base_step: float) -> tuple[dict[str, Component], list[str]]:
     """A variant's ``components`` checked: each a change of the base's or a new one (an
     identifier with an FMU or a table); with the names of the new ones."""
     comps: dict[str, Component] = {}
     new: list[str] = []
     for cname, ctable in tables.items():
         ckey = f"{key}.components.{cname}"
-        comp = _component(path, base_dir, cname, ctable, ckey)
+        comp = _component(path, base_dir, cname, ctable, ckey, base_step)
         if cname in components and cname not in removed:
             comps[cname] = comp  # a change of the base's component
             continue
@@ -544,7 +575,7 @@ def manifest_from_data(data: dict[str, Any], path: str | Path, sha256: str,
         if not _NAME.match(name):
             raise ManifestError(path, key,
                                 "instance names are identifiers ([A-Za-z_][A-Za-z0-9_]*)")
-        comp = _component(path, base_dir, name, ctable, key)
+        comp = _component(path, base_dir, name, ctable, key, step)
         if comp.fmu is None and comp.table is None:
             raise ManifestError(path, f"{key}.fmu", "missing (path of the FMU, relative to "
                                 "the manifest)")
@@ -556,7 +587,7 @@ def manifest_from_data(data: dict[str, Any], path: str | Path, sha256: str,
               for name, etable in table.events.items()}
 
     variants = {name: _variant(path, base_dir, name, vtable, components, connections,
-                               events) for name, vtable in table.variants.items()}
+                               events, step) for name, vtable in table.variants.items()}
 
     sweep = {}
     for name, values in table.sweep.items():

@@ -91,6 +91,9 @@ class ComponentTable(_Table):
     table: StrictStr | None = None
     interpolation: dict[str, Any] = {}
     units: dict[str, Any] = {}
+    #: the component's own communication step [s], a whole multiple of ``[simulation]
+    #: step`` (checked in :mod:`agv_cosim.manifest`); None: the simulation's step
+    step: Annotated[Number, Field(gt=0)] | None = None
 
 
 class ConnectionTable(_Table):

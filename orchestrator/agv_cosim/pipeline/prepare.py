@@ -9,6 +9,7 @@ from typing import Any
 
 from .. import fmitypes
 from ..manifest import Manifest, load_manifest
+from ..manifest.load import component_steps
 from ..plan import Override, plan_runs
 from ..report import metrics, plots
 from ..system import CheckedRun, Event, Job, System, Variable, validate
@@ -87,7 +88,8 @@ def prepare(manifest: str | Path | Manifest, variants: list[str] | None = None,
                         record=one.record, start=manifest.start, stop=manifest.stop,
                         step=manifest.step, algorithm=manifest.algorithm,
                         record_every=manifest.record_every, steps=manifest.steps,
-                        events=events)
+                        events=events,
+                        component_steps=component_steps(run.components, manifest.step))
         jobs.append(Job(label=run.label, variant=run.variant, point=run.point, plan=system,
                         parameters=effective,
                         fmu_sha256={c: info.sha256 for c, info in models.items()},

@@ -54,8 +54,8 @@ def _apply_event_key(events: dict[str, EventSpec], name: str, value: Any) -> Non
 def run_components(manifest: Manifest, variant: str | None) -> dict[str, Component]:
     """The components of a run of ``variant`` (None: the base), copies in the base's
     order: a removed one left out (or, added again under its name, in its place), a
-    changed one with the variant's FMU or table and its parameters over the base's, a
-    new one after the base's."""
+    changed one with the variant's FMU or table, its parameters over the base's and its
+    ``step`` (when it gives one) instead of the base's, a new one after the base's."""
     if variant is None:
         return copy.deepcopy(manifest.components)
     changes = manifest.variants[variant]
@@ -77,6 +77,8 @@ def run_components(manifest: Manifest, variant: str | None) -> dict[str, Compone
             comps[cname].interpolation = dict(sub.interpolation)
             comps[cname].units = dict(sub.units)
         comps[cname].parameters.update(copy.deepcopy(sub.parameters))
+        if sub.step is not None:
+            comps[cname].step = sub.step
     return comps
 
 

@@ -95,9 +95,17 @@ def run_inputs(job: Job) -> dict[str, Any]:
     the manifest's hash, the run's variant, sweep point (and Monte Carlo sample),
     parameters (seeds included), FMU and time-table hashes, each table's interpolation
     per column (``tables``), the SHA-256 of every file a parameter or event names
-    (``files``, :mod:`agv_cosim.system.files`), simulation settings, connections, events
-    and package versions. Equal inputs (:func:`inputs_sha256`) give an equal result."""
+    (``files``, :mod:`agv_cosim.system.files`), simulation settings (with
+    ``component_steps``, each multirate component's own step, when there is one),
+    connections, events and package versions. Equal inputs (:func:`inputs_sha256`)
+    give an equal result."""
     plan = job.plan
+    simulation: dict[str, Any] = {
+        "start": plan.start, "stop": plan.stop, "step": plan.step,
+        "algorithm": plan.algorithm, "record_every": plan.record_every,
+        "record": list(plan.record), "order": list(plan.order)}
+    if plan.component_steps:  # only a multirate run has the key: others keep their hash
+        simulation["component_steps"] = dict(plan.component_steps)
     return {
         "manifest_sha256": job.manifest_sha256, "label": job.label,
         "variant": job.variant, "point": job.point, "parameters": job.parameters,
@@ -105,9 +113,7 @@ def run_inputs(job: Job) -> dict[str, Any]:
         "tables": {cname: {"interpolation": dict(zip(info.table.names, info.table.modes))}
                    for cname, info in plan.models.items() if info.table is not None},
         "files": job.files,
-        "simulation": {"start": plan.start, "stop": plan.stop, "step": plan.step,
-                       "algorithm": plan.algorithm, "record_every": plan.record_every,
-                       "record": list(plan.record), "order": list(plan.order)},
+        "simulation": simulation,
         "connections": [str(c) for c in plan.connections],
         "events": [{"name": event.name, "at": event.at,
                     "set": {f"{c}.{v}": value for c, v, value in event.sets}}
@@ -179,6 +185,8 @@ def write_run_files(job: Job, run_dir: Path, rows: int, status: str, error: str 
         "ended_by": ended_by or ("stop time" if status == "complete" else None),
         "timeout_s": job.timeout, "inputs": inputs, "inputs_sha256": digest,
         "events": inputs["events"], "units": record_units(job)}
+    if job.plan.component_steps:
+        record["component_steps"] = dict(job.plan.component_steps)
     write_json(run_dir / "run.json", record, replace=True)
     return run_result(job, status, rows=rows, error=error, metrics=values,
                       metrics_error=metrics_error)

@@ -22,7 +22,12 @@ annotation of ``ssd:DefaultExperiment``. A second annotation, ``org.agv-cosim``,
 what SSP has no place for: our master algorithm, the recorded variables, the record
 interval and the manifest's ``[metrics]`` and ``[plots]`` tables (``agv:Metrics``,
 ``agv:Plots``: each table as JSON text; a path string is carried as written, a file it
-names is not packed). Other tools ignore it.
+names is not packed). Other tools ignore it. A component with a ``step`` of its own
+(multirate) carries it in an ``org.agv-cosim`` annotation of its ``ssd:Component``
+(``agv:Component stepSize``), which our import reads back, and in libcosim's
+``com.opensimulationplatform`` one (``osp:StepSizeHint value``), from which libcosim
+steps it at that step (its decimation factor); other tools ignore both and step the
+component at the base step.
 """
 
 import json
@@ -38,6 +43,7 @@ from .. import fmitypes
 from ..errors import ManifestError, OutputError
 from ..files import user_mode
 from ..manifest import Manifest, load_manifest
+from ..manifest.load import component_steps
 from ..plan import Override, plan_runs
 from ..system import validate
 from .common import (
@@ -93,7 +99,8 @@ def build_ssd(name: str, models: dict[str, Any], parameters: dict[str, dict[str,
               algorithm: str, record: list[str] | None = None,
               record_interval: float | None = None,
               description: str = "", metrics: dict[str, Any] | None = None,
-              plots: dict[str, Any] | None = None) -> ElementTree.Element:
+              plots: dict[str, Any] | None = None,
+              steps: dict[str, float] | None = None) -> ElementTree.Element:
     """The ``SystemStructure.ssd`` of one run, as an ElementTree element.
 
     Parameters
@@ -114,6 +121,10 @@ def build_ssd(name: str, models: dict[str, Any], parameters: dict[str, dict[str,
         Recorded ``component.variable`` names.
     record_interval : float, optional
         Record interval [s].
+    steps : dict, optional
+        Instance name -> its own communication step [s] (a multirate component),
+        written as an ``org.agv-cosim`` annotation of the component (``agv:Component
+        stepSize``).
     """
     sources = _fmu_file_names(models)
     root = ElementTree.Element(q("ssd", "SystemStructureDescription"),
@@ -173,6 +184,16 @@ def build_ssd(name: str, models: dict[str, Any], parameters: dict[str, dict[str,
                 if var.ftype.is_float and var.unit:
                     attrs["unit"] = var.unit
                 ElementTree.SubElement(param, q("ssv", str(ssp_type(var))), attrs)
+        if steps and cname in steps:  # a multirate component's own step
+            notes = ElementTree.SubElement(comp, q("ssd", "Annotations"))
+            hint = ElementTree.SubElement(notes, q("ssc", "Annotation"),
+                                          {"type": OSP_ANNOTATION})
+            ElementTree.SubElement(hint, q("osp", "StepSizeHint"),
+                                   {"value": number_text(steps[cname])})
+            note = ElementTree.SubElement(notes, q("ssc", "Annotation"),
+                                          {"type": AGV_ANNOTATION})
+            ElementTree.SubElement(note, q("agv", "Component"),
+                                   {"stepSize": number_text(steps[cname])})
     conns = ElementTree.SubElement(system, q("ssd", "Connections"))
     for conn in connections:
         ElementTree.SubElement(conns, q("ssd", "Connection"), {
@@ -264,7 +285,8 @@ def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
     root = build_ssd(name, models, params, run.connections, manifest.start,
                      manifest.stop, manifest.step, manifest.algorithm, one.record,
                      manifest.record_interval, manifest.description,
-                     _as_written(manifest.metrics), _as_written(manifest.plots))
+                     _as_written(manifest.metrics), _as_written(manifest.plots),
+                     component_steps(run.components, manifest.step))
     out_path = Path(out_path)
     if out_path.is_dir():
         raise OutputError(f"{out_path}: is a folder; give the name of the .ssp file to "

@@ -280,6 +280,23 @@ def _component(package, base, node, ssd_units):
     return cname, fmu, _bindings(package, base, node, key, ssd_units)
 
 
+def _own_step(package, node):
+    """The component's own communication step [s] from our annotation (``agv:Component
+    stepSize``), else from libcosim's (``osp:StepSizeHint value``), or None."""
+    found = None
+    key = f"Component '{node.get('name')}'"
+    for note in node.iterfind("ssd:Annotations/ssc:Annotation", NS):
+        ours = note.find("agv:Component", NS) if note.get("type") == AGV_ANNOTATION \
+            else None
+        if ours is not None and ours.get("stepSize"):
+            return _float_attr(package, f"{key}: agv:Component", ours, "stepSize")
+        hint = note.find("osp:StepSizeHint", NS) if note.get("type") == OSP_ANNOTATION \
+            else None
+        if hint is not None and hint.get("value") and found is None:
+            found = _float_attr(package, f"{key}: osp:StepSizeHint", hint, "value")
+    return found
+
+
 def _check_connectors(package, cname, fmu, node):
     """Refuse connectors that do not match the FMU (we convert no connector units)."""
     connectors = node.findall("ssd:Connectors/ssd:Connector", NS)
@@ -390,7 +407,7 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
     for tag, what in (("SignalDictionaries", "signal dictionaries"),):
         if system.find(f"ssd:{tag}", NS) is not None:
             raise SspError(package, f"System: {tag}", f"{what} are not supported")
-    components, connections, bound = {}, [], {}
+    components, connections, bound, steps = {}, [], {}, {}
     ssd_units = _units(package, root, "ssd")
     elements = system.find("ssd:Elements", NS)
     for node in (elements if elements is not None else []):
@@ -404,12 +421,17 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
             raise SspError(package, f"Component '{cname}'", "name used twice")
         _check_connectors(package, cname, fmu, node)
         components[cname] = fmu
+        own = _own_step(package, node)
+        if own is not None:
+            steps[cname] = own
     if not components:
         raise SspError(package, "System: Elements", "no components")
     params = _bound_parameters(package, components, bound,
                                _bindings(package, base, system, "System", ssd_units))
     components = {cname: {"fmu": str(fmu), "parameters": params[cname]}
                   for cname, fmu in components.items()}
+    for cname, own in steps.items():
+        components[cname]["step"] = own
     for node in system.iterfind("ssd:Connections/ssd:Connection", NS):
         ends = [node.get(a) for a in ("startElement", "startConnector", "endElement",
                                       "endConnector")]

@@ -16,6 +16,7 @@ from typing import Any, TypeVar
 from .. import fmitypes
 from ..errors import ManifestError, ModelError, TableError, did_you_mean
 from ..manifest import Connection, Manifest, Variant, split_name, whole_multiple
+from ..manifest.load import step_multiple
 from ..plan import RunSpec, plan_runs
 from .checked import Checked, CheckedRun, Event
 from .files import file_problem
@@ -56,10 +57,26 @@ def check_events(manifest: Manifest, run: RunSpec, models: dict[str, ModelInfo],
                       f"{manifest.step!r} s)")
         sets = [_event_value(manifest, models, targets, f"{key}.set.{target}", target,
                              value) for target, value in event.set.items()]
+        for cname, vname, _ in sets:
+            _on_its_grid(manifest, run, f"{key}.at", at, k, cname, vname)
         resolved.append(Event(k=k, at=at, name=name, sets=tuple(sets)))
     position = {name: i for i, name in enumerate(run.events)}
     resolved.sort(key=lambda e: (e.k, position[e.name]))
     return resolved
+
+
+def _on_its_grid(manifest: Manifest, run: RunSpec, key: str, at: float, k: int,
+                 cname: str, vname: str) -> None:
+    """Refuse an event that sets a variable of a component with its own ``step`` at a
+    time that is not one of that component's communication points (start + j step, or
+    the stop time): between its points the FMU is already at its next one."""
+    step = run.components[cname].step
+    multiple = step_multiple(step, manifest.step) if step is not None else None
+    if multiple is None or multiple == 1 or k % multiple == 0 or k == manifest.steps:
+        return
+    raise manifest.error(key, f"{at!r} s is not a communication point of component "
+                         f"'{cname}' (its step is {step!r} s), whose '{vname}' the event "
+                         "sets")
 
 
 def _event_value(manifest: Manifest, models: dict[str, ModelInfo],

@@ -70,6 +70,10 @@ class System:
     steps: int
     #: applied at t_k = start + k step, before that instant's exchange
     events: list[Event] = field(default_factory=list)
+    #: component -> its own communication step [s], for the components stepped at a
+    #: whole multiple (> 1) of ``step`` (:mod:`agv_cosim.execution.multirate`); the
+    #: others are stepped at ``step``
+    component_steps: dict[str, float] = field(default_factory=dict)
 
     def record_types(self) -> list[FmiType]:
         """The FMI type of each ``record`` column."""
