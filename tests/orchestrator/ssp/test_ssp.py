@@ -1,5 +1,5 @@
 """SSP 1.0 export/import (agv_cosim.ssp_export, agv_cosim.ssp_import) and the cross-check
-against libcosim (tests/orchestrator/ssp/libcosim_runner.py).
+against libcosim (tests/orchestrator/libcosim_runner.py).
 
 The closed loop is seed 000 model a (experiments/seed000_models_abc.toml, variant a, run
 10 s at 10 ms in Jacobi mode): vehicle -> vision sensor -> controller, actuator ->
