@@ -59,6 +59,7 @@ from .algorithm import Algorithm, Stepper, algorithm_for
 from .grid import Grid
 from .pacing import Pacer
 from .scenario import Scenario
+from .stretch import compiled_stretch, ended, reached
 from .track import Track
 from .units import Unit
 
@@ -120,13 +121,12 @@ def _fast_stretch(rates: _Rates, grid: Grid,
                   pace: Pacer | None) -> Callable[[int, int], int] | None:
     """``run(k0, k1)``: macro steps k0 .. k1 - 1 in which only the components at the
     simulation's step step and exchange, run in C
-    (:func:`agv_cosim.execution.simulation._stretch`); None when the run cannot use it
+    (:func:`agv_cosim.execution.stretch.compiled_stretch`); None when the run cannot use it
     (no base-rate component, or their stepper or exchange not compiled)."""
-    from .simulation import _stretch
 
     if rates.steppers[0][0] != 1:
         return None
-    return _stretch(rates.base_only(), rates.steppers[0][2], grid, pace)
+    return compiled_stretch(rates.base_only(), rates.steppers[0][2], grid, pace)
 
 
 def run_multirate(system: System, units: dict[str, Unit], algorithm: Algorithm,
@@ -142,7 +142,6 @@ def run_multirate(system: System, units: dict[str, Unit], algorithm: Algorithm,
     Returns ``(ended_by, stop_time, stopped)`` as :class:`.simulation.Outcome` holds
     them (``stopped``: an FMU asked to end the run).
     """
-    from .simulation import _ended, _reached
 
     steps, every = system.steps, system.record_every
     grid = Grid(system.start, system.stop, steps, system.step)
@@ -184,8 +183,8 @@ def run_multirate(system: System, units: dict[str, Unit], algorithm: Algorithm,
                 done += ran if progress else 0
                 if requests:  # macro step k stepped (no exchange): its stop request
                     t = time(k + 1)
-                    ended_by, stop_time = _ended(requests[0])
-                    if _reached(requests[0], t):
+                    ended_by, stop_time = ended(requests[0])
+                    if reached(requests[0], t):
                         rates.at(k + 1).last(t, {n for n, _ in requests})
                         record(t)
                     break
@@ -205,8 +204,8 @@ def run_multirate(system: System, units: dict[str, Unit], algorithm: Algorithm,
             scenario.apply(k + 1)
         exchange = rates.at(k + 1)
         if requests:
-            ended_by, stop_time = _ended(requests[0])
-            if _reached(requests[0], t_next):
+            ended_by, stop_time = ended(requests[0])
+            if reached(requests[0], t_next):
                 exchange.last(t_next, {n for n, _ in requests})
                 record(t_next)
             break

@@ -25,8 +25,7 @@ from typing import Any
 from ..errors import SimulationError
 from ..system import System
 from ..system.model import ModelInfo
-from . import compiled
-from .algorithm import Algorithm, Stepper, StopRequest, algorithm_for
+from .algorithm import Algorithm, Stepper, algorithm_for
 from .grid import Grid
 from .instance import FmuInstance, extract_ahead
 from .model_exchange import ModelExchangeUnit
@@ -34,6 +33,7 @@ from .multirate import multiples, run_multirate
 from .observers import Observer
 from .pacing import Pacer
 from .scenario import Scenario
+from .stretch import compiled_stretch, ended, reached
 from .track import INITIALISATION, INSTANTIATION, PHASES, PROPAGATION, Track
 from .units import Unit, build_units, enter_initialisation
 
@@ -104,46 +104,6 @@ def _record_from(system: System, units: dict[str, Unit]) -> list[tuple[int, Any,
     return found
 
 
-def _reached(request: StopRequest, t: float) -> bool:
-    """True when the FMU that asked to stop reached the communication point ``t``."""
-    when = request[1]
-    return when is not None and abs(when - t) <= 1e-9 * max(1.0, abs(t))
-
-
-def _ended(request: StopRequest) -> tuple[str, float | None]:
-    """``(Outcome.ended_by, Outcome.stop_time)`` of a stop request."""
-    name, when = request
-    return f"{name} requested stop at t={when!r} s", when
-
-
-def _stretch(algorithm: Algorithm, stepper: Stepper, grid: Grid,
-             pace: Pacer | None) -> Callable[[int, int], int] | None:
-    """``run(k0, k1)``: macro steps k0 .. k1 - 1 (step, then exchange) in C, returning
-    how many were completed with their exchange (fewer when a step brought a stop
-    request: that step is made, its exchange is not); None when the run cannot use it.
-
-    The compiled loop (:func:`agv_cosim.execution.compiled.module`'s ``run_stretch``)
-    is used when the stepper and the algorithm's exchange are compiled programs (every
-    unit an FMI 2.0 / 3.0 co-simulation FMU or a table, called without fmpy's wrapper:
-    :mod:`.programs`), the run is not paced and its time grid is exact in doubles
-    (:meth:`.grid.Grid.exact_parts`). Otherwise every macro step runs in Python.
-    """
-    exchanges = getattr(algorithm, "exchanges", None)
-    program = getattr(stepper, "compiled", None)
-    parts = grid.exact_parts()
-    module = compiled.module()
-    if pace is not None or exchanges is None or program is None or parts is None or \
-            module is None:
-        return None
-    run_stretch, requests = module.run_stretch, stepper.requests
-
-    def run(k0: int, k1: int) -> int:
-        ran: int = run_stretch(program, exchanges, parts, k0, k1, requests)
-        return ran
-
-    return run
-
-
 def _loop(system: System, algorithm: Algorithm, stepper: Stepper, scenario: Scenario,
           record: Callable[[float], None], progress: list[Callable[[int], None]],
           track: Track, pace: Pacer | None = None) -> Outcome:
@@ -154,7 +114,7 @@ def _loop(system: System, algorithm: Algorithm, stepper: Stepper, scenario: Scen
     time, step_size = grid.time, grid.step_size
     requests = stepper.requests
     step = stepper.step if pace is None else pace.wrap(stepper.step)
-    stretch = _stretch(algorithm, stepper, grid, pace)
+    stretch = compiled_stretch(algorithm, stepper, grid, pace)
     done = 0
     outcome = Outcome(rows=0)
     t = system.start
@@ -182,8 +142,8 @@ def _loop(system: System, algorithm: Algorithm, stepper: Stepper, scenario: Scen
                 continue
             if requests:  # macro step k stepped (no exchange): its stop request below
                 t = time(k + 1)
-                outcome.ended_by, outcome.stop_time = _ended(requests[0])
-                if _reached(requests[0], t):
+                outcome.ended_by, outcome.stop_time = ended(requests[0])
+                if reached(requests[0], t):
                     algorithm.last(t, {n for n, _ in requests})
                     record(t)
                 break
@@ -194,8 +154,8 @@ def _loop(system: System, algorithm: Algorithm, stepper: Stepper, scenario: Scen
         if k + 1 == scenario.next_step and not requests:
             scenario.apply(k + 1)
         if requests:
-            outcome.ended_by, outcome.stop_time = _ended(requests[0])
-            algorithm_last = _reached(requests[0], t_next)
+            outcome.ended_by, outcome.stop_time = ended(requests[0])
+            algorithm_last = reached(requests[0], t_next)
             if algorithm_last:
                 algorithm.last(t_next, {n for n, _ in requests})
                 record(t_next)

@@ -307,12 +307,12 @@ def test_the_compiled_stretches_give_the_python_loops_rows(fmus, tmp_path, monke
                                                            algorithm):
     """With the compiled call path, the macro steps between the controller's points run
     in C stretches: the rows are those of the reference loop, bit for bit."""
-    from agv_cosim.execution import compiled, simulation
+    from agv_cosim.execution import compiled, multirate
 
     if not compiled.available():
         pytest.skip(f"no compiled call path here: {compiled.why_not()}")
     stretched: list[tuple[int, int]] = []
-    original = simulation._stretch
+    original = multirate.compiled_stretch
 
     def counted(*args, **kwargs):
         run = original(*args, **kwargs)
@@ -324,7 +324,7 @@ def test_the_compiled_stretches_give_the_python_loops_rows(fmus, tmp_path, monke
             return run(k0, k1)
         return counting
 
-    monkeypatch.setattr(simulation, "_stretch", counted)
+    monkeypatch.setattr(multirate, "compiled_stretch", counted)
     # a base-rate probe (a second lag) whose input an event sets at 0.55 s, between
     # the controller's points
     path = _write(tmp_path, fmus, algorithm=algorithm, extra=f"""
