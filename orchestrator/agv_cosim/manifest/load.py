@@ -51,6 +51,11 @@ class Component:
     table: Path | None = None
     interpolation: dict[str, str] = field(default_factory=dict)
     units: dict[str, str] = field(default_factory=dict)
+    #: ``interface``, ``solver``, ``tolerance`` as the manifest gives them (None: not
+    #: given; :func:`agv_cosim.system.interface.select_interface` applies them)
+    interface: str | None = None
+    solver: str | None = None
+    tolerance: float | None = None
 
 
 @dataclass(frozen=True)
@@ -189,13 +194,36 @@ def _component(manifest: object, base_dir: Path, name: str, table: Any,
         if table.fmu is not None or "parameters" in table.model_fields_set:
             raise ManifestError(manifest, f"{key}.table", "a component is an FMU or a "
                                 "table, not both")
+        for sub in INTERFACE_KEYS:
+            if getattr(table, sub) is not None:
+                raise ManifestError(manifest, f"{key}.{sub}", "only for an FMU component "
+                                    "(a time table has no FMI interface)")
         return Component(name, None, {}, table=(base_dir / table.table).resolve(),
                          interpolation=dict(table.interpolation), units=dict(table.units))
     for sub in ("interpolation", "units"):
         if sub in table.model_fields_set:
             raise ManifestError(manifest, f"{key}.interpolation", "only for a table component")
+    _check_interface(manifest, key, table)
     fmu = table.fmu
-    return Component(name, (base_dir / fmu).resolve() if fmu else None, dict(table.parameters))
+    return Component(name, (base_dir / fmu).resolve() if fmu else None, dict(table.parameters),
+                     interface=table.interface, solver=table.solver,
+                     tolerance=table.tolerance)
+
+
+#: A component's keys that choose its FMI interface and an integrated one's solver.
+INTERFACE_KEYS = ("interface", "solver", "tolerance")
+
+
+def _check_interface(manifest: object, key: str, table: Any) -> None:
+    """``solver`` and ``tolerance`` are refused beside ``interface = "co-simulation"``
+    (they apply to a Model Exchange FMU the orchestrator integrates)."""
+    if table.interface != "co-simulation":
+        return
+    for sub in ("solver", "tolerance"):
+        if getattr(table, sub) is not None:
+            raise ManifestError(manifest, f"{key}.{sub}", "applies to a component "
+                                "integrated as Model Exchange, not to one with interface = "
+                                "\"co-simulation\"")
 
 
 def _variant(path: Path, base_dir: Path, name: str, vtable: Any,

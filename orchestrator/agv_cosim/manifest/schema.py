@@ -91,6 +91,11 @@ class ComponentTable(_Table):
     table: StrictStr | None = None
     interpolation: dict[str, Any] = {}
     units: dict[str, Any] = {}
+    #: the FMI interface it runs through, and an integrated one's solver and relative
+    #: tolerance (:mod:`agv_cosim.system.interface`; checked with the FMU there)
+    interface: Literal["co-simulation", "model-exchange"] | None = None
+    solver: Literal["cvode", "scipy"] | None = None
+    tolerance: Annotated[Number, Field(gt=0, lt=1)] | None = None
 
 
 class ConnectionTable(_Table):
