@@ -22,7 +22,10 @@ annotation of ``ssd:DefaultExperiment``. A second annotation, ``org.agv-cosim``,
 what SSP has no place for: our master algorithm, the recorded variables, the record
 interval and the manifest's ``[metrics]`` and ``[plots]`` tables (``agv:Metrics``,
 ``agv:Plots``: each table as JSON text; a path string is carried as written, a file it
-names is not packed). Other tools ignore it.
+names is not packed). Other tools ignore it. A component run through an FMU's Model
+Exchange interface carries SSP's ``implementation="ModelExchange"`` (``"CoSimulation"``
+for one of an FMU with both interfaces run as co-simulation) and an ``org.agv-cosim``
+annotation of its own, ``agv:Integration`` (solver, tolerance).
 """
 
 import json
@@ -86,6 +89,25 @@ def _as_written(table: Any) -> dict[str, Any] | None:
     """A ``[metrics]`` / ``[plots]`` table as the manifest wrote it (keys it left out stay
     out), or None."""
     return None if table is None else table.model_dump(exclude_unset=True)
+
+
+def _write_interface(comp: ElementTree.Element, info: Any) -> None:
+    """The FMI interface a component runs through, on its ``ssd:Component``: SSP's
+    ``implementation`` ("ModelExchange" or "CoSimulation") for an FMU that declares Model
+    Exchange (an FMU with co-simulation only keeps SSP's default, "any"); an integrated
+    one's solver and tolerance, which SSP has no place for, in an ``org.agv-cosim``
+    annotation (``agv:Integration``) that our import reads back and other tools ignore."""
+    if "model-exchange" not in info.interfaces:
+        return
+    integration = info.integration
+    comp.set("implementation", "CoSimulation" if integration is None else "ModelExchange")
+    if integration is None:
+        return
+    notes = ElementTree.SubElement(comp, q("ssd", "Annotations"))
+    ours = ElementTree.SubElement(notes, q("ssc", "Annotation"), {"type": AGV_ANNOTATION})
+    ElementTree.SubElement(ours, q("agv", "Integration"),
+                           {"solver": integration.solver,
+                            "tolerance": number_text(integration.tolerance)})
 
 
 def build_ssd(name: str, models: dict[str, Any], parameters: dict[str, dict[str, Any]],
@@ -173,6 +195,7 @@ def build_ssd(name: str, models: dict[str, Any], parameters: dict[str, dict[str,
                 if var.ftype.is_float and var.unit:
                     attrs["unit"] = var.unit
                 ElementTree.SubElement(param, q("ssv", str(ssp_type(var))), attrs)
+        _write_interface(comp, info)
     conns = ElementTree.SubElement(system, q("ssd", "Connections"))
     for conn in connections:
         ElementTree.SubElement(conns, q("ssd", "Connection"), {
