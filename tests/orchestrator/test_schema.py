@@ -26,7 +26,8 @@ def _error(**tables):
     ({"simulation": {"stop": 1.0, "step": 0.1, "algorithm": "rk4"}},
      "simulation.algorithm: 'rk4' is not one of gauss-seidel, jacobi"),
     ({"components": {"a": {"fmu": "a.fmu", "p": 1}}},
-     "components.a.p: unknown key 'p' (allowed: fmu, parameters, table, interpolation, units)"),
+     "components.a.p: unknown key 'p' (allowed: fmu, parameters, table, interpolation, units, "
+     "interface, solver, tolerance)"),
     ({"connections": [{"from": "a.x", "to": "a.y"}, {"from": "ax", "to": "a.y"}]},
      "connections[1].from: 'ax' is not of the form 'component.variable'"),
     ({"events": {"e": {"at": 0.1, "set": {"ax": 1}}}},

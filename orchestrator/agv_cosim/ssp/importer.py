@@ -288,10 +288,11 @@ IMPLEMENTATIONS = {"any": None, "cosimulation": "co-simulation",
                    "modelexchange": "model-exchange"}
 
 
-def _interface(package, cname, node):
+def _interface(package: str | Path, cname: str,
+               node: ElementTree.Element) -> dict[str, Any]:
     """A component's ``interface``, ``solver`` and ``tolerance`` (those given) from its
     ``implementation`` and its ``org.agv-cosim`` annotation (``agv:Integration``)."""
-    keys = {}
+    keys: dict[str, Any] = {}
     interface = IMPLEMENTATIONS[node.get("implementation", "any").lower()]
     if interface is not None:
         keys["interface"] = interface

@@ -145,7 +145,7 @@ def test_the_closed_loop_on_dask_writes_what_the_local_pool_writes(reference, fm
     assert cli.main(["run", str(manifest), "--out", str(local), "--jobs", "1",
                      "--quiet"]) == 0
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster:
+                      dashboard_address=":0") as cluster:
         assert cli.main(["run", str(manifest), "--out", str(remote), "--dask",
                          cluster.scheduler_address, "--quiet"]) == 0
     assert (remote / "base" / "timeseries.csv").read_bytes() == \
