@@ -50,9 +50,10 @@ Stop and failure
     a stop request at that time (as a co-simulation FMU's): the unit returns Discard and
     :meth:`ModelExchangeUnit.stop_requested` says when. A solver failure raises
     :class:`~agv_cosim.errors.SimulationError` naming the component, the solver, the time
-    and the solver's reason; an FMI call that fails raises fmpy's ``FMICallException``,
-    which :func:`~.simulation.simulate` reports as for any FMU. The rows recorded before
-    are kept either way.
+    and the solver's reason (for solve_ivp also derivatives or a state that are not
+    finite: LSODA would never return on them); an FMI call that fails raises fmpy's
+    ``FMICallException``, which :func:`~.simulation.simulate` reports as for any FMU.
+    The rows recorded before are kept either way.
 
 Solvers (:data:`SOLVERS`; ``benchmarks/bench_model_exchange.py`` compares them)
     ``"cvode"`` (default): SUNDIALS CVODE (BDF, dense linear solver) through
@@ -223,7 +224,13 @@ class _Scipy:
         self.x[:] = y.tolist()
         model.set_x(self.x, model.nx)
         model.get_dx(self.dx, model.nx)
-        return np.array(self.dx[:model.nx])
+        dx = np.array(self.dx[:model.nx])
+        if not np.all(np.isfinite(dx)):
+            # LSODA never returns on a derivative that is inf or NaN: it is a failure here
+            raise SimulationError(
+                f"solve_ivp ({self.method}): the derivatives are not finite at t={t!r} s "
+                f"({', '.join(map(repr, dx.tolist()))})")
+        return dx
 
     def _indicators(self, t: float, y: Any) -> Any:
         key = (t, y.tobytes())
