@@ -67,6 +67,12 @@ class Run:
     rows: int = 0
     #: why its metrics could not be computed (None: they were, or it has none)
     metrics_error: str | None = None
+    #: the FMI interface each FMU component ran through ("co-simulation" or
+    #: "model-exchange"; run.json's ``interfaces``)
+    interfaces: dict[str, str] = field(default_factory=dict)
+    #: each component integrated as Model Exchange -> ``{"solver": .., "tolerance": ..}``
+    #: (run.json's ``integration``)
+    integration: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 class Results:
@@ -157,7 +163,9 @@ class Results:
                                  ("variant", info.get("variant"), (str, type(None))),
                                  ("metrics_error", info.get("metrics_error"),
                                   (str, type(None))),
-                                 ("sweep_point", point, dict)):
+                                 ("sweep_point", point, dict),
+                                 ("interfaces", info.get("interfaces", {}), dict),
+                                 ("integration", info.get("integration", {}), dict)):
             if not isinstance(value, kind):
                 raise _damaged(path, f"{key}: {value!r} is not a "
                                f"{'table' if kind is dict else 'string'}")
@@ -165,7 +173,9 @@ class Results:
             raise _damaged(path, f"rows: {rows!r} is not a count of rows")
         return Run(label=label, status=info.get("status", row.get("status", "")),
                    folder=folder, message=info.get("error"), variant=info.get("variant"),
-                   point=dict(point), rows=rows, metrics_error=info.get("metrics_error"))
+                   point=dict(point), rows=rows, metrics_error=info.get("metrics_error"),
+                   interfaces=dict(info.get("interfaces", {})),
+                   integration=dict(info.get("integration", {})))
 
     def run(self, label: str) -> Run:
         """The run labelled ``label`` (one of summary.csv's)."""

@@ -8,7 +8,8 @@ convention, for FMI 2.0 and 3.0 FMUs alike). It is chosen for a component whose
 model-exchange-only FMU (:func:`agv_cosim.system.model.read_model` sets the default), or
 one the caller asks for with :func:`use_model_exchange` (``interface =
 "model-exchange"`` for an FMU with both interfaces). :func:`select_interface` maps a
-component's ``interface``, ``solver`` and ``tolerance`` onto its ModelInfo.
+component's ``interface``, ``solver`` and ``tolerance`` onto its ModelInfo (both live in
+:mod:`agv_cosim.system.interface`, where the system stage applies them).
 
 Semantics
 ---------
@@ -49,9 +50,10 @@ Stop and failure
     a stop request at that time (as a co-simulation FMU's): the unit returns Discard and
     :meth:`ModelExchangeUnit.stop_requested` says when. A solver failure raises
     :class:`~agv_cosim.errors.SimulationError` naming the component, the solver, the time
-    and the solver's reason; an FMI call that fails raises fmpy's ``FMICallException``,
-    which :func:`~.simulation.simulate` reports as for any FMU. The rows recorded before
-    are kept either way.
+    and the solver's reason (for solve_ivp also derivatives or a state that are not
+    finite: LSODA would never return on them); an FMI call that fails raises fmpy's
+    ``FMICallException``, which :func:`~.simulation.simulate` reports as for any FMU.
+    The rows recorded before are kept either way.
 
 Solvers (:data:`SOLVERS`; ``benchmarks/bench_model_exchange.py`` compares them)
     ``"cvode"`` (default): SUNDIALS CVODE (BDF, dense linear solver) through
@@ -64,20 +66,21 @@ Solvers (:data:`SOLVERS`; ``benchmarks/bench_model_exchange.py`` compares them)
 
 from collections.abc import Callable
 from ctypes import byref, c_double, c_int, c_void_p
-from dataclasses import replace
-from math import isfinite
 from typing import Any
 
 import numpy as np
 
-from ..errors import ModelError, SimulationError
-from ..system.model import (
-    Integration,
-    ModelExchangeInfo,
-    ModelInfo,
-    Variable,
-    model_exchange_refusal,
+from ..errors import SimulationError
+from ..system.interface import (
+    DEFAULT_SOLVER,
+    DEFAULT_TOLERANCE,
+    INTERFACES,
+    SOLVERS,
+    check_integration,
+    select_interface,
+    use_model_exchange,
 )
+from ..system.model import Integration, ModelExchangeInfo, Variable
 from .instance import FmuInstance
 from .units import FmuUnit
 
@@ -85,10 +88,6 @@ __all__ = ["DEFAULT_SOLVER", "DEFAULT_TOLERANCE", "INTERFACES", "MAX_EVENTS_PER_
            "MAX_EVENT_ITERATIONS", "SOLVERS", "Integration", "ModelExchangeUnit",
            "check_integration", "select_interface", "use_model_exchange"]
 
-#: Solver names a component may ask for.
-SOLVERS = ("cvode", "scipy")
-DEFAULT_SOLVER = Integration().solver
-DEFAULT_TOLERANCE = Integration().tolerance
 #: Event iterations (newDiscreteStates / updateDiscreteStates calls) allowed per event.
 MAX_EVENT_ITERATIONS = 100
 #: Events (time, state, step, input) allowed within one communication step.
@@ -99,44 +98,6 @@ MAX_SOLVER_STEPS = 100_000
 
 def _close(a: float, b: float) -> bool:
     return abs(a - b) <= 1e-12 * max(1.0, abs(a), abs(b))
-
-
-def check_integration(solver: str, tolerance: float) -> str:
-    """Why ``solver`` / ``tolerance`` cannot be used ('' if they can)."""
-    if solver not in SOLVERS:
-        return f"solver {solver!r} is not one of {', '.join(map(repr, SOLVERS))}"
-    if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) or \
-            not isfinite(tolerance) or not 0 < tolerance < 1:
-        return f"tolerance {tolerance!r} is not a number between 0 and 1 (exclusive)"
-    return ""
-
-
-def use_model_exchange(info: ModelInfo, solver: str | None = None,
-                       tolerance: float | None = None) -> ModelInfo:
-    """``info`` for a component run through the FMU's Model Exchange interface (a copy;
-    ``info`` itself, shared by every component of that FMU, is unchanged): what
-    ``interface = "model-exchange"`` and the component's ``solver`` / ``tolerance``
-    select. Solver and tolerance default to the FMU's current integration (a
-    model-exchange-only FMU's) or :data:`DEFAULT_SOLVER` / :data:`DEFAULT_TOLERANCE`.
-
-    Raises
-    ------
-    ModelError
-        One line naming the FMU: it has no Model Exchange interface, it needs its
-        exporting tool, or the solver or tolerance cannot be used.
-    """
-    me = info.model_exchange
-    problem = model_exchange_refusal(info)
-    if problem or me is None:
-        raise ModelError(f"'{info.path}': it {problem}: it cannot be run with "
-                         "interface = \"model-exchange\"")
-    base = info.integration or Integration()
-    chosen = Integration(solver=base.solver if solver is None else solver,
-                         tolerance=base.tolerance if tolerance is None else tolerance)
-    problem = check_integration(chosen.solver, chosen.tolerance)
-    if problem:
-        raise ModelError(f"'{info.path}': Model Exchange {problem}")
-    return replace(info, identifier=me.identifier, integration=chosen)
 
 
 class _Held:
@@ -263,7 +224,13 @@ class _Scipy:
         self.x[:] = y.tolist()
         model.set_x(self.x, model.nx)
         model.get_dx(self.dx, model.nx)
-        return np.array(self.dx[:model.nx])
+        dx = np.array(self.dx[:model.nx])
+        if not np.all(np.isfinite(dx)):
+            # LSODA never returns on a derivative that is inf or NaN: it is a failure here
+            raise SimulationError(
+                f"solve_ivp ({self.method}): the derivatives are not finite at t={t!r} s "
+                f"({', '.join(map(repr, dx.tolist()))})")
+        return dx
 
     def _indicators(self, t: float, y: Any) -> Any:
         key = (t, y.tobytes())
@@ -570,42 +537,3 @@ class ModelExchangeUnit(FmuUnit):
             slave.setTime(end)
         self._now = end
         return 0
-
-
-
-#: What a component's ``interface`` may name (None: the FMU's own choice).
-INTERFACES = ("co-simulation", "model-exchange")
-
-
-def select_interface(info: ModelInfo, interface: str | None = None,
-                     solver: str | None = None,
-                     tolerance: float | None = None) -> ModelInfo:
-    """``info`` for one component, as its ``interface``, ``solver`` and ``tolerance``
-    ask (the entry point for a manifest's component keys).
-
-    ``interface`` None: an FMU with a co-simulation interface runs through it, a
-    model-exchange-only one is integrated; "model-exchange": integrated
-    (:func:`use_model_exchange`); "co-simulation": through its co-simulation interface.
-    ``solver`` and ``tolerance`` apply to an integrated component only.
-
-    Raises
-    ------
-    ModelError
-        One line naming the FMU and the reason.
-    """
-    if interface is not None and interface not in INTERFACES:
-        raise ModelError(f"'{info.path}': interface {interface!r} is not one of "
-                         f"{', '.join(map(repr, INTERFACES))}")
-    integrated = interface == "model-exchange" or (
-        interface is None and info.integration is not None)
-    if integrated:
-        return use_model_exchange(info, solver, tolerance)
-    if solver is not None or tolerance is not None:
-        raise ModelError(f"'{info.path}': solver and tolerance apply to a component "
-                         "integrated as Model Exchange (interface = \"model-exchange\"), "
-                         "and this one runs as co-simulation")
-    if "co-simulation" not in info.interfaces:
-        raise ModelError(f"'{info.path}': has no co-simulation interface (it declares "
-                         f"{', '.join(info.interfaces)}): it cannot be run with "
-                         "interface = \"co-simulation\"")
-    return info

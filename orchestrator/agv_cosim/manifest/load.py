@@ -55,6 +55,11 @@ class Component:
     #: its own communication step [s] (``step``), a whole multiple of the simulation's;
     #: None: the simulation's step
     step: float | None = None
+    #: ``interface``, ``solver``, ``tolerance`` as the manifest gives them (None: not
+    #: given; :func:`agv_cosim.system.interface.select_interface` applies them)
+    interface: str | None = None
+    solver: str | None = None
+    tolerance: float | None = None
 
 
 @dataclass(frozen=True)
@@ -222,15 +227,37 @@ def _component(manifest: object, base_dir: Path, name: str, table: Any,
         if table.fmu is not None or "parameters" in table.model_fields_set:
             raise ManifestError(manifest, f"{key}.table", "a component is an FMU or a "
                                 "table, not both")
+        for sub in INTERFACE_KEYS:
+            if getattr(table, sub) is not None:
+                raise ManifestError(manifest, f"{key}.{sub}", "only for an FMU component "
+                                    "(a time table has no FMI interface)")
         return Component(name, None, {}, table=(base_dir / table.table).resolve(),
                          interpolation=dict(table.interpolation), units=dict(table.units),
                          step=step)
     for sub in ("interpolation", "units"):
         if sub in table.model_fields_set:
             raise ManifestError(manifest, f"{key}.interpolation", "only for a table component")
+    _check_interface(manifest, key, table)
     fmu = table.fmu
     return Component(name, (base_dir / fmu).resolve() if fmu else None, dict(table.parameters),
-                     step=step)
+                     step=step, interface=table.interface, solver=table.solver,
+                     tolerance=table.tolerance)
+
+
+#: A component's keys that choose its FMI interface and an integrated one's solver.
+INTERFACE_KEYS = ("interface", "solver", "tolerance")
+
+
+def _check_interface(manifest: object, key: str, table: Any) -> None:
+    """``solver`` and ``tolerance`` are refused beside ``interface = "co-simulation"``
+    (they apply to a Model Exchange FMU the orchestrator integrates)."""
+    if table.interface != "co-simulation":
+        return
+    for sub in ("solver", "tolerance"):
+        if getattr(table, sub) is not None:
+            raise ManifestError(manifest, f"{key}.{sub}", "applies to a component "
+                                "integrated as Model Exchange, not to one with interface = "
+                                "\"co-simulation\"")
 
 
 def _variant(path: Path, base_dir: Path, name: str, vtable: Any,

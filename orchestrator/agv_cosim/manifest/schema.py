@@ -94,6 +94,11 @@ class ComponentTable(_Table):
     #: the component's own communication step [s], a whole multiple of ``[simulation]
     #: step`` (checked in :mod:`agv_cosim.manifest`); None: the simulation's step
     step: Annotated[Number, Field(gt=0)] | None = None
+    #: the FMI interface it runs through, and an integrated one's solver and relative
+    #: tolerance (:mod:`agv_cosim.system.interface`; checked with the FMU there)
+    interface: Literal["co-simulation", "model-exchange"] | None = None
+    solver: Literal["cvode", "scipy"] | None = None
+    tolerance: Annotated[Number, Field(gt=0, lt=1)] | None = None
 
 
 class ConnectionTable(_Table):

@@ -76,10 +76,26 @@ def run_components(manifest: Manifest, variant: str | None) -> dict[str, Compone
             comps[cname].fmu, comps[cname].table = None, sub.table
             comps[cname].interpolation = dict(sub.interpolation)
             comps[cname].units = dict(sub.units)
+            comps[cname].interface = comps[cname].solver = comps[cname].tolerance = None
         comps[cname].parameters.update(copy.deepcopy(sub.parameters))
         if sub.step is not None:
             comps[cname].step = sub.step
+        _apply_interface(comps[cname], sub)
     return comps
+
+
+def _apply_interface(comp: Component, sub: Component) -> None:
+    """A variant's ``interface``, ``solver`` and ``tolerance`` over the base's, key by
+    key; its ``interface = "co-simulation"`` drops the base's solver and tolerance (they
+    apply to an integrated component only)."""
+    if sub.interface is not None:
+        comp.interface = sub.interface
+        if sub.interface == "co-simulation":
+            comp.solver = comp.tolerance = None
+    if sub.solver is not None:
+        comp.solver = sub.solver
+    if sub.tolerance is not None:
+        comp.tolerance = sub.tolerance
 
 
 def run_origins(components: dict[str, Component],

@@ -24,7 +24,8 @@ from . import metrics
 
 __all__ = ["REAL_TIME_FIELDS", "TIMINGS", "TIMING_COLUMNS", "RunResult", "finish_remote_run",
            "finish_run", "inputs_sha256", "read_timings", "record_units", "recorded_inputs",
-           "run_inputs", "run_metrics", "run_result", "summary_rows", "timing_rows",
+           "run_inputs", "run_integration", "run_interfaces", "run_metrics", "run_result",
+           "summary_rows", "timing_rows",
            "versions", "write_run_files", "write_summary", "write_timings"]
 
 #: The result folder's file of the runs' timings: the one file that is not reproducible.
@@ -97,8 +98,9 @@ def run_inputs(job: Job) -> dict[str, Any]:
     per column (``tables``), the SHA-256 of every file a parameter or event names
     (``files``, :mod:`agv_cosim.system.files`), simulation settings (with
     ``component_steps``, each multirate component's own step, when there is one),
-    connections, events and package versions. Equal inputs (:func:`inputs_sha256`)
-    give an equal result."""
+    connections, events and package versions; ``integration`` (:func:`run_integration`)
+    only when a component is integrated as Model Exchange. Equal inputs
+    (:func:`inputs_sha256`) give an equal result."""
     plan = job.plan
     simulation: dict[str, Any] = {
         "start": plan.start, "stop": plan.stop, "step": plan.step,
@@ -106,7 +108,7 @@ def run_inputs(job: Job) -> dict[str, Any]:
         "record": list(plan.record), "order": list(plan.order)}
     if plan.component_steps:  # only a multirate run has the key: others keep their hash
         simulation["component_steps"] = dict(plan.component_steps)
-    return {
+    inputs: dict[str, Any] = {
         "manifest_sha256": job.manifest_sha256, "label": job.label,
         "variant": job.variant, "point": job.point, "parameters": job.parameters,
         "fmu_sha256": job.fmu_sha256,
@@ -120,6 +122,26 @@ def run_inputs(job: Job) -> dict[str, Any]:
                    for event in plan.events],
         "versions": versions(),
     }
+    integration = run_integration(job)
+    if integration:
+        inputs["integration"] = integration
+    return inputs
+
+
+def run_integration(job: Job) -> dict[str, dict[str, Any]]:
+    """Each component integrated as Model Exchange (:mod:`agv_cosim.system.interface`):
+    ``{"solver": .., "tolerance": ..}``; the others run through their co-simulation
+    interface (or are time tables)."""
+    return {cname: {"solver": info.integration.solver,
+                    "tolerance": info.integration.tolerance}
+            for cname, info in job.plan.models.items() if info.integration is not None}
+
+
+def run_interfaces(job: Job) -> dict[str, str]:
+    """The FMI interface each FMU component runs through ("co-simulation" or
+    "model-exchange"; time tables left out)."""
+    return {cname: "model-exchange" if info.integration is not None else "co-simulation"
+            for cname, info in job.plan.models.items() if info.table is None}
 
 
 def record_units(job: Job) -> dict[str, str | None]:
@@ -184,7 +206,8 @@ def write_run_files(job: Job, run_dir: Path, rows: int, status: str, error: str 
         "error": error, "metrics_error": metrics_error, "partial": status != "complete",
         "ended_by": ended_by or ("stop time" if status == "complete" else None),
         "timeout_s": job.timeout, "inputs": inputs, "inputs_sha256": digest,
-        "events": inputs["events"], "units": record_units(job)}
+        "events": inputs["events"], "units": record_units(job),
+        "interfaces": run_interfaces(job), "integration": run_integration(job)}
     if job.plan.component_steps:
         record["component_steps"] = dict(job.plan.component_steps)
     write_json(run_dir / "run.json", record, replace=True)

@@ -27,7 +27,10 @@ names is not packed). Other tools ignore it. A component with a ``step`` of its 
 (``agv:Component stepSize``), which our import reads back, and in libcosim's
 ``com.opensimulationplatform`` one (``osp:StepSizeHint value``), from which libcosim
 steps it at that step (its decimation factor); other tools ignore both and step the
-component at the base step.
+component at the base step. A component run through an FMU's Model Exchange interface
+carries SSP's ``implementation="ModelExchange"`` (``"CoSimulation"`` for one of an FMU
+with both interfaces run as co-simulation) and an ``org.agv-cosim`` annotation of its
+own, ``agv:Integration`` (solver, tolerance), in the same ``ssd:Annotations``.
 """
 
 import json
@@ -92,6 +95,27 @@ def _as_written(table: Any) -> dict[str, Any] | None:
     """A ``[metrics]`` / ``[plots]`` table as the manifest wrote it (keys it left out stay
     out), or None."""
     return None if table is None else table.model_dump(exclude_unset=True)
+
+
+def _write_interface(comp: ElementTree.Element, info: Any) -> None:
+    """The FMI interface a component runs through, on its ``ssd:Component``: SSP's
+    ``implementation`` ("ModelExchange" or "CoSimulation") for an FMU that declares Model
+    Exchange (an FMU with co-simulation only keeps SSP's default, "any"); an integrated
+    one's solver and tolerance, which SSP has no place for, in an ``org.agv-cosim``
+    annotation (``agv:Integration``) that our import reads back and other tools ignore."""
+    if "model-exchange" not in info.interfaces:
+        return
+    integration = info.integration
+    comp.set("implementation", "CoSimulation" if integration is None else "ModelExchange")
+    if integration is None:
+        return
+    notes = comp.find(q("ssd", "Annotations"))
+    if notes is None:
+        notes = ElementTree.SubElement(comp, q("ssd", "Annotations"))
+    ours = ElementTree.SubElement(notes, q("ssc", "Annotation"), {"type": AGV_ANNOTATION})
+    ElementTree.SubElement(ours, q("agv", "Integration"),
+                           {"solver": integration.solver,
+                            "tolerance": number_text(integration.tolerance)})
 
 
 def build_ssd(name: str, models: dict[str, Any], parameters: dict[str, dict[str, Any]],
@@ -194,6 +218,7 @@ def build_ssd(name: str, models: dict[str, Any], parameters: dict[str, dict[str,
                                           {"type": AGV_ANNOTATION})
             ElementTree.SubElement(note, q("agv", "Component"),
                                    {"stepSize": number_text(steps[cname])})
+        _write_interface(comp, info)
     conns = ElementTree.SubElement(system, q("ssd", "Connections"))
     for conn in connections:
         ElementTree.SubElement(conns, q("ssd", "Connection"), {

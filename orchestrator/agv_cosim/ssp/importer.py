@@ -15,7 +15,8 @@ order, a system binding overriding the component's own; a Real with a ``unit`` i
 converted through the ``ssc:Unit``/``BaseUnit`` factor and offset (of the parameter set,
 else of the SSD) to the FMU variable's unit (its UnitDefinition), and refused when it
 cannot be. What we do not support is refused with one line naming the .ssp and the
-element: nested systems, signal dictionaries, non-FMU or model-exchange components,
+element: nested systems, signal dictionaries, non-FMU components, an ``implementation``
+other than any, CoSimulation and ModelExchange,
 sources outside the package, connections to system connectors, connection
 transformations, parameter mappings, other binding types, ``sourceBase="component"``,
 parameters of the system itself, Enumeration/Binary values, connectors that are not the
@@ -25,7 +26,9 @@ algorithm (the semantics of libcosim, the master SSP packages of this kind come 
 records every Real output. Metrics and plots come from the annotation's ``agv:Metrics``
 and ``agv:Plots`` (the exported manifest's tables); without ``agv:Plots`` the first
 :data:`PLOTTED` recorded signals (every Real output when the package names none) are
-drawn in ``signals.png``.
+drawn in ``signals.png``. A component's ``implementation`` is its ``interface``
+(``ModelExchange``: integrated by agv-cosim; ``any``: the FMU's choice), and its own
+``org.agv-cosim`` annotation's ``agv:Integration`` gives its ``solver`` and ``tolerance``.
 """
 
 import contextlib
@@ -265,9 +268,9 @@ def _component(package, base, node, ssd_units):
     kind = node.get("type", FMU_MIME)
     if kind != FMU_MIME:
         raise SspError(package, key, f"type '{kind}' is not supported (only FMUs)")
-    if node.get("implementation", "any").lower() not in ("any", "cosimulation"):
+    if node.get("implementation", "any").lower() not in IMPLEMENTATIONS:
         raise SspError(package, key, f"implementation '{node.get('implementation')}' is not "
-                       "supported (only CoSimulation)")
+                       "supported (only any, CoSimulation and ModelExchange)")
     source = node.get("source") or ""
     url = urlparse(source)
     if url.scheme or url.netloc or not source:
@@ -295,6 +298,31 @@ def _own_step(package, node):
         if hint is not None and hint.get("value") and found is None:
             found = _float_attr(package, f"{key}: osp:StepSizeHint", hint, "value")
     return found
+
+
+#: SSP's ``implementation`` of a component -> its ``interface`` (None: the FMU's choice).
+IMPLEMENTATIONS = {"any": None, "cosimulation": "co-simulation",
+                   "modelexchange": "model-exchange"}
+
+
+def _interface(package: str | Path, cname: str,
+               node: ElementTree.Element) -> dict[str, Any]:
+    """A component's ``interface``, ``solver`` and ``tolerance`` (those given) from its
+    ``implementation`` and its ``org.agv-cosim`` annotation (``agv:Integration``)."""
+    keys: dict[str, Any] = {}
+    interface = IMPLEMENTATIONS[node.get("implementation", "any").lower()]
+    if interface is not None:
+        keys["interface"] = interface
+    for note in node.iterfind("ssd:Annotations/ssc:Annotation", NS):
+        integration = note.find("agv:Integration", NS)
+        if note.get("type") != AGV_ANNOTATION or integration is None:
+            continue
+        key = f"Component '{cname}': agv:Integration"
+        if integration.get("solver") is not None:
+            keys["solver"] = integration.get("solver")
+        if integration.get("tolerance") is not None:
+            keys["tolerance"] = _float_attr(package, key, integration, "tolerance")
+    return keys
 
 
 def _check_connectors(package, cname, fmu, node):
@@ -407,7 +435,7 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
     for tag, what in (("SignalDictionaries", "signal dictionaries"),):
         if system.find(f"ssd:{tag}", NS) is not None:
             raise SspError(package, f"System: {tag}", f"{what} are not supported")
-    components, connections, bound, steps = {}, [], {}, {}
+    components, connections, bound, steps, interfaces = {}, [], {}, {}, {}
     ssd_units = _units(package, root, "ssd")
     elements = system.find("ssd:Elements", NS)
     for node in (elements if elements is not None else []):
@@ -424,11 +452,12 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
         own = _own_step(package, node)
         if own is not None:
             steps[cname] = own
+        interfaces[cname] = _interface(package, cname, node)
     if not components:
         raise SspError(package, "System: Elements", "no components")
     params = _bound_parameters(package, components, bound,
                                _bindings(package, base, system, "System", ssd_units))
-    components = {cname: {"fmu": str(fmu), "parameters": params[cname]}
+    components = {cname: {"fmu": str(fmu), "parameters": params[cname], **interfaces[cname]}
                   for cname, fmu in components.items()}
     for cname, own in steps.items():
         components[cname]["step"] = own

@@ -15,11 +15,12 @@ from typing import Any, TypeVar
 
 from .. import fmitypes
 from ..errors import ManifestError, ModelError, TableError, did_you_mean
-from ..manifest import Connection, Manifest, Variant, split_name, whole_multiple
+from ..manifest import Component, Connection, Manifest, Variant, split_name, whole_multiple
 from ..manifest.load import step_multiple
 from ..plan import RunSpec, plan_runs
 from .checked import Checked, CheckedRun, Event
 from .files import file_problem
+from .interface import select_interface
 from .model import ModelInfo, read_model
 from .order import feedthrough_order
 from .table import read_table
@@ -134,7 +135,22 @@ def read_models(manifest: Manifest, run: RunSpec) -> dict[str, ModelInfo]:
             models[cname] = read_model(comp.fmu)
         except ModelError as error:
             raise err(run.component_key(cname), str(error)) from None
+        try:
+            models[cname] = select_interface(models[cname], comp.interface, comp.solver,
+                                             comp.tolerance)
+        except ModelError as error:
+            raise err(_interface_key(run, cname, comp), str(error)) from None
     return models
+
+
+def _interface_key(run: RunSpec, cname: str, comp: Component) -> str:
+    """The key named when a component's interface, solver or tolerance cannot be
+    honoured: the first of them that it gives (the variant's, when it gives it), else
+    its ``fmu``."""
+    for what in ("interface", "solver", "tolerance"):
+        if getattr(comp, what) is not None:
+            return run.component_key(cname, what)
+    return run.component_key(cname)
 
 
 def check_parameters(manifest: Manifest, run: RunSpec,

@@ -401,11 +401,34 @@ def find_fmus(path: str | Path) -> list[Path]:
     return [path]
 
 
+def interfaces_text(info: ModelInfo) -> str:
+    """The FMI interfaces an FMU declares, as ``agv-cosim list`` shows them: Model
+    Exchange with its continuous states and event indicators, then which one a component
+    runs through by default (or why the orchestrator cannot integrate it)."""
+    shown = list(info.interfaces)
+    me = info.model_exchange
+    if me is not None:
+        shown[shown.index("model-exchange")] = (
+            f"model-exchange ({me.states} continuous states, {me.event_indicators} event "
+            "indicators)")
+    problem = model_exchange_refusal(info) if me is not None else ""
+    if problem:
+        how = f"Model Exchange cannot be integrated: it {problem}"
+    elif me is None:
+        how = "run as co-simulation"
+    elif "co-simulation" in info.interfaces:
+        how = 'run as co-simulation unless a component sets interface = "model-exchange"'
+    else:
+        how = "integrated by the orchestrator (solver cvode unless a component sets one)"
+    return f"{', '.join(shown)}: {how}"
+
+
 def describe(info: ModelInfo) -> str:
     """Human-readable listing of an FMU's variables (``agv-cosim list``): causality, value
     reference (``vr=N``, what a host passes to fmi2GetReal/fmi3GetFloat64 and the like),
     type, name, start value, unit, description; a tunable parameter is marked as such."""
     lines = [f"{info.path.name}  ({info.model_name}): {info.description}"]
+    lines.append(f"  interfaces: {interfaces_text(info)}")
     order = {"parameter": 0, "input": 1, "output": 2}
     variables = sorted((v for v in info.variables.values() if v.element is None),
                        key=lambda v: (order.get(v.causality, 3), v.vr))

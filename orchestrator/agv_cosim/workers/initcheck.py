@@ -78,7 +78,8 @@ def plan_checks(manifest: Manifest, jobs: list[Job],
             if info.table is not None:
                 continue
             values = job.plan.parameters.get(cname, {})
-            key = (info.sha256, repr(sorted(values.items())))
+            # an FMU run through each of its interfaces is checked through each
+            key = (info.sha256, info.integration is not None, repr(sorted(values.items())))
             if key in seen:
                 continue
             seen.add(key)
@@ -115,7 +116,7 @@ def run_checks(items: list[tuple[str, ModelInfo, dict[str, Any], float, float]],
             detail = instance.last_error() if instance is not None else ""
             call = getattr(error, "function", None) or (
                 calls[-1] if calls else
-                "fmi3InstantiateCoSimulation" if info.fmi_version == "3.0" else "fmi2Instantiate")
+                _instantiate_call(info))
             failure = f"{call} failed" + (f": {detail}" if detail else f" ({error})")
         finally:
             if instance is not None:
@@ -124,3 +125,12 @@ def run_checks(items: list[tuple[str, ModelInfo, dict[str, Any], float, float]],
             send(("failed", (index, failure)))
             return False
     return True
+
+
+def _instantiate_call(info: ModelInfo) -> str:
+    """The FMI call that instantiates ``info`` as the run does (Model Exchange for an
+    integrated component)."""
+    if info.fmi_version != "3.0":
+        return "fmi2Instantiate"
+    return ("fmi3InstantiateModelExchange" if info.integration is not None
+            else "fmi3InstantiateCoSimulation")

@@ -27,7 +27,7 @@ def _error(**tables):
      "simulation.algorithm: 'rk4' is not one of gauss-seidel, jacobi"),
     ({"components": {"a": {"fmu": "a.fmu", "p": 1}}},
      "components.a.p: unknown key 'p' (allowed: fmu, parameters, table, interpolation, units, "
-     "step)"),
+     "step, interface, solver, tolerance)"),
     ({"connections": [{"from": "a.x", "to": "a.y"}, {"from": "ax", "to": "a.y"}]},
      "connections[1].from: 'ax' is not of the form 'component.variable'"),
     ({"events": {"e": {"at": 0.1, "set": {"ax": 1}}}},
