@@ -38,7 +38,7 @@ from .. import fmitypes
 from ..errors import ManifestError, OutputError
 from ..files import user_mode
 from ..manifest import Manifest, load_manifest
-from ..plan import Override, plan_runs
+from ..plan import Experiment, Override, plan_runs
 from ..system import validate
 from .common import (
     AGV_ANNOTATION,
@@ -249,7 +249,7 @@ def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
         raise manifest.error(key, f"expands to {len(runs)} runs; an SSP "
                             f"package holds one ({choose}, remove the sweep or fix "
                             "it with --set)")
-    checked = validate(manifest, runs)
+    checked = validate(Experiment.of(manifest), runs)
     one = checked.runs[0]
     run, models = one.run, one.models
     _refuse_what_ssp_cannot_hold(manifest, one)
