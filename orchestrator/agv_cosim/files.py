@@ -92,7 +92,7 @@ def write_text(path: str | Path, text: str) -> None:
         stream.write(text)
 
 
-def _json_safe(value: Any) -> Any:
+def _json_safe(value: object) -> object:
     np = sys.modules.get("numpy")  # a numpy value exists only once numpy is imported
     if isinstance(value, dict):
         return {str(k): _json_safe(v) for k, v in value.items()}

@@ -246,7 +246,7 @@ def _csv_quote(text: str) -> str:
     return '"' + text.replace('"', '""') + '"'
 
 
-def _record_string(value: str | bytes | None) -> str:
+def _record_string(value: bytes | str | None) -> str:
     if isinstance(value, bytes):
         value = value.decode("utf-8", "replace")
     return _csv_quote("" if value is None else value)

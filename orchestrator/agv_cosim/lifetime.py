@@ -42,7 +42,7 @@ import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import Any, NoReturn
 
 from .errors import Interrupted
 
@@ -56,7 +56,7 @@ SCRATCH_MARKER = ".agv-cosim-scratch"
 CREATE_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
 
 
-def _raise(signum: int, frame: FrameType | None) -> None:
+def _raise(signum: int, frame: FrameType | None) -> NoReturn:
     raise Interrupted(signum)
 
 
@@ -115,8 +115,8 @@ def _prctl_pdeathsig(signum: int) -> bool:
 
     try:
         libc = ctypes.CDLL(None, use_errno=True)  # this process's symbols, libc's among them
-        status: int = libc.prctl(1, int(signum), 0, 0, 0)
-        return status == 0
+        result: int = libc.prctl(1, int(signum), 0, 0, 0)  # restype c_int: a Python int
+        return result == 0
     except (OSError, AttributeError):
         return False
 
@@ -210,7 +210,7 @@ class _Wake(Exception):
     pass
 
 
-def _wake(signum: int, frame: FrameType | None) -> None:
+def _wake(signum: int, frame: FrameType | None) -> NoReturn:
     raise _Wake
 
 

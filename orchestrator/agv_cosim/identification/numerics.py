@@ -92,8 +92,8 @@ class Prepared:
         """``x`` through the pre-filter, forward and backward (zero phase)."""
         import scipy.signal
 
-        out: np.ndarray = scipy.signal.sosfiltfilt(self.sos, x)
-        return out
+        filtered: np.ndarray = scipy.signal.sosfiltfilt(self.sos, x)  # scipy: untyped
+        return filtered
 
 
 @dataclass
@@ -200,8 +200,8 @@ def _delayed_integral(prep: Prepared, tau: float,
     0 before the record (the command's initial value removed)."""
     if integral is None:
         integral = _integral(prep.u, prep.h)
-    delayed: np.ndarray = np.interp(prep.t - tau, prep.t, integral, left=0.0)
-    return delayed
+    shifted: np.ndarray = np.interp(prep.t - tau, prep.t, integral, left=0.0)
+    return shifted
 
 
 def _c_response(prep: Prepared, num1: float, num0: float, den1: float, den0: float,
@@ -282,8 +282,7 @@ def response(model: str, prep: Prepared, values: dict[str, float]) -> np.ndarray
 
 def _max_delay(prep: Prepared) -> float:
     """Longest dead time searched [s]: half the record after the command first changes."""
-    delay: float = 0.5 * (prep.t[-1] - prep.t[prep.change])
-    return delay
+    return 0.5 * float(prep.t[-1] - prep.t[prep.change])
 
 
 def estimate_dead_time(prep: Prepared) -> tuple[float, float]:
@@ -474,8 +473,8 @@ def _covariance(jac: np.ndarray, sigma2: float,
     return cov, sorted(set(int(i) for i in null))
 
 
-def _uncertainties(names: list[str] | tuple[str, ...], values: dict[str, float],
-                   jac: np.ndarray, sigma2: float, before: int) -> dict[str, dict[str, Any]]:
+def _uncertainties(names: tuple[str, ...], values: dict[str, float], jac: np.ndarray,
+                   sigma2: float, before: int) -> dict[str, dict[str, Any]]:
     cov, null = _covariance(jac, sigma2, before)
     out: dict[str, dict[str, Any]] = {}
     for i, name in enumerate(names):
