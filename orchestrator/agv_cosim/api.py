@@ -17,10 +17,10 @@ import json
 import math
 import os
 import sys
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from .errors import (
     AgvCosimError,
@@ -41,6 +41,8 @@ if TYPE_CHECKING:
     import pandas
 
     from .plan import Override
+
+_T = TypeVar("_T")
 
 __all__ = ["Results", "Run", "fit", "identify", "open_results", "run", "tune"]
 
@@ -258,7 +260,8 @@ class Results:
         return {name: _text_or_none(known.get(name)) for name in columns}
 
     def _repr_html_(self) -> str:
-        return f"<p>{_escape(repr(self))}</p>" + self.summary._repr_html_()
+        table: str = self.summary._repr_html_()
+        return f"<p>{_escape(repr(self))}</p>" + table
 
 
 def _label_problem(label: object) -> str | None:
@@ -282,7 +285,7 @@ def _unreadable(path: Path, error: BaseException) -> AgvCosimError:
     return AgvCosimError(printable(str(error)), exit_code=2)
 
 
-def _read(path: Path, read: Any) -> Any:
+def _read(path: Path, read: Callable[[], _T]) -> _T:
     try:
         return read()
     except (OSError, UnreadableFile) as error:

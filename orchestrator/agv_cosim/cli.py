@@ -16,11 +16,17 @@ import atexit
 import os
 import sys
 import traceback
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from .errors import error_lines, exit_code, kept_summary
 from .files import printable
 from .version import __version__
+
+if TYPE_CHECKING:
+    from .build import BuildResult
+    from .manifest import Manifest
 
 
 def _say(text: str) -> None:
@@ -40,7 +46,7 @@ def _cmd_build(args: argparse.Namespace) -> int:
     scripts = component_scripts(args.names) if args.names else None
     started = [0.0]
 
-    def progress(k, n, script, result):
+    def progress(k: int, n: int, script: Path, result: "BuildResult | None") -> None:
         import time
 
         if result is None:
@@ -59,7 +65,7 @@ def _cmd_build(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_examples(args):
+def _cmd_examples(args: argparse.Namespace) -> int:
     from .build.examples import copy_examples
     from .errors import ExamplesError
 
@@ -99,7 +105,7 @@ def _positive(what: str, unit: str = "") -> Callable[[str], float]:
     return convert
 
 
-def _timeout(text):
+def _timeout(text: str) -> float:
     """``--timeout``: a positive, finite number of seconds."""
     import math
 
@@ -136,7 +142,7 @@ def _counts(counts: Iterable[int]) -> str:
 
 
 
-def _cmd_run(args):
+def _cmd_run(args: argparse.Namespace) -> int:
     from .pipeline import check_options, execute, prepare
 
     if args.jobs is not None and args.jobs < 1:
@@ -178,7 +184,7 @@ def _cmd_run(args):
     return 1 if bad or unmeasured else 0
 
 
-def _init_limit(args, manifest):
+def _init_limit(args: argparse.Namespace, manifest: "Manifest") -> float | None:
     """The initialisation check's limit per FMU [s] of ``run`` (None: no check, with
     --no-init or --dask). The runs' wall-clock limit bounds a run, not this check: at
     least validate's default."""
@@ -189,7 +195,7 @@ def _init_limit(args, manifest):
     return max(args.timeout or manifest.timeout or 0.0, INIT_TIMEOUT)
 
 
-def _paced(report):
+def _paced(report: Mapping[str, Any]) -> str:
     """One line on a paced run: target and achieved factor, overruns, max lateness."""
     achieved = report["achieved"]
     return (f"real time: target x{report['target']:g}, achieved "
@@ -198,7 +204,7 @@ def _paced(report):
               f"lateness {report['max_lateness_s'] * 1000:.3g} ms")
 
 
-def _cmd_report(args):
+def _cmd_report(args: argparse.Namespace) -> int:
     from .report import write_report
 
     page = write_report(args.folder)
@@ -214,7 +220,7 @@ def _cmd_export_ssp(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_list(args):
+def _cmd_list(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from .errors import ModelError
@@ -246,7 +252,9 @@ class _Parser(argparse.ArgumentParser):
 
     commands: dict[str, argparse.ArgumentParser] = {}
 
-    def parse_args(self, args=None, namespace=None):
+    # one signature for argparse's overloads (no caller gives its own namespace class)
+    def parse_args(self, args: Iterable[str] | None = None,  # type: ignore[override]
+                   namespace: argparse.Namespace | None = None) -> argparse.Namespace:
         parsed, extra = self.parse_known_args(args, namespace)
         if extra:
             command = self.commands.get(getattr(parsed, "command", None) or "", self)
@@ -259,7 +267,7 @@ def _plain(text: str | None) -> str:
     return (text or "").replace("``", "`")
 
 
-def _cmd_identify(args):
+def _cmd_identify(args: argparse.Namespace) -> int:
     import time
 
     from .errors import IdentifyError
@@ -289,7 +297,7 @@ def _cmd_identify(args):
     return 0
 
 
-def _cmd_tune(args):
+def _cmd_tune(args: argparse.Namespace) -> int:
     import math
     import time
 
@@ -310,7 +318,7 @@ def _cmd_tune(args):
         return exit_code(error)
     result = found.result
 
-    def shown(value):
+    def shown(value: float) -> str:
         return f"{value:.6g}" if math.isfinite(value) else "infeasible"
 
     if found.failures:
@@ -332,7 +340,7 @@ def _cmd_tune(args):
     return 1 if bad or not math.isfinite(result.best_value) else 0
 
 
-def _cmd_fit(args):
+def _cmd_fit(args: argparse.Namespace) -> int:
     import time
 
     from .errors import AgvCosimError, ClusterError
@@ -607,19 +615,20 @@ def make_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _dispatch(args):
+def _dispatch(args: argparse.Namespace) -> int:
+    command: Callable[[argparse.Namespace], int] = args.func
     if getattr(args, "manifest", None) is None:
-        return args.func(args)
+        return command(args)
     from .ssp.importer import opened
 
     # a .ssp package given as the manifest is read into the same Manifest a file gives
     with opened(args.manifest) as manifest:
         if manifest is not None:
             args.manifest = manifest
-        return args.func(args)
+        return command(args)
 
 
-def _report(args, text, code):
+def _report(args: argparse.Namespace, text: str, code: int) -> int:
     """One line on stderr (the traceback first with ``--debug``); return ``code``."""
     if args.debug:
         traceback.print_exc()
@@ -627,7 +636,7 @@ def _report(args, text, code):
     return code
 
 
-def _interrupted(args, name, error):
+def _interrupted(args: argparse.Namespace, name: str, error: BaseException) -> int:
     kept = kept_summary(error)
     return _report(args, f"interrupted by {name}" + (f"; {kept}" if kept else
                                                     " (no result folder was completed)"),

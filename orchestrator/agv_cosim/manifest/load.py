@@ -11,6 +11,7 @@ opened). Every problem is a :class:`~agv_cosim.errors.ManifestError` whose text 
 import hashlib
 import re
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
@@ -165,7 +166,7 @@ class Manifest:
     def step_index(self, at: float) -> int:
         """k of the communication point ``at`` = start + k step [s] (``at`` checked to
         be one: :func:`whole_multiple`)."""
-        return 0 if at == self.start else int(round((at - self.start) / self.step))
+        return step_index(self.start, self.step, at)
 
     @property
     def steps(self) -> int:
@@ -176,6 +177,12 @@ class Manifest:
     def record_every(self) -> int:
         """A row is recorded every this many macro steps (``[record] interval``)."""
         return int(round(self.record_interval / self.step))
+
+
+def step_index(start: float, step: float, at: float) -> int:
+    """k of the communication point ``at`` = ``start`` + k ``step`` [s] (``at`` checked
+    to be one: :func:`whole_multiple`)."""
+    return 0 if at == start else int(round((at - start) / step))
 
 
 def split_name(text: str) -> tuple[str, str]:
@@ -534,7 +541,7 @@ def _add(found: dict[str, int], key: str, number: int) -> None:
         key = key[:max(key.rfind("."), key.rfind("["), 0)]
 
 
-def line_of(lines: dict[str, int], key: str) -> int | None:
+def line_of(lines: Mapping[str, int], key: str) -> int | None:
     """The line of ``key`` in :func:`key_lines`' map, else of its closest enclosing key
     found (a missing key: its table's header), else None. O(depth of the key)."""
     while key:

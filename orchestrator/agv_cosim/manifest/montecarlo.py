@@ -38,7 +38,7 @@ class MonteCarlo:
                 "parameters": self.parameters, "seeds": self.seeds}
 
 
-def _error(path, key, problem):
+def _error(path: object, key: str, problem: str) -> ManifestError:
     return ManifestError(path, f"montecarlo.{key}" if key else "montecarlo", problem)
 
 

@@ -15,7 +15,7 @@ step multiples, FMU binding, cycles) is checked in plain code by the stage that 
 
 import types
 import typing
-from typing import Annotated, Any, Literal, TypeVar
+from typing import Annotated, Any, Literal, TypeGuard, TypeVar
 
 from pydantic import (
     AfterValidator,
@@ -25,9 +25,11 @@ from pydantic import (
     StrictInt,
     StrictStr,
     ValidationError,
+    ValidationInfo,
     field_validator,
     model_validator,
 )
+from pydantic_core import ErrorDetails
 
 from ..errors import SchemaError, closest, did_you_mean
 
@@ -39,8 +41,8 @@ DEFAULT_SETTLE_BAND = 0.02
 DEFAULT_DPI = 120
 
 
-def _dotted(what):
-    def check(text):
+def _dotted(what: str) -> AfterValidator:
+    def check(text: str) -> str:
         # split at the first dot: a component name has none, a variable name may have
         # any number (Modelica's "body.frame_a.r_0[1]")
         left, dot, right = text.partition(".")
@@ -56,7 +58,7 @@ Number = Annotated[float, Field(strict=True, allow_inf_nan=False)]
 Dotted = Annotated[StrictStr, _dotted("component.variable")]
 
 
-def _signal(text):
+def _signal(text: str) -> str:
     component, dot, variable = text.partition(".")
     if not dot or not component or not variable:
         raise ValueError(f"signal name {text!r} is not 'component.variable'")
@@ -143,20 +145,20 @@ class Saturation(_Table):
 
     @field_validator("tolerance")
     @classmethod
-    def _below_limit(cls, tolerance, info):
+    def _below_limit(cls, tolerance: float | None, info: ValidationInfo) -> float | None:
         limit = info.data.get("limit")
         if limit is not None and tolerance is not None and tolerance >= limit:
             raise ValueError(f"must be < limit ({limit!r}), got {tolerance!r}")
         return tolerance
 
     @model_validator(mode="after")
-    def _default_tolerance(self):
+    def _default_tolerance(self) -> "Saturation":
         if self.tolerance is None:
             self.tolerance = 1e-9 * self.limit
         return self
 
 
-def _path_text(text):
+def _path_text(text: str) -> str:
     if not text.strip():
         raise ValueError(f"expected a path string, got {text!r}")
     return text
@@ -190,7 +192,7 @@ class MetricsTable(_Table):
         return self.model_dump(exclude_none=True)
 
 
-def _x_axis(text):
+def _x_axis(text: str) -> str:
     if text != "time":
         _signal(text)
     return text
@@ -234,7 +236,7 @@ class _Bounded(_Table):
 
     @field_validator("high")
     @classmethod
-    def _above_low(cls, high, info):
+    def _above_low(cls, high: float, info: ValidationInfo) -> float:
         low = info.data.get("low")
         if low is not None and not low < high:
             raise ValueError(f"{high!r} must be > low ({low!r})")
@@ -258,7 +260,8 @@ class Choice(_Table):
 
     @field_validator("weights")
     @classmethod
-    def _one_weight_a_value(cls, weights, info):
+    def _one_weight_a_value(cls, weights: list[float] | None,
+                            info: ValidationInfo) -> list[float] | None:
         if weights is not None:
             if len(weights) != len(info.data.get("values") or ()):
                 raise ValueError("must be an array of one number per value")
@@ -402,11 +405,11 @@ def schema_errors(model: type[BaseModel], error: ValidationError,
     return out
 
 
-def _allowed(parent):
+def _allowed(parent: type[BaseModel]) -> list[str]:
     return [f.alias or n for n, f in parent.model_fields.items()]
 
 
-def _problem(error, parent):
+def _problem(error: ErrorDetails, parent: type[BaseModel] | None) -> str:
     kind, value, ctx = error["type"], error.get("input"), error.get("ctx", {})
     if kind == "extra_forbidden":
         allowed = _allowed(parent) if parent else []
@@ -440,19 +443,19 @@ def _problem(error, parent):
     return texts.get(kind, f"{value!r}: {error['msg']}")
 
 
-def _suggest(value, expected):
+def _suggest(value: object, expected: object) -> str:
     """" (did you mean 'x'?)" for a string close to one of pydantic's expected values."""
     if not isinstance(value, str) or not expected:
         return ""
     return did_you_mean(value, _names(expected).split(", "))
 
 
-def _names(expected):
+def _names(expected: object) -> str:
     """pydantic's ``'a', 'b' or 'c'`` as ``a, b, c``."""
     return str(expected).replace("'", "").replace(" or ", ", ")
 
 
-def _unwrap(annotation):
+def _unwrap(annotation: Any) -> Any:
     """``annotation`` without Annotated and Optional; a union of models stays a tuple."""
     while True:
         origin = typing.get_origin(annotation)
@@ -467,14 +470,17 @@ def _unwrap(annotation):
             return annotation
 
 
-def _is_model(annotation):
+def _is_model(annotation: object) -> TypeGuard[type[BaseModel]]:
     return isinstance(annotation, type) and issubclass(annotation, BaseModel)
 
 
-def _walk(model, loc):
+def _walk(model: type[BaseModel], loc: tuple[int | str, ...]
+          ) -> tuple[list[int | str], type[BaseModel] | None]:
     """Follow pydantic's ``loc`` down from ``model``: the parts that name keys (without
     "[key]" and the tags of tagged unions) and the model holding the last key (or None)."""
-    annotation, parts, parent = model, [], None
+    annotation: Any = model
+    parts: list[int | str] = []
+    parent: type[BaseModel] | None = None
     for part in loc:
         annotation = _unwrap(annotation)
         if part == "[key]":

@@ -10,7 +10,7 @@ from typing import Any
 from .. import fmitypes
 from ..manifest import Manifest, load_manifest
 from ..manifest.load import component_steps
-from ..plan import Override, plan_runs
+from ..plan import Experiment, Override, plan_runs
 from ..report import metrics, plots
 from ..system import CheckedRun, Event, Job, System, Variable, validate
 from ..system.files import hash_files, resolved
@@ -75,7 +75,7 @@ def prepare(manifest: str | Path | Manifest, variants: list[str] | None = None,
     if not isinstance(manifest, Manifest):
         manifest = load_manifest(manifest)
     runs = plan_runs(manifest, variants, sets)
-    checked = validate(manifest, runs, _signal_sources(manifest))
+    checked = validate(Experiment.of(manifest), runs, _signal_sources(manifest))
     jobs = []
     hashes: dict[Path, str] = {}
     for one in checked.runs:

@@ -248,10 +248,11 @@ def progress_bar() -> type:
     if _in_kernel():
         from tqdm.notebook import tqdm as notebook_bar
 
-        return notebook_bar
+        widget: type = notebook_bar
+        return widget
     from tqdm import tqdm
 
-    class Bar(tqdm):
+    class Bar(tqdm):  # type: ignore[misc]  # tqdm ships no types
         drawn = False
         # no monitor thread: the runs' processes are forked from this process while it
         # has a single thread (agv_cosim.workers.channels.process_context)

@@ -87,7 +87,8 @@ def unit_samples(mc: MonteCarlo) -> np.ndarray:
               else qmc.LatinHypercube(d, seed=rng))
     with warnings.catch_warnings():  # Sobol: n not a power of 2 loses balance (documented)
         warnings.simplefilter("ignore", UserWarning)
-        return engine.random(mc.samples)
+        sample: np.ndarray = engine.random(mc.samples)
+    return sample
 
 
 def choice_edges(weights: Sequence[float] | np.ndarray) -> np.ndarray:
@@ -102,7 +103,7 @@ def choice_edges(weights: Sequence[float] | np.ndarray) -> np.ndarray:
     if not np.isfinite(total):
         array = array / array.max()
         total = array.sum()
-    edges = np.cumsum(array) / total
+    edges: np.ndarray = np.cumsum(array) / total
     edges[-1] = 1.0  # the last edge is 1 whatever the rounding of the sum
     return edges
 

@@ -158,7 +158,8 @@ def record_units(job: Job) -> dict[str, str | None]:
 def recorded_inputs(job: Job) -> dict[str, Any]:
     """:func:`run_inputs` of ``job`` as run.json records them (``inputs``, read back):
     what compares equal to the ``inputs`` of an earlier run's run.json."""
-    return json.loads(json_text(_exact(run_inputs(job))))
+    inputs: dict[str, Any] = json.loads(json_text(_exact(run_inputs(job))))
+    return inputs
 
 
 def inputs_sha256(inputs: dict[str, Any]) -> str:

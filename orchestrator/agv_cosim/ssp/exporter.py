@@ -47,8 +47,8 @@ from ..errors import ManifestError, OutputError
 from ..files import user_mode
 from ..manifest import Manifest, load_manifest
 from ..manifest.load import component_steps
-from ..plan import Override, plan_runs
-from ..system import validate
+from ..plan import Experiment, Override, plan_runs
+from ..system import CheckedRun, ModelInfo, validate
 from .common import (
     AGV_ANNOTATION,
     FMU_MIME,
@@ -63,11 +63,11 @@ from .common import (
 )
 
 
-def _enumeration_types(fmu_path):
+def _enumeration_types(fmu_path: str | Path) -> dict[str, tuple[str, list[tuple[str, str]]]]:
     """``{variable name: (type name, [(item name, value text)])}`` of the Enumeration
     variables of an FMU (FMI 2.0 ``SimpleType``/``Enumeration``, FMI 3.0
     ``EnumerationType``, both as fmpy reads them)."""
-    found = {}
+    found: dict[str, tuple[str, list[tuple[str, str]]]] = {}
     for var in model_description(fmu_path).modelVariables:
         declared = var.declaredType
         if var.type == "Enumeration" and declared is not None:
@@ -76,9 +76,11 @@ def _enumeration_types(fmu_path):
     return found
 
 
-def _fmu_file_names(models):
+def _fmu_file_names(models: dict[str, ModelInfo]) -> dict[str, str]:
     """Instance name -> ``resources/<file>`` (one entry per distinct FMU file)."""
-    by_hash, names, taken = {}, {}, set()
+    by_hash: dict[str, str] = {}
+    names: dict[str, str] = {}
+    taken: set[str] = set()
     for cname, info in models.items():
         if info.sha256 not in by_hash:
             stem = Path(info.path).stem
@@ -97,7 +99,7 @@ def _as_written(table: Any) -> dict[str, Any] | None:
     return None if table is None else table.model_dump(exclude_unset=True)
 
 
-def _write_interface(comp: ElementTree.Element, info: Any) -> None:
+def _write_interface(comp: ElementTree.Element, info: ModelInfo) -> None:
     """The FMI interface a component runs through, on its ``ssd:Component``: SSP's
     ``implementation`` ("ModelExchange" or "CoSimulation") for an FMU that declares Model
     Exchange (an FMU with co-simulation only keeps SSP's default, "any"); an integrated
@@ -118,7 +120,7 @@ def _write_interface(comp: ElementTree.Element, info: Any) -> None:
                             "tolerance": number_text(integration.tolerance)})
 
 
-def build_ssd(name: str, models: dict[str, Any], parameters: dict[str, dict[str, Any]],
+def build_ssd(name: str, models: dict[str, ModelInfo], parameters: dict[str, dict[str, Any]],
               connections: list[Any], start: float, stop: float, step: float,
               algorithm: str, record: list[str] | None = None,
               record_interval: float | None = None,
@@ -180,9 +182,7 @@ def build_ssd(name: str, models: dict[str, Any], parameters: dict[str, dict[str,
                 # names
                 if fmu_enums is None:
                     fmu_enums = _enumeration_types(info.path)
-                tname, items = fmu_enums.get(var.name, (None, None))
-                if tname is None:
-                    tname, items = f"{cname}.{var.name}", []
+                tname, items = fmu_enums.get(var.name) or (f"{cname}.{var.name}", [])
                 if enumerations.get(tname, items) != items:
                     tname = f"{cname}.{tname}"
                 enumerations[tname] = items
@@ -295,7 +295,7 @@ def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
         raise manifest.error(key, f"expands to {len(runs)} runs; an SSP "
                             f"package holds one ({choose}, remove the sweep or fix "
                             "it with --set)")
-    checked = validate(manifest, runs)
+    checked = validate(Experiment.of(manifest), runs)
     one = checked.runs[0]
     run, models = one.run, one.models
     _refuse_what_ssp_cannot_hold(manifest, one)
@@ -342,7 +342,7 @@ def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,
     return out_path
 
 
-def _refuse_what_ssp_cannot_hold(manifest: Manifest, one: Any) -> None:
+def _refuse_what_ssp_cannot_hold(manifest: Manifest, one: CheckedRun) -> None:
     """A time-table component (an SSP component is an FMU) or a scenario event (SSP 1.0
     has none) is refused, named by the variant's key when the variant gives it."""
     variant = one.run.variant

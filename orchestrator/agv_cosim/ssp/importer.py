@@ -39,7 +39,7 @@ import shutil
 import stat
 import zipfile
 import zlib
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 from urllib.parse import unquote, urlparse
@@ -50,7 +50,7 @@ from ..errors import ManifestError, ModelError, SspError, UnreadableFile
 from ..files import XML_LIMIT, check_name, open_regular, read_bytes
 from ..lifetime import scratch_dir
 from ..manifest import Manifest, manifest_from_data
-from ..system.model import file_sha256, read_model
+from ..system.model import Variable, file_sha256, read_model
 from .common import (
     AGV_ANNOTATION,
     BASE_UNITS,
@@ -67,8 +67,14 @@ from .common import (
     unit_definitions,
 )
 
+#: A unit definition: (SI base unit exponents, factor, offset).
+_Unit = tuple[tuple[int, ...], float, float]
+#: A parameter binding read (:func:`_bindings`): (name, SSP type, value, unit or None, the
+#: unit's definition or None, where it was read).
+_Binding = tuple[str, str, Any, str | None, _Unit | None, str]
 
-def _unsafe_reason(info):
+
+def _unsafe_reason(info: zipfile.ZipInfo) -> str | None:
     name = info.filename
     if stat.S_ISLNK(info.external_attr >> 16):
         return "a symbolic link"
@@ -110,7 +116,8 @@ def safe_extract(archive_path: str | Path, dest: str | Path) -> None:
             from None
 
 
-def _float_attr(package, key, node, attr, default=None):
+def _float_attr(package: Path, key: str, node: ElementTree.Element, attr: str,
+                default: float | None = None) -> float:
     text = node.get(attr)
     if text is None:
         if default is None:
@@ -125,7 +132,8 @@ def _float_attr(package, key, node, attr, default=None):
     return value
 
 
-def _parse_value(package, key, node):
+def _parse_value(package: Path, key: str,
+                 node: ElementTree.Element) -> tuple[str, Any, str | None]:
     """(type, value, unit or None) of an ssv:Parameter."""
     kind = next((child for child in node if child.tag in
                  [q("ssv", t) for t in TYPES]), None)
@@ -137,6 +145,7 @@ def _parse_value(package, key, node):
     if text is None:
         raise SspError(package, key, "missing attribute 'value'")
     ftype = fmitypes.lookup("2.0", vtype)  # SSP's type names are FMI 2.0's
+    assert ftype is not None  # TYPES are FMI 2.0 type names (fmitypes.SSP_VALUE_TYPES)
     unit = kind.get("unit") if ftype.is_float else None
     try:
         # a non-finite Real is checked against the FMU's variable later, like a
@@ -148,7 +157,7 @@ def _parse_value(package, key, node):
 
 
 #: SI base units of FMI 2.0 / SSP unit definitions (exponents).
-def _unit_of(package, key, attrs):
+def _unit_of(package: Path, key: str, attrs: Mapping[str, str]) -> _Unit:
     """(exponents, factor, offset) of a BaseUnit attribute dict."""
     try:
         exponents = tuple(int(attrs.get(b, 0)) for b in BASE_UNITS)
@@ -161,9 +170,10 @@ def _unit_of(package, key, attrs):
     return exponents, factor, offset
 
 
-def _units(package, holder, prefix):
+def _units(package: Path, holder: ElementTree.Element,
+           prefix: str) -> dict[str | None, _Unit]:
     """Unit name -> (exponents, factor, offset) of ``holder``'s ``<prefix>:Units``."""
-    units = {}
+    units: dict[str | None, _Unit] = {}
     for unit in holder.iterfind(f"{prefix}:Units/ssc:Unit", NS):
         base = unit.find("ssc:BaseUnit", NS)
         units[unit.get("name")] = _unit_of(package, f"Unit '{unit.get('name')}'",
@@ -171,14 +181,15 @@ def _units(package, holder, prefix):
     return units
 
 
-def _bindings(package, base, element, key, ssd_units):
+def _bindings(package: Path, base: Path, element: ElementTree.Element, key: str,
+              ssd_units: Mapping[str | None, _Unit]) -> list[_Binding]:
     """The parameter values bound on ``element`` (ssd:System or ssd:Component), in order.
 
     Returns a list of (name, type, value, unit, unit definition or None, key). Every
     binding of SSP 1.0 is read: inline ssd:ParameterValues or a ``source`` .ssv file
     in the package, with its ``prefix``; what we cannot apply exactly is refused.
     """
-    found = []
+    found: list[_Binding] = []
     bindings = element.findall("ssd:ParameterBindings/ssd:ParameterBinding", NS)
     for i, binding in enumerate(bindings, start=1):
         bkey = f"{key}: ParameterBinding {i}" if len(bindings) > 1 else \
@@ -194,6 +205,7 @@ def _bindings(package, base, element, key, ssd_units):
                            "supported (only 'SSD')")
         prefix = binding.get("prefix", "")
         source = binding.get("source")
+        pset: ElementTree.Element | None
         if source:
             url = urlparse(source)
             path = None if url.scheme or url.netloc else _inside(base, unquote(url.path))
@@ -231,7 +243,8 @@ def _bindings(package, base, element, key, ssd_units):
     return found
 
 
-def _convert(package, where, value, unit, definition, var, fmu_units):
+def _convert(package: Path, where: str, value: Any, unit: str | None,
+             definition: _Unit | None, var: Variable, fmu_units: Mapping[str, _Unit]) -> Any:
     """``value`` in ``unit`` converted to the unit of the FMU variable ``var``."""
     if unit is None or (unit == var.unit and (definition is None
                                               or var.unit not in fmu_units)):
@@ -254,12 +267,13 @@ def _convert(package, where, value, unit, definition, var, fmu_units):
     return (si - target[2]) / target[1]
 
 
-def _inside(base, relative):
+def _inside(base: Path, relative: str) -> Path | None:
     target = (base / relative).resolve()
     return target if base == target or base in target.parents else None
 
 
-def _component(package, base, node, ssd_units):
+def _component(package: Path, base: Path, node: ElementTree.Element,
+               ssd_units: Mapping[str | None, _Unit]) -> tuple[str, Path, list[_Binding]]:
     cname = node.get("name")
     key = f"Component '{cname}'"
     if not cname or not IDENTIFIER.match(cname):
@@ -283,10 +297,10 @@ def _component(package, base, node, ssd_units):
     return cname, fmu, _bindings(package, base, node, key, ssd_units)
 
 
-def _own_step(package, node):
+def _own_step(package: Path, node: ElementTree.Element) -> float | None:
     """The component's own communication step [s] from our annotation (``agv:Component
     stepSize``), else from libcosim's (``osp:StepSizeHint value``), or None."""
-    found = None
+    found: float | None = None
     key = f"Component '{node.get('name')}'"
     for note in node.iterfind("ssd:Annotations/ssc:Annotation", NS):
         ours = note.find("agv:Component", NS) if note.get("type") == AGV_ANNOTATION \
@@ -305,7 +319,7 @@ IMPLEMENTATIONS = {"any": None, "cosimulation": "co-simulation",
                    "modelexchange": "model-exchange"}
 
 
-def _interface(package: str | Path, cname: str,
+def _interface(package: Path, cname: str,
                node: ElementTree.Element) -> dict[str, Any]:
     """A component's ``interface``, ``solver`` and ``tolerance`` (those given) from its
     ``implementation`` and its ``org.agv-cosim`` annotation (``agv:Integration``)."""
@@ -325,7 +339,8 @@ def _interface(package: str | Path, cname: str,
     return keys
 
 
-def _check_connectors(package, cname, fmu, node):
+def _check_connectors(package: Path, cname: str, fmu: Path,
+                      node: ElementTree.Element) -> None:
     """Refuse connectors that do not match the FMU (we convert no connector units)."""
     connectors = node.findall("ssd:Connectors/ssd:Connector", NS)
     if not connectors:
@@ -337,7 +352,7 @@ def _check_connectors(package, cname, fmu, node):
     for connector in connectors:
         name, kind = connector.get("name"), connector.get("kind")
         key = f"Component '{cname}': Connector '{name}'"
-        var = info.variables.get(name)
+        var = info.variables.get(name) if name is not None else None
         if var is None:
             raise SspError(package, key, f"not a variable of {info.model_name}")
         if kind not in (None, var.causality) and not (kind == "inout" and
@@ -359,18 +374,22 @@ def _check_connectors(package, cname, fmu, node):
                            "supported)")
 
 
-def _bound_parameters(package, components, component_bound, system_bound):
+def _bound_parameters(package: Path, components: Mapping[str, Path],
+                      component_bound: Mapping[str, list[_Binding]],
+                      system_bound: list[_Binding]) -> dict[str, dict[str, Any]]:
     """Component -> {parameter: value in the FMU's unit}.
 
     Precedence (our reading of SSP 1.0): within one element, a later binding overrides
     an earlier one; a system binding (``component.parameter``) overrides the
     component's own.
     """
-    chosen = {cname: {} for cname in components}
+    chosen: dict[str, dict[str, tuple[str, Any, str | None, _Unit | None, str]]] = {
+        cname: {} for cname in components}
     for cname, bound in component_bound.items():
-        for name, *rest in bound:
-            chosen[cname][name] = rest
-    for name, *rest in system_bound:
+        for binding in bound:
+            chosen[cname][binding[0]] = binding[1:]
+    for binding in system_bound:
+        name, rest = binding[0], binding[1:]
         where = rest[-1]
         cname, dot, pname = name.partition(".")
         if not dot:
@@ -379,7 +398,7 @@ def _bound_parameters(package, components, component_bound, system_bound):
         if cname not in components:
             raise SspError(package, where, f"unknown component '{cname}' in '{name}'")
         chosen[cname][pname] = rest
-    params = {}
+    params: dict[str, dict[str, Any]] = {}
     for cname, values in chosen.items():
         params[cname] = {}
         if not values:
@@ -388,7 +407,7 @@ def _bound_parameters(package, components, component_bound, system_bound):
             info = read_model(components[cname])
         except ModelError as error:
             raise SspError(package, f"Component '{cname}'", str(error)) from None
-        fmu_units = {}
+        fmu_units: dict[str, _Unit] = {}
         if any(unit is not None for _, _, unit, _, _ in values.values()):
             defs = unit_definitions(info.path)
             fmu_units = {u: _unit_of(package, f"Component '{cname}'", d)
@@ -435,7 +454,11 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
     for tag, what in (("SignalDictionaries", "signal dictionaries"),):
         if system.find(f"ssd:{tag}", NS) is not None:
             raise SspError(package, f"System: {tag}", f"{what} are not supported")
-    components, connections, bound, steps, interfaces = {}, [], {}, {}, {}
+    fmus: dict[str, Path] = {}
+    connections: list[dict[str, str]] = []
+    bound: dict[str, list[_Binding]] = {}
+    steps: dict[str, float] = {}
+    interfaces: dict[str, dict[str, Any]] = {}
     ssd_units = _units(package, root, "ssd")
     elements = system.find("ssd:Elements", NS)
     for node in (elements if elements is not None else []):
@@ -445,20 +468,21 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
                            "only Component elements are supported (no nested systems or "
                            "signal dictionaries)")
         cname, fmu, bound[cname] = _component(package, base, node, ssd_units)
-        if cname in components:
+        if cname in fmus:
             raise SspError(package, f"Component '{cname}'", "name used twice")
         _check_connectors(package, cname, fmu, node)
-        components[cname] = fmu
+        fmus[cname] = fmu
         own = _own_step(package, node)
         if own is not None:
             steps[cname] = own
         interfaces[cname] = _interface(package, cname, node)
-    if not components:
+    if not fmus:
         raise SspError(package, "System: Elements", "no components")
-    params = _bound_parameters(package, components, bound,
+    params = _bound_parameters(package, fmus, bound,
                                _bindings(package, base, system, "System", ssd_units))
-    components = {cname: {"fmu": str(fmu), "parameters": params[cname], **interfaces[cname]}
-                  for cname, fmu in components.items()}
+    components: dict[str, dict[str, Any]] = {
+        cname: {"fmu": str(fmu), "parameters": params[cname], **interfaces[cname]}
+        for cname, fmu in fmus.items()}
     for cname, own in steps.items():
         components[cname]["step"] = own
     for node in system.iterfind("ssd:Connections/ssd:Connection", NS):
@@ -539,9 +563,9 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
 PLOTTED = 8
 
 
-def _real_outputs(components):
+def _real_outputs(components: Mapping[str, Mapping[str, Any]]) -> list[str]:
     """``component.variable`` of every scalar Real (float) output, in component order."""
-    names = []
+    names: list[str] = []
     for cname, spec in components.items():
         info = read_model(spec["fmu"])
         names += [f"{cname}.{v.name}" for v in info.variables.values()
@@ -550,7 +574,7 @@ def _real_outputs(components):
     return names
 
 
-def _source_sha256(source):
+def _source_sha256(source: str | Path) -> str:
     """SHA-256 of an SSP source: the .ssp file, or the SSD of a package folder."""
     source = Path(source)
     return file_sha256(source / SSD_NAME if source.is_dir() else source)

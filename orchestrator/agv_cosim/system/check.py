@@ -1,9 +1,11 @@
 """The runs' components checked as one system.
 
 :func:`validate` reads each component's model description (or time table) and checks,
-for every planned run, the parameter values against the variables (name, causality, type,
-range), the run's connections (output -> input, same type, same unit, one driver per
-input), the events, and the recorded signals;
+for every planned run (a :class:`~agv_cosim.plan.RunSpec` of an
+:class:`~agv_cosim.plan.Experiment`, what the runs of a manifest share), the parameter
+values against the variables (name, causality, type, range), the run's connections
+(output -> input, same type, same unit, one driver per input), the events, and the
+recorded signals;
 :func:`~agv_cosim.system.order.feedthrough_order` finds the Gauss-Seidel schedule. A
 problem in a variant's run names the variant. The result is a
 :class:`~agv_cosim.system.checked.Checked`.
@@ -15,9 +17,9 @@ from typing import Any, TypeVar
 
 from .. import fmitypes
 from ..errors import ManifestError, ModelError, TableError, did_you_mean
-from ..manifest import Component, Connection, Manifest, Variant, split_name, whole_multiple
+from ..manifest import Component, Connection, Variant, split_name, whole_multiple
 from ..manifest.load import step_multiple
-from ..plan import RunSpec, plan_runs
+from ..plan import Experiment, RunSpec
 from .checked import Checked, CheckedRun, Event
 from .files import file_problem
 from .interface import select_interface
@@ -31,7 +33,7 @@ __all__ = ["check_connections", "check_events", "check_parameters", "check_run",
            "raise_all", "read_models", "validate"]
 
 
-def check_events(manifest: Manifest, run: RunSpec, models: dict[str, ModelInfo],
+def check_events(experiment: Experiment, run: RunSpec, models: dict[str, ModelInfo],
                  targets: dict[tuple[str, str], Connection]) -> list[Event]:
     """The run's events, checked, sorted by step (then by the manifest's order).
 
@@ -39,7 +41,7 @@ def check_events(manifest: Manifest, run: RunSpec, models: dict[str, ModelInfo],
     that no connection drives (a connection would overwrite it at once); the value is
     checked like a parameter's (:func:`agv_cosim.fmitypes.parse`).
     """
-    err = manifest.error
+    err = experiment.error
     resolved = []
     for name, event in run.events.items():
         key = f"events.{name}"
@@ -49,43 +51,44 @@ def check_events(manifest: Manifest, run: RunSpec, models: dict[str, ModelInfo],
         if isinstance(at, bool) or not isinstance(at, (int, float)) or not math.isfinite(at):
             raise err(f"{key}.at", f"{at!r} is not a number")
         at = float(at)
-        if not manifest.start <= at <= manifest.stop:
-            raise err(f"{key}.at", f"{at!r} s is outside the run ({manifest.start!r} .. "
-                      f"{manifest.stop!r} s)")
-        k = manifest.step_index(at)
-        if at != manifest.start and not whole_multiple(at - manifest.start, manifest.step):
+        if not experiment.start <= at <= experiment.stop:
+            raise err(f"{key}.at", f"{at!r} s is outside the run ({experiment.start!r} .. "
+                      f"{experiment.stop!r} s)")
+        k = experiment.step_index(at)
+        if at != experiment.start and not whole_multiple(at - experiment.start, experiment.step):
             raise err(f"{key}.at", f"{at!r} s is not a communication point (start + k * "
-                      f"{manifest.step!r} s)")
-        sets = [_event_value(manifest, models, targets, f"{key}.set.{target}", target,
+                      f"{experiment.step!r} s)")
+        sets = [_event_value(experiment, models, targets, f"{key}.set.{target}", target,
                              value) for target, value in event.set.items()]
         for cname, vname, _ in sets:
-            _on_its_grid(manifest, run, f"{key}.at", at, k, cname, vname)
+            _on_its_grid(experiment, run, f"{key}.at", at, k, cname, vname)
         resolved.append(Event(k=k, at=at, name=name, sets=tuple(sets)))
     position = {name: i for i, name in enumerate(run.events)}
     resolved.sort(key=lambda e: (e.k, position[e.name]))
     return resolved
 
 
-def _on_its_grid(manifest: Manifest, run: RunSpec, key: str, at: float, k: int,
+def _on_its_grid(experiment: Experiment, run: RunSpec, key: str, at: float, k: int,
                  cname: str, vname: str) -> None:
     """Refuse an event that sets a variable of a component with its own ``step`` at a
     time that is not one of that component's communication points (start + j step, or
     the stop time): between its points the FMU is already at its next one."""
     step = run.components[cname].step
-    multiple = step_multiple(step, manifest.step) if step is not None else None
-    if multiple is None or multiple == 1 or k % multiple == 0 or k == manifest.steps:
+    multiple = step_multiple(step, experiment.step) if step is not None else None
+    last = experiment.step_index(experiment.stop)
+    if multiple is None or multiple == 1 or k % multiple == 0 or k == last:
         return
-    raise manifest.error(key, f"{at!r} s is not a communication point of component "
+    raise experiment.error(key, f"{at!r} s is not a communication point of component "
                          f"'{cname}' (its step is {step!r} s), whose '{vname}' the event "
                          "sets")
 
 
-def _event_value(manifest: Manifest, models: dict[str, ModelInfo],
+def _event_value(experiment: Experiment, models: dict[str, ModelInfo],
                  targets: dict[tuple[str, str], Connection], vkey: str, target: str,
                  value: Any) -> tuple[str, str, Any]:
     """One value an event sets, ``target`` = ``value``, checked (see
     :func:`check_events`): ``(component, variable, value parsed)``."""
-    err = manifest.error
+    err = experiment.error
     cname, vname = split_name(target)
     if cname not in models:
         raise err(vkey, f"unknown component '{cname}'{did_you_mean(cname, models)}")
@@ -112,15 +115,15 @@ def _event_value(manifest: Manifest, models: dict[str, ModelInfo],
         parsed = fmitypes.parse(var.ftype, value, var)
     except ValueError as error:
         raise err(vkey, f"'{target}' {error}") from None
-    problem = file_problem(parsed, manifest.files_dir)
+    problem = file_problem(parsed, experiment.files_dir)
     if problem:
         raise err(vkey, f"'{target}': {problem}")
     return cname, vname, parsed
 
 
-def read_models(manifest: Manifest, run: RunSpec) -> dict[str, ModelInfo]:
+def read_models(experiment: Experiment, run: RunSpec) -> dict[str, ModelInfo]:
     """Each component's model description (or time table) of ``run``, by instance name."""
-    err = manifest.error
+    err = experiment.error
     models: dict[str, ModelInfo] = {}
     for cname, comp in run.components.items():
         if comp.table is not None:
@@ -153,12 +156,12 @@ def _interface_key(run: RunSpec, cname: str, comp: Component) -> str:
     return run.component_key(cname)
 
 
-def check_parameters(manifest: Manifest, run: RunSpec,
+def check_parameters(experiment: Experiment, run: RunSpec,
                      models: dict[str, ModelInfo]) -> dict[str, dict[str, Any]]:
     """The run's parameter values parsed against their variables (name, causality, type,
     range), per component; ``run`` is left as it is. Raises the first problem found,
     the others in its ``others``."""
-    err = manifest.error
+    err = experiment.error
     problems: list[ManifestError] = []
     parsed: dict[str, dict[str, Any]] = {}
     for cname, comp in run.components.items():
@@ -193,7 +196,7 @@ def check_parameters(manifest: Manifest, run: RunSpec,
                     problem = f"'{cname}.{pname}' {problem}"
                 problems.append(err(key, problem))
                 continue
-            unreadable = file_problem(values[pname], manifest.files_dir)
+            unreadable = file_problem(values[pname], experiment.files_dir)
             if unreadable:
                 problems.append(err(key, f"'{cname}.{pname}': {unreadable}"))
         parsed[cname] = values
@@ -228,25 +231,25 @@ def _collect(problems: list[ManifestError], check: Callable[..., _T], *args: Any
         return None
 
 
-def check_connections(manifest: Manifest, models: dict[str, ModelInfo],
+def check_connections(experiment: Experiment, models: dict[str, ModelInfo],
                       connections: Iterable[Connection] | None = None
                       ) -> dict[tuple[str, str], Connection]:
-    """Every connection (of ``connections``, default the manifest's) checked (output ->
+    """Every connection (of ``connections``, default the base's) checked (output ->
     input, same type, same unit, one driver per input); returns the connected inputs,
     ``(component, variable)`` -> connection."""
     problems: list[ManifestError] = []
     targets: dict[tuple[str, str], Connection] = {}
-    for conn in manifest.connections if connections is None else connections:
-        _collect(problems, _check_connection, manifest, models, conn, targets)
+    for conn in experiment.connections if connections is None else connections:
+        _collect(problems, _check_connection, experiment, models, conn, targets)
     raise_all(problems)
     return targets
 
 
-def _check_connection(manifest: Manifest, models: dict[str, ModelInfo], conn: Connection,
+def _check_connection(experiment: Experiment, models: dict[str, ModelInfo], conn: Connection,
                       targets: dict[tuple[str, str], Connection]) -> None:
     """One connection checked (see :func:`check_connections`), its input added to
     ``targets``."""
-    err = manifest.error
+    err = experiment.error
     ends = []
     for side, (cname, vname), want in (("from", conn.source, "output"),
                                       ("to", conn.target, "input")):
@@ -289,17 +292,17 @@ def _check_connection(manifest: Manifest, models: dict[str, ModelInfo], conn: Co
     targets[conn.target] = conn
 
 
-def _check_sweep(manifest: Manifest, models: dict[str, ModelInfo]) -> None:
-    for name in manifest.sweep:
+def _check_sweep(experiment: Experiment, models: dict[str, ModelInfo]) -> None:
+    for name in experiment.sweep:
         if name.startswith("events."):
             continue
         cname, _ = split_name(name)
         if cname not in models:
-            raise manifest.error(f"sweep.{name}", f"unknown component '{cname}'"
-                                 f"{did_you_mean(cname, models)}")
+            raise experiment.error(f"sweep.{name}", f"unknown component '{cname}'"
+                                   f"{did_you_mean(cname, models)}")
 
 
-def check_run(manifest: Manifest, run: RunSpec) -> tuple[CheckedRun, list[str]]:
+def check_run(experiment: Experiment, run: RunSpec) -> tuple[CheckedRun, list[str]]:
     """One run checked as a system; with the names of its unconnected inputs. Raises
     the first problem found, the others (of the parameters, the sweep, the connections,
     then the events) in its ``others``.
@@ -308,36 +311,36 @@ def check_run(manifest: Manifest, run: RunSpec) -> tuple[CheckedRun, list[str]]:
     (``variants.<name>...``) do, and a problem at a key of the base gets
     ``variant '<name>': `` before it (the base's line kept)."""
     try:
-        return _check_run(manifest, run)
+        return _check_run(experiment, run)
     except ManifestError as error:
-        first = _in_variant(manifest, run.spec, error)
-        first.others = [_in_variant(manifest, run.spec, other) for other in error.others]
+        first = _in_variant(experiment, run.spec, error)
+        first.others = [_in_variant(experiment, run.spec, other) for other in error.others]
         raise first from None
 
 
-def _check_run(manifest: Manifest, run: RunSpec) -> tuple[CheckedRun, list[str]]:
-    models = read_models(manifest, run)
+def _check_run(experiment: Experiment, run: RunSpec) -> tuple[CheckedRun, list[str]]:
+    models = read_models(experiment, run)
     problems: list[ManifestError] = []
-    parameters = _collect(problems, check_parameters, manifest, run, models)
-    _collect(problems, _check_sweep, manifest, models)
-    targets = _collect(problems, check_connections, manifest, models, run.connections)
+    parameters = _collect(problems, check_parameters, experiment, run, models)
+    _collect(problems, _check_sweep, experiment, models)
+    targets = _collect(problems, check_connections, experiment, models, run.connections)
     events = None if targets is None else \
-        _collect(problems, check_events, manifest, run, models, targets)  # needs targets
+        _collect(problems, check_events, experiment, run, models, targets)  # needs targets
     raise_all(problems)
     assert parameters is not None and targets is not None and events is not None
     try:
-        order = feedthrough_order(models, run.connections, manifest.path,
-                                  manifest.algorithm)
+        order = feedthrough_order(models, run.connections, experiment.path,
+                                  experiment.algorithm)
     except ManifestError as error:  # placed at the line of its key
-        raise manifest.error(error.key, error.problem) from None
-    record = _record_list(manifest, models)
+        raise experiment.error(error.key, error.problem) from None
+    record = _record_list(experiment, models)
     unconnected = [f"{c}.{v.name}" for c, info in models.items() for v in info.inputs
                    if (c, v.name) not in targets]
     return CheckedRun(run=run, models=models, parameters=parameters, order=order,
                       events=events, record=record), unconnected
 
 
-def _in_variant(manifest: Manifest, spec: Variant | None,
+def _in_variant(experiment: Experiment, spec: Variant | None,
                 error: ManifestError) -> ManifestError:
     """``error`` of a run of the variant ``spec`` naming the variant (unchanged for a
     base run or a key of the variant's own)."""
@@ -351,8 +354,8 @@ def _in_variant(manifest: Manifest, spec: Variant | None,
     hint = ""
     index = error.key.removeprefix("connections[").partition("]")[0]
     if error.key.startswith("connections[") and index.isdigit() and \
-            int(index) < len(manifest.connections):
-        conn = manifest.connections[int(index)]
+            int(index) < len(experiment.connections):
+        conn = experiment.connections[int(index)]
         touched = [c for c in (conn.source[0], conn.target[0]) if c in replaced]
         if touched:
             hint = (f"; variants.{variant} replaces '{touched[0]}': disconnect = "
@@ -369,7 +372,7 @@ def _in_variant(manifest: Manifest, spec: Variant | None,
     return out
 
 
-def validate(manifest: Manifest, runs: list[RunSpec],
+def validate(experiment: Experiment, runs: list[RunSpec],
              extra_signals: Iterable[tuple[str, Iterable[str]]] = ()) -> Checked:
     """Check every run against the FMUs' model descriptions.
 
@@ -401,7 +404,7 @@ def validate(manifest: Manifest, runs: list[RunSpec],
     for run in runs:
         problems: list[ManifestError] = []
         try:
-            one, unconnected = _check_run(manifest, run)
+            one, unconnected = _check_run(experiment, run)
         except ManifestError as error:  # the other runs' problems are reported too
             problems = [error, *error.others]
             error.others = []
@@ -411,8 +414,8 @@ def validate(manifest: Manifest, runs: list[RunSpec],
                 if run.variant not in leaving:
                     leaving.append(run.variant)
             recorded = set(one.record)
-            problems = [manifest.error(source, f"signal '{name}' is not recorded (see "
-                                       "[record])")
+            problems = [experiment.error(source, f"signal '{name}' is not recorded (see "
+                                         "[record])")
                         for source, names in sources for name in names
                         if name not in recorded]
             checked.append(one)
@@ -425,9 +428,9 @@ def validate(manifest: Manifest, runs: list[RunSpec],
     # else once per variant, naming it
     raise_all([one for problem, having in found.values()
                for one in ([problem] if having == every and len(every) > 1 else
-                           [_in_variant(manifest, specs[variant], problem)
+                           [_in_variant(experiment, specs[variant], problem)
                             for variant in having])])
-    held = _check_held(manifest, checked)
+    held = _check_held(experiment, checked)
     warnings = []
     for inputs, variants in unconnected_by.items():
         inputs = tuple(name for name in inputs if name not in held)
@@ -435,51 +438,51 @@ def validate(manifest: Manifest, runs: list[RunSpec],
             continue
         where = "" if variants == every or variants == [None] else \
             " in variant(s) " + ", ".join(str(v) for v in variants)
-        warnings.append(f"{manifest.path}: connections: unconnected inputs{where} (held at "
+        warnings.append(f"{experiment.path}: connections: unconnected inputs{where} (held at "
                         f"their start values): {', '.join(inputs)}")
     return Checked(runs=checked, warnings=warnings)
 
 
-def _check_held(manifest: Manifest, checked: list[CheckedRun]) -> set[str]:
+def _check_held(experiment: Experiment, checked: list[CheckedRun]) -> set[str]:
     """The manifest's ``held`` names, each checked to be an input of its component in
     some run (a variant that rewires may connect it), or, when only some variants run, in
     some variant of the manifest (the list holds every variant's unconnected inputs);
     raises a :class:`ManifestError` naming the first that is not."""
     problems = []
     others: list[dict[str, ModelInfo]] | None = None
-    for index, name in enumerate(manifest.held):
+    for index, name in enumerate(experiment.held):
         cname, vname = split_name(name)
         models = [one.models[cname] for one in checked if cname in one.models]
         if vname not in {v.name for info in models for v in info.inputs}:
             if others is None:
-                others = _other_variants_models(manifest, checked)
+                others = _other_variants_models(experiment, checked)
             models += [one[cname] for one in others if cname in one]
         if not models:
             known = sorted({c for one in checked for c in one.models})
-            problems.append(manifest.error(f"held[{index}]", f"'{name}': unknown component "
-                                           f"'{cname}'{did_you_mean(cname, known)}"))
+            problems.append(experiment.error(f"held[{index}]", f"'{name}': unknown component "
+                                             f"'{cname}'{did_you_mean(cname, known)}"))
             continue
         inputs = list(dict.fromkeys(v.name for info in models for v in info.inputs))
         if vname not in inputs:
-            problems.append(manifest.error(
+            problems.append(experiment.error(
                 f"held[{index}]", f"'{name}' is not an input of '{cname}' (its inputs: "
                 f"{', '.join(inputs) or 'none'})"))
     raise_all(problems)
-    return set(manifest.held)
+    return set(experiment.held)
 
 
-def _other_variants_models(manifest: Manifest,
+def _other_variants_models(experiment: Experiment,
                            checked: list[CheckedRun]) -> list[dict[str, ModelInfo]]:
     """The models of each declared variant that none of ``checked`` runs (one run each;
     a variant whose FMUs cannot be read is left out: it is not being run)."""
     running = {one.run.variant for one in checked}
     models = []
-    for variant in manifest.variants:
+    for variant in experiment.variants:
         if variant in running:
             continue
         try:
-            run = plan_runs(manifest, [variant])[0]
-            models.append(read_models(manifest, run))
+            run = experiment.plan_variant(variant)
+            models.append(read_models(experiment, run))
         except ManifestError:
             continue
     return models
@@ -489,25 +492,25 @@ def _article(causality: str) -> str:
     return ("an " if causality[0] in "aeiou" else "a ") + causality
 
 
-def _record_list(manifest: Manifest, models: dict[str, ModelInfo]) -> list[str]:
-    if manifest.record is None:
+def _record_list(experiment: Experiment, models: dict[str, ModelInfo]) -> list[str]:
+    if experiment.record is None:
         return [f"{c}.{v.name}" for c, info in models.items() for v in info.outputs
                 if not v.unsupported("record") and v.ftype.numeric]
-    for i, name in enumerate(manifest.record):
+    for i, name in enumerate(experiment.record):
         cname, vname = split_name(name)
         key = f"record.variables[{i}]"
         if cname not in models:
-            raise manifest.error(key, f"unknown component '{cname}'"
-                                 f"{did_you_mean(cname, models)}")
+            raise experiment.error(key, f"unknown component '{cname}'"
+                                   f"{did_you_mean(cname, models)}")
         var = models[cname].variables.get(vname)
         if var is None:
             outputs = [v.name for v in models[cname].outputs]
-            raise manifest.error(key, f"unknown variable '{name}'"
-                                 f"{did_you_mean(vname, outputs)}")
+            raise experiment.error(key, f"unknown variable '{name}'"
+                                   f"{did_you_mean(vname, outputs)}")
         if var.causality != "output":
-            raise manifest.error(key, f"'{name}' is not an output (it is "
-                                 f"{_article(var.causality)} {var.type})")
+            raise experiment.error(key, f"'{name}' is not an output (it is "
+                                   f"{_article(var.causality)} {var.type})")
         why = var.unsupported("record")
         if why:
-            raise manifest.error(key, f"'{name}' is {why}")
-    return list(manifest.record)
+            raise experiment.error(key, f"'{name}' is {why}")
+    return list(experiment.record)

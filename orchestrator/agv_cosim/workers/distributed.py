@@ -95,7 +95,7 @@ def connect(address: str, timeout: float = CONNECT_TIMEOUT) -> Any:
 
     def make() -> None:
         try:
-            box["client"] = Client(address, timeout=timeout)
+            box["client"] = Client(address, timeout=timeout)  # type: ignore[no-untyped-call]
         except BaseException as error:  # noqa: BLE001 - handed to the caller's thread
             box["error"] = error
 
