@@ -200,8 +200,19 @@ class Trials:
     def results(self, jobs: list[Job]) -> list[RunResult]:
         """Run ``jobs`` as one batch and return their results (status, error, metrics:
         a tuning reads the metrics and may take a run not complete as infeasible); the
-        batch's folder is removed."""
-        return self._batch(jobs, lambda folder, results: results)
+        batch's folder is removed, so a run's folder named in its ``error`` or
+        ``metrics_error`` is written ``<run folder>``."""
+        def read(folder: Path, results: list[RunResult]) -> list[RunResult]:
+            for job, result in zip(jobs, results):
+                where = str(folder / job.label)
+                error, metrics_error = result.get("error"), result.get("metrics_error")
+                if error:
+                    result["error"] = error.replace(where, "<run folder>")
+                if metrics_error:
+                    result["metrics_error"] = metrics_error.replace(where, "<run folder>")
+            return results
+
+        return self._batch(jobs, read)
 
     def run(self, jobs: list[Job], parameters: Sequence[Tunable],
             points: Sequence[Sequence[float]], signals: Sequence[str]

@@ -3,7 +3,8 @@
 (The package is ``tuning`` so that ``agv_cosim.tune`` stays the function.)
 
 :mod:`.setup` checks ``[tune]`` against the runs; the candidates become runs through
-:class:`agv_cosim.pipeline.tune_trials.TrialRuns` (the same workers as a sweep: the local
+:class:`agv_cosim.pipeline.tune_trials.TrialRuns` over
+:class:`agv_cosim.pipeline.trials.Trials` (the runner of ``agv-cosim fit``: the local
 pool, its workers kept between batches, or a Dask cluster); the search is
 :func:`agv_cosim.fitting.tune`; then the original and the tuned parameters run once more
 on every run for the comparison, and :mod:`.output` writes the folder.
@@ -25,11 +26,11 @@ from ..files import AtomicDir, marker_data, printable
 from ..fitting import TuneResult, tune
 from ..manifest import Manifest, load_manifest
 from ..pipeline import prepare
-from ..pipeline.tune_trials import RunJobs, TrialRuns, jobs_at
+from ..pipeline.trials import KeptLocalRunner, Trials, runner
+from ..pipeline.tune_trials import TrialRuns, jobs_at
 from ..report.records import RunResult
 from ..system import Job
-from ..workers.pool import IdleWorkers, run_isolated
-from ..workers.runner import DaskRunner
+from ..workers.runner import Runner
 from .setup import Setup, available_metrics, check_tune
 
 __all__ = ["Setup", "Tuning", "available_metrics", "check_tune", "keep_users",
@@ -52,19 +53,6 @@ class Tuning:
     folder: Path
 
 
-def _run_jobs(workers: int, dask: str | None, idle: IdleWorkers) -> RunJobs:
-    """Run a list of jobs under a folder: on the Dask cluster at ``dask``, else in up to
-    ``workers`` local worker processes, kept between calls in ``idle``."""
-    def nothing(*_: Any) -> None:
-        return None
-
-    if dask:
-        runner = DaskRunner(dask)
-        return lambda jobs, root: runner.run(jobs, root, nothing, nothing)
-    return lambda jobs, root: run_isolated(jobs, root, max(1, min(workers, len(jobs))),
-                                           nothing, nothing, idle=idle)
-
-
 def tune_manifest(manifest: str | Path | Manifest, out: str | Path, *,
                   workers: int | None = None, dask: str | None = None,
                   overwrite: bool = False, quiet: bool = False,
@@ -81,32 +69,31 @@ def tune_manifest(manifest: str | Path | Manifest, out: str | Path, *,
         manifest = load_manifest(manifest)
     manifest, jobs, _ = prepare(manifest, timeout=timeout)
     setup = check_tune(manifest, jobs)
-    count = max(1, workers or os.cpu_count() or 1)
     about = {"command": "tune", "manifest": manifest.name,
              "manifest_sha256": manifest.sha256}
-    idle = IdleWorkers()
+    chosen = runner(workers, dask)
     with AtomicDir(out, overwrite=overwrite, about=about) as folder:
         assert folder.path is not None
         kept = keep_users(folder.target, folder.path)
         if kept and not quiet:
             print(printable(f"agv-cosim tune: kept {len(kept)} file(s) not written by "
                             f"agv-cosim: {', '.join(kept[:5])}"), file=sys.stderr)
-        run_jobs = _run_jobs(count, dask, idle)
         try:
             with tempfile.TemporaryDirectory(prefix=".trials-", dir=folder.path) as scratch:
                 trials = TrialRuns(manifest, setup.names, tuple(setup.objective.metrics),
-                                   run_jobs, Path(scratch), timeout,
+                                   Trials(chosen, Path(scratch), "tune"), timeout,
                                    on_batch=None if quiet else _say_batch(len(jobs)))
                 result = tune(trials, setup.parameters, setup.objective,
                               method=setup.method,  # type: ignore[arg-type]
                               seed=setup.seed, generations=setup.generations,
                               popsize=setup.popsize, tol=setup.tol)
-            original = _final_runs(manifest, setup, result.start, run_jobs,
+            original = _final_runs(manifest, setup, result.start, chosen,
                                    folder.path / "original", timeout)
-            tuned = _final_runs(manifest, setup, result.best, run_jobs,
+            tuned = _final_runs(manifest, setup, result.best, chosen,
                                 folder.path / "tuned", timeout)
         finally:
-            idle.close()
+            if isinstance(chosen, KeptLocalRunner):
+                chosen.close()
         record = tune_record(manifest, setup, result, trials.failures, len(jobs))
         write_folder(folder.path, manifest, setup, result, record, original, tuned)
         target = folder.commit()
@@ -150,15 +137,16 @@ def _link_or_copy(source: str, destination: str) -> None:
 
 
 def _final_runs(manifest: Manifest, setup: Setup, values: dict[str, float],
-                run_jobs: RunJobs, root: Path, timeout: float | None
+                chosen: Runner, root: Path, timeout: float | None
                 ) -> list[tuple[Job, RunResult]]:
-    """Every run of ``manifest`` at the parameter ``values``, into ``root/<run>``."""
+    """Every run of ``manifest`` at the parameter ``values`` through ``chosen``, into
+    ``root/<run>`` (kept: the folder's results)."""
     jobs = jobs_at(manifest, setup.names, [values[n] for n in setup.names], timeout)
     try:
         root.mkdir()
     except OSError as error:
         raise OutputError(f"{root}: cannot create: {error.strerror}") from None
-    return list(zip(jobs, run_jobs(jobs, root)))
+    return list(zip(jobs, chosen.run(jobs, root, lambda steps: None, lambda: None)))
 
 
 def _say_batch(runs: int) -> Any:

@@ -12,6 +12,8 @@ import pytest
 from agv_cosim.errors import ManifestError, TrialFailed
 from agv_cosim.pipeline import prepare
 from agv_cosim.pipeline.trials import KeptLocalRunner, Trials, at_point, tunable
+from agv_cosim.report.records import RunResult, run_result
+from agv_cosim.system import Job
 
 
 def _manifest(tmp_path: Path, fmus: dict[str, Path]) -> Path:
@@ -79,6 +81,34 @@ def test_a_failed_run_names_its_point(tmp_path: Path, fmus: dict[str, Path]) -> 
         assert error.value.exit_code == 1
     finally:
         runner.close()
+
+
+class _NamingRunner:
+    """A runner whose runs fail naming their own folder (in error and metrics_error)
+    and one path elsewhere."""
+
+    def run(self, jobs: list[Job], root: Path, on_progress: object,
+            on_done: object) -> list[RunResult]:
+        return [run_result(job, "failed", error=f"cannot read {root / job.label}/x.csv",
+                           metrics_error=f"{root / job.label}/metrics.json: empty; "
+                                         f"see /elsewhere/{job.label}")
+                for job in jobs]
+
+
+def test_results_name_a_removed_run_folder_neutrally(tmp_path: Path,
+                                                     fmus: dict[str, Path]) -> None:
+    # the batch's folders are removed before results returns: a path into one names
+    # nothing, so it reads <run folder> (tune.json's failed_runs keep it so)
+    manifest, jobs, _ = prepare(_manifest(tmp_path, fmus))
+    parameters = tunable(manifest, jobs, ["gain.k"], "tune.parameters")
+    trials = Trials(_NamingRunner(), tmp_path / "scratch", what="tune")
+    results = trials.results([at_point(jobs[0], parameters, [x], f"c{i}__base")
+                              for i, x in enumerate([1.0, 2.0])])
+    assert [r["error"] for r in results] == ["cannot read <run folder>/x.csv"] * 2
+    assert [r["metrics_error"] for r in results] == [
+        "<run folder>/metrics.json: empty; see /elsewhere/c0__base",
+        "<run folder>/metrics.json: empty; see /elsewhere/c1__base"]
+    assert not any((tmp_path / "scratch").iterdir())
 
 
 @pytest.mark.parametrize("name, problem", [
