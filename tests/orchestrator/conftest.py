@@ -1,6 +1,7 @@
 """The orchestrator tests' manifest writer (the test FMUs, ``fmus``: tests/conftest.py)."""
 
 import pytest
+from dask_cluster import cluster  # noqa: F401 - the Dask cluster fixture (workers/, fitting/)
 
 CHAIN = """
 name = "chain"

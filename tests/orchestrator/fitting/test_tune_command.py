@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from test_dask import cluster  # noqa: F401 - the Dask cluster fixture
 
 from agv_cosim.cli import main
 

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
-from test_dask import DASK, _die_with_parent, _stop
+from dask_cluster import DASK, _die_with_parent, _stop
 
 pytestmark = pytest.mark.slow
 
