@@ -15,3 +15,12 @@ class ParameterError(ValueError):
     def __init__(self, name: str, message: str) -> None:
         super().__init__(f"parameter '{name}': {message}")
         self.name = name
+
+
+class ModelLimitError(RuntimeError):
+    """The model reached a limit of its validity (a wheel lifts, the driven wheels cannot
+    hold the speed): not a fault of the code nor of the host's calls, but the model cannot
+    be stepped on. A core raises it from the step that reached the limit, its state at the
+    end of that step (what a host reads after the refusal); the FMU slaves refuse the
+    step with fmi2Error / fmi3Error (not Fatal) and log the message
+    (agv_core.fmi.slave_base.SlaveLogic._step_failed)."""

@@ -218,6 +218,8 @@ def seed003():
             cells = [f"{100 * max(table[v][x]['max_offsets_m']):.2f}"
                      for v in ("kin_fuzzy", "kin_fixed", "dyn_fuzzy", "dyn_fixed")]
             per = [" / ".join(f"{100 * e:.2f}" for e in table[v][x]["max_offsets_m"])
+                   + ("" if table[v][x]["status"] == "complete"
+                      else f" (run {table[v][x]['status']})")
                    for v in ("dyn_fuzzy", "dyn_fixed")]
             print(f"| {x:g} | " + " | ".join(cells + per) + " |")
         ax = fig.add_subplot(1, 3, k + 1)

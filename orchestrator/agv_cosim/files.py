@@ -92,7 +92,7 @@ def write_text(path: str | Path, text: str) -> None:
         stream.write(text)
 
 
-def _json_safe(value):
+def _json_safe(value: object) -> object:
     np = sys.modules.get("numpy")  # a numpy value exists only once numpy is imported
     if isinstance(value, dict):
         return {str(k): _json_safe(v) for k, v in value.items()}
@@ -379,7 +379,7 @@ class FolderLock:
         os.write(fd, str(os.getpid()).encode())
         self.fd: int | None = fd
 
-    def _same(self, fd):
+    def _same(self, fd: int) -> bool:
         """True when ``path`` is still the file open as ``fd`` (not a link)."""
         try:
             here = os.lstat(self.path)
@@ -456,7 +456,7 @@ class AtomicDir:
             self.discard()
             raise
 
-    def _check_target(self):
+    def _check_target(self) -> None:
         target = self.target
         if target.is_symlink() and not target.is_dir():
             raise OutputError(f"{target}: exists and is not a folder; refusing to replace it")
@@ -516,7 +516,7 @@ class AtomicDir:
         with signals_blocked():  # the renames are not cut half-way by a Ctrl-C/SIGTERM
             return self._commit()
 
-    def _commit(self):
+    def _commit(self) -> Path:
         self.check_intact()
         old = None
         if self.target.exists():

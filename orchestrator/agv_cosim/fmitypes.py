@@ -68,11 +68,11 @@ class FmiType:
                 "enumeration": "Enumeration"}.get(self.kind, "Integer")
 
 
-def _int_bounds(bits, signed):
+def _int_bounds(bits: int, signed: bool) -> tuple[int, int]:
     return (-2 ** (bits - 1), 2 ** (bits - 1) - 1) if signed else (0, 2 ** bits - 1)
 
 
-def _table():
+def _table() -> dict[tuple[str, str], FmiType]:
     c = ctypes
     types = [
         FmiType("Real", "2.0", "float64", c.c_double, "fmi2GetReal", "fmi2SetReal",
@@ -132,7 +132,9 @@ def compatible(a: FmiType | None, b: FmiType | None) -> bool:
     return a is not None and b is not None and a.kind == b.kind
 
 
-def _number(text):
+def _number(text: str | None) -> float | None:
+    if text is None:
+        return None
     try:
         return float(text)
     except (TypeError, ValueError):
@@ -240,11 +242,11 @@ def format_text(ftype: FmiType, value: Any) -> str:
     return str(value)
 
 
-def _csv_quote(text):
+def _csv_quote(text: str) -> str:
     return '"' + text.replace('"', '""') + '"'
 
 
-def _record_string(value):
+def _record_string(value: bytes | str | None) -> str:
     if isinstance(value, bytes):
         value = value.decode("utf-8", "replace")
     return _csv_quote("" if value is None else value)
@@ -278,13 +280,11 @@ def set_parameter(slave: Any, ftype: FmiType, vr: int, value: Any) -> None:
     getattr(slave, ftype.py_set)([vr], [_py_value(ftype, value)])
 
 
-def _py_value(ftype, value):
+def _py_value(ftype: FmiType, value: Any) -> float | int | bool | str:
     if ftype.is_float:
-        value = float(value)
-    elif ftype.is_integer:
-        value = int(value)
-    elif ftype.kind == "boolean":
-        value = bool(value)
-    else:
-        value = str(value)
-    return value
+        return float(value)
+    if ftype.is_integer:
+        return int(value)
+    if ftype.kind == "boolean":
+        return bool(value)
+    return str(value)

@@ -41,7 +41,8 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from types import FrameType
+from typing import Any, NoReturn
 
 from .errors import Interrupted
 
@@ -55,7 +56,7 @@ SCRATCH_MARKER = ".agv-cosim-scratch"
 CREATE_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
 
 
-def _raise(signum, frame):
+def _raise(signum: int, frame: FrameType | None) -> NoReturn:
     raise Interrupted(signum)
 
 
@@ -108,13 +109,14 @@ def ignore_termination() -> Callable[[], None]:
     return restore
 
 
-def _prctl_pdeathsig(signum):
+def _prctl_pdeathsig(signum: int) -> bool:
     """``prctl(PR_SET_PDEATHSIG, signum)``; False where it is not available."""
     import ctypes
 
     try:
         libc = ctypes.CDLL(None, use_errno=True)  # this process's symbols, libc's among them
-        return libc.prctl(1, int(signum), 0, 0, 0) == 0
+        result: int = libc.prctl(1, int(signum), 0, 0, 0)  # restype c_int: a Python int
+        return result == 0
     except (OSError, AttributeError):
         return False
 
@@ -208,7 +210,7 @@ class _Wake(Exception):
     pass
 
 
-def _wake(signum, frame):
+def _wake(signum: int, frame: FrameType | None) -> NoReturn:
     raise _Wake
 
 
@@ -418,7 +420,7 @@ def die_with_parent() -> None:
         os._exit(1)
 
 
-def _start_time(pid):
+def _start_time(pid: int) -> int | None:
     """Start time of process ``pid`` in clock ticks since boot (Linux), or None."""
     try:
         with open(f"/proc/{int(pid)}/stat", "rb") as stream:
@@ -443,7 +445,7 @@ def scratch_dir(kind: str) -> str:
     return folder
 
 
-def _alive(pid, start=None):
+def _alive(pid: int, start: int | None = None) -> bool:
     """True when process ``pid`` exists (and, if ``start`` is known, started then)."""
     try:
         os.kill(pid, 0)
@@ -457,7 +459,7 @@ def _alive(pid, start=None):
     return True
 
 
-def _marker_owner(folder, uid):
+def _marker_owner(folder: str | Path, uid: int) -> tuple[int, int | None] | None:
     """(pid, start time) from our marker in ``folder``, or None when it has no valid one
     (missing, a link, not a regular file of this user, not our JSON)."""
     try:

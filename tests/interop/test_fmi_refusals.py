@@ -14,7 +14,9 @@ C host (c_host/fmi_refusals.c):
 - a non-finite value on any Real input of any component (no component documents a safe
   reaction to one), e.g. AgvChainedForm's lateral_error, heading_error, curvature;
 - restoring a state that is not the FMU's (unknown keys, out-of-range values, another
-  FMU's state, bytes that are no state).
+  FMU's state, bytes that are no state);
+- a step at which the model reaches a limit of its validity (AgvDynamicVehicle: a wheel
+  lifts, the drive exceeds its friction): Error with the reason, not Fatal.
 
 Where each check lives: components/fmu_loader/agv_fmu_bridge.c (state machine, step,
 GUID, who may set what) and components/agv_core/fmi/slave_base.py (non-finite inputs,
@@ -340,6 +342,37 @@ def test_another_fmus_state_and_garbage_are_refused(built, open_dut):
     garbage = open_dut(built["agv_vehicle"]).ready()
     assert refused(garbage.deserialize, b"\x00not a state") == 3
     assert "does not belong to this FMU: not a serialised state" in garbage.errors()[-1]
+
+
+def test_a_wheel_that_lifts_is_an_error_with_its_reason(built, open_dut, version):
+    """A three-wheel AgvDynamicVehicle at 4 m/s, straight, then the wheel held at 0.45 rad
+    (kinematic a_y 7.7 m/s^2 above its tip-over limit 6.54 m/s^2): the step from
+    t = 0.44 s, where the rear left wheel lifts, returns Error (a modelling limit, not
+    Fatal) and logs one line naming the step, the wheel and the limit; the instance is
+    then in FMI's error state: getters answer, a further step is refused."""
+    dut = open_dut(built["agv_dynamic_vehicle"])
+    names = {"layout": "three", "drive": "front", "reference_point": "rear"}
+    if dut.fmi3:
+        dut.slave.enterInitializationMode(startTime=0.0)
+    else:
+        dut.slave.setupExperiment(startTime=0.0)
+        dut.slave.enterInitializationMode()
+    dut.slave.setString([dut.vr(name) for name in names], list(names.values()))
+    dut.set_real("v0", 4.0)
+    dut.slave.exitInitializationMode()
+    dut.set_real("alpha", 0.45)  # from a straight start
+    for k in range(44):
+        dut.step(0.01 * k, 0.01)
+    assert refused(dut.step, 0.44, 0.01) == 3
+    reason = dut.errors()[-1]
+    assert "\n" not in reason
+    assert ("'dut': step at t=0.44 s failed: WheelLiftError: the rear left wheel lifts"
+            in reason)
+    assert "tip-over limit 6.540 m/s2" in reason
+    assert not [text for status, text in dut.log if status == 4]
+    assert math.isfinite(dut.get_real("x"))
+    assert refused(dut.step, 0.44, 0.01) == 3
+    assert "not allowed after an error" in dut.errors()[-1]
 
 
 # ---------------------------------------------------------------------- the C host

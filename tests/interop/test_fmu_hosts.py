@@ -126,6 +126,25 @@ def test_vehicle_in_the_c_host_exits_cleanly_every_time(c_host, unzipped):
         assert table["heading"][-1] == pytest.approx(1.5 * math.tan(0.2), abs=1e-12)
 
 
+def test_a_drive_beyond_its_friction_is_an_fmi2_error_in_the_c_host(c_host, unzipped):
+    """AgvDynamicVehicle (four wheels, rear drive, cg 0.6 m high) at 4 m/s with the wheel
+    held at 0.45 rad: the step from t = 0.12 s needs more drive force than the rear
+    wheels' friction; fmi2DoStep returns fmi2Error (a modelling limit, not Fatal) and its
+    one-line reason reaches the host's logger; the host exits through its own error
+    path."""
+    folder, md = unzipped["agv_dynamic_vehicle"]
+    done, _ = run_c_host(c_host, folder, md, 1.0, 0.01,
+                         {"v0": 4.0, "cg_height": 0.6, "alpha": 0.45})
+    assert done.returncode == 1, done.stderr[-2000:]
+    assert "fmi2DoStep(c, t, (k + 1) * step - t, fmi2True) returned status 3" in done.stderr
+    logged = [line for line in done.stderr.splitlines()
+              if line.startswith("[host] status 3 logStatusError: ")]
+    assert len(logged) == 1, done.stderr[-2000:]
+    assert ("AgvDynamicVehicle 'host': step at t=0.12 s failed: DriveLimitError: the rear "
+            "axle's drive needs") in logged[0]
+    assert "status 4" not in done.stderr
+
+
 def test_missing_python_is_an_fmi2_error_not_a_dead_host(c_host, unzipped):
     folder, md = unzipped["agv_vehicle"]
     env = {**BARE_ENV, "AGV_COSIM_PYTHON": "/nonexistent/bin/python3"}

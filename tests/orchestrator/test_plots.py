@@ -91,6 +91,25 @@ def test_trajectory_reference_path_is_drawn(tmp_path):
     assert written == [tmp_path / "trajectory.png"]
 
 
+@pytest.mark.parametrize("fmus", [["x"], "x", 3])
+def test_a_run_json_whose_fmus_is_not_a_table_names_no_fmu(tmp_path, fmus):
+    """A run's run.json whose ``fmus`` is not a table (before: AttributeError, no
+    figure): the run's FMUs are unknown (no units from them), the figures are drawn."""
+    import json
+
+    from agv_cosim.report.plots import describe_runs
+
+    runs = _runs()
+    for run in runs:
+        (tmp_path / run.label).mkdir()
+        (tmp_path / run.label / "run.json").write_text(json.dumps(
+            {"fmus": fmus if run is runs[0] else {"s": "s.fmu"}, "variant": "v"}))
+    assert describe_runs(runs, tmp_path) == {"s": "s.fmu"}
+    assert [run.variant for run in runs] == ["v", "v"]
+    assert plot_runs(_runs(), SPEC, tmp_path) == [tmp_path / "signals.png",
+                                                  tmp_path / "trajectory.png"]
+
+
 def test_files_written_with_size_and_deterministic(tmp_path):
     runs = _runs()
     first = plot_runs(runs, dict(SPEC, dpi=100), tmp_path / "a")

@@ -241,6 +241,24 @@ def test_units_of_a_damaged_run_json_are_unknown_not_an_exception(results):
     assert len(frame) == 11 and units.pop("time") == "s" and set(units.values()) == {None}
 
 
+@pytest.mark.parametrize("changes", [
+    {"fmus": ["x"]}, {"fmus": "x", "fmu_sha256": ["y"]}, {"fmu_sha256": 3},
+    {"fmus": {"gain": 7}}, {"fmus": {"gain": ["x"]}}, {"versions": ["x"]},
+    {"versions": "1.0"}, {"manifest": 7}], ids=lambda c: json.dumps(c))
+def test_the_page_of_a_damaged_run_json_is_written(results, changes):
+    """run.json whose ``fmus``, ``fmu_sha256`` or ``versions`` are not tables of text, or
+    whose ``manifest`` is not text (before: AttributeError, or TypeError sorting an FMU
+    path 7 with the other run's text, or making a Path of 7): the page is written, the
+    damaged value shown as text or not at all."""
+    _, out = results
+    _run_json(results, **changes)
+    assert cli.main(["report", str(out)]) == 0
+    page = (out / "index.html").read_text()
+    assert _first_run(out) in page  # the damaged run is listed with the others
+    if changes.get("fmus") == {"gain": 7}:
+        assert "<code>7</code>" in page
+
+
 def test_a_run_label_cannot_leave_the_folder(results, tmp_path):
     """A summary.csv that lists ``../outside/x`` is refused: a run label is one path
     component, the folder of a run listed in the folder's own summary.csv (before:

@@ -153,6 +153,16 @@ def test_metric_units():
     assert metric_unit("something_else", spec, units) is None
 
 
+def test_metric_units_of_a_damaged_metrics_table_are_the_documented_ones():
+    """A manifest.toml copy whose [metrics] names a signal by something other than text
+    (before: TypeError, unhashable list, and no page): the documented unit."""
+    spec = {"lateral_error": ["s.e"], "reference": {"x": ["v.x"]}, "control": 3}
+    units = {"s.e": "mm", "v.x": "mm"}
+    assert metric_unit("lateral_error_max", spec, units) == "m"
+    assert metric_unit("path_error_rms", spec, units) == "m"
+    assert metric_unit("control_peak", spec, units) is None
+
+
 def test_summary_table():
     runs = [{"label": "a" * 60, "status": "complete",
              "metrics": {"lateral_error_max": 0.123456, "other": 1.0}},

@@ -462,8 +462,9 @@ class DynamicTrain:
 
     def step(self, u1, deltas, h, wheels=None):
         """Advance by ``h`` [s] with head-car speed ``u1`` [m/s] and axle angles ``deltas``
-        [rad] held; ``wheels`` (optional 4 (left, right) pairs [rad]) is recorded for the
-        wheel slip diagnostics only (the tyres act at the axle centres)."""
+        [rad] held; ``wheels`` (optional 4 (left, right) pairs [rad]) turns each axle's two
+        tyres (without it: the Ackermann angles of ``deltas`` about the car's hinge
+        baseline; the lumped axles act at the axle centres with ``deltas``)."""
         deltas = tuple(float(x) for x in deltas)
         u1 = float(u1)
         for x in deltas:

@@ -60,7 +60,7 @@ import math
 import numpy as np
 from scipy.linalg import expm
 
-from ..errors import ParameterError
+from ..errors import ModelLimitError, ParameterError
 from ..numerics.arc import sinc
 from ..numerics.ode import rk4_doubling
 from .tyres import TYRES, combined_limit, fiala_force, linear_force
@@ -70,11 +70,11 @@ LAYOUTS = ("four", "three")
 DRIVES = ("rear", "front", "ideal")
 
 
-class WheelLiftError(RuntimeError):
+class WheelLiftError(ModelLimitError):
     """A wheel's vertical load fell to zero: the vehicle starts to tip over."""
 
 
-class DriveLimitError(RuntimeError):
+class DriveLimitError(ModelLimitError):
     """The driven wheels cannot transmit the force that holds the speed."""
 G = 9.81  # [m/s^2] gravity
 ITERATIONS = 100  # bound on the fixed-point iterations of load transfer and drive force

@@ -19,7 +19,7 @@ from typing import Any
 from xml.etree.ElementTree import Element, SubElement
 
 from .. import __version__
-from ..errors import ParameterError
+from ..errors import ModelLimitError, ParameterError
 from ..units import base_unit_attributes
 from .pythonfmu_workarounds import keep_for_pythonfmu
 
@@ -46,7 +46,10 @@ SET_NEVER, SET_INPUT, SET_OUTPUT, SET_FIXED, SET_TUNABLE = range(5)
 class CallRefused(Exception):
     """A call the FMU refuses because FMI forbids it (a non-finite input, a state that
     is not this FMU's): the host gets fmi2Error / fmi3Error, not Fatal, and the message
-    through its logger; the instance is left as it was. The FMU bridge
+    through its logger; the instance is left as it was. Also a step whose model reached
+    a limit of its validity (agv_core.errors.ModelLimitError, e.g. a wheel lifts): Error
+    with the message, the time at the step's start, the core at the step's end. The FMU
+    bridge
     (components/fmu_loader/agv_fmu_bridge.c) recognises it by ``fmi_error``."""
 
     fmi_error = True
@@ -272,8 +275,13 @@ class SlaveLogic:
         return True
 
     def _step_failed(self, t, error):
-        """Report ``error`` from the step that starts at ``t`` [s] and raise."""
-        self._fail(f"step at t={t:.9g} s failed: {type(error).__name__}: {error}")
+        """Report ``error`` from the step that starts at ``t`` [s] and raise: a
+        :class:`~agv_core.errors.ModelLimitError` (the model cannot go on) as a refusal
+        (Error), anything else as a failure (Fatal)."""
+        message = f"step at t={t:.9g} s failed: {type(error).__name__}: {error}"
+        if isinstance(error, ModelLimitError):
+            self._refuse(message)
+        self._fail(message)
 
     def _guarded(self, call, *args):
         try:

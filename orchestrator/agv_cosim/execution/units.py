@@ -55,7 +55,8 @@ def failed(function: str, status: int) -> Exception:
     """The exception fmpy's wrapper raises for a status above ``fmi2Warning``."""
     from fmpy.fmi1 import FMICallException
 
-    return FMICallException(function=function, status=status)
+    error: Exception = FMICallException(function=function, status=status)  # fmpy: untyped
+    return error
 
 
 def set_value(slave: Any, var: Variable, value: Any) -> None:

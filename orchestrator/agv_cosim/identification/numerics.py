@@ -92,7 +92,8 @@ class Prepared:
         """``x`` through the pre-filter, forward and backward (zero phase)."""
         import scipy.signal
 
-        return scipy.signal.sosfiltfilt(self.sos, x)
+        filtered: np.ndarray = scipy.signal.sosfiltfilt(self.sos, x)  # scipy: untyped
+        return filtered
 
 
 @dataclass
@@ -199,7 +200,8 @@ def _delayed_integral(prep: Prepared, tau: float,
     0 before the record (the command's initial value removed)."""
     if integral is None:
         integral = _integral(prep.u, prep.h)
-    return np.interp(prep.t - tau, prep.t, integral, left=0.0)
+    shifted: np.ndarray = np.interp(prep.t - tau, prep.t, integral, left=0.0)
+    return shifted
 
 
 def _c_response(prep: Prepared, num1: float, num0: float, den1: float, den0: float,
@@ -222,7 +224,7 @@ def _c_response(prep: Prepared, num1: float, num0: float, den1: float, den0: flo
     aug[n, :n] = c.ravel()
     aug[:n, n + 1] = b.ravel()
 
-    def maps(d):
+    def maps(d: float) -> tuple[np.ndarray, np.ndarray]:
         e = scipy.linalg.expm(aug * d)
         return e[:n + 1, :n + 1], e[:n + 1, n + 1]
 
@@ -280,7 +282,7 @@ def response(model: str, prep: Prepared, values: dict[str, float]) -> np.ndarray
 
 def _max_delay(prep: Prepared) -> float:
     """Longest dead time searched [s]: half the record after the command first changes."""
-    return 0.5 * (prep.t[-1] - prep.t[prep.change])
+    return 0.5 * float(prep.t[-1] - prep.t[prep.change])
 
 
 def estimate_dead_time(prep: Prepared) -> tuple[float, float]:
@@ -333,7 +335,7 @@ def _solve(model: str, prep: Prepared, start: dict[str, float], fix_tau: bool = 
         full = _c_to_search(start)
         free = [0, 1, 2, 3] if fix_tau else [0, 1, 2, 3, 4]
 
-        def unpack(x):
+        def unpack(x: np.ndarray) -> dict[str, float]:
             z = full.copy()
             z[free] = x
             return _c_from_search(z)
@@ -342,7 +344,7 @@ def _solve(model: str, prep: Prepared, start: dict[str, float], fix_tau: bool = 
     else:
         free_names = [n for n in names if not (fix_tau and n == "tau")]
 
-        def unpack(x):
+        def unpack(x: np.ndarray) -> dict[str, float]:
             values = dict(start)
             values.update(zip(free_names, (float(v) for v in x)))
             return {n: values[n] for n in names}
@@ -351,7 +353,7 @@ def _solve(model: str, prep: Prepared, start: dict[str, float], fix_tau: bool = 
 
     penalty = np.full(len(prep.y), 1e3 * (float(np.ptp(prep.y)) + 1.0))
 
-    def residual(x):
+    def residual(x: np.ndarray) -> np.ndarray:
         # a point where the model has no finite response (an exponent that overflows
         # far from the data) is a large residual: the solver steps back from it
         try:
@@ -471,7 +473,8 @@ def _covariance(jac: np.ndarray, sigma2: float,
     return cov, sorted(set(int(i) for i in null))
 
 
-def _uncertainties(names, values, jac, sigma2, before):
+def _uncertainties(names: tuple[str, ...], values: dict[str, float], jac: np.ndarray,
+                   sigma2: float, before: int) -> dict[str, dict[str, Any]]:
     cov, null = _covariance(jac, sigma2, before)
     out: dict[str, dict[str, Any]] = {}
     for i, name in enumerate(names):
@@ -503,7 +506,8 @@ def _uncertainties(names, values, jac, sigma2, before):
     return out
 
 
-def _with_gain(parameters, values, jac, sigma2, before):
+def _with_gain(parameters: dict[str, dict[str, Any]], values: dict[str, float],
+               jac: np.ndarray, sigma2: float, before: int) -> dict[str, dict[str, Any]]:
     """Model c's parameters and its steady rate gain ``K = num0 / den0`` (the FMU's K,
     so that the FMU's scale K den0 / num0 is 1), standard error by the delta method."""
     cov, _ = _covariance(jac, sigma2, before)
@@ -513,7 +517,8 @@ def _with_gain(parameters, values, jac, sigma2, before):
     grad[PARAMETERS["c"].index("num0")] = 1.0 / den0
     grad[PARAMETERS["c"].index("den0")] = -num0 / den0 ** 2
     var = float(grad @ cov @ grad)
-    out = {"K": {"value": k, "stderr": math.sqrt(var) if var >= 0 else None}}
+    out: dict[str, dict[str, Any]] = {
+        "K": {"value": k, "stderr": math.sqrt(var) if var >= 0 else None}}
     if parameters["num0"]["value"] is None or parameters["den0"]["value"] is None:
         out["K"] = {"value": k, "stderr": None,
                     "reason": "from num0 / den0, which the data do not determine apart"}

@@ -145,15 +145,21 @@ The result never holds NaN or inf: a metric that is undefined is reported as ``N
 
 import math
 import tempfile
-from collections.abc import Iterable, Iterator
+from collections.abc import Generator, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from .. import timeseries
 from ..manifest import schema
+
+#: A float64 signal, its samples or its pieces.
+Floats = npt.NDArray[np.float64]
+#: Metric name -> value (None where undefined).
+MetricValues = dict[str, float | None]
 
 _SIGNAL_KEYS = ("lateral_error", "heading_error", "steering_angle", "steering_rate", "control")
 
@@ -287,34 +293,36 @@ def referenced_signals(spec: "schema.MetricsTable | dict[str, Any] | None") -> l
 
 # --------------------------------------------------------------------------- numerics
 
-def _integral(t, f):
+def _integral(t: Floats, f: Floats) -> float:
     """Trapezoidal integral of samples ``f`` over the grid ``t``."""
     if len(t) < 2:
         return 0.0
     return float(np.sum(0.5 * (f[1:] + f[:-1]) * np.diff(t)))
 
 
-def _time_mean(t, f):
+def _time_mean(t: Floats, f: Floats) -> float | None:
     """(1/T) integral f dt, or None when T = 0."""
     duration = float(t[-1] - t[0])
     return _integral(t, f) / duration if duration > 0 else None
 
 
-def _rms(t, f):
+def _rms(t: Floats, f: Floats) -> float | None:
     mean_square = _time_mean(t, f * f)
     return math.sqrt(mean_square) if mean_square is not None else None
 
 
-def _mean_and_std(t, f):
+def _mean_and_std(t: Floats, f: Floats) -> tuple[float | None, float | None]:
     """Time-weighted mean of f and standard deviation about it, or (None, None) when T = 0."""
     mean = _time_mean(t, f)
     if mean is None:
         return None, None
     deviation = f - mean
-    return mean, math.sqrt(max(0.0, _time_mean(t, deviation * deviation)))
+    variance = _time_mean(t, deviation * deviation)
+    assert variance is not None  # the same T > 0 as the mean's
+    return mean, math.sqrt(max(0.0, variance))
 
 
-def _abs_mean(t, f):
+def _abs_mean(t: Floats, f: Floats) -> float | None:
     """Time-weighted mean of |f| for piecewise-linear f (exact across sign changes)."""
     duration = float(t[-1] - t[0])
     if duration <= 0:
@@ -323,7 +331,7 @@ def _abs_mean(t, f):
     return float(np.sum(area)) / duration
 
 
-def _abs_pieces(f):
+def _abs_pieces(f: Floats) -> Floats:
     """Mean of |f| over each linear piece between consecutive samples (exact)."""
     a, b = f[:-1], f[1:]
     same = a * b >= 0
@@ -333,7 +341,7 @@ def _abs_pieces(f):
     return np.where(same, 0.5 * (np.abs(a) + np.abs(b)), crossing)
 
 
-def _measure_at_least(a, b, threshold):
+def _measure_at_least(a: Floats, b: Floats, threshold: float) -> Floats:
     """Fraction of [0, 1] where the line a + (b - a) tau >= threshold (elementwise)."""
     slope = b - a
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -349,7 +357,7 @@ def saturated_time(t: np.ndarray, f: np.ndarray, threshold: float) -> float:
     return float(np.sum(_saturated_fractions(f, threshold) * np.diff(t)))
 
 
-def _saturated_fractions(f, threshold):
+def _saturated_fractions(f: Floats, threshold: float) -> Floats:
     """Fraction of each linear piece between consecutive samples where |f| >= threshold."""
     a, b = f[:-1], f[1:]
     return _measure_at_least(a, b, threshold) + _measure_at_least(-a, -b, threshold)
@@ -372,7 +380,7 @@ def settling_time(t: np.ndarray, e: np.ndarray, band: float) -> float | None:
     return float(t[k] + tau * (t[k + 1] - t[k]))
 
 
-def _window(t, f, start):
+def _window(t: Floats, f: Floats, start: float) -> tuple[Floats, Floats] | None:
     """Samples of f over [start, t[-1]], with an interpolated first sample at ``start``."""
     if start >= t[-1]:
         return None
@@ -381,8 +389,9 @@ def _window(t, f, start):
     return np.concatenate(([start], t[k:])), np.concatenate(([value], f[k:]))
 
 
-def _lateral_metrics(prefix, t, e, band, settle_after):
-    out = {
+def _lateral_metrics(prefix: str, t: Floats, e: Floats, band: float,
+                     settle_after: float | None) -> MetricValues:
+    out: MetricValues = {
         f"{prefix}_max": float(np.max(np.abs(e))),
         f"{prefix}_mean": _abs_mean(t, e),
         f"{prefix}_rms": _rms(t, e),
@@ -454,7 +463,8 @@ def path_offsets(path: Any, x: np.ndarray, y: np.ndarray,
     return _offsets(geometry, x, y, None)[0]
 
 
-def _offsets(geometry, x, y, s_hint):
+def _offsets(geometry: Any, x: Floats, y: Floats,
+             s_hint: float | None) -> tuple[Floats, float | None]:
     """Offsets of (x, y) from ``geometry`` and the last point's arc length (next hint)."""
     from agv_core.numerics.paths import project_trajectory
 
@@ -462,12 +472,12 @@ def _offsets(geometry, x, y, s_hint):
     return offsets, (float(arcs[-1]) if len(arcs) else s_hint)
 
 
-def _clean(metrics):
+def _clean(metrics: dict[str, Any]) -> MetricValues:
     return {key: (None if value is None or not math.isfinite(value) else float(value))
             for key, value in metrics.items()}
 
 
-def _get(signals, name, key, n):
+def _get(signals: dict[str, np.ndarray], name: str, key: str, n: int) -> Floats:
     if name not in signals:
         raise ValueError(f"metrics.{key}: signal {name!r} is not in the results")
     values = np.asarray(signals[name], dtype=float)
@@ -602,7 +612,7 @@ class PairwiseSum:
         self._have = 0
 
     @classmethod
-    def _walk(cls, n):
+    def _walk(cls, n: int) -> Generator[int, Floats, Any]:
         if n <= cls._BLOCK:
             block = yield n
             return np.sum(block)
@@ -643,7 +653,7 @@ class _Spool:
 
     def __init__(self, chunk_rows: int) -> None:
         self.chunk_rows = chunk_rows
-        self.files: dict[str, Any] = {}
+        self.files: dict[str, IO[bytes]] = {}
         self.rows = 0
         self.first_time: Any = None
         self.last_time: Any = None
@@ -668,7 +678,7 @@ class _Spool:
                 return
             yield values
 
-    def rows_at(self, name, first, count):
+    def rows_at(self, name: str, first: int, count: int) -> Floats:
         """``count`` values of column ``name`` from row ``first``."""
         stream = self.files[name]
         stream.flush()
@@ -676,7 +686,8 @@ class _Spool:
         return np.fromfile(stream, dtype=float, count=count)
 
 
-def _pieces(spool, name, first_row, lead=None):
+def _pieces(spool: "_Spool", name: str, first_row: int,
+            lead: tuple[float, float] | None = None) -> Iterator[tuple[Floats, Floats]]:
     """Chunks of (t, f) with the previous sample prepended, so that the pieces between
     consecutive samples (``f[1:]``, ``f[:-1]``, ``np.diff(t)``) of each chunk are exactly
     those of the whole signal; ``lead`` = (t, f) is an extra first sample (a window's
@@ -729,15 +740,21 @@ def _sums(spool: "_Spool", name: str, first_row: int = 0,
     return out
 
 
-def _time_average(total, duration):
+def _time_average(total: float, duration: float) -> float | None:
     return total / duration if duration > 0 else None
 
 
-def _sqrt_or_none(value):
+def _std(dev2: float, duration: float) -> float:
+    """The standard deviation from the integral ``dev2`` of (f - mean)^2 over
+    ``duration`` (> 0: the mean it is about exists)."""
+    return math.sqrt(max(0.0, dev2 / duration))
+
+
+def _sqrt_or_none(value: float | None) -> float | None:
     return math.sqrt(value) if value is not None else None
 
 
-def _first_after(spool, start):
+def _first_after(spool: "_Spool", start: float) -> int:
     """Index of the first sample with time > ``start`` (``np.searchsorted(side='right')``)."""
     row = 0
     for t in spool.chunks("time"):
@@ -748,7 +765,8 @@ def _first_after(spool, start):
     return row
 
 
-def _window_stats(spool, column, start):
+def _window_stats(spool: "_Spool", column: str,
+                  start: float | None) -> MetricValues | None:
     """Mean/RMS/std sums of the signal over [start, t_N], its first value interpolated as
     :func:`_window` does; None when the window is empty."""
     if start is None or start >= spool.last_time:
@@ -763,13 +781,14 @@ def _window_stats(spool, column, start):
     std = None
     if mean is not None:
         second = _sums(spool, column, k, lead, mean=mean, squares=False)
-        std = math.sqrt(max(0.0, _time_average(second["dev2"], span)))
+        std = _std(second["dev2"], span)
     return {"max": first["max_abs"], "mean": _time_average(first["abs"], span),
             "rms": _sqrt_or_none(_time_average(first["f2"], span)),
             "signed_mean": mean, "std": std}
 
 
-def _lateral_stream(prefix, spool, column, band, settle_after):
+def _lateral_stream(prefix: str, spool: "_Spool", column: str, band: float,
+                    settle_after: float | None) -> MetricValues:
     """:func:`_lateral_metrics` of a spooled signal, bit for bit."""
     first = _sums(spool, column, absolute=True)
     duration = spool.last_time - spool.first_time
@@ -780,7 +799,7 @@ def _lateral_stream(prefix, spool, column, band, settle_after):
     std = None
     if mean is not None:
         second = _sums(spool, column, mean=mean, squares=False)
-        std = math.sqrt(max(0.0, _time_average(second["dev2"], duration)))
+        std = _std(second["dev2"], duration)
     out[f"{prefix}_signed_mean"], out[f"{prefix}_std"] = mean, std
     # settling: the last sample outside the band, and the one after it
     e0 = float(spool.rows_at(column, 0, 1)[0])
@@ -893,7 +912,8 @@ def compute_metrics_csv(path: str | Path, spec: "schema.MetricsTable | dict[str,
         spool.close()
 
 
-def _stream_metrics(spool, spec, finite, path_finite):
+def _stream_metrics(spool: "_Spool", spec: dict[str, Any], finite: dict[str, bool],
+                    path_finite: dict[str, bool]) -> dict[str, Any]:
     band = spec["settle_band"]
     settle_after = spec.get("settle_after")
     duration = spool.last_time - spool.first_time
@@ -919,7 +939,8 @@ def _stream_metrics(spool, spec, finite, path_finite):
         else:
             skip(f"path_error_{m}" for m in lateral_names)
 
-    def rms_and_peak(key, rms_name, peak_name, order):
+    def rms_and_peak(key: str, rms_name: str, peak_name: str,
+                     order: str) -> dict[str, Any] | None:
         name = spec[key]
         if not finite[name]:
             skip([rms_name, peak_name] if order == "rms" else [peak_name, rms_name])

@@ -8,7 +8,7 @@ metric (``n + failures`` = runs of the group). ``std`` is the sample standard de
 
 import csv
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -17,8 +17,10 @@ import numpy as np
 from ..files import open_text, write_json
 from ..manifest.montecarlo import MonteCarlo
 from ..plan.sampling import group_name
+from ..system.checked import Job
 from .page import metric_unit
 from .plots import plain_text, save_figure
+from .records import RunResult
 
 __all__ = ["aggregate", "draw", "figure", "statistics", "write_aggregate", "write_outputs"]
 
@@ -38,14 +40,19 @@ def statistics(values: Iterable[float | None], runs: int) -> dict[str, Any]:
     return out
 
 
-def _groups(jobs, results):
-    groups = {}
+#: A group's runs: (job, result) pairs, in the order run.
+_Members = list[tuple[Job, RunResult]]
+
+
+def _groups(jobs: Sequence[Job], results: Sequence[RunResult]) -> dict[str, _Members]:
+    groups: dict[str, _Members] = {}
     for job, result in zip(jobs, results):
         groups.setdefault(group_name(job.variant, job.point), []).append((job, result))
     return groups
 
 
-def aggregate(mc: MonteCarlo, jobs: list[Any], results: list[Any]) -> dict[str, Any]:
+def aggregate(mc: MonteCarlo, jobs: Sequence[Job],
+              results: Sequence[RunResult]) -> dict[str, Any]:
     """The content of ``montecarlo.json`` (see the module docstring)."""
     out = {**mc.describe(), "groups": {}}
     for name, members in _groups(jobs, results).items():
@@ -63,14 +70,16 @@ def aggregate(mc: MonteCarlo, jobs: list[Any], results: list[Any]) -> dict[str, 
     return out
 
 
-def _number(value):
+def _number(value: object) -> float | None:
     return float(value) if isinstance(value, (int, float)) and \
         not isinstance(value, bool) else None
 
 
-def _band(folder, members, signal):
+def _band(folder: str | Path, members: _Members,
+          signal: str) -> tuple[np.ndarray, np.ndarray] | None:
     """Time and (p5, p50, p95) of ``signal`` over the group's complete runs."""
-    series, time = [], None
+    series: list[list[float]] = []
+    time: list[float] | None = None
     for job, result in members:
         if result["status"] != "complete":
             continue
@@ -84,7 +93,7 @@ def _band(folder, members, signal):
         if time is None or len(t) < len(time):
             time = t
         series.append([r[1] for r in rows])
-    if not series:
+    if not series or time is None:
         return None
     k = len(time)
     data = np.asarray([s[:k] for s in series])
@@ -92,8 +101,8 @@ def _band(folder, members, signal):
 
 
 @plain_text
-def figure(mc: MonteCarlo, jobs: list[Any], results: list[Any], folder: str | Path,
-           title: str | None = None, dpi: int = 110) -> Path | None:
+def figure(mc: MonteCarlo, jobs: Sequence[Job], results: Sequence[RunResult],
+           folder: str | Path, title: str | None = None, dpi: int = 110) -> Path | None:
     """``montecarlo.png``: box plots of the key metrics per group; the band of a signal."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -143,13 +152,13 @@ def figure(mc: MonteCarlo, jobs: list[Any], results: list[Any], folder: str | Pa
     return save_figure(fig, Path(folder) / "montecarlo.png", dpi)
 
 
-def write_aggregate(mc: MonteCarlo, jobs: list[Any], results: list[Any],
+def write_aggregate(mc: MonteCarlo, jobs: Sequence[Job], results: Sequence[RunResult],
                     folder: str | Path) -> None:
     """Write ``montecarlo.json`` (:func:`aggregate`)."""
     write_json(Path(folder) / "montecarlo.json", aggregate(mc, jobs, results))
 
 
-def draw(mc: MonteCarlo, jobs: list[Any], results: list[Any], folder: str | Path,
+def draw(mc: MonteCarlo, jobs: Sequence[Job], results: Sequence[RunResult], folder: str | Path,
          title: str | None = None) -> str | None:
     """Write ``montecarlo.png`` (:func:`figure`); return its error as one line, or
     None."""
@@ -160,8 +169,8 @@ def draw(mc: MonteCarlo, jobs: list[Any], results: list[Any], folder: str | Path
     return None
 
 
-def write_outputs(mc: MonteCarlo, jobs: list[Any], results: list[Any], folder: str | Path,
-                  title: str | None = None) -> str | None:
+def write_outputs(mc: MonteCarlo, jobs: Sequence[Job], results: Sequence[RunResult],
+                  folder: str | Path, title: str | None = None) -> str | None:
     """Write ``montecarlo.json`` and ``montecarlo.png``; return a figure error or None."""
     write_aggregate(mc, jobs, results, folder)
     return draw(mc, jobs, results, folder, title)

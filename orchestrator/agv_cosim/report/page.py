@@ -44,11 +44,12 @@ import math
 import os
 import stat
 import tomllib
-from collections.abc import Iterable
+from collections.abc import Callable, Collection, Iterable
 from functools import partial
 from importlib import resources
 from pathlib import Path
 from string import Template
+from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
 
 from ..errors import OutputError, ReportError, UnreadableFile
@@ -69,6 +70,16 @@ from ..manifest.load import MAX_MANIFEST_BYTES
 from . import plots
 from .metrics import METRICS
 from .records import TIMINGS
+
+if TYPE_CHECKING:  # matplotlib is imported by the functions that draw, when they draw
+    from matplotlib.figure import Figure
+
+#: One run as the page reads it: its run.json (a JSON object, not trusted: a field may
+#: be damaged), with ``metrics`` (its metrics.json, or {}), ``folder`` (the run
+#: folder's name) and ``sweep_point`` (a table).
+Run = dict[str, Any]
+#: A comparison figure: its file name and the function that draws it.
+Drawing = tuple[str, Callable[[], "Figure"]]
 
 #: The page, at the top of the result folder.
 REPORT_FILE = "index.html"
@@ -120,7 +131,7 @@ STEP_CHECK_FILE = "step_check.json"
 
 # --------------------------------------------------------------------------- reading
 
-def _read_text(path):
+def _read_text(path: Path) -> str | None:
     """The beginning of a note of the folder (:data:`~agv_cosim.files.NOTE_LIMIT`
     bytes), or None when there is none; a note that is not a regular file raises
     :class:`~agv_cosim.errors.UnreadableFile`."""
@@ -130,7 +141,7 @@ def _read_text(path):
         return None
 
 
-def _summary_order(folder):
+def _summary_order(folder: Path) -> list[str]:
     """Run labels in summary.csv's order (empty without one)."""
     try:
         text = read_bytes(folder / "summary.csv", CSV_LIMIT).decode("utf-8")
@@ -139,11 +150,28 @@ def _summary_order(folder):
         return []
 
 
-def read_runs(folder: str | Path) -> list[dict]:
+def _table(value: object) -> dict[str, Any]:
+    """``value`` when it is a JSON object (a table of run.json), else {} (a damaged
+    field: what it would say is unknown)."""
+    return value if isinstance(value, dict) else {}
+
+
+def _text(value: object) -> str:
+    """A value of run.json that should be text (a path, a hash), as text."""
+    return value if isinstance(value, str) else json.dumps(value)
+
+
+def _manifest_path(run: Run) -> str | None:
+    """The manifest file run.json names, or None (none, or not text)."""
+    path = run.get("manifest")
+    return path if isinstance(path, str) and path else None
+
+
+def read_runs(folder: str | Path) -> list[Run]:
     """Every run of a result folder: its run.json with ``metrics`` (its metrics.json)
     and ``folder`` (the run folder's name), in summary.csv's order (then by name)."""
     folder = Path(folder)
-    found = {}
+    found: dict[str, Run] = {}
     for entry in sorted(folder.iterdir()):
         if entry.is_symlink() or not entry.is_dir():
             continue
@@ -161,7 +189,7 @@ def read_runs(folder: str | Path) -> list[dict]:
     return [found[label] for label in order]
 
 
-def _sha256(path):
+def _sha256(path: Path) -> str:
     digest = hashlib.sha256()
     with open_regular(path) as stream:
         while block := stream.read(1 << 20):
@@ -169,13 +197,13 @@ def _sha256(path):
     return digest.hexdigest()
 
 
-def _toml(path):
+def _toml(path: Path) -> dict[str, Any]:
     """The TOML data of the manifest file ``path`` (a regular file of at most
     :data:`~agv_cosim.manifest.MAX_MANIFEST_BYTES`)."""
     return tomllib.loads(read_bytes(path, MAX_MANIFEST_BYTES).decode("utf-8"))
 
 
-def read_manifest(folder: str | Path, runs: list[dict]) -> tuple[dict, str]:
+def read_manifest(folder: str | Path, runs: list[Run]) -> tuple[dict[str, Any], str]:
     """The manifest of the runs as TOML data, and where it came from (a sentence).
 
     ``manifest.toml`` in the folder first; else the file run.json names, when its SHA-256
@@ -189,10 +217,10 @@ def read_manifest(folder: str | Path, runs: list[dict]) -> tuple[dict, str]:
             pass
     if not runs:
         return {}, "no run"
-    path, digest = runs[0].get("manifest"), runs[0].get("manifest_sha256")
-    if not path:
+    named, digest = _manifest_path(runs[0]), runs[0].get("manifest_sha256")
+    if not named:
         return {}, "run.json names no manifest"
-    path = Path(path)
+    path = Path(named)
     if path.suffix == ".ssp":
         return {}, f"an SSP package ({path}); its description is not read"
     try:
@@ -209,15 +237,15 @@ def read_manifest(folder: str | Path, runs: list[dict]) -> tuple[dict, str]:
 
 # --------------------------------------------------------------------------- units
 
-def metric_unit(name: str, spec: dict, units: dict) -> str | None:
+def metric_unit(name: str, spec: dict[str, Any], units: dict[str, str]) -> str | None:
     """Unit of metric ``name`` (see :mod:`agv_cosim.report.metrics`): the unit of the signal the
     ``[metrics]`` table ``spec`` computes it from where ``units`` has it, else the
     documented one; None for an unknown metric."""
-    def signal_unit(key, default):
+    def signal_unit(key: str, default: str | None) -> str | None:
         signal = spec.get(key)
         if isinstance(signal, dict):
             signal = signal.get("x")
-        return units.get(signal) or default
+        return (units.get(signal) if isinstance(signal, str) else None) or default
 
     for prefix, key in (("lateral_error_", "lateral_error"), ("path_error_", "reference")):
         if name.startswith(prefix):
@@ -251,17 +279,17 @@ def main_metrics(names: list[str], count: int = 6) -> list[str]:
     return (first + [name for name in names if name not in first])[:count]
 
 
-def _metric_names(runs, varying=False):
+def _metric_names(runs: list[Run], varying: bool = False) -> list[str]:
     """Names of the runs' numeric metrics (empty ones too: a settling time of runs that
     never settled) in first-seen order; ``varying``: only those whose values differ
     between the runs (beyond 1e-9 of their size)."""
-    names = []
+    names: list[str] = []
     for run in runs:
         for name, value in run["metrics"].items():
             if name not in names and (value is None or plots.is_number(value)):
                 names.append(name)
     if varying:
-        def spread(name):
+        def spread(name: str) -> bool:
             values = [v for v in (r["metrics"].get(name) for r in runs) if plots.is_number(v)]
             empty = any(name in r["metrics"] and r["metrics"][name] is None for r in runs)
             return bool(values) and (empty or max(values) - min(values) >
@@ -270,13 +298,14 @@ def _metric_names(runs, varying=False):
     return names
 
 
-def collect_units(runs: list[dict], manifest: dict) -> dict:
+def collect_units(runs: list[Run], manifest: dict[str, Any]) -> dict[str, str]:
     """Units by name: signals and parameters (FMUs, then ``[plots.units]``) and metrics."""
     fmus: dict[str, str] = {}
     for run in runs:
-        for component, path in (run.get("fmus") or {}).items():
-            fmus.setdefault(component, path)
-    base = Path(runs[0]["manifest"]).parent if runs and runs[0].get("manifest") else None
+        for component, path in _table(run.get("fmus")).items():
+            fmus.setdefault(component, _text(path))
+    manifest_path = _manifest_path(runs[0]) if runs else None
+    base = Path(manifest_path).parent if manifest_path else None
     units = plots.fmu_units(fmus, base)
     table = (manifest.get("plots") or {}).get("units") or {}
     units.update({k: v for k, v in table.items() if isinstance(v, str)})
@@ -290,10 +319,11 @@ def collect_units(runs: list[dict], manifest: dict) -> dict:
 
 # --------------------------------------------------------------------------- figures
 
-def _comparison_figures(runs, manifest, units, sampled, title):
+def _comparison_figures(runs: list[Run], manifest: dict[str, Any], units: dict[str, str],
+                        sampled: list[str], title: str | None) -> list[Drawing]:
     """(file name, function that draws the figure) of the comparison figures the result
     calls for."""
-    figures = []
+    figures: list[Drawing] = []
     names = _metric_names(runs, varying=True)
     if not runs or not names:
         return figures
@@ -323,7 +353,7 @@ def _comparison_figures(runs, manifest, units, sampled, title):
     return figures
 
 
-def _group(run, sampled):
+def _group(run: Run, sampled: list[str]) -> str:
     point = run["sweep_point"]
     swept = [k for k in point if k != plots.SAMPLE_KEY and k not in sampled]
     parts = [run.get("variant") or "base"] + [f"{k}={point[k]!r}" for k in sorted(swept)]
@@ -332,19 +362,19 @@ def _group(run, sampled):
 
 # --------------------------------------------------------------------------- the page
 
-def _e(value):
+def _e(value: object) -> str:
     """``value`` as HTML text; a file name's undecodable bytes as escapes (``\\xff``:
     :func:`~agv_cosim.files.displayable`), so that the page is always UTF-8."""
     return html.escape(displayable(value), quote=True)
 
 
-def _href(*parts):
+def _href(*parts: object) -> str:
     """A relative link to the file ``parts`` (a file name's undecodable bytes
     percent-encoded as the bytes they are)."""
     return "/".join(quote(str(part), errors="surrogateescape") for part in parts)
 
 
-def _fmt(value):
+def _fmt(value: object) -> str:
     """A number in 4 significant digits (exact value in the cell's title)."""
     if isinstance(value, bool) or value is None:
         return "" if value is None else str(value)
@@ -357,7 +387,7 @@ def _fmt(value):
     return str(value)
 
 
-def _cell(value):
+def _cell(value: object) -> str:
     sort = value if plots.is_number(value) else None
     attrs = f' data-v="{_e(repr(float(sort)))}"' if sort is not None else ""
     title = f' title="{_e(repr(value))}"' if isinstance(value, float) else ""
@@ -365,7 +395,7 @@ def _cell(value):
     return f"<td{attrs}{title}{classes}>{_e(_fmt(value))}</td>"
 
 
-def not_settled(name: str, metrics: dict) -> bool:
+def not_settled(name: str, metrics: dict[str, Any]) -> bool:
     """Whether the empty metric ``name`` is empty because the run's error never settled
     (``*_settling_time`` empty while its ``*_max`` has a value): for ``*_settling_time``
     and the ``*_settled_*`` metrics."""
@@ -378,7 +408,7 @@ def not_settled(name: str, metrics: dict) -> bool:
     return False
 
 
-def _metric_cell(name, metrics):
+def _metric_cell(name: str, metrics: dict[str, Any]) -> str:
     """A metric's cell: its value, "did not settle", or an empty value marked with the
     reason (docs/metrics.md); blank when the run has no such metric."""
     if name in metrics and metrics[name] is None:
@@ -389,7 +419,7 @@ def _metric_cell(name, metrics):
     return _cell(metrics.get(name))
 
 
-def _metric_th(name, units):
+def _metric_th(name: str, units: dict[str, str]) -> str:
     """A metric's header: its name (wrapping at the underscores), unit, and a link to its
     definition in the page's metrics section (the definition also on hover)."""
     unit = units.get(name)
@@ -402,7 +432,7 @@ def _metric_th(name, units):
     return f"<th class=metric{title}>{text}</th>"
 
 
-def _metric_definitions(names, units):
+def _metric_definitions(names: list[str], units: dict[str, str]) -> str:
     """The page's metrics section: each metric shown, its unit, definition and what an
     empty value means (docs/metrics.md, where they come from)."""
     rows = "".join(
@@ -415,7 +445,7 @@ def _metric_definitions(names, units):
             f"<th>empty when</th></tr></thead><tbody>{rows}</tbody></table>")
 
 
-def _all_metrics_table(runs, names, units):
+def _all_metrics_table(runs: list[Run], names: list[str], units: dict[str, str]) -> str:
     """Every metric of every run (runs x metrics), folded: it may be wider than the
     window (it scrolls within its box)."""
     head = "<th>run</th>" + "".join(_metric_th(n, units) for n in names)
@@ -427,7 +457,8 @@ def _all_metrics_table(runs, names, units):
             f"{head}</tr></thead><tbody>{body}</tbody></table></div></details>")
 
 
-def _step_rows(run, group, entries, names):
+def _step_rows(run: object, group: str, entries: dict[str, Any],
+               names: list[str]) -> list[str]:
     """Rows of the step check's table: ``names`` of ``entries`` (one run's metrics or
     signals), each with its changes, observed order, estimate, tolerance and flag."""
     rows = []
@@ -444,7 +475,7 @@ def _step_rows(run, group, entries, names):
     return rows
 
 
-def _step_check_section(data):
+def _step_check_section(data: object) -> str:
     """The page's step-check section (``step_check.json``): one table of the metrics,
     one folded table of the recorded signals, the quantities not converged first."""
     if not isinstance(data, dict):
@@ -459,7 +490,9 @@ def _step_check_section(data):
              f'<a href="{_href(STEP_CHECK_FILE)}">{STEP_CHECK_FILE}</a></p>')
     if data.get("error"):
         return intro + f"<p class=warning>The step check did not run: {_e(data['error'])}</p>"
-    notes, metric_rows, signal_rows = [], [], []
+    notes: list[str] = []
+    metric_rows: list[str] = []
+    signal_rows: list[str] = []
     rank = {"not converged": 0, "order unusable": 0, "undefined": 1, "converged": 2}
     for run in data.get("runs") or []:
         label = run.get("label")
@@ -493,13 +526,14 @@ def _step_check_section(data):
     return "".join(out)
 
 
-def _th(name, units):
+def _th(name: str, units: dict[str, str]) -> str:
     unit = units.get(name)
     text = _e(name) + (f" <span class=unit>[{_e(unit)}]</span>" if unit else "")
     return f"<th>{text}</th>"
 
 
-def _runs_table(runs, folder, units, sampled, manifest=None):
+def _runs_table(runs: list[Run], folder: Path, units: dict[str, str], sampled: list[str],
+               manifest: dict[str, Any] | None = None) -> str:
     points = [run["sweep_point"] for run in runs]
     swept = plots.sweep_keys(points, sampled)
     if not swept:  # a single sweep value: still shown when there is one
@@ -529,7 +563,7 @@ def _runs_table(runs, folder, units, sampled, manifest=None):
             f'</tr></thead><tbody>{"".join(body)}</tbody></table></div>')
 
 
-def key_metrics(runs: list[dict], manifest: dict | None = None) -> list[str]:
+def key_metrics(runs: list[Run], manifest: dict[str, Any] | None = None) -> list[str]:
     """The runs table's metrics: those of :data:`MAIN_METRICS` the runs have, in the
     terminal's order (:func:`_shown_metrics`), at most :data:`RUNS_TABLE_METRICS`; the
     first of every metric when none is a key one."""
@@ -537,7 +571,7 @@ def key_metrics(runs: list[dict], manifest: dict | None = None) -> list[str]:
     return ([n for n in shown if n in MAIN_METRICS] or shown)[:RUNS_TABLE_METRICS]
 
 
-def _montecarlo_table(data, units, names):
+def _montecarlo_table(data: dict[str, Any], units: dict[str, str], names: list[str]) -> str:
     groups = data.get("groups") or {}
     if not groups:
         return ""
@@ -561,7 +595,7 @@ def _montecarlo_table(data, units, names):
             f'<tbody>{"".join(rows)}</tbody></table></div>')
 
 
-def _provenance(runs, manifest_source):
+def _provenance(runs: list[Run], manifest_source: str) -> str:
     first = runs[0] if runs else {}
     parts = [f"<p>Manifest: <code>{_e(first.get('manifest', '?'))}</code>, SHA-256 "
              f"<code>{_e(first.get('manifest_sha256', '?'))}</code>; read from "
@@ -570,28 +604,29 @@ def _provenance(runs, manifest_source):
                                         "record_every")]
     parts.append("<p>Simulation: " + ", ".join(f"{k} = <code>{_e(v)}</code>"
                                                for k, v in sim) + ".</p>")
-    fmus = {}
+    fmus: dict[tuple[str, str, str], int] = {}
     for run in runs:
-        for component, path in (run.get("fmus") or {}).items():
-            key = (component, path, (run.get("fmu_sha256") or {}).get(component, ""))
+        hashes = _table(run.get("fmu_sha256"))
+        for component, path in _table(run.get("fmus")).items():
+            key = (component, _text(path), _text(hashes.get(component, "")))
             fmus[key] = fmus.get(key, 0) + 1
     rows = "".join(f"<tr><td>{_e(c)}</td><td><code>{_e(p)}</code></td>"
                    f"<td><code>{_e(h)}</code></td><td class=num>{n}</td></tr>"
                    for (c, p, h), n in sorted(fmus.items()))
     parts.append('<table class="sortable"><thead><tr><th>component</th><th>FMU</th>'
                  f"<th>SHA-256</th><th>runs</th></tr></thead><tbody>{rows}</tbody></table>")
-    versions = {}
+    versions: dict[str, int] = {}
     for run in runs:
-        key = json.dumps(run.get("versions") or {}, sort_keys=True)
-        versions[key] = versions.get(key, 0) + 1
-    for key, n in versions.items():
-        items = json.loads(key)
+        text = json.dumps(_table(run.get("versions")), sort_keys=True)
+        versions[text] = versions.get(text, 0) + 1
+    for text, n in versions.items():
+        items = json.loads(text)
         parts.append(f"<p>Versions ({n} run(s)): " + ", ".join(
             f"{_e(k)} <code>{_e(v)}</code>" for k, v in items.items()) + ".</p>")
     return "".join(parts)
 
 
-def _is_image(path):
+def _is_image(path: Path) -> bool:
     """True for a regular file (not a link) that holds something: a figure that was
     drawn (an empty one is never shown as a figure)."""
     try:
@@ -601,7 +636,7 @@ def _is_image(path):
     return stat.S_ISREG(info.st_mode) and info.st_size > 0
 
 
-def _figures(folder, written):
+def _figures(folder: Path, written: list[str]) -> tuple[str, list[str]]:
     names = {p.name for p in Path(folder).glob("*.png")} | set(written)
     names = {name for name in names if _is_image(Path(folder) / name)}
     ordered = [n for n in _FIGURE_ORDER if n in names] + sorted(names - set(_FIGURE_ORDER))
@@ -614,12 +649,13 @@ def _figures(folder, written):
     return "".join(out), ordered
 
 
-def render(folder: str | Path, runs: list[dict], manifest: dict, manifest_source: str,
-           units: dict, written: list[str]) -> str:
+def render(folder: str | Path, runs: list[Run], manifest: dict[str, Any], manifest_source: str,
+           units: dict[str, str], written: list[str]) -> str:
     """The page's HTML (pure: everything it shows is passed in or read from ``folder``)."""
     folder = Path(folder)
-    name = manifest.get("name") or (Path(runs[0]["manifest"]).stem if runs and
-                                    runs[0].get("manifest") else folder.name)
+    manifest_path = _manifest_path(runs[0]) if runs else None
+    name = manifest.get("name") or (Path(manifest_path).stem if manifest_path
+                                    else folder.name)
     sampled = plots.sampled_names(folder)
     statuses: dict[str, int] = {}
     for run in runs:
@@ -693,13 +729,13 @@ def render(folder: str | Path, runs: list[dict], manifest: dict, manifest_source
 
 # --------------------------------------------------------------------------- writing
 
-def _record(folder):
+def _record(folder: Path) -> set[str]:
     data = read_json_object(folder / RECORD)
     files = (data or {}).get("files")
     return set(files) if isinstance(files, list) else set()
 
 
-def _check_writable(folder, names, record):
+def _check_writable(folder: Path, names: list[str], record: set[str]) -> None:
     for name in names:
         path = folder / name
         try:
@@ -711,13 +747,14 @@ def _check_writable(folder, names, record):
                               "refusing to replace it")
 
 
-def _fresh(path):
+def _fresh(path: Path) -> Path:
     """``path`` removed when it is there (a file of ours, checked before)."""
     Path(path).unlink(missing_ok=True)
     return path
 
 
-def _inputs(folder):
+def _inputs(folder: Path) -> tuple[list[Run], dict[str, Any], str, dict[str, str],
+                                 list[Drawing], int]:
     """What the page of ``folder`` shows: (runs, manifest, its source, units, the
     comparison figures (name, function that draws it), their dpi)."""
     runs = read_runs(folder)
@@ -743,7 +780,8 @@ def _checked_folder(folder: str | Path) -> Path:
     return folder
 
 
-def _draw(folder, figures, dpi, drawn=()):
+def _draw(folder: Path, figures: list[Drawing], dpi: int,
+          drawn: Collection[str] = ()) -> list[str]:
     """Check the page's files (``drawn``: figures of ours written already), record
     them, and draw the figures not in ``drawn``. A figure that fails leaves no file;
     its name and error go into :data:`FIGURES_ERROR` (one line each), which a later
@@ -818,7 +856,7 @@ def write_report(folder: str | Path, *, locked: bool = False,
             lock.release()
 
 
-def _write_page(path, page):
+def _write_page(path: Path, page: str) -> None:
     """Write the page's text into the new file ``path``: encoded before the file is
     made; a page that cannot be written is removed (never left empty or cut) and
     raises :class:`~agv_cosim.errors.ReportError`."""
@@ -857,7 +895,7 @@ def write_report_quietly(folder: str | Path, drawn: Iterable[str] = ()) -> str |
 
 # --------------------------------------------------------------------------- terminal
 
-def _text_table(head, rows, width, shrink=0):
+def _text_table(head: list[str], rows: list[list[str]], width: int, shrink: int = 0) -> str:
     """Rows of cells as aligned text (first two columns left, the rest right); the
     column ``shrink`` is cut with an ellipsis so that a line fits ``width``."""
     widths = [max(len(row[i]) for row in [head] + rows) for i in range(len(head))]
@@ -871,7 +909,7 @@ def _text_table(head, rows, width, shrink=0):
     return "\n".join(lines)
 
 
-def _shown_metrics(runs, manifest=None):
+def _shown_metrics(runs: list[Run], manifest: dict[str, Any] | None = None) -> list[str]:
     """The runs' numeric metrics in an order that depends on their names only (the same
     columns for every run of a manifest, whatever values differ): the metrics of the
     signals of the manifest's ``[metrics]`` table in its order (``reference``: the
@@ -882,7 +920,7 @@ def _shown_metrics(runs, manifest=None):
     families = ["path_error" if key == "reference" else key for key, value in spec.items()
                 if isinstance(value, (str, dict))]
 
-    def rank(name):
+    def rank(name: str) -> tuple[int, int, str]:
         family = next((k for k, f in enumerate(families) if name.startswith(f + "_")),
                       len(families))
         main = MAIN_METRICS.index(name) if name in MAIN_METRICS else len(MAIN_METRICS)
@@ -891,20 +929,21 @@ def _shown_metrics(runs, manifest=None):
     return sorted(_metric_names(runs), key=rank)
 
 
-def _metric_text(name, metrics):
+def _metric_text(name: str, metrics: dict[str, Any]) -> str:
     """A metric's value as the terminal writes it: :data:`NOT_SETTLED` for a settling
     metric of a run that never settled, blank for another empty value."""
     return NOT_SETTLED if not_settled(name, metrics) else _fmt(metrics.get(name))
 
 
-def _headers(names, units):
+def _headers(names: list[str], units: dict[str, str]) -> list[str]:
     return [n + (f" [{units[n]}]" if units.get(n) else "") for n in names]
 
 
-def _fitting(names, units, label_width, width, cell=9, cells=None):
+def _fitting(names: list[str], units: dict[str, str], label_width: int, width: int,
+             cell: int = 9, cells: dict[str, int] | None = None) -> list[str]:
     """As many of ``names`` as fit ``width`` beside a label column of ``label_width``
     (``cells``: the widest cell of a column by name, when wider than ``cell``)."""
-    shown = []
+    shown: list[str] = []
     used = label_width + 2 + 8 + 2
     for header, name in zip(_headers(names, units), names):
         need = max(len(header), cell, (cells or {}).get(name, 0)) + 2
@@ -915,8 +954,8 @@ def _fitting(names, units, label_width, width, cell=9, cells=None):
     return shown
 
 
-def summary_table(runs: list[dict], units: dict | None = None, count: int = 4,
-                  width: int = 100, manifest: dict | None = None) -> str:
+def summary_table(runs: list[Run], units: dict[str, str] | None = None, count: int = 4,
+                  width: int = 100, manifest: dict[str, Any] | None = None) -> str:
     """A compact text table of the main metrics per run (for the terminal).
 
     Parameters
@@ -946,13 +985,13 @@ def summary_table(runs: list[dict], units: dict | None = None, count: int = 4,
     return _text_table(["run", "status"] + _headers(names, units), rows, width)
 
 
-def group_table(runs: list[dict], units: dict | None = None, count: int = 3,
-                width: int = 100, manifest: dict | None = None) -> str:
+def group_table(runs: list[Run], units: dict[str, str] | None = None, count: int = 3,
+                width: int = 100, manifest: dict[str, Any] | None = None) -> str:
     """Many runs (Monte Carlo samples) in one line per group (a run's ``group``, else its
     ``variant``): runs complete, and the median (min - max) of each main metric over the
     complete runs."""
     units = units or {}
-    groups: dict[str, list[dict]] = {}
+    groups: dict[str, list[Run]] = {}
     for run in runs:
         groups.setdefault(run.get("group") or run.get("variant") or "base", []).append(run)
     names = _shown_metrics(runs, manifest)[:count]
@@ -973,7 +1012,7 @@ def group_table(runs: list[dict], units: dict | None = None, count: int = 3,
     return _text_table(head, rows, width)
 
 
-def _median(values):
+def _median(values: list[float]) -> float:
     n = len(values)
     return values[n // 2] if n % 2 else 0.5 * (values[n // 2 - 1] + values[n // 2])
 

@@ -88,6 +88,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeGuard, TypeVar, cast
 
 import numpy as np
+import numpy.typing as npt
 
 from ..files import FMU_LIMIT, open_output, open_regular, read_json_object
 from ..manifest import schema
@@ -96,6 +97,11 @@ from .metrics import load_path
 
 if TYPE_CHECKING:  # matplotlib is imported by the functions that draw, when they draw
     from matplotlib.figure import Figure
+
+#: A float64 signal.
+Floats = npt.NDArray[np.float64]
+#: One line of a figure: its x and y samples.
+Line = tuple[np.ndarray, np.ndarray]
 
 #: File names of the figures (stable, so that a rerun overwrites them).
 SIGNALS_FILE = "signals.png"
@@ -139,16 +145,16 @@ class RunData:
 
     label: str
     time: np.ndarray
-    signals: dict = field(default_factory=dict)
+    signals: dict[str, np.ndarray] = field(default_factory=dict)
     partial: bool = False
-    lines: dict | None = None
+    lines: dict[tuple[str, str], "Line"] | None = None
     decimated: bool = False
     #: scenario events (time [s], name): drawn as vertical dotted lines on time axes
-    events: list = field(default_factory=list)
+    events: list[tuple[float, str]] = field(default_factory=list)
     #: the run's variant and sweep point (run.json's ``variant`` and ``sweep_point``);
     #: None: not known (:func:`plot_runs` reads them from ``<out_dir>/<label>/run.json``)
     variant: str | None = None
-    point: dict | None = None
+    point: dict[str, Any] | None = None
 
 
 # --------------------------------------------------------------------------- validation
@@ -245,11 +251,11 @@ class Decimator:
         self.both = both
         self.size = 1 if n <= (6 if both else 4) * buckets else -(-n // buckets)
         self.row = 0
-        self._carry = None
+        self._carry: Line | None = None
         self._x: list[np.ndarray] = []
         self._y: list[np.ndarray] = []
 
-    def _extremes(self, x, y):
+    def _extremes(self, x: np.ndarray, y: np.ndarray) -> "Line":
         keys = [0, x.size - 1, int(np.argmin(y)), int(np.argmax(y))]
         if self.both:
             keys += [int(np.argmin(x)), int(np.argmax(x))]
@@ -298,7 +304,7 @@ def _buckets(spec: dict[str, Any], trajectory: bool = False) -> int:
     return per_column * int(round(_WIDTH * spec["dpi"]))
 
 
-def _line_specs(spec):
+def _line_specs(spec: dict[str, Any]) -> list[tuple[str, str, str, str, bool]]:
     """The lines the figures draw: (x name, y name, x key, y key, is trajectory)."""
     lines = [(spec["x"], name, "x", f"signals[{i}]", False)
              for i, name in enumerate(spec.get("signals", []))]
@@ -363,7 +369,7 @@ def read_run(path: str | Path, spec: "schema.PlotsTable | dict[str, Any]", label
 # --------------------------------------------------------------------------- drawing
 
 def _line(run: "RunData", xname: str, yname: str, xkey: str, ykey: str, buckets: int,
-          both: bool = False, figure: Any = None) -> Any:
+          both: bool = False, figure: Any = None) -> Line:
     """(x, y) of one line of ``run``, decimated to ``buckets``; a decimated line marks
     ``figure`` (see :func:`_save`)."""
     if run.lines is not None:
@@ -384,7 +390,7 @@ def _line(run: "RunData", xname: str, yname: str, xkey: str, ykey: str, buckets:
     return decimator.result()
 
 
-def _values(run, name, key):
+def _values(run: "RunData", name: str, key: str) -> Floats:
     if name not in run.signals:
         raise ValueError(f"plots.{key}: run {run.label!r} has no signal {name!r}")
     values = np.asarray(run.signals[name], dtype=float)
@@ -394,7 +400,7 @@ def _values(run, name, key):
     return values
 
 
-def _label(name, units):
+def _label(name: str, units: dict[str, str]) -> str:
     unit = units.get(name)
     return f"{name} [{unit}]" if unit else name
 
@@ -405,14 +411,14 @@ def _label(name, units):
 SAMPLE_KEY = "montecarlo.sample"
 
 
-def _variable_unit(variable):
+def _variable_unit(variable: Any) -> str | None:
     unit = getattr(variable, "unit", None)
     if not unit and getattr(variable, "declaredType", None) is not None:
         unit = getattr(variable.declaredType, "unit", None)
     return unit or None
 
 
-def _model_description(path):
+def _model_description(path: str) -> Any:
     """fmpy's model description of the FMU at ``path`` (``<package>!/<entry>``: an FMU
     inside an SSP package), or None when it cannot be read (a file that is not a
     regular file is not opened: :func:`~agv_cosim.files.open_regular`)."""
@@ -436,7 +442,7 @@ def _model_description(path):
         return None
 
 
-def fmu_units(fmus: dict, base_dir: str | Path | None = None) -> dict:
+def fmu_units(fmus: dict[str, str], base_dir: str | Path | None = None) -> dict[str, str]:
     """Units of the FMUs' variables as their model descriptions declare them.
 
     Parameters
@@ -453,7 +459,8 @@ def fmu_units(fmus: dict, base_dir: str | Path | None = None) -> dict:
         ``"component.variable"`` -> unit, for every variable that declares one (an FMU
         that cannot be read contributes nothing).
     """
-    units, read = {}, {}
+    units: dict[str, str] = {}
+    read: dict[str, Any] = {}  # FMU path -> its model description (fmpy's), or None
     for component, path in fmus.items():
         path = str(path)
         if not Path(path.split("!/", 1)[0]).exists() and base_dir is not None:
@@ -524,7 +531,8 @@ def colour_norm(values: list[float]) -> Any:
     return Normalize(low, high)
 
 
-def _group_label(variant, point, keys):
+def _group_label(variant: str | None, point: dict[str, Any] | None,
+                 keys: Iterable[str]) -> str:
     parts = [variant] if variant else []
     parts += [f"{key}={(point or {}).get(key)!r}" for key in keys]
     return ", ".join(parts) or "runs"
@@ -537,11 +545,11 @@ class Styles:
     labels of the groups, when the runs are grouped), and the colour bar: ``mappable``
     and ``bar_label`` (None without one)."""
 
-    lines: list
-    legend: list = field(default_factory=list)
+    lines: list[dict[str, Any]]
+    legend: list[tuple[Any, str]] = field(default_factory=list)
     mappable: object = None
     bar_label: str | None = None
-    bar_ticks: list | None = None
+    bar_ticks: list[float] | None = None
 
 
 def run_styles(runs: Iterable["RunData"], units: dict[str, str] | None = None,
@@ -605,7 +613,7 @@ def run_styles(runs: Iterable["RunData"], units: dict[str, str] | None = None,
     return Styles(lines, legend)
 
 
-def _legend(figure, ax, entries=None):
+def _legend(figure: Any, ax: Any, entries: list[tuple[Any, str]] | None = None) -> None:
     """The legend below the axes (never over data): the runs' labelled lines of ``ax``,
     or ``entries`` (handle, label); at most :data:`LEGEND_CAP` entries, the rest counted
     in a last entry."""
@@ -628,7 +636,7 @@ def _legend(figure, ax, entries=None):
                   ncols=max(1, min(len(handles), 4, fit)), frameon=False)
 
 
-def _colour_bar(figure, axes, styles):
+def _colour_bar(figure: Any, axes: Iterable[Any], styles: Styles) -> None:
     if styles.mappable is None:
         return
     bar = figure.colorbar(styles.mappable, ax=list(axes), location="right", shrink=0.9,
@@ -639,7 +647,7 @@ def _colour_bar(figure, axes, styles):
         bar.minorticks_off()
 
 
-def _save(figure, path, dpi):
+def _save(figure: Any, path: Path, dpi: int) -> Path:
     """Draw ``figure`` as PNG in memory, then write it to ``path``: a figure that fails
     to draw leaves no file (never an empty image), one that fails to be written is
     removed."""
@@ -723,12 +731,14 @@ def signals_figure(runs: Iterable["RunData"],
     return figure
 
 
-def _trajectory(run, traj, buckets, figure=None):
+def _trajectory(run: "RunData", traj: dict[str, Any], buckets: int,
+                figure: Any = None) -> "Line":
     return _line(run, traj["x"], traj["y"], "trajectory.x", "trajectory.y", buckets, True,
                  figure)
 
 
-def _reference_polyline(path, runs, traj, buckets):
+def _reference_polyline(path: Any, runs: Iterable["RunData"], traj: dict[str, Any],
+                        buckets: int) -> Any:
     """x, y [m] of the reference ``path`` (a ReferencePath) over the stretch worth drawing."""
     from agv_core.numerics.paths import project_trajectory
 
@@ -756,7 +766,7 @@ def _reference_polyline(path, runs, traj, buckets):
 _OFFSET_POINTS = 1500
 
 
-def _offsets_along(geometry, x, y):
+def _offsets_along(geometry: Any, x: Floats, y: Floats) -> "Line":
     """Arc length [m] and signed offset [m] from ``geometry`` of up to
     :data:`_OFFSET_POINTS` of the points (x, y) (evenly strided, in order)."""
     from agv_core.numerics.paths import project_trajectory
@@ -776,7 +786,7 @@ def _offsets_along(geometry, x, y):
 _EQUAL_AXES_MIN = 0.05
 
 
-def _spans(ax):
+def _spans(ax: Any) -> tuple[float, float] | None:
     """(x extent, y extent) of the finite points drawn on ``ax``; None when it has none."""
     xs = [np.asarray(line.get_xdata(), float) for line in ax.get_lines()]
     ys = [np.asarray(line.get_ydata(), float) for line in ax.get_lines()]
@@ -879,14 +889,14 @@ def trajectory_figure(runs: Iterable["RunData"],
     return figure
 
 
-def sampled_names(folder: str | Path) -> list:
+def sampled_names(folder: str | Path) -> list[str]:
     """Names a Monte Carlo result in ``folder`` samples (its ``montecarlo.json``:
     ``parameters`` and ``seeds``); empty without one."""
     data = read_json_object(Path(folder) / "montecarlo.json") or {}
     return list(data.get("parameters") or {}) + list(data.get("seeds") or [])
 
 
-def describe_runs(runs: list, folder: str | Path) -> dict:
+def describe_runs(runs: list["RunData"], folder: str | Path) -> dict[str, str]:
     """Fill each run's ``variant`` and ``point`` that are None from its
     ``<folder>/<label>/run.json``; return the FMU paths the runs name (component ->
     path, run.json's ``fmus``)."""
@@ -898,7 +908,8 @@ def describe_runs(runs: list, folder: str | Path) -> dict:
         if run.point is None:
             point = info.get("sweep_point")
             run.point = point if isinstance(point, dict) else {}
-        for component, path in (info.get("fmus") or {}).items():
+        named = info.get("fmus")  # a damaged run.json's: no FMU known
+        for component, path in (named if isinstance(named, dict) else {}).items():
             fmus.setdefault(component, path)
     return fmus
 
@@ -978,7 +989,7 @@ SWEEP_FILE = "sweep_metrics.png"
 MONTECARLO_SCATTER_FILE = "montecarlo_scatter.png"
 
 
-def _finite(value):
+def _finite(value: object) -> bool:
     return is_number(value)
 
 
@@ -988,7 +999,8 @@ _MISSING_NOTE = {True: "\u25bd on the top edge: did not settle (or no value)",
 
 
 @plain_text
-def sweep_metrics_figure(rows: list, key: str, metrics: list, units: dict,
+def sweep_metrics_figure(rows: list[dict[str, Any]], key: str, metrics: list[str],
+                         units: dict[str, str],
                          title: str | None = None) -> "Figure":
     """Each metric against the swept value ``key``, one line (with markers) per group:
     the variant and the other swept values.
@@ -1074,7 +1086,8 @@ def spearman(x: Any, y: Any) -> float | None:
 
 
 @plain_text
-def montecarlo_figure(rows: list, parameters: list, metrics: list, units: dict,
+def montecarlo_figure(rows: list[dict[str, Any]], parameters: list[str], metrics: list[str],
+                      units: dict[str, str],
                       title: str | None = None) -> "Figure":
     """Monte Carlo results: per metric (one row of panels), box plots per group in the
     metric's unit, then a scatter of the metric against each sampled parameter with
