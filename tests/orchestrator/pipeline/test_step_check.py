@@ -210,3 +210,19 @@ def test_refined_divides_the_step_tolerances_and_component_steps_alike():
     assert finer.models["me"].integration == Integration("cvode", 2.5e-7)
     assert finer.models["cs"].integration is None
     assert refined(job, 4).real_time is None and job.plan.step == 0.1
+
+
+def test_the_api_runs_the_check_too(fmus, tmp_path):
+    import agv_cosim
+
+    path = tmp_path / "loop.toml"
+    path.write_text(LOOP.format(step=0.1, stop=1.0, a=1.0, extra="",
+                                integ=fmus["agv_test_integrator"],
+                                gain=fmus["agv_test_gain"]))
+    results = agv_cosim.run(path, out=tmp_path / "api", jobs=1, quiet=True,
+                            check_step=True)
+    data = json.loads((results.folder / "step_check.json").read_text())
+    assert [run["status"] for run in data["runs"]] == ["checked"]
+    assert data["runs"][0]["signals"]["int.y"]["order"] == pytest.approx(1.0, abs=0.1)
+    plain = agv_cosim.run(path, out=tmp_path / "plain", jobs=1, quiet=True)
+    assert not (plain.folder / "step_check.json").exists()
