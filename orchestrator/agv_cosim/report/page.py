@@ -510,8 +510,10 @@ def _step_check_section(data: object) -> str:
             "<th>tolerance</th><th>flag</th></tr></thead>")
     bad = sum('"not-converged"' in r or '"order-unusable"' in r
               for r in metric_rows + signal_rows)
+    checked = sum(run.get("status") == "checked" for run in data.get("runs") or [])
     out = [intro, f"<p class=summary>{bad} quantit{'y' if bad == 1 else 'ies'} not "
-           "converged in the step.</p>"]
+           f"converged in the step ({checked} run(s) checked).</p>" if checked else
+           "<p class=summary>No run was checked.</p>"]
     if notes:
         out.append("<ul class=warning>" + "".join(notes) + "</ul>")
     if metric_rows:

@@ -157,6 +157,7 @@ def test_a_failed_refinement_is_said_and_the_base_stays_complete(fmus, tmp_path,
     assert run["metrics"] == {} and run["signals"] == {}
     page = (out / "index.html").read_text()
     assert "base: failed: the run at step/2 (0.05 s) is partial" in page
+    assert "No run was checked." in page and "not converged in the step" not in page
     assert json.loads((out / "base" / "metrics.json").read_text())["lateral_error_max"] == 1.0
 
 
@@ -169,7 +170,7 @@ def test_the_page_shows_the_step_check_table_with_its_flags(fmus, tmp_path):
     section = page.split("<h2 id=step-check>")[1].split("<h2")[0]
     data = json.loads((out / "step_check.json").read_text())
     bad = len(data["runs"][0]["not_converged"])
-    assert bad > 0 and f"{bad} quantities not converged in the step" in section
+    assert bad > 0 and f"{bad} quantities not converged in the step (1 run(s) checked)" in section
     # the not-converged rows come first, each flagged
     first = section.split("<tbody>")[1].split("</tr>")[0]
     assert '<td class="flag not-converged">not converged</td>' in first
