@@ -440,7 +440,7 @@ def run(manifest: str | Path, *, out: str | Path | None = None,
         sets: Mapping[str, Any] | Iterable[str] = (), jobs: int | None = None,
         quiet: bool = False, overwrite: bool = False, dask: str | None = None,
         timeout: float | None = None, init_check: bool = True,
-        check: bool = False) -> Results:
+        check: bool = False, check_step: bool = False) -> Results:
     """Run a manifest as ``agv-cosim run`` does and return its :class:`Results`.
 
     Parameters
@@ -472,6 +472,9 @@ def run(manifest: str | Path, *, out: str | Path | None = None,
         Raise :class:`~agv_cosim.errors.AgvCosimError` when a run is not complete (its
         message is the command's line about the first such run); by default such runs
         are in the results with their status and message.
+    check_step : bool
+        Run each complete run again at step/2 and step/4 and write the step check,
+        ``step_check.json`` (``--check-step``; docs/metrics.md).
 
     Raises
     ------
@@ -504,7 +507,8 @@ def run(manifest: str | Path, *, out: str | Path | None = None,
             use_own_scratch_for_multiprocessing()
             clean_stale_scratch()
             target, results, warnings = _run(manifest, out, chosen, overrides, jobs, quiet,
-                                             overwrite, dask, timeout, init_check)
+                                             overwrite, dask, timeout, init_check,
+                                             check_step)
     except (ManifestError, OutputError, UnreadableFile, FolderLost, ReportError,
             ClusterError, OSError) as error:
         # ReportError: the results were written, their page was not; OSError: the
@@ -527,7 +531,8 @@ def run(manifest: str | Path, *, out: str | Path | None = None,
 def _run(manifest: str | Path, out: str | Path | None, variants: list[str] | None,
          sets: "list[str | Override]", jobs: int | None, quiet: bool, overwrite: bool,
          dask: str | None,
-         timeout: float | None, init_check: bool) -> tuple[Path, list[Any], list[str]]:
+         timeout: float | None, init_check: bool,
+         check_step: bool = False) -> tuple[Path, list[Any], list[str]]:
     """``agv-cosim run``'s steps: prepare, the initialisation check, execute."""
     from .pipeline import INIT_TIMEOUT, execute, prepare
     from .ssp.importer import opened
@@ -540,7 +545,7 @@ def _run(manifest: str | Path, out: str | Path | None, variants: list[str] | Non
         limit = max(timeout or loaded.timeout or 0.0, INIT_TIMEOUT) \
             if init_check and dask is None else None
         target, results = execute(loaded, planned, out, jobs, quiet, overwrite=overwrite,
-                                  dask=dask, init_limit=limit)
+                                  dask=dask, init_limit=limit, check_step=check_step)
     return target, list(results), warnings
 
 

@@ -157,7 +157,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         target, results = execute(manifest, jobs, args.out, args.jobs, args.quiet,
                                   overwrite=args.overwrite, dask=args.dask,
                                   resume=args.resume, real_time=args.real_time,
-                                  init_limit=_init_limit(args, manifest))
+                                  init_limit=_init_limit(args, manifest),
+                                  check_step=args.check_step)
     except ClusterError as error:
         _say(f"agv-cosim: error: {error_lines(error)[0]}")
         return exit_code(error)
@@ -474,6 +475,12 @@ def make_parser() -> argparse.ArgumentParser:
                           "wall-clock time (1: real time; one run only, not with --dask); "
                           "overruns and the achieved factor go to timings.csv and the "
                           "terminal; results are the same as unpaced")
+    run.add_argument("--check-step", action="store_true",
+                     help="run each complete run again at step/2 and step/4 (Model "
+                          "Exchange tolerances divided alike) and write, per metric and "
+                          "recorded signal, the change, the observed order and the "
+                          "remaining error into DIR/step_check.json and the page "
+                          "(docs/metrics.md)")
     run.set_defaults(func=_cmd_run)
 
     check = sub.add_parser("validate", help="check a manifest against its FMUs, run nothing",

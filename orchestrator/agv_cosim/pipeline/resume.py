@@ -48,7 +48,7 @@ from ..files import MARKER, marker_data, read_json_object
 from ..manifest import Manifest
 from ..plan import plan_runs
 from ..report import plots
-from ..report.page import FIGURES_ERROR, RECORD, REPORT_FILE
+from ..report.page import FIGURES_ERROR, RECORD, REPORT_FILE, STEP_CHECK_FILE
 from ..report.records import TIMINGS, RunResult, finish_run, read_timings, recorded_inputs
 from ..system import Job
 from ..system.files import file_sha256
@@ -65,7 +65,7 @@ RUN_FILES = ("timeseries.csv", "metrics.json", "run.json", "output.txt")
 FOLDER_FILES = (MARKER, "summary.csv", TIMINGS, REPORT_FILE, RECORD, "partial.txt",
                 FIGURES_ERROR, "plots_error.txt", "montecarlo.json", "montecarlo.png",
                 "montecarlo_error.txt", plots.SIGNALS_FILE, plots.TRAJECTORY_FILE,
-                plots.SWEEP_FILE, plots.MONTECARLO_SCATTER_FILE)
+                plots.SWEEP_FILE, plots.MONTECARLO_SCATTER_FILE, STEP_CHECK_FILE)
 
 
 def _comparable(inputs: dict[str, Any]) -> dict[str, Any]:

@@ -55,6 +55,7 @@ from ..workers.pool import call_concurrently
 from ..workers.runner import DaskRunner, LocalRunner, Runner
 from .prepare import prepare
 from .resume import check_resumable, keep_others, keep_users, listed, reuse_runs
+from .stepcheck import FACTORS, step_check, step_check_lines
 
 __all__ = ["check_options", "default_out_dir", "execute", "progress_bar", "run_manifest"]
 
@@ -68,7 +69,8 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
             workers: int | None = None, quiet: bool = False, overwrite: bool = False,
             dask: str | None = None, resume: bool = False,
             real_time: float | None = None,
-            init_limit: float | None = None) -> tuple[Path, list[RunResult]]:
+            init_limit: float | None = None,
+            check_step: bool = False) -> tuple[Path, list[RunResult]]:
     """Run ``jobs`` and write the output folder (see the module docstring).
 
     Parameters
@@ -109,6 +111,10 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         run (:func:`~.pool.run_isolated`): a refusal raises its
         :class:`~agv_cosim.errors.ManifestError` and no folder is written. Not with
         ``dask`` (refused).
+    check_step : bool
+        Run each complete run again at step/2 and step/4 through the same workers and
+        write ``step_check.json`` (:mod:`.stepcheck`), shown on the page; a refinement
+        that fails is said there, the base results stay as they are.
 
     Returns
     -------
@@ -167,12 +173,38 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         results = [_checked_files(job, result, written)
                    for job, result in zip(jobs, results)]
         _write_summary(folder, listed(manifest, results, kept))
+        if check_step:
+            _check_steps(manifest, jobs, results, written, workers, dask, quiet)
         page_error = _finish(manifest, jobs, results, written, workers_asked)
         target = folder.commit()
     if page_error:  # the results are kept: the command fails, saying where they are
         raise ReportError(f"{target / REPORT_FILE}: not written ({page_error}); the "
                           f"results are in {target}", kept=target, results=results)
     return target, results
+
+
+def _check_steps(manifest: Manifest, jobs: list[Job], results: list[RunResult],
+                 written: Path, workers: int, dask: str | None, quiet: bool) -> None:
+    """``--check-step``: the refinements of the complete runs, on the runner of the
+    runs (:func:`_runner`), and ``step_check.json``; its findings on stderr."""
+    complete = [job for job, r in zip(jobs, results) if r["status"] == "complete"]
+    total = sum(job.plan.steps * factor for job in complete for factor in FACTORS)
+    bar = progress_bar()(total=total, desc=f"{manifest.name} step check", unit="step",
+                         delay=2.0, disable=quiet, file=sys.stderr, mininterval=0.5,
+                         smoothing=0)
+
+    def run(todo: list[Job], root: Path) -> list[RunResult]:
+        root.mkdir(parents=True, exist_ok=True)
+        runner = _runner(manifest, jobs, todo, min(workers, len(todo)), dask, None)
+        return runner.run(todo, root, bar.update, lambda: None)
+
+    try:
+        data = step_check(jobs, results, written, run)
+    finally:
+        bar.close()
+    if not quiet:
+        for line in step_check_lines(data):
+            print(printable(f"agv-cosim: {line}"), file=sys.stderr)
 
 
 def _say_kept(target: Path, runs: int, todo: int, reused: int | None,

@@ -122,7 +122,11 @@ _RUN_FILES = ("timeseries.csv", "metrics.json", "run.json", "output.txt")
 FIGURES_ERROR = "figures_error.txt"
 #: Files of the result folder linked from the page.
 _RAW_FILES = ("summary.csv", TIMINGS, "montecarlo.json", "partial.txt", "plots_error.txt",
-              "montecarlo_error.txt", FIGURES_ERROR, MANIFEST_COPY)
+              "montecarlo_error.txt", FIGURES_ERROR, MANIFEST_COPY, "step_check.json")
+#: The metrics in docs/metrics.md's order (the step check's table)
+METRIC_ORDER = {name: i for i, name in enumerate(METRICS)}
+#: ``run --check-step``'s findings (:mod:`agv_cosim.pipeline.stepcheck`)
+STEP_CHECK_FILE = "step_check.json"
 
 
 # --------------------------------------------------------------------------- reading
@@ -453,6 +457,77 @@ def _all_metrics_table(runs: list[Run], names: list[str], units: dict[str, str])
             f"{head}</tr></thead><tbody>{body}</tbody></table></div></details>")
 
 
+def _step_rows(run: object, group: str, entries: dict[str, Any],
+               names: list[str]) -> list[str]:
+    """Rows of the step check's table: ``names`` of ``entries`` (one run's metrics or
+    signals), each with its changes, observed order, estimate, tolerance and flag."""
+    rows = []
+    for name in names:
+        one = entries[name]
+        flag = str(one.get("flag"))
+        value = one["values"][0] if group == "metrics" else one.get("scale")
+        rows.append(f"<tr class=\"{_e(flag.replace(' ', '-'))}\"><td>{_e(run)}</td>"
+                    f"<td><code>{_e(name)}</code></td>{_cell(value)}"
+                    f"{_cell(one.get('change'))}{_cell(one.get('change_fine'))}"
+                    f"{_cell(one.get('order'))}{_cell(one.get('estimate'))}"
+                    f"{_cell(one.get('tolerance'))}"
+                    f"<td class=\"flag {_e(flag.replace(' ', '-'))}\">{_e(flag)}</td></tr>")
+    return rows
+
+
+def _step_check_section(data: object) -> str:
+    """The page's step-check section (``step_check.json``): one table of the metrics,
+    one folded table of the recorded signals, the quantities not converged first."""
+    if not isinstance(data, dict):
+        return ""
+    factors = data.get("factors") or [1, 2, 4]
+    intro = (f"<p class=hint>Each run again at step/{factors[1]} and step/{factors[-1]} "
+             "(Model Exchange tolerances divided alike). Change: m(h/2) - m(h), then "
+             "m(h/4) - m(h/2) (a signal: the largest difference over the recorded "
+             "times); p = log2 of their ratio; estimate: the base's remaining error "
+             "|change| 2^p / (2^p - 1); converged when it is within the tolerance "
+             f"{data.get('rtol')} |value| + {data.get('atol')}. "
+             f'<a href="{_href(STEP_CHECK_FILE)}">{STEP_CHECK_FILE}</a></p>')
+    if data.get("error"):
+        return intro + f"<p class=warning>The step check did not run: {_e(data['error'])}</p>"
+    notes: list[str] = []
+    metric_rows: list[str] = []
+    signal_rows: list[str] = []
+    rank = {"not converged": 0, "order unusable": 0, "undefined": 1, "converged": 2}
+    for run in data.get("runs") or []:
+        label = run.get("label")
+        if run.get("status") != "checked":
+            notes.append(f"<li>{_e(label)}: {_e(run.get('status'))}: "
+                         f"{_e(run.get('error'))}</li>")
+            continue
+        for group, rows in (("metrics", metric_rows), ("signals", signal_rows)):
+            entries = run.get(group) or {}
+            names = sorted(entries, key=lambda n, e=entries: (
+                rank.get(e[n].get("flag"), 1), METRIC_ORDER.get(n, len(METRIC_ORDER)), n))
+            rows.extend(_step_rows(label, group, entries, names))
+    head = ("<thead><tr><th>run</th><th>{}</th><th>{}</th><th>change h&rarr;h/2</th>"
+            "<th>change h/2&rarr;h/4</th><th>order p</th><th>estimate</th>"
+            "<th>tolerance</th><th>flag</th></tr></thead>")
+    bad = sum('"not-converged"' in r or '"order-unusable"' in r
+              for r in metric_rows + signal_rows)
+    checked = sum(run.get("status") == "checked" for run in data.get("runs") or [])
+    out = [intro, f"<p class=summary>{bad} quantit{'y' if bad == 1 else 'ies'} not "
+           f"converged in the step ({checked} run(s) checked).</p>" if checked else
+           "<p class=summary>No run was checked.</p>"]
+    if notes:
+        out.append("<ul class=warning>" + "".join(notes) + "</ul>")
+    if metric_rows:
+        out.append('<div class=scroll><table class="sortable stepcheck">'
+                   + head.format("metric", "value at h") + "<tbody>"
+                   + "".join(metric_rows) + "</tbody></table></div>")
+    if signal_rows:
+        out.append(f"<details><summary>Recorded signals ({len(signal_rows)})</summary>"
+                   '<div class=scroll><table class="sortable stepcheck">'
+                   + head.format("signal", "max |x| at h/4") + "<tbody>"
+                   + "".join(signal_rows) + "</tbody></table></div></details>")
+    return "".join(out)
+
+
 def _th(name: str, units: dict[str, str]) -> str:
     unit = units.get(name)
     text = _e(name) + (f" <span class=unit>[{_e(unit)}]</span>" if unit else "")
@@ -615,6 +690,8 @@ def render(folder: str | Path, runs: list[Run], manifest: dict[str, Any], manife
     nav = "".join(f'<a href="#fig-{_e(n)}">{_e(n)}</a>' for n in ordered)
     body.append('<nav><a href="#runs">runs</a>'
                 + ('<a href="#montecarlo">Monte Carlo</a>' if sampled else "")
+                + ('<a href="#step-check">step check</a>'
+                   if (folder / STEP_CHECK_FILE).is_file() else "")
                 + f'{nav}<a href="#metrics">metrics</a><a href="#provenance">provenance</a>'
                 '<a href="#files">files</a></nav>')
     body.append("<h2 id=runs>Runs</h2><p class=hint>Click a column's header to sort by it; "
@@ -630,6 +707,9 @@ def render(folder: str | Path, runs: list[Run], manifest: dict[str, Any], manife
         body.append(_montecarlo_table(mc, units, main_metrics(_metric_names(runs), 8)))
     if figures:
         body.append("<h2>Figures</h2>" + figures)
+    step_check = read_json_object(folder / STEP_CHECK_FILE)
+    if step_check is not None:
+        body.append("<h2 id=step-check>Step check</h2>" + _step_check_section(step_check))
     if every:
         body.append("<h2 id=metrics>Metrics</h2>" + _metric_definitions(every, units))
     body.append("<h2 id=provenance>Provenance</h2>" + _provenance(runs, manifest_source))
