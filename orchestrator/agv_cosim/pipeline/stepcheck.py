@@ -78,15 +78,12 @@ def refined(job: Job, factor: int) -> Job:
                 integration, tolerance=integration.tolerance / factor))
         models[cname] = info
     events = [replace(event, k=event.k * factor) for event in plan.events]
-    # multirate: each component's own step divided alike (a whole multiple of the
-    # divided step still, the division by a power of 2 being exact)
-    own: dict[str, Any] = {}
-    steps = getattr(plan, "component_steps", None)
-    if steps:
-        own["component_steps"] = {c: s / factor for c, s in steps.items()}
+    # multirate: a component's own step is its rate (a sampled controller, a sensor's
+    # frame rate), part of the model, and stays: a whole multiple of the divided step
+    # still (m x factor)
     finer = replace(plan, models=models, step=plan.step / factor,
                     steps=plan.steps * factor, record_every=plan.record_every * factor,
-                    events=events, **own)
+                    events=events)
     return replace(job, plan=finer, real_time=None)
 
 

@@ -424,3 +424,29 @@ def test_a_paced_multirate_run_gives_the_same_rows(fmus, tmp_path):
              pace=pacer)
     assert rows == _rows(path)
     assert pacer.figures[3] == pytest.approx(0.2)  # the last base step it paced ended there
+
+
+def test_the_step_check_refines_a_multirate_component_alike(fmus, tmp_path):
+    """--check-step on the sampled loop: the refined runs halve the controller's own
+    step with the simulation's (it stays a whole multiple), so the sampled loop is
+    refined as a sampled loop: every refinement completes, and the plant's state at the
+    controller's points moves by less than the plant's own hold error (the controller
+    still samples every 0.1 s, so the discretisation in time barely changes)."""
+    import json
+
+    from agv_cosim.cli import main
+
+    path = _write(tmp_path, fmus, ctrl_step=0.1)
+    out = tmp_path / "checked"
+    assert main(["run", str(path), "--out", str(out), "--check-step", "--quiet",
+                 "--no-init"]) == 0
+    check = json.loads((out / "step_check.json").read_text())
+    (run,) = check["runs"].values() if isinstance(check["runs"], dict) else check["runs"]
+    text = json.dumps(run)
+    assert "failed" not in {run.get("status"), run.get("check")}, text
+    # the sampled controller at 0.1 s: refining the base step only refines the plant's
+    # integration between samples, which the exact lag does not need
+    for name in ("plant.x", "ctrl.y"):
+        entry = run["signals"][name]
+        assert entry["change"] is not None and abs(entry["change"]) < 1e-9, text
+        assert entry["change_fine"] is not None and abs(entry["change_fine"]) < 1e-9, text

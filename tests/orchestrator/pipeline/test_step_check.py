@@ -178,23 +178,21 @@ def test_the_page_shows_the_step_check_table_with_its_flags(fmus, tmp_path):
     assert "<code>int.y</code>" in section and "<code>lateral_error_mean</code>" in section
 
 
-def test_refined_divides_the_step_tolerances_and_component_steps_alike():
-    from dataclasses import dataclass, field
+def test_refined_divides_the_step_and_tolerances_and_keeps_component_rates():
+    """The step and a Model Exchange tolerance are divided; a multirate component's own
+    step is its rate (part of the model) and stays, a multiple of the finer step."""
     from pathlib import Path
 
+    from agv_cosim.execution.multirate import multiples
     from agv_cosim.pipeline.stepcheck import refined
     from agv_cosim.system import Event, Job, System
     from agv_cosim.system.model import Integration, ModelInfo
-
-    @dataclass
-    class Multirate(System):  # the system of a run with a component's own step
-        component_steps: dict[str, float] = field(default_factory=dict)
 
     me = ModelInfo(path=Path("m.fmu"), sha256="0", model_name="m", identifier="m",
                    guid="g", description="", integration=Integration("cvode", 1e-6))
     cs = ModelInfo(path=Path("c.fmu"), sha256="1", model_name="c", identifier="c",
                    guid="h", description="")
-    plan = Multirate(models={"me": me, "cs": cs}, parameters={}, connections=[],
+    plan = System(models={"me": me, "cs": cs}, parameters={}, connections=[],
                      order=["me", "cs"], record=[], start=0.0, stop=1.0, step=0.1,
                      algorithm="gauss-seidel", record_every=2, steps=10,
                      events=[Event(k=3, at=0.3, name="e", sets=())],
@@ -203,11 +201,10 @@ def test_refined_divides_the_step_tolerances_and_component_steps_alike():
               manifest_path="m.toml", manifest_sha256="0", metrics_spec=None,
               fmu_paths={}, real_time=1.0)
     finer = refined(job, 4).plan
-    assert isinstance(finer, Multirate)
     assert (finer.step, finer.steps, finer.record_every) == (0.025, 40, 8)
     assert [(e.k, e.at) for e in finer.events] == [(12, 0.3)]
-    assert finer.component_steps == {"cs": 0.075}
-    assert finer.component_steps["cs"] / finer.step == plan.component_steps["cs"] / plan.step
+    assert finer.component_steps == {"cs": 0.3}
+    assert multiples(plan)["cs"] == 3 and multiples(finer)["cs"] == 12
     assert finer.models["me"].integration == Integration("cvode", 2.5e-7)
     assert finer.models["cs"].integration is None
     assert refined(job, 4).real_time is None and job.plan.step == 0.1
