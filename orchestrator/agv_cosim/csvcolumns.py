@@ -42,7 +42,6 @@ def read_columns(text: str, source: str | Path, names: Sequence[str],
     index = _index(header, names, source, error)
     values: dict[str, list[float]] = {name: [] for name in index}
     lines: list[int] = []
-    line = 1
     try:
         for line, row in enumerate(rows, start=2):
             if not row or all(not field.strip() for field in row):
@@ -54,7 +53,8 @@ def read_columns(text: str, source: str | Path, names: Sequence[str],
                 values[name].append(_number(row[column], source, line, name, error))
             lines.append(line)
     except csv.Error as problem:
-        raise error(f"{source}: line {line}: not a CSV file ({problem})") from None
+        # the line the csv module was reading when it failed (the last line it fetched)
+        raise error(f"{source}: line {rows.line_num}: not a CSV file ({problem})") from None
     return Columns(values={name: np.array(v, dtype=float) for name, v in values.items()},
                    lines=tuple(lines))
 

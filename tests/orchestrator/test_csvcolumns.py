@@ -39,6 +39,8 @@ BAD = [
     ("t" * 200_000 + ",y\n0,1\n", "m.csv: not a CSV file (field larger than field limit "
                                    "(131072))"),
     (GOOD.replace("time", "t"), "m.csv: no column 'time' (columns: t, yaw_rate, a_y)"),
+    (GOOD + "0.3,0.4," + "5" * 200_000 + "\n", "m.csv: line 7: not a CSV file (field "
+                                              "larger than field limit (131072))"),
     (GOOD.replace("yaw_rate", "yawrate"),
      "m.csv: no column 'yaw_rate' (did you mean 'yawrate'?) (columns: time, yawrate, a_y)"),
     (GOOD + "0.3,0.4\n", "m.csv: line 7: 2 field(s), the header has 3: not a CSV table"),
@@ -50,8 +52,8 @@ BAD = [
     (GOOD.replace("1.3", "nan"), "m.csv: line 6, column 'a_y': 'nan' is not a finite "
                                  "number"),
 ]
-IDS = ["empty", "not-csv", "no-column", "did-you-mean", "ragged", "text", "blank", "inf",
-       "nan"]
+IDS = ["empty", "not-csv", "no-column", "not-csv-row", "did-you-mean", "ragged", "text",
+       "blank", "inf", "nan"]
 
 
 @pytest.mark.parametrize("error", [FitDataError, IdentifyError])
