@@ -119,6 +119,26 @@ def _timeout(text: str) -> float:
     return value
 
 
+def _worker_options(command: argparse.ArgumentParser, timeout: str | None = None) -> None:
+    """The options of a command whose runs go through the workers (run, tune, fit):
+    ``--overwrite``, ``--jobs``, ``--dask``, and ``--timeout`` when ``timeout`` is given
+    (what becomes of a run over the limit in this command)."""
+    command.add_argument("--overwrite", action="store_true",
+                         help="replace DIR even if it is not a result folder of agv-cosim "
+                              "(without it such a folder is refused)")
+    command.add_argument("--jobs", type=int, metavar="N",
+                         help="runs at once, in worker processes (a worker is replaced "
+                              "after a run that did not complete; default: one per core)")
+    command.add_argument("--dask", metavar="ADDRESS",
+                         help="run on the Dask cluster whose scheduler is at ADDRESS "
+                              "(tcp://HOST:PORT; see docs/dask.md); default: local "
+                              "processes")
+    if timeout is not None:
+        command.add_argument("--timeout", type=_timeout, metavar="SECONDS",
+                             help=f"wall-clock limit of each run: {timeout} (default: the "
+                                  "manifest's [simulation] timeout, else no limit)")
+
+
 def _cmd_validate(args: argparse.Namespace) -> int:
     from .pipeline import check_initialisation, prepare
 
@@ -446,19 +466,8 @@ def make_parser() -> argparse.ArgumentParser:
                      help="print only errors, the runs that failed and a paced run's "
                           "real-time line: no warnings (e.g. unconnected inputs), "
                           "progress bars, metrics table or summary line")
-    run.add_argument("--overwrite", action="store_true",
-                     help="replace DIR even if it is not a result folder of agv-cosim "
-                          "(without it such a folder is refused)")
-    run.add_argument("--jobs", type=int, metavar="N",
-                     help="runs at once, in worker processes (a worker is replaced after a "
-                          "run that did not complete; default: one per core)")
-    run.add_argument("--dask", metavar="ADDRESS",
-                     help="run on the Dask cluster whose scheduler is at ADDRESS "
-                          "(tcp://HOST:PORT; see docs/dask.md); default: local processes")
-    run.add_argument("--timeout", type=_timeout, metavar="SECONDS",
-                     help="wall-clock limit of each run: a run still going then is stopped "
-                          "and reported 'timed out', the others go on (default: the "
-                          "manifest's [simulation] timeout, else no limit)")
+    _worker_options(run, timeout="a run still going then is stopped and reported 'timed "
+                                 "out', the others go on")
     run.add_argument("--no-init", action="store_true",
                      help="skip the check made before any run is written: each FMU "
                           "instantiated and initialised once with each run's parameters, "
@@ -576,16 +585,8 @@ def make_parser() -> argparse.ArgumentParser:
                     "tuned/. Exit 2, one line, for a bad [tune]. docs/tune.md.")
     tuner.add_argument("manifest", help="experiment manifest (TOML) with a [tune] table")
     tuner.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    tuner.add_argument("--jobs", type=int, metavar="N",
-                       help="runs at once, in worker processes (default: one per core)")
-    tuner.add_argument("--dask", metavar="ADDRESS",
-                       help="run on the Dask cluster whose scheduler is at ADDRESS "
-                            "(tcp://HOST:PORT; docs/dask.md)")
-    tuner.add_argument("--timeout", type=_timeout, metavar="SECONDS",
-                       help="wall-clock limit of each run (a run over it makes its "
-                            "candidate infeasible)")
-    tuner.add_argument("--overwrite", action="store_true",
-                       help="replace DIR even if it is not a result folder of agv-cosim")
+    _worker_options(tuner, timeout="a run still going then is stopped and its candidate "
+                                   "is infeasible")
     tuner.add_argument("--quiet", action="store_true",
                        help="no progress lines on stderr")
     tuner.set_defaults(func=_cmd_tune)
@@ -607,16 +608,10 @@ def make_parser() -> argparse.ArgumentParser:
     fitting.add_argument("--out", required=True, metavar="DIR", help="output folder")
     fitting.add_argument("--variant", metavar="NAME",
                          help="the variant whose run is fitted (a manifest with several)")
-    fitting.add_argument("--jobs", type=int, metavar="N",
-                         help="runs at once, in worker processes (default: one per core)")
-    fitting.add_argument("--dask", metavar="ADDRESS",
-                         help="run on the Dask cluster whose scheduler is at ADDRESS "
-                              "(tcp://HOST:PORT; docs/dask.md)")
+    _worker_options(fitting)
     fitting.add_argument("--max-evaluations", type=int, metavar="N",
                          help="the solver's budget of evaluations (default: 100 per "
                               "parameter); a fit that needs more is not converged")
-    fitting.add_argument("--overwrite", action="store_true",
-                         help="replace DIR even if it is not a result folder of agv-cosim")
     fitting.set_defaults(func=_cmd_fit)
     parser.commands = dict(sub.choices)
     return parser

@@ -1,20 +1,20 @@
 """Measured data for ``fit``: a CSV file with a header row, a ``time`` column [s] and the
 measured columns, read through :func:`agv_cosim.files.read_text` (a regular file, at
-most :data:`MAX_BYTES`, UTF-8). Every problem is one line
+most :data:`MAX_BYTES`, UTF-8), the table checked by
+:func:`agv_cosim.csvcolumns.read_columns`. Every problem is one line
 (:class:`~agv_cosim.errors.FitDataError`) naming the file, and the line and column where
 there is one."""
 
 from __future__ import annotations
 
-import csv
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import FitDataError, UnreadableFile, did_you_mean
+from ..csvcolumns import read_columns
+from ..errors import FitDataError, UnreadableFile
 from ..files import read_text
 
 __all__ = ["MAX_BYTES", "MeasuredData", "check_interval", "measured_data", "read_data"]
@@ -71,6 +71,20 @@ def read_data(path: str | Path, columns: Sequence[str], time: str = "time") -> M
     missing column, a value that is not a finite number (empty, text, NaN, inf), fewer
     than two samples, time not increasing."""
     path = Path(path)
+    read = read_columns(_text(path), path, [time, *columns], FitDataError)
+    if len(read.lines) < MIN_SAMPLES:
+        raise FitDataError(f"{path}: {len(read.lines)} sample(s); at least {MIN_SAMPLES} "
+                           "needed")
+    measured = dict(read.values)
+    data = MeasuredData(time=measured.pop(time), columns=measured, source=str(path),
+                        lines=read.lines)
+    _check_time(data)
+    return data
+
+
+def _text(path: Path) -> str:
+    """The text of the data file ``path`` (a byte-order mark left out); FitDataError for
+    a file that cannot be read, is not UTF-8 or holds binary data."""
     try:
         text = read_text(path, MAX_BYTES, "measured-data CSV file")
     except UnreadableFile as error:
@@ -83,52 +97,7 @@ def read_data(path: str | Path, columns: Sequence[str], time: str = "time") -> M
         text = text[1:]
     if "\0" in text:
         raise FitDataError(f"{path}: not a CSV file (binary data)")
-    rows = csv.reader(text.splitlines())
-    try:
-        header = [h.strip() for h in next(rows)]
-    except StopIteration:
-        raise FitDataError(f"{path}: empty, not a CSV file with a header row") from None
-    except csv.Error as error:
-        raise FitDataError(f"{path}: not a CSV file ({error})") from None
-    names = [time, *[c for c in dict.fromkeys(columns) if c != time]]
-    index: dict[str, int] = {}
-    for name in names:
-        if name not in header:
-            raise FitDataError(f"{path}: no column '{name}'{did_you_mean(name, header)} "
-                               f"(columns: {', '.join(header)})")
-        index[name] = header.index(name)
-    values: dict[str, list[float]] = {name: [] for name in names}
-    lines: list[int] = []
-    line = 1
-    try:
-        for line, row in enumerate(rows, start=2):
-            if not row or all(not f.strip() for f in row):
-                continue
-            if len(row) != len(header):
-                raise FitDataError(f"{path}: line {line}: {len(row)} field(s), the header "
-                                   f"has {len(header)}: not a CSV table")
-            for name in names:
-                field = row[index[name]].strip()
-                try:
-                    number = float(field)
-                except ValueError:
-                    raise FitDataError(f"{path}: line {line}, column '{name}': {field!r} "
-                                       "is not a number") from None
-                if not math.isfinite(number):
-                    raise FitDataError(f"{path}: line {line}, column '{name}': {field!r} "
-                                       "is not a finite number")
-                values[name].append(number)
-            lines.append(line)
-    except csv.Error as error:
-        raise FitDataError(f"{path}: line {line}: not a CSV file ({error})") from None
-    if len(lines) < MIN_SAMPLES:
-        raise FitDataError(f"{path}: {len(lines)} sample(s); at least {MIN_SAMPLES} "
-                           "needed")
-    data = MeasuredData(time=np.array(values[time]),
-                        columns={name: np.array(values[name]) for name in names[1:]},
-                        source=str(path), lines=tuple(lines))
-    _check_time(data)
-    return data
+    return text
 
 
 def _check_time(data: MeasuredData) -> None:

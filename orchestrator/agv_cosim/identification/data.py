@@ -1,15 +1,15 @@
 """Reading a measured record (CSV) for ``agv-cosim identify``: three columns as float
-arrays, every problem one line naming the file, the row and the column."""
+arrays (the table checked by :func:`agv_cosim.csvcolumns.read_columns`), every problem
+one line naming the file, the row and the column."""
 
 from __future__ import annotations
 
-import csv
-import math
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import IdentifyError, did_you_mean
+from ..csvcolumns import read_columns as read_csv_columns
+from ..errors import IdentifyError
 
 #: Largest file read [bytes].
 MAX_BYTES = 512 * 1024 * 1024
@@ -40,53 +40,13 @@ def _text(path: Path) -> str:
 
 
 def read_columns(path: str | Path, names: list[str]) -> tuple[list[np.ndarray], list[int]]:
-    """The columns ``names`` of the CSV file ``path`` (a header row, then one row per
-    sample) as float arrays, and each sample's line number; IdentifyError for a file
-    that is not CSV, a missing column, a value that is not a finite number."""
+    """The columns ``names`` of the CSV file ``path`` (a header row of at least two
+    fields, then one row per sample: :func:`agv_cosim.csvcolumns.read_columns`) as float
+    arrays, and each sample's line number; IdentifyError for a file that is not CSV, a
+    missing column, a value that is not a finite number."""
     path = Path(path)
-    text = _text(path)
-    rows = csv.reader(text.splitlines())
-    try:
-        header = next(rows)
-    except StopIteration:
-        raise IdentifyError(f"{path}: empty, not a CSV file with a header row") from None
-    except csv.Error as error:
-        raise IdentifyError(f"{path}: not a CSV file ({error})") from None
-    header = [h.strip() for h in header]
-    if len(header) < 2:
-        raise IdentifyError(f"{path}: not a CSV file with a header row of column names "
-                            f"(line 1 holds {len(header)} field)")
-    index = {}
-    for name in names:
-        if name not in header:
-            raise IdentifyError(f"{path}: no column '{name}'{did_you_mean(name, header)} "
-                                f"(columns: {', '.join(header)})")
-        index[name] = header.index(name)
-    columns: list[list[float]] = [[] for _ in names]
-    lines: list[int] = []
-    line = 1
-    try:
-        for line, row in enumerate(rows, start=2):
-            if not row or all(not f.strip() for f in row):
-                continue
-            if len(row) != len(header):
-                raise IdentifyError(f"{path}: line {line}: {len(row)} field(s), the header "
-                                    f"has {len(header)}: not a CSV table")
-            for out, name in zip(columns, names):
-                text_value = row[index[name]].strip()
-                try:
-                    value = float(text_value)
-                except ValueError:
-                    raise IdentifyError(f"{path}: line {line}, column '{name}': "
-                                        f"{text_value!r} is not a number") from None
-                if not math.isfinite(value):
-                    raise IdentifyError(f"{path}: line {line}, column '{name}': "
-                                        f"{text_value!r} is not a finite number")
-                out.append(value)
-            lines.append(line)
-    except csv.Error as error:
-        raise IdentifyError(f"{path}: line {line}: not a CSV file ({error})") from None
-    return [np.array(c, dtype=float) for c in columns], lines
+    read = read_csv_columns(_text(path), path, names, IdentifyError, min_fields=2)
+    return [read.values[name] for name in names], list(read.lines)
 
 
 def check_time(path: str | Path, time: np.ndarray, name: str, lines: list[int]) -> None:

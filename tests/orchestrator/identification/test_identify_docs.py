@@ -2,45 +2,21 @@
 (issue 34): run, compared with what the pages say."""
 
 import json
-import os
-import re
 import runpy
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from agv_cosim import cli
 
+from docs_examples import assert_prints_what_the_page_shows
+
 ROOT = Path(__file__).resolve().parents[3]
 DOC = ROOT / "docs" / "identify.md"
-NUMBER = re.compile(r"[-+]?(?:\d+\.\d*|\.\d+|\d+)(?:e[-+]?\d+)?")
-
-
-def _block(text, language):
-    found = re.search(rf"^```{language}\n(.*?)^```$", text, flags=re.M | re.S)
-    assert found, f"no ```{language} block"
-    return found.group(1)
-
-
-def _shape(line):
-    return NUMBER.sub("#", line), [float(n) for n in NUMBER.findall(line)]
 
 
 def test_docs_worked_example_prints_what_the_page_shows(tmp_path):
-    text = DOC.read_text()
-    code, shown = _block(text, "python"), _block(text, "text")
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          cwd=tmp_path, timeout=300, env=env)
-    assert done.returncode == 0, done.stderr
-    printed, expected = done.stdout.splitlines(), shown.splitlines()
-    assert len(printed) == len(expected), done.stdout
-    for got, want in zip(printed, expected):
-        (got_text, got_numbers), (want_text, want_numbers) = _shape(got), _shape(want)
-        assert got_text == want_text, (got, want)
-        assert got_numbers == pytest.approx(want_numbers, rel=1e-3, abs=1e-12), (got, want)
+    assert_prints_what_the_page_shows(DOC, tmp_path, timeout=300)
     result = json.loads((tmp_path / "identified" / "identified.json").read_text())
     for name, true in (("K", 0.6), ("tau", 0.05)):
         entry = result["a"]["parameters"][name]
