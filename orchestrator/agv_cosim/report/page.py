@@ -577,16 +577,18 @@ def key_metrics(runs: list[Run], manifest: dict[str, Any] | None = None) -> list
 NOT_AVAILABLE = "n/a"
 
 
-def statistics_note(n: int, runs: int, not_complete: int) -> str | None:
+def statistics_note(n: int, runs: int, not_complete: int, unsettled: int = 0) -> str | None:
     """Why some of a metric's Monte Carlo statistics are n/a (null in montecarlo.json),
-    from ``n`` (the runs with a finite value), ``runs`` (the group's) and
-    ``not_complete`` (the group's runs that are not complete): every statistic with no
-    value (n = 0), the std with one (n = 1); None when every statistic has a value.
-    The same text is montecarlo.json's ``note`` and the page's."""
+    from ``n`` (the runs with a finite value), ``runs`` (the group's), ``not_complete``
+    (the group's runs that are not complete) and ``unsettled`` (its complete runs whose
+    value is empty because the error never settled, :func:`not_settled`): every
+    statistic with no value (n = 0), the std with one (n = 1); None when every statistic
+    has a value. The same text is montecarlo.json's ``note`` and the page's."""
     if n >= 2:
         return None
-    empty = runs - n - not_complete  # complete runs without a finite value
+    empty = runs - n - not_complete - unsettled  # other complete runs without a value
     why = [f"{k} {what}" for k, what in ((not_complete, "not complete"),
+                                          (unsettled, f"complete that {NOT_SETTLED}"),
                                           (empty, "complete without a finite value"))
            if k > 0]
     detail = f" ({', '.join(why)})" if why else ""

@@ -326,6 +326,8 @@ def test_a_statistic_without_values_says_why(fmus, tmp_path):
         "n": 0, "failures": 3, "mean": None, "std": None, "p5": None, "p50": None,
         "p95": None, "min": None, "max": None,
         "note": "n/a: 0 of 3 runs have a value (3 complete without a finite value)"}
+    assert fine["metrics"]["lateral_error_settling_time"]["note"] == \
+        "n/a: 0 of 3 runs have a value (3 complete that did not settle)"
     assert "note" not in fine["metrics"]["lateral_error_max"]
     assert fine["metrics"]["lateral_error_max"]["n"] == 3
     for got in doomed["metrics"].values():
@@ -346,7 +348,8 @@ def test_a_statistic_without_values_says_why(fmus, tmp_path):
     assert sum(row["group"][0] == "doomed" for row in rows) == \
         sum(row["group"][0] == "fine" for row in rows) > 0
 
-    # a montecarlo.json of an earlier agv-cosim (no notes): the page's report says the same
+    # a montecarlo.json of an earlier agv-cosim (no notes): the page derives them from n,
+    # runs and failed_runs (without the runs that did not settle, which it cannot tell)
     report = json.loads((out / "montecarlo.json").read_text())
     for group in report["groups"].values():
         for got in group["metrics"].values():
@@ -354,7 +357,15 @@ def test_a_statistic_without_values_says_why(fmus, tmp_path):
     (out / "montecarlo.json").unlink()
     (out / "montecarlo.json").write_text(json.dumps(report))
     assert main(["report", str(out)]) == 0
-    assert _statistics_rows((out / "index.html").read_text(encoding="utf-8")) == rows
+    derived = _statistics_rows((out / "index.html").read_text(encoding="utf-8"))
+    assert len(derived) == len(rows)
+    for before, after in zip(rows, derived):
+        assert {k: v[0] for k, v in after.items() if k != "note"} == \
+            {k: v[0] for k, v in before.items() if k != "note"}
+        note = before["note"][0].replace("complete that did not settle",
+                                         "complete without a finite value")
+        assert after["note"][0] == note
+        assert all(after[s][1] == note for s in statistics_columns if after[s][0] == "n/a")
 
 
 def test_the_note_of_a_statistic_without_its_values():
@@ -368,5 +379,8 @@ def test_the_note_of_a_statistic_without_its_values():
                            "(2 not complete, 1 complete without a finite value)")
     assert "note" not in stats_of([1.0, 2.0], 3, 1)
     assert "note" not in stats_of([], 3)
+    mixed = stats_of([None, None, None], 4, 1, 2)
+    assert mixed["note"] == ("n/a: 0 of 4 runs have a value (1 not complete, 2 complete "
+                             "that did not settle, 1 complete without a finite value)")
     alone = stats_of([], 1, 1)
     assert alone["note"] == "n/a: 0 of 1 run has a value (1 not complete)"
