@@ -502,3 +502,23 @@ def test_resume_of_an_earlier_run_json_without_output_hash(fmus, tmp_path, capsy
     assert _run(quiet, out, "--resume") == 0
     assert "reused 0 of 1 run(s)" in capsys.readouterr().err
     assert not (out / "base" / "output.txt").exists()
+
+
+@pytest.mark.slow  # starts a Dask cluster
+def test_a_dask_run_records_its_output_as_a_local_run_does(cluster, fmus, tmp_path, capsys):
+    """On Dask (a run host's worker prints), run.json records the output.txt that comes
+    back: the same bytes and hash as a local run's; --resume with Dask keeps the run."""
+    path = _printing(fmus, tmp_path)
+    local, remote = tmp_path / "local", tmp_path / "remote"
+    assert _run(path, local, "--quiet") == 0
+    assert _run(path, remote, "--quiet", "--dask", cluster) == 0
+    printed = (remote / "base" / "output.txt").read_bytes()
+    assert printed == (local / "base" / "output.txt").read_bytes()
+    keys = ("output_sha256", "output_bytes")
+    record = json.loads((remote / "base" / "run.json").read_text())
+    assert [record[k] for k in keys] == [hashlib.sha256(printed).hexdigest(), len(printed)]
+    assert [json.loads((local / "base" / "run.json").read_text())[k] for k in keys] == \
+        [record[k] for k in keys]
+    capsys.readouterr()
+    assert _run(path, remote, "--resume", "--dask", cluster) == 0
+    assert "reused 1 of 1 run(s)" in capsys.readouterr().err
