@@ -384,3 +384,25 @@ def test_the_note_of_a_statistic_without_its_values():
                              "that did not settle, 1 complete without a finite value)")
     alone = stats_of([], 1, 1)
     assert alone["note"] == "n/a: 0 of 1 run has a value (1 not complete)"
+
+
+def test_no_statistics_at_all_are_said_so(fmus, tmp_path):
+    """Every run failed before it recorded a row (no run has a metric): montecarlo.json's
+    group has no metric, and the page says why there is no table instead of an empty
+    one."""
+    path = tmp_path / "undefined.toml"
+    path.write_text(UNDEFINED.format(crash=fmus["agv_test_crash"],
+                                     source=fmus["agv_test_source"])
+                    .replace("crash_time = 10.0", "crash_time = -1.0")
+                    .replace("[variants.fine]\n", "").replace(
+                        "[variants.doomed.components.crashdut]\n"
+                        "parameters = { crash_time = -1.0 }\n", ""))
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out), "--quiet", "--no-init"]) == 1
+    groups = json.loads((out / "montecarlo.json").read_text())["groups"]
+    assert groups == {"base": {"variant": None, "runs": 3, "failed_runs": 3, "metrics": {}}}
+    section = (out / "index.html").read_text(encoding="utf-8").split(
+        "<h2 id=montecarlo>", 1)[1].split("<h2", 1)[0]
+    assert "<table" not in section
+    assert "No Monte Carlo statistics: no run has a metric (3 of 3 runs not complete" \
+        in section
