@@ -8,11 +8,18 @@ each table's interpolation, the SHA-256 of every file a parameter or event names
 package versions) leaving aside the manifest's own hash (so that a change to one run's
 parameters reruns that run only), and its ``timeseries.csv`` is a regular file whose
 SHA-256 is the ``timeseries_sha256`` run.json recorded when the run wrote it (a file
-cut or changed since, even with as many rows, is not reused). A reused run's
-``timeseries.csv`` (and ``output.txt``) is hard-linked (copied across file systems) into
-the new folder, its metrics are computed again from that file as a run computes them
-(so a changed ``[metrics]`` table applies), and its run.json is written again from the
-job. Its row of the earlier ``timings.csv`` (wall time, pacing) is kept in the new one.
+cut or changed since, even with as many rows, is not reused), and its ``output.txt``
+(what the run's process printed) is as the run left it: a regular file whose size and
+SHA-256 are run.json's ``output_bytes`` and ``output_sha256``, or, when run.json has
+neither, no entry at all (a run that printed nothing). An output.txt cut, replaced,
+grown, deleted, a link or anything but a regular file at its place (never followed nor
+opened), or one that run.json does not vouch for (written by an earlier agv-cosim),
+reruns the run, as a changed timeseries.csv does: the resumed folder is the one an
+uninterrupted run writes. A reused run's ``timeseries.csv`` and ``output.txt`` are
+hard-linked (copied across file systems) into the new folder, its metrics are computed
+again from that file as a run computes them (so a changed ``[metrics]`` table applies),
+and its run.json is written again from the job (with the output's hash and size). Its
+row of the earlier ``timings.csv`` (wall time, pacing) is kept in the new one.
 
 Resume touches only what the command runs (:func:`keep_others`): into the new folder
 go, as they are,
@@ -49,7 +56,16 @@ from ..manifest import Manifest
 from ..plan import plan_runs
 from ..report import plots
 from ..report.page import FIGURES_ERROR, RECORD, REPORT_FILE, STEP_CHECK_FILE
-from ..report.records import TIMINGS, RunResult, finish_run, read_timings, recorded_inputs
+from ..report.records import (
+    OUTPUT_FILE,
+    TIMINGS,
+    RunResult,
+    finish_run,
+    output_digest,
+    read_timings,
+    record_output,
+    recorded_inputs,
+)
 from ..system import Job
 from ..system.files import file_sha256
 
@@ -57,9 +73,9 @@ __all__ = ["FOLDER_FILES", "RUN_FILES", "check_resumable", "keep_others",
            "keep_user_files", "keep_users", "listed", "reusable", "reuse_runs"]
 
 #: Files of a run folder a reused run keeps as they are (the others are written again).
-KEPT_FILES = ("timeseries.csv", "output.txt")
+KEPT_FILES = ("timeseries.csv", OUTPUT_FILE)
 #: The files of a run folder that this tool writes.
-RUN_FILES = ("timeseries.csv", "metrics.json", "run.json", "output.txt")
+RUN_FILES = ("timeseries.csv", "metrics.json", "run.json", OUTPUT_FILE)
 #: The files at the top of a result folder that this tool writes (besides the figures
 #: the report's record lists).
 FOLDER_FILES = (MARKER, "summary.csv", TIMINGS, REPORT_FILE, RECORD, "partial.txt",
@@ -125,7 +141,24 @@ def _complete_run(run_dir: Path, job: Job) -> dict[str, Any] | None:
             return None
     except OSError:
         return None
-    return record
+    return record if _output_intact(run_dir, record) else None
+
+
+def _output_intact(run_dir: Path, record: dict[str, Any]) -> bool:
+    """Whether the run's output.txt is as the run left it (see the module docstring):
+    absent when ``record`` (its run.json) records none, else a regular file of the
+    recorded size and SHA-256 (the size is compared before a byte is read)."""
+    sha256, size = record.get("output_sha256"), record.get("output_bytes")
+    try:
+        info = os.lstat(run_dir / OUTPUT_FILE)
+    except FileNotFoundError:
+        return sha256 is None and size is None
+    except OSError:
+        return False
+    if not (isinstance(sha256, str) and isinstance(size, int) and not isinstance(size, bool)
+            and stat.S_ISREG(info.st_mode) and info.st_size == size):
+        return False
+    return output_digest(run_dir / OUTPUT_FILE) == (sha256, size)
 
 
 def reusable(target: str | Path, manifest: Manifest, jobs: list[Job]) -> list[int]:
@@ -171,6 +204,7 @@ def reuse_runs(target: str | Path, manifest: Manifest, jobs: list[Job],
         rows = record["rows"]
         result = finish_run(job, run_dir, rows, "complete", None, record.get("ended_by"),
                             record["timeseries_sha256"])
+        record_output(run_dir)
         result["csv_bytes"] = (run_dir / "timeseries.csv").stat().st_size
         result["reused"] = True
         timing = timings.get(job.label, {})

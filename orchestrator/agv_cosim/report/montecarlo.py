@@ -3,7 +3,12 @@
 Statistics (``montecarlo.json``): over the runs of a group that are ``complete`` and have
 a finite value of the metric; every other run of the group counts as a failure of that
 metric (``n + failures`` = runs of the group). ``std`` is the sample standard deviation
-(ddof = 1; null for n < 2); the percentiles are ``numpy.percentile``'s linear ones.
+(ddof = 1; null for n < 2); the percentiles are ``numpy.percentile``'s linear ones. Every
+group lists every metric of any run (a group whose runs all failed too). A statistic
+without the values it needs is null (n/a: every one for n = 0, the std for n = 1), and
+the metric's ``note`` then says why (:func:`~agv_cosim.report.page.statistics_note`:
+``"n/a: 0 of 16 runs have a value (16 complete that did not settle)"``), as the page's
+table does.
 """
 
 import csv
@@ -18,15 +23,19 @@ from ..files import open_text, write_json
 from ..manifest.montecarlo import MonteCarlo
 from ..plan.sampling import group_name
 from ..system.checked import Job
-from .page import metric_unit
+from .page import metric_unit, not_settled, statistics_note
 from .plots import plain_text, save_figure
 from .records import RunResult
 
 __all__ = ["aggregate", "draw", "figure", "statistics", "write_aggregate", "write_outputs"]
 
 
-def statistics(values: Iterable[float | None], runs: int) -> dict[str, Any]:
-    """mean, std (ddof 1), p5, p50, p95, n, failures of finite ``values`` of ``runs``."""
+def statistics(values: Iterable[float | None], runs: int,
+               not_complete: int | None = None, unsettled: int = 0) -> dict[str, Any]:
+    """mean, std (ddof 1), p5, p50, p95, n, failures of finite ``values`` of ``runs``;
+    with ``not_complete`` (the runs that are not complete, of ``runs``; ``unsettled``:
+    the complete ones empty because their error never settled), the ``note`` that says
+    why a statistic is null, where one is."""
     data = np.asarray([v for v in values if v is not None and math.isfinite(v)], float)
     n = int(data.size)
     out: dict[str, Any] = {"n": n, "failures": runs - n, "mean": None, "std": None,
@@ -37,6 +46,10 @@ def statistics(values: Iterable[float | None], runs: int) -> dict[str, Any]:
                    p95=float(p95), min=float(data.min()), max=float(data.max()))
         if n > 1:
             out["std"] = float(data.std(ddof=1))
+    note = (None if not_complete is None else
+            statistics_note(n, runs, not_complete, unsettled))
+    if note is not None:
+        out["note"] = note
     return out
 
 
@@ -55,18 +68,21 @@ def aggregate(mc: MonteCarlo, jobs: Sequence[Job],
               results: Sequence[RunResult]) -> dict[str, Any]:
     """The content of ``montecarlo.json`` (see the module docstring)."""
     out = {**mc.describe(), "groups": {}}
+    names: list[str] = []  # every group's: a group whose runs failed has them too
+    for result in results:
+        for metric in result["metrics"]:
+            if metric not in names:
+                names.append(metric)
     for name, members in _groups(jobs, results).items():
-        names = []
-        for _, result in members:
-            for metric in result["metrics"]:
-                if metric not in names:
-                    names.append(metric)
         complete = [r for _, r in members if r["status"] == "complete"]
+        failed = len(members) - len(complete)
         out["groups"][name] = {
             "variant": members[0][0].variant, "runs": len(members),
-            "failed_runs": len(members) - len(complete),
+            "failed_runs": failed,
             "metrics": {m: statistics([_number(r["metrics"].get(m)) for r in complete],
-                                      len(members)) for m in names}}
+                                      len(members), failed,
+                                      sum(not_settled(m, r["metrics"]) for r in complete))
+                        for m in names}}
     return out
 
 

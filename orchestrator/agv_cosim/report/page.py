@@ -573,28 +573,82 @@ def key_metrics(runs: list[Run], manifest: dict[str, Any] | None = None) -> list
     return ([n for n in shown if n in MAIN_METRICS] or shown)[:RUNS_TABLE_METRICS]
 
 
+#: A Monte Carlo statistic that has not the values it needs (montecarlo.json's null).
+NOT_AVAILABLE = "n/a"
+
+
+def statistics_note(n: int, runs: int, not_complete: int, unsettled: int = 0) -> str | None:
+    """Why some of a metric's Monte Carlo statistics are n/a (null in montecarlo.json),
+    from ``n`` (the runs with a finite value), ``runs`` (the group's), ``not_complete``
+    (the group's runs that are not complete) and ``unsettled`` (its complete runs whose
+    value is empty because the error never settled, :func:`not_settled`): every
+    statistic with no value (n = 0), the std with one (n = 1); None when every statistic
+    has a value. The same text is montecarlo.json's ``note`` and the page's."""
+    if n >= 2:
+        return None
+    empty = runs - n - not_complete - unsettled  # other complete runs without a value
+    why = [f"{k} {what}" for k, what in ((not_complete, "not complete"),
+                                          (unsettled, f"complete that {NOT_SETTLED}"),
+                                          (empty, "complete without a finite value"))
+           if k > 0]
+    detail = f" ({', '.join(why)})" if why else ""
+    plural = "run has" if runs == 1 else "runs have"
+    if n == 0:
+        return f"{NOT_AVAILABLE}: 0 of {runs} {plural} a value{detail}"
+    one = "run has" if runs == 1 else "runs has"
+    return f"std {NOT_AVAILABLE}: 1 of {runs} {one} a value, std needs 2{detail}"
+
+
+def _statistic_cell(value: object, note: str | None) -> str:
+    """A statistic's cell: its value, or n/a saying why (``note``) where it has none."""
+    if value is None and note:
+        return f'<td class=empty title="{_e(note)}">{NOT_AVAILABLE}</td>'
+    return _cell(value)
+
+
 def _montecarlo_table(data: dict[str, Any], units: dict[str, str], names: list[str]) -> str:
     groups = data.get("groups") or {}
     if not groups:
         return ""
     stats = ("mean", "std", "p5", "p50", "p95", "min", "max", "n", "failures")
-    rows = []
+    rows: list[tuple[str, str | None]] = []
     for group, info in groups.items():
         for metric in names:
             values = (info.get("metrics") or {}).get(metric)
             if not isinstance(values, dict):
                 continue
+            note = values.get("note")
+            if not isinstance(note, str):  # a montecarlo.json of an earlier agv-cosim
+                n, runs, failed = values.get("n"), info.get("runs"), info.get("failed_runs")
+                note = (statistics_note(n, runs, failed) if isinstance(n, int)
+                        and isinstance(runs, int) and isinstance(failed, int) else None)
             unit = units.get(metric)
-            rows.append("<tr>" + f"<td>{_e(metric)}</td><td>{_e(unit or '')}</td>"
-                        f"<td>{_e(group)}</td>" +
-                        "".join(_cell(values.get(s)) for s in stats) + "</tr>")
-    head = "".join(f"<th>{s}</th>" for s in ("metric", "unit", "group") + stats)
+            rows.append(("<tr>" + f"<td>{_e(metric)}</td><td>{_e(unit or '')}</td>"
+                         f"<td>{_e(group)}</td>" +
+                         "".join(_statistic_cell(values.get(s), note) for s in stats),
+                         note))
+    if not rows:  # no group has a metric: say why there is no table
+        runs = sum(i.get("runs", 0) for i in groups.values() if isinstance(i, dict)
+                   and isinstance(i.get("runs"), int))
+        failed = sum(i.get("failed_runs", 0) for i in groups.values() if isinstance(i, dict)
+                     and isinstance(i.get("failed_runs"), int))
+        return (f"<p class=warning>No Monte Carlo statistics: no run has a metric "
+                f"({failed} of {runs} runs not complete; <a href=\"montecarlo.json\">"
+                "montecarlo.json</a>).</p>")
+    noted = any(note for _, note in rows)
+    head = "".join(f"<th>{s}</th>" for s in ("metric", "unit", "group") + stats
+                   + (("note",) if noted else ()))
+    body = "".join(row + (f"<td class=note>{_e(note or '')}</td>" if noted else "")
+                   + "</tr>" for row, note in rows)
     design = (f"{_e(data.get('samples'))} samples per group, design {_e(data.get('design'))}, "
               f"seed {_e(data.get('seed'))}")
     return (f"<p>{design}; statistics over the complete runs with a finite value "
-            f"(<a href=\"montecarlo.json\">montecarlo.json</a> has every metric).</p>"
+            f"(<a href=\"montecarlo.json\">montecarlo.json</a> has every metric)"
+            + (f"; {NOT_AVAILABLE}: a statistic without the values it needs (every one "
+               "without a value, the std with one), the note says why" if noted else "")
+            + ".</p>"
             f'<div class=scroll><table class="sortable"><thead><tr>{head}</tr></thead>'
-            f'<tbody>{"".join(rows)}</tbody></table></div>')
+            f'<tbody>{body}</tbody></table></div>')
 
 
 def _provenance(runs: list[Run], manifest_source: str) -> str:

@@ -13,23 +13,40 @@ import importlib
 import io
 import json
 import math
+import os
 import platform
+import stat
 from pathlib import Path
 from typing import Any, NotRequired, TypedDict
 
-from ..files import CSV_LIMIT, create_file, json_text, read_bytes, write_json, write_summary
+from ..errors import UnreadableFile
+from ..files import (
+    CSV_LIMIT,
+    create_beside,
+    create_file,
+    json_text,
+    read_bytes,
+    read_json_object,
+    write_json,
+    write_summary,
+)
+from ..lifetime import signals_blocked
 from ..system import Job
 from ..version import __version__
 from . import metrics
 
-__all__ = ["REAL_TIME_FIELDS", "TIMINGS", "TIMING_COLUMNS", "RunResult", "finish_remote_run",
-           "finish_run", "inputs_sha256", "read_timings", "record_units", "recorded_inputs",
+__all__ = ["OUTPUT_FILE", "REAL_TIME_FIELDS", "TIMINGS", "TIMING_COLUMNS", "RunResult",
+           "finish_remote_run", "finish_run", "inputs_sha256", "output_digest", "read_timings",
+           "record_output", "record_units", "recorded_inputs",
            "run_inputs", "run_integration", "run_interfaces", "run_metrics", "run_result",
            "summary_rows", "timing_rows",
            "versions", "write_run_files", "write_summary", "write_timings"]
 
 #: The result folder's file of the runs' timings: the one file that is not reproducible.
 TIMINGS = "timings.csv"
+#: What a run's process printed, in its folder (written by the local workers:
+#: :class:`agv_cosim.workers.channels.OutputLog`; only when it printed).
+OUTPUT_FILE = "output.txt"
 #: The keys of a paced run's report (:meth:`agv_cosim.execution.Pacer.report`).
 REAL_TIME_FIELDS = ("target", "achieved", "overruns", "max_lateness_s", "steps", "wall_s")
 #: timings.csv's columns: the run's label, its wall time [s], then its pacing report
@@ -214,6 +231,57 @@ def write_run_files(job: Job, run_dir: Path, rows: int, status: str, error: str 
     write_json(run_dir / "run.json", record, replace=True)
     return run_result(job, status, rows=rows, error=error, metrics=values,
                       metrics_error=metrics_error)
+
+
+def output_digest(path: str | Path) -> tuple[str, int] | None:
+    """``(SHA-256 in hex, size in bytes)`` of the regular file ``path`` (a run's
+    output.txt), opened without following a link and without waiting on a FIFO; None when
+    there is no regular file there or it cannot be read."""
+    flags = os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC
+    try:
+        fd = os.open(path, flags)
+    except OSError:
+        return None
+    with os.fdopen(fd, "rb") as stream:
+        try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                return None
+            digest, size = hashlib.sha256(), 0
+            while block := stream.read(1 << 16):
+                digest.update(block)
+                size += len(block)
+        except OSError:
+            return None
+    return digest.hexdigest(), size
+
+
+def record_output(run_dir: str | Path) -> None:
+    """Add to the run's run.json the SHA-256 and size of its output.txt as it is now
+    (``output_sha256``, ``output_bytes``: what ``--resume`` checks a kept output.txt
+    against); nothing when the run has no output.txt (a regular file) or no run.json it
+    can read. run.json is replaced whole (a new file renamed onto it)."""
+    run_dir = Path(run_dir)
+    found = output_digest(run_dir / OUTPUT_FILE)
+    if found is None:
+        return
+    try:
+        record = read_json_object(run_dir / "run.json")
+        if record is None:
+            return
+    except (OSError, UnreadableFile):
+        return
+    record["output_sha256"], record["output_bytes"] = found
+    with signals_blocked():  # never a run folder left with the temporary file
+        try:
+            path, stream = create_beside(run_dir / "run.json")
+        except OSError:
+            return
+        try:
+            with stream:
+                stream.write(json_text(record).encode("utf-8"))
+            os.replace(path, run_dir / "run.json")
+        except OSError:
+            path.unlink(missing_ok=True)
 
 
 def run_metrics(job: Job, run_dir: Path, rows: int) -> tuple[dict[str, Any], str | None]:

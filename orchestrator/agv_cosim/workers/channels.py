@@ -137,10 +137,12 @@ class OutputLog(_PipeReader):
         self.kept = 0
         self.dropped = 0
 
-    def attach(self, run_dir: str | Path) -> None:
-        """Output from now on belongs to the run whose folder is ``run_dir``."""
-        self.detach()
+    def attach(self, run_dir: str | Path) -> Path | None:
+        """Output from now on belongs to the run whose folder is ``run_dir``; returns
+        the file the earlier run's output was closed into (:meth:`detach`)."""
+        closed = self.detach()
         self.path = Path(run_dir) / OUTPUT_FILE
+        return closed
 
     def read(self) -> None:
         for chunk in self.chunks():
@@ -167,8 +169,10 @@ class OutputLog(_PipeReader):
         self.kept += len(part)
         self.dropped += len(chunk) - len(part)
 
-    def detach(self) -> None:
-        """Close the current run's file (noting what was not kept)."""
+    def detach(self) -> Path | None:
+        """Close the current run's file (noting what was not kept); returns its path,
+        None when the run had no output (no file)."""
+        closed = self.path if self.stream is not None else None
         if self.stream is not None:
             try:
                 if self.dropped:
@@ -179,6 +183,7 @@ class OutputLog(_PipeReader):
             except OSError:
                 pass
         self.stream, self.path, self.kept, self.dropped = None, None, 0, 0
+        return closed
 
     def close(self) -> None:
         self.detach()

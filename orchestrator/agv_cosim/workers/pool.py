@@ -43,7 +43,7 @@ from ..lifetime import (
     scratch_dir,
 )
 from ..manifest import Manifest
-from ..report.records import RunResult, finish_run, run_result
+from ..report.records import RunResult, finish_run, record_output, run_result
 from ..system import Job
 from ..timeseries import count_rows
 from .channels import (
@@ -439,6 +439,7 @@ class _Sweep:
         self.idle, self.checks = idle, checks
         self.context = process_context()
         self.results: list[RunResult | None] = [None] * len(jobs)
+        self.index_of = {job.label: i for i, job in enumerate(jobs)}
         self.last_message: list[str | None] = [None] * len(jobs)
         self.waiting = list(range(len(jobs)))
         self.pool: list[Worker] = []
@@ -519,7 +520,7 @@ class _Sweep:
         job = self.jobs[index]
         worker.started = time.monotonic()
         worker.deadline = worker.started + job.timeout if job.timeout else None
-        worker.output.attach(self.root / job.label)
+        self.output_closed(worker.output.attach(self.root / job.label))
         worker.pacing[:] = [0.0] * FIGURES  # no step paced yet
         worker.pacing[WALL] = float("nan")
         worker.hand((job, self.root / job.label))
@@ -616,7 +617,8 @@ class _Sweep:
         process.join()
         self.orphans.sweep()
         worker.output.read()
-        worker.output.detach()  # output.txt whole on disk: _ended reads its last line
+        # output.txt whole on disk: _ended reads its last line
+        self.output_closed(worker.output.detach())
         index = worker.index
         if index is not None and self.results[index] is None:
             job = self.jobs[index]
@@ -629,6 +631,19 @@ class _Sweep:
         worker.release()
         if worker in self.pool:  # (an interruption may have come in the middle of an end)
             self.pool.remove(worker)
+
+    def output_closed(self, path: Path | None) -> None:
+        """A run's output.txt (``path``) closed, whole: a complete run's run.json gets
+        its SHA-256 and size (:func:`~agv_cosim.report.records.record_output`), what
+        ``--resume`` checks it against. (A run whose worker went on printing after its
+        result has that output in the file too: it is closed when the worker's next
+        run starts or the worker ends.)"""
+        if path is None:
+            return
+        index = self.index_of.get(path.parent.name)
+        result = None if index is None else self.results[index]
+        if result is not None and result["status"] == "complete":
+            record_output(path.parent)
 
     def stopped(self, stop: KeyboardInterrupt | Interrupted) -> RunsStopped:
         """After a termination signal: the workers stopped, the runs under way
@@ -649,7 +664,8 @@ class _Sweep:
             if (idle is not None and worker.index is None and not worker.leaving
                     and worker.process.is_alive()):
                 worker.output.read()
-                worker.output.detach()  # the run's output.txt is complete and closed
+                # the run's output.txt is complete and closed
+                self.output_closed(worker.output.detach())
                 self.pool.remove(worker)
                 idle.workers.append(worker)
             else:

@@ -369,3 +369,156 @@ def test_a_file_a_parameter_names_is_checked_without_blocking(tmp_path):
         "s.path": {"link.csv": digest}}
     assert "cannot be written in a path string" in file_problem(
         "waypoints:file=wp.csv", tmp_path / "a,b")
+
+
+# ---------------------------------------------------------------- a run's output.txt
+
+#: the rogue test FMU (tests/fmu_src/agv_test_rogue.py) printing a few bytes a step
+#: (to fds 1 and 2, and a line with print): its run has an output.txt
+PRINTING = """
+name = "printing"
+[simulation]
+stop = 0.05
+step = 0.01
+[components.r]
+fmu = "{fmu}"
+parameters = {{ stdout_bytes = {bytes} }}
+"""
+
+
+def _printing(fmus, tmp_path, stdout_bytes=12):
+    path = tmp_path / "printing.toml"
+    path.write_text(PRINTING.format(fmu=fmus["agv_test_rogue"], bytes=stdout_bytes))
+    return path
+
+
+def _cut(path):
+    data = path.read_bytes()
+    path.unlink()
+    path.write_bytes(data[:-5])
+
+
+def _replaced(path):
+    data = path.read_bytes()
+    path.unlink()
+    path.write_bytes(data[:10] + bytes([data[10] ^ 1]) + data[11:])  # as many bytes
+
+
+def _deleted(path):
+    path.unlink()
+
+
+def _linked(path):
+    """A link to a file of the same bytes, outside the result folder."""
+    twin = path.parent.parent.parent / "twin.txt"
+    shutil.copyfile(path, twin)
+    path.unlink()
+    path.symlink_to(twin)
+
+
+def _fifo(path):
+    path.unlink()
+    os.mkfifo(path)  # read, it would block the resume forever
+
+
+def _huge(path):
+    path.unlink()
+    with open(path, "wb") as stream:  # 1 TiB, sparse: reading it would take hours
+        stream.truncate(1 << 40)
+
+
+@pytest.mark.parametrize("change", [_cut, _replaced, _deleted, _linked, _fifo, _huge])
+def test_resume_reruns_a_run_whose_output_is_not_the_one_it_printed(fmus, tmp_path, capsys,
+                                                                    change):
+    """run.json records the SHA-256 and size of the run's output.txt; an output.txt cut,
+    changed (as many bytes), deleted, a link (to the same bytes), a FIFO or a huge file
+    (neither opened nor read) reruns the run, as a changed timeseries.csv does: the
+    resumed folder is a clean run's, its output.txt the one the run printed."""
+    path = _printing(fmus, tmp_path)
+    out = tmp_path / "out"
+    assert _run(path, out, "--quiet") == 0
+    output = out / "base" / "output.txt"
+    printed = output.read_bytes()
+    assert b"FMU output" in printed and b"a line printed by the FMU" in printed
+    record = json.loads((out / "base" / "run.json").read_text())
+    assert record["output_sha256"] == hashlib.sha256(printed).hexdigest()
+    assert record["output_bytes"] == len(printed)
+    change(output)
+    capsys.readouterr()
+    assert _run(path, out, "--resume") == 0
+    assert "reused 0 of 1 run(s)" in capsys.readouterr().err
+    assert output.read_bytes() == printed and not output.is_symlink()
+    assert_same_folder(out, _clean(path, tmp_path / "clean"))
+
+
+def test_resume_keeps_a_run_whose_output_is_intact(fmus, tmp_path, capsys):
+    """An output.txt as the run left it is kept (hard-linked) with the run, and the
+    resumed run's run.json records it as a clean run's does."""
+    path = _printing(fmus, tmp_path)
+    out = tmp_path / "out"
+    assert _run(path, out, "--quiet") == 0
+    inode = (out / "base" / "output.txt").stat().st_ino
+    capsys.readouterr()
+    assert _run(path, out, "--resume") == 0
+    assert "reused 1 of 1 run(s)" in capsys.readouterr().err
+    assert (out / "base" / "output.txt").stat().st_ino == inode
+    assert "output_sha256" in json.loads((out / "base" / "run.json").read_text())
+    assert_same_folder(out, _clean(path, tmp_path / "clean"))
+
+
+def _without_output_keys(run_json):
+    """run.json as an agv-cosim before output_sha256 wrote it."""
+    record = json.loads(run_json.read_text())
+    record.pop("output_sha256", None)
+    record.pop("output_bytes", None)
+    run_json.unlink()
+    run_json.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
+
+
+def test_resume_of_an_earlier_run_json_without_output_hash(fmus, tmp_path, capsys):
+    """A run written by an earlier agv-cosim (run.json without ``output_sha256``): with
+    an output.txt, nothing vouches for it and the run is run again; without one (a run
+    that printed nothing, with ``output_sha256`` absent as it is now), it is reused."""
+    path = _printing(fmus, tmp_path)
+    out = tmp_path / "out"
+    assert _run(path, out, "--quiet") == 0
+    _without_output_keys(out / "base" / "run.json")
+    capsys.readouterr()
+    assert _run(path, out, "--resume") == 0
+    assert "reused 0 of 1 run(s)" in capsys.readouterr().err
+    assert_same_folder(out, _clean(path, tmp_path / "clean"))
+
+    quiet = _printing(fmus, tmp_path, stdout_bytes=0)
+    out = tmp_path / "quiet"
+    assert _run(quiet, out, "--quiet") == 0
+    assert not (out / "base" / "output.txt").exists()
+    assert "output_sha256" not in json.loads((out / "base" / "run.json").read_text())
+    _without_output_keys(out / "base" / "run.json")
+    capsys.readouterr()
+    assert _run(quiet, out, "--resume") == 0
+    assert "reused 1 of 1 run(s)" in capsys.readouterr().err
+    (out / "base" / "output.txt").write_text("put there by hand\n")
+    capsys.readouterr()
+    assert _run(quiet, out, "--resume") == 0
+    assert "reused 0 of 1 run(s)" in capsys.readouterr().err
+    assert not (out / "base" / "output.txt").exists()
+
+
+@pytest.mark.slow  # starts a Dask cluster
+def test_a_dask_run_records_its_output_as_a_local_run_does(cluster, fmus, tmp_path, capsys):
+    """On Dask (a run host's worker prints), run.json records the output.txt that comes
+    back: the same bytes and hash as a local run's; --resume with Dask keeps the run."""
+    path = _printing(fmus, tmp_path)
+    local, remote = tmp_path / "local", tmp_path / "remote"
+    assert _run(path, local, "--quiet") == 0
+    assert _run(path, remote, "--quiet", "--dask", cluster) == 0
+    printed = (remote / "base" / "output.txt").read_bytes()
+    assert printed == (local / "base" / "output.txt").read_bytes()
+    keys = ("output_sha256", "output_bytes")
+    record = json.loads((remote / "base" / "run.json").read_text())
+    assert [record[k] for k in keys] == [hashlib.sha256(printed).hexdigest(), len(printed)]
+    assert [json.loads((local / "base" / "run.json").read_text())[k] for k in keys] == \
+        [record[k] for k in keys]
+    capsys.readouterr()
+    assert _run(path, remote, "--resume", "--dask", cluster) == 0
+    assert "reused 1 of 1 run(s)" in capsys.readouterr().err

@@ -268,3 +268,141 @@ def test_set_on_a_sampled_parameter_is_refused(chain):
                        '"src.offset" = { distribution = "uniform", low = 0.0, high = 1.0 }\n')
     with pytest.raises(ManifestError, match="--set: 'src.offset' is also sampled"):
         plan_runs(load_manifest(path), sets=["src.offset=2.0"])
+
+
+#: a crashing FMU (tests/fmu_src/agv_test_crash.py) whose t_out is the lateral error
+#: (e(t_0) = 0: no overshoot in any run), and a source whose offset is sampled; the
+#: variant "doomed" crashes in its initialisation (every run failed, without metrics)
+UNDEFINED = """
+name = "undefined"
+[simulation]
+stop = 0.2
+step = 0.01
+[components.crashdut]
+fmu = "{crash}"
+parameters = {{ crash_time = 10.0 }}
+[components.src]
+fmu = "{source}"
+[metrics]
+lateral_error = "crashdut.t_out"
+[variants.fine]
+[variants.doomed.components.crashdut]
+parameters = {{ crash_time = -1.0 }}
+[montecarlo]
+samples = 3
+seed = 1
+[montecarlo.parameters]
+"src.offset" = {{ distribution = "uniform", low = 0.0, high = 1.0 }}
+"""
+
+
+def _statistics_rows(page):
+    """The cells (text, title) of each row of the page's Monte Carlo table."""
+    section = page.split("<h2 id=montecarlo>", 1)[1].split("</table>", 1)[0]
+    head = re.findall(r"<th>(.*?)</th>", section)
+    rows = []
+    for row in re.findall(r"<tr>(.*?)</tr>", section.split("<tbody>", 1)[1]):
+        cells = re.findall(r'<td(?:[^>]*?title="([^"]*)")?[^>]*>(.*?)</td>', row)
+        rows.append({name: (text, title) for name, (title, text) in zip(head, cells)})
+    return rows
+
+
+def test_a_statistic_without_values_says_why(fmus, tmp_path):
+    """A metric no run has (the overshoot of an error that starts at 0) and a variant
+    whose runs all failed: montecarlo.json's statistics are null with a note saying why,
+    every metric listed for the failed variant too; the page's cells say n/a, their
+    title and the row's note the same reason: no statistic cell is blank."""
+    path = tmp_path / "undefined.toml"
+    path.write_text(UNDEFINED.format(crash=fmus["agv_test_crash"],
+                                     source=fmus["agv_test_source"]))
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out), "--quiet", "--no-init"]) == 1
+    groups = json.loads((out / "montecarlo.json").read_text())["groups"]
+    fine, doomed = groups["fine"], groups["doomed"]
+    assert (fine["runs"], fine["failed_runs"], doomed["runs"], doomed["failed_runs"]) == \
+        (3, 0, 3, 3)
+    assert list(doomed["metrics"]) == list(fine["metrics"])
+    assert fine["metrics"]["lateral_error_overshoot"] == {
+        "n": 0, "failures": 3, "mean": None, "std": None, "p5": None, "p50": None,
+        "p95": None, "min": None, "max": None,
+        "note": "n/a: 0 of 3 runs have a value (3 complete without a finite value)"}
+    assert fine["metrics"]["lateral_error_settling_time"]["note"] == \
+        "n/a: 0 of 3 runs have a value (3 complete that did not settle)"
+    assert "note" not in fine["metrics"]["lateral_error_max"]
+    assert fine["metrics"]["lateral_error_max"]["n"] == 3
+    for got in doomed["metrics"].values():
+        assert got["n"] == 0 and got["mean"] is None
+        assert got["note"] == "n/a: 0 of 3 runs have a value (3 not complete)"
+
+    page = (out / "index.html").read_text(encoding="utf-8")
+    rows = _statistics_rows(page)
+    statistics_columns = ("mean", "std", "p5", "p50", "p95", "min", "max", "n", "failures")
+    assert {row["group"][0] for row in rows} == {"fine", "doomed"}
+    for row in rows:
+        assert all(row[s][0] for s in statistics_columns), row  # none blank
+        note = groups[row["group"][0]]["metrics"][row["metric"][0]].get("note")
+        assert row["note"][0] == (note or "")
+        for s in statistics_columns[:7]:
+            if row[s][0] == "n/a":
+                assert row[s][1] == note
+    assert sum(row["group"][0] == "doomed" for row in rows) == \
+        sum(row["group"][0] == "fine" for row in rows) > 0
+
+    # a montecarlo.json of an earlier agv-cosim (no notes): the page derives them from n,
+    # runs and failed_runs (without the runs that did not settle, which it cannot tell)
+    report = json.loads((out / "montecarlo.json").read_text())
+    for group in report["groups"].values():
+        for got in group["metrics"].values():
+            got.pop("note", None)
+    (out / "montecarlo.json").unlink()
+    (out / "montecarlo.json").write_text(json.dumps(report))
+    assert main(["report", str(out)]) == 0
+    derived = _statistics_rows((out / "index.html").read_text(encoding="utf-8"))
+    assert len(derived) == len(rows)
+    for before, after in zip(rows, derived):
+        assert {k: v[0] for k, v in after.items() if k != "note"} == \
+            {k: v[0] for k, v in before.items() if k != "note"}
+        note = before["note"][0].replace("complete that did not settle",
+                                         "complete without a finite value")
+        assert after["note"][0] == note
+        assert all(after[s][1] == note for s in statistics_columns if after[s][0] == "n/a")
+
+
+def test_the_note_of_a_statistic_without_its_values():
+    """n = 1: the std only is n/a, and the note says so; n >= 2: no note; without the
+    count of runs not complete (the pure statistics), no note."""
+    from agv_cosim.report.montecarlo import statistics as stats_of
+
+    one = stats_of([2.0, None, float("nan"), None], 4, 2)
+    assert one["std"] is None and one["mean"] == 2.0
+    assert one["note"] == ("std n/a: 1 of 4 runs has a value, std needs 2 "
+                           "(2 not complete, 1 complete without a finite value)")
+    assert "note" not in stats_of([1.0, 2.0], 3, 1)
+    assert "note" not in stats_of([], 3)
+    mixed = stats_of([None, None, None], 4, 1, 2)
+    assert mixed["note"] == ("n/a: 0 of 4 runs have a value (1 not complete, 2 complete "
+                             "that did not settle, 1 complete without a finite value)")
+    alone = stats_of([], 1, 1)
+    assert alone["note"] == "n/a: 0 of 1 run has a value (1 not complete)"
+
+
+def test_no_statistics_at_all_are_said_so(fmus, tmp_path):
+    """Every run failed before it recorded a row (no run has a metric): montecarlo.json's
+    group has no metric, and the page says why there is no table instead of an empty
+    one."""
+    path = tmp_path / "undefined.toml"
+    path.write_text(UNDEFINED.format(crash=fmus["agv_test_crash"],
+                                     source=fmus["agv_test_source"])
+                    .replace("crash_time = 10.0", "crash_time = -1.0")
+                    .replace("[variants.fine]\n", "").replace(
+                        "[variants.doomed.components.crashdut]\n"
+                        "parameters = { crash_time = -1.0 }\n", ""))
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out), "--quiet", "--no-init"]) == 1
+    groups = json.loads((out / "montecarlo.json").read_text())["groups"]
+    assert groups == {"base": {"variant": None, "runs": 3, "failed_runs": 3, "metrics": {}}}
+    section = (out / "index.html").read_text(encoding="utf-8").split(
+        "<h2 id=montecarlo>", 1)[1].split("<h2", 1)[0]
+    assert "<table" not in section
+    assert "No Monte Carlo statistics: no run has a metric (3 of 3 runs not complete" \
+        in section
