@@ -259,26 +259,7 @@ def fit(simulate: Simulate, data: MeasuredData, signals: Mapping[str, str],
     import scipy.optimize
 
     chosen = check_parameters(parameters, FitError, "fit")
-    if not signals:
-        raise FitError("fit: no signal to fit (map at least one simulated signal to a "
-                       "measured column)")
-    for signal, column in signals.items():
-        if column not in data.columns:
-            known = ", ".join(data.columns)
-            raise FitError(f"fit: signal '{signal}': {data.source} has no column "
-                           f"'{column}' (columns: {known})")
-    used = default_weights(data, {s: c for s, c in signals.items()
-                                  if weights is None or s not in weights})
-    for signal, weight in (weights or {}).items():
-        if signal not in signals:
-            raise FitError(f"fit: weight for '{signal}', which is not a fitted signal "
-                           f"(signals: {', '.join(signals)})")
-        if isinstance(weight, bool) or not isinstance(weight, int | float) or \
-                not math.isfinite(weight) or weight <= 0:
-            raise FitError(f"fit: weight of '{signal}': {weight!r} is not a positive "
-                           "number")
-        used[signal] = float(weight)
-    used = {s: used[s] for s in signals}
+    used = _signal_weights(data, signals, weights)
     for name, value in (("max_nfev", max_nfev),):
         if value is not None and (isinstance(value, bool) or not isinstance(value, int)
                                   or value < 1):
@@ -335,6 +316,33 @@ def fit(simulate: Simulate, data: MeasuredData, signals: Mapping[str, str],
                      evaluations=int(solved.nfev), runs=problem.runs, converged=converged,
                      message=message, weights=used, signals=dict(signals), fitted=fitted,
                      residuals=residuals, rms=rms)
+
+
+def _signal_weights(data: MeasuredData, signals: Mapping[str, str],
+                    weights: Mapping[str, float] | None) -> dict[str, float]:
+    """The weight of each fitted signal (in the order of ``signals``): ``weights``'
+    where given, else the default (see the module); FitError for no signal, a column
+    ``data`` lacks, or a weight that is not for a fitted signal or not positive."""
+    if not signals:
+        raise FitError("fit: no signal to fit (map at least one simulated signal to a "
+                       "measured column)")
+    for signal, column in signals.items():
+        if column not in data.columns:
+            known = ", ".join(data.columns)
+            raise FitError(f"fit: signal '{signal}': {data.source} has no column "
+                           f"'{column}' (columns: {known})")
+    used = default_weights(data, {s: c for s, c in signals.items()
+                                  if weights is None or s not in weights})
+    for signal, weight in (weights or {}).items():
+        if signal not in signals:
+            raise FitError(f"fit: weight for '{signal}', which is not a fitted signal "
+                           f"(signals: {', '.join(signals)})")
+        if isinstance(weight, bool) or not isinstance(weight, int | float) or \
+                not math.isfinite(weight) or weight <= 0:
+            raise FitError(f"fit: weight of '{signal}': {weight!r} is not a positive "
+                           "number")
+        used[signal] = float(weight)
+    return {s: used[s] for s in signals}
 
 
 def _uncertainties(problem: _Problem, x: np.ndarray, r: np.ndarray, jac: np.ndarray,

@@ -37,7 +37,7 @@ when any run has rows.
 import os
 import sys
 from collections.abc import Callable, Iterable
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -122,6 +122,30 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         The output folder and one result dict per job (in job order).
     """
     out_dir = Path(out_dir) if out_dir else default_out_dir(manifest)
+    jobs = _prepare(manifest, jobs, out_dir, overwrite, dask, resume, real_time,
+                    init_limit)
+    about = {"manifest": manifest.name, "manifest_sha256": manifest.sha256}
+    with AtomicDir(out_dir, overwrite=overwrite, about=about) as folder:
+        start = _start(folder, manifest, jobs, resume, quiet)
+        workers_asked = max(1, workers or os.cpu_count() or 1)
+        workers = min(workers_asked, max(1, len(start.todo)))
+        results = _run(manifest, jobs, start, folder, workers, dask, init_limit, quiet)
+        _write_summary(folder, listed(manifest, results, start.kept))
+        if check_step:
+            _check_steps(manifest, jobs, results, start.written, workers, dask, quiet)
+        page_error = _finish(manifest, jobs, results, start.written, workers_asked)
+        target = folder.commit()
+    if page_error:  # the results are kept: the command fails, saying where they are
+        raise ReportError(f"{target / REPORT_FILE}: not written ({page_error}); the "
+                          f"results are in {target}", kept=target, results=results)
+    return target, results
+
+
+def _prepare(manifest: Manifest, jobs: list[Job], out_dir: Path, overwrite: bool,
+             dask: str | None, resume: bool, real_time: float | None,
+             init_limit: float | None) -> list[Job]:
+    """The options of :func:`execute` checked before any folder is touched, and the
+    jobs to run (each paced at ``real_time`` when given)."""
     check_options(jobs, overwrite, dask, resume, real_time)
     if init_limit is not None and dask:
         raise OutputError("the initialisation check runs on this machine, not with --dask")
@@ -129,58 +153,76 @@ def execute(manifest: Manifest, jobs: list[Job], out_dir: str | Path | None = No
         jobs = [replace(job, real_time=real_time) for job in jobs]
     if resume:  # before AtomicDir, whose refusal of a folder not ours speaks of replacing
         check_resumable(out_dir, manifest)
-    about = {"manifest": manifest.name, "manifest_sha256": manifest.sha256}
-    with AtomicDir(out_dir, overwrite=overwrite, about=about) as folder:
-        written = folder.path
-        assert written is not None
-        reused = reuse_runs(folder.target, manifest, jobs, written) if resume else {}
-        kept, users = keep_others(folder.target, manifest, jobs, written) if resume \
-            else ([], keep_users(folder.target, jobs, written))
-        todo = [job for i, job in enumerate(jobs) if i not in reused]
-        if not quiet:
-            _say_kept(folder.target, len(jobs), len(todo), len(reused) if resume else None,
-                      kept, users)
-        workers_asked = max(1, workers or os.cpu_count() or 1)
-        workers = min(workers_asked, max(1, len(todo)))
-        total = sum(job.plan.steps for job in todo)
-        # smoothing 0: the rate (and the ETA) averaged since the start, not over the last
-        # updates, which the first runs' start-up (FMUs unpacked, loaded) makes slow
-        bar = progress_bar()(total=total, desc=manifest.name, unit="step", delay=2.0,
-                             disable=quiet, file=sys.stderr, mininterval=0.5, smoothing=0,
-                             postfix={"runs": f"{len(reused)}/{len(jobs)}"})
-        finished = len(reused)
+    return jobs
 
-        def run_done() -> None:
-            nonlocal finished
-            finished += 1
-            bar.set_postfix(runs=f"{finished}/{len(jobs)}")
 
-        try:
-            ran = _runner(manifest, jobs, todo, workers, dask, init_limit).run(
-                todo, written, bar.update, run_done) if todo else []
-        except RunsStopped as stop:
-            bar.close()  # before any message: the error is the last line on stderr
-            if reused:
-                stop.results = _merged(len(jobs), reused, stop.results)
-            _keep_partial(manifest, jobs, folder, stop, kept)
-            raise
-        except BaseException:
-            bar.close()  # before any message: the error is the last line on stderr
-            raise
-        bar.close()
-        results = _merged(len(jobs), reused, ran)
-        folder.check_intact()
-        results = [_checked_files(job, result, written)
-                   for job, result in zip(jobs, results)]
-        _write_summary(folder, listed(manifest, results, kept))
-        if check_step:
-            _check_steps(manifest, jobs, results, written, workers, dask, quiet)
-        page_error = _finish(manifest, jobs, results, written, workers_asked)
-        target = folder.commit()
-    if page_error:  # the results are kept: the command fails, saying where they are
-        raise ReportError(f"{target / REPORT_FILE}: not written ({page_error}); the "
-                          f"results are in {target}", kept=target, results=results)
-    return target, results
+@dataclass(frozen=True)
+class _Start:
+    """What :func:`execute` starts from in the new folder ``written``: the earlier runs
+    it reuses (by job index; ``--resume``), the runs of other variants it keeps, and the
+    jobs left to run."""
+
+    written: Path
+    reused: dict[int, RunResult]
+    kept: list[RunResult]
+    todo: list[Job]
+
+
+def _start(folder: AtomicDir, manifest: Manifest, jobs: list[Job], resume: bool,
+           quiet: bool) -> _Start:
+    """Carry into ``folder`` what of its earlier content is kept (:mod:`.resume`: the
+    reused runs, other variants' runs, the user's files), say so on stderr unless
+    ``quiet``, and list the jobs left to run."""
+    written = folder.path
+    assert written is not None
+    reused = reuse_runs(folder.target, manifest, jobs, written) if resume else {}
+    kept, users = keep_others(folder.target, manifest, jobs, written) if resume \
+        else ([], keep_users(folder.target, jobs, written))
+    todo = [job for i, job in enumerate(jobs) if i not in reused]
+    if not quiet:
+        _say_kept(folder.target, len(jobs), len(todo), len(reused) if resume else None,
+                  kept, users)
+    return _Start(written, reused, kept, todo)
+
+
+def _run(manifest: Manifest, jobs: list[Job], start: _Start, folder: AtomicDir,
+         workers: int, dask: str | None, init_limit: float | None,
+         quiet: bool) -> list[RunResult]:
+    """Run ``start.todo`` on ``workers`` (or the cluster at ``dask``) with a progress bar
+    and return the results of all ``jobs`` in job order, the reused ones merged in, each
+    checked against its files. When the runs are stopped (RunsStopped) the folder is
+    kept marked partial (:func:`_keep_partial`) and the error raised again."""
+    reused, todo = start.reused, start.todo
+    total = sum(job.plan.steps for job in todo)
+    # smoothing 0: the rate (and the ETA) averaged since the start, not over the last
+    # updates, which the first runs' start-up (FMUs unpacked, loaded) makes slow
+    bar = progress_bar()(total=total, desc=manifest.name, unit="step", delay=2.0,
+                         disable=quiet, file=sys.stderr, mininterval=0.5, smoothing=0,
+                         postfix={"runs": f"{len(reused)}/{len(jobs)}"})
+    finished = len(reused)
+
+    def run_done() -> None:
+        nonlocal finished
+        finished += 1
+        bar.set_postfix(runs=f"{finished}/{len(jobs)}")
+
+    try:
+        ran = _runner(manifest, jobs, todo, workers, dask, init_limit).run(
+            todo, start.written, bar.update, run_done) if todo else []
+    except RunsStopped as stop:
+        bar.close()  # before any message: the error is the last line on stderr
+        if reused:
+            stop.results = _merged(len(jobs), reused, stop.results)
+        _keep_partial(manifest, jobs, folder, stop, start.kept)
+        raise
+    except BaseException:
+        bar.close()  # before any message: the error is the last line on stderr
+        raise
+    bar.close()
+    results = _merged(len(jobs), reused, ran)
+    folder.check_intact()
+    return [_checked_files(job, result, start.written)
+            for job, result in zip(jobs, results)]
 
 
 def _check_steps(manifest: Manifest, jobs: list[Job], results: list[RunResult],

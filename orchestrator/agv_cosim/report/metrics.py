@@ -145,8 +145,9 @@ The result never holds NaN or inf: a metric that is undefined is reported as ``N
 
 import math
 import tempfile
-from collections.abc import Generator, Iterable, Iterator
+from collections.abc import Callable, Generator, Iterable, Iterator
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import IO, Any
 
@@ -487,6 +488,98 @@ def _get(signals: dict[str, np.ndarray], name: str, key: str, n: int) -> Floats:
     return values
 
 
+#: The metrics of ``lateral_error`` and ``reference`` (prefixed ``lateral_error_``,
+#: ``path_error_``), in the order a result holds them.
+_LATERAL_NAMES = ("max", "mean", "rms", "signed_mean", "std", "settling_time",
+                  "settled_max", "settled_mean", "settled_rms", "settled_signed_mean",
+                  "settled_std", "overshoot", "overshoot_ratio")
+
+
+def _time_grid(time: np.ndarray) -> Floats:
+    """``time`` as a float array, checked: non-empty, 1-D, finite, strictly increasing."""
+    t = np.asarray(time, dtype=float)
+    if t.ndim != 1 or t.size == 0:
+        raise ValueError("metrics: time must be a non-empty 1-D array")
+    if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise ValueError("metrics: time must be finite and strictly increasing")
+    return t
+
+
+def _measured(ok: bool, names: Iterable[str],
+              measure: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    """``measure()`` if ``ok``, else every metric of ``names`` None (a signal with a
+    non-finite sample has no metrics)."""
+    return measure() if ok else {name: None for name in names}
+
+
+def _if_finite(values: np.ndarray, names: Iterable[str],
+               measure: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    """``measure()``, or every metric of ``names`` None when ``values`` has a
+    non-finite sample."""
+    return _measured(bool(np.all(np.isfinite(values))), names, measure)
+
+
+def _heading_metrics(t: Floats, h: Floats) -> dict[str, Any]:
+    return {"heading_error_rms": _rms(t, h), "heading_error_max": float(np.max(np.abs(h)))}
+
+
+def _steering_angle_metrics(t: Floats, alpha: Floats) -> dict[str, Any]:
+    return {"steering_angle_peak": float(np.max(np.abs(alpha))),
+            "steering_angle_rms": _rms(t, alpha)}
+
+
+def _steering_rate_metrics(t: Floats, rate: Floats) -> dict[str, Any]:
+    return {"steering_rate_peak": float(np.max(np.abs(rate))),
+            "steering_rate_rms": _rms(t, rate)}
+
+
+def _control_metrics(t: Floats, u: Floats) -> dict[str, Any]:
+    return {"control_effort": _integral(t, u * u) if t.size >= 2 else None,
+            "control_peak": float(np.max(np.abs(u))), "control_rms": _rms(t, u)}
+
+
+#: Each ``[metrics]`` key naming one signal whose metrics come from it alone -> those
+#: metrics, in the order a result holds them.
+_SIGNAL_METRICS = {"heading_error": ("heading_error_rms", "heading_error_max"),
+                   "steering_angle": ("steering_angle_peak", "steering_angle_rms"),
+                   "steering_rate": ("steering_rate_peak", "steering_rate_rms"),
+                   "control": ("control_effort", "control_peak", "control_rms")}
+#: Each key of :data:`_SIGNAL_METRICS` -> its metrics from (t, values).
+_MEASURES: dict[str, Callable[[Floats, Floats], dict[str, Any]]] = {
+    "heading_error": _heading_metrics, "steering_angle": _steering_angle_metrics,
+    "steering_rate": _steering_rate_metrics, "control": _control_metrics}
+
+
+def _path_metrics(ref: dict[str, Any], t: Floats, signals: dict[str, np.ndarray],
+                  band: float, settle_after: float | None,
+                  base_dir: str | Path | None) -> dict[str, Any]:
+    """The ``path_error_*`` metrics of ``reference``: the offsets of (x, y) from its
+    path; all None when x, y or the offsets have a non-finite sample."""
+    x = _get(signals, ref["x"], "reference.x", t.size)
+    y = _get(signals, ref["y"], "reference.y", t.size)
+    names = [f"path_error_{name}" for name in _LATERAL_NAMES]
+
+    def from_offsets() -> dict[str, Any]:
+        e = path_offsets(ref["path"], x, y, base_dir)
+        return _if_finite(e, names, lambda: _lateral_metrics("path_error", t, e, band,
+                                                             settle_after))
+
+    return _if_finite(np.concatenate((x, y)), names, from_offsets)
+
+
+def _saturation_metrics(sat: dict[str, Any], t: Floats, signals: dict[str, np.ndarray],
+                        duration: float) -> dict[str, Any]:
+    """``saturated_time`` and ``saturated_fraction`` of ``saturation``."""
+    s = _get(signals, sat["signal"], "saturation.signal", t.size)
+
+    def measure() -> dict[str, Any]:
+        seconds = saturated_time(t, s, sat["limit"] - sat["tolerance"])
+        return {"saturated_time": seconds,
+                "saturated_fraction": seconds / duration if duration > 0 else None}
+
+    return _if_finite(s, ["saturated_fraction", "saturated_time"], measure)
+
+
 def compute_metrics(time: np.ndarray, signals: dict[str, np.ndarray],
                     spec: "schema.MetricsTable | dict[str, Any] | None", *,
                     base_dir: str | Path | None = None) -> dict[str, Any]:
@@ -517,68 +610,25 @@ def compute_metrics(time: np.ndarray, signals: dict[str, np.ndarray],
         or ``time`` is not a strictly increasing 1-D array.
     """
     spec = _validate(spec)
-    t = np.asarray(time, dtype=float)
-    if t.ndim != 1 or t.size == 0:
-        raise ValueError("metrics: time must be a non-empty 1-D array")
-    if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
-        raise ValueError("metrics: time must be finite and strictly increasing")
-    n = t.size
+    t = _time_grid(time)
     band = spec["settle_band"]
     settle_after = spec.get("settle_after")
     result: dict[str, Any] = {"duration": float(t[-1] - t[0])}
-
-    def finite(values: np.ndarray, names: Iterable[str]) -> bool:
-        # all metrics of a signal with non-finite samples are None
-        if np.all(np.isfinite(values)):
-            return True
-        result.update({name: None for name in names})
-        return False
-
-    lateral_names = ("max", "mean", "rms", "signed_mean", "std", "settling_time",
-                     "settled_max", "settled_mean", "settled_rms", "settled_signed_mean",
-                     "settled_std", "overshoot", "overshoot_ratio")
     if "lateral_error" in spec:
-        e = _get(signals, spec["lateral_error"], "lateral_error", n)
-        if finite(e, [f"lateral_error_{name}" for name in lateral_names]):
-            result.update(_lateral_metrics("lateral_error", t, e, band, settle_after))
+        e = _get(signals, spec["lateral_error"], "lateral_error", t.size)
+        result.update(_if_finite(e, [f"lateral_error_{name}" for name in _LATERAL_NAMES],
+                                 lambda: _lateral_metrics("lateral_error", t, e, band,
+                                                          settle_after)))
     if "reference" in spec:
-        ref = spec["reference"]
-        x = _get(signals, ref["x"], "reference.x", n)
-        y = _get(signals, ref["y"], "reference.y", n)
-        names = [f"path_error_{name}" for name in lateral_names]
-        if finite(np.concatenate((x, y)), names):
-            e = path_offsets(ref["path"], x, y, base_dir)
-            if finite(e, names):
-                result.update(_lateral_metrics("path_error", t, e, band, settle_after))
-    if "heading_error" in spec:
-        h = _get(signals, spec["heading_error"], "heading_error", n)
-        if finite(h, ["heading_error_rms", "heading_error_max"]):
-            result["heading_error_rms"] = _rms(t, h)
-            result["heading_error_max"] = float(np.max(np.abs(h)))
-    if "steering_angle" in spec:
-        alpha = _get(signals, spec["steering_angle"], "steering_angle", n)
-        if finite(alpha, ["steering_angle_peak", "steering_angle_rms"]):
-            result["steering_angle_peak"] = float(np.max(np.abs(alpha)))
-            result["steering_angle_rms"] = _rms(t, alpha)
-    if "steering_rate" in spec:
-        rate = _get(signals, spec["steering_rate"], "steering_rate", n)
-        if finite(rate, ["steering_rate_peak", "steering_rate_rms"]):
-            result["steering_rate_peak"] = float(np.max(np.abs(rate)))
-            result["steering_rate_rms"] = _rms(t, rate)
-    if "control" in spec:
-        u = _get(signals, spec["control"], "control", n)
-        if finite(u, ["control_effort", "control_peak", "control_rms"]):
-            result["control_effort"] = _integral(t, u * u) if n >= 2 else None
-            result["control_peak"] = float(np.max(np.abs(u)))
-            result["control_rms"] = _rms(t, u)
+        result.update(_path_metrics(spec["reference"], t, signals, band, settle_after,
+                                    base_dir))
+    for key, names in _SIGNAL_METRICS.items():
+        if key in spec:
+            values = _get(signals, spec[key], key, t.size)
+            result.update(_if_finite(values, names, partial(_MEASURES[key], t, values)))
     if "saturation" in spec:
-        sat = spec["saturation"]
-        s = _get(signals, sat["signal"], "saturation.signal", n)
-        if finite(s, ["saturated_fraction", "saturated_time"]):
-            seconds = saturated_time(t, s, sat["limit"] - sat["tolerance"])
-            result["saturated_time"] = seconds
-            duration = result["duration"]
-            result["saturated_fraction"] = seconds / duration if duration > 0 else None
+        result.update(_saturation_metrics(spec["saturation"], t, signals,
+                                          result["duration"]))
     return _clean(result)
 
 
@@ -912,69 +962,71 @@ def compute_metrics_csv(path: str | Path, spec: "schema.MetricsTable | dict[str,
         spool.close()
 
 
+def _rms_and_peak(spool: "_Spool", name: str) -> tuple[float | None, float]:
+    """The RMS and the peak |f| of the spooled signal ``name``."""
+    sums = _sums(spool, name)
+    return _sqrt_or_none(_time_average(sums["f2"], spool.last_time - spool.first_time)), \
+        sums["max_abs"]
+
+
+def _heading_stream(spool: "_Spool", name: str) -> dict[str, Any]:
+    rms, peak = _rms_and_peak(spool, name)
+    return {"heading_error_rms": rms, "heading_error_max": peak}
+
+
+def _steering_angle_stream(spool: "_Spool", name: str) -> dict[str, Any]:
+    rms, peak = _rms_and_peak(spool, name)
+    return {"steering_angle_peak": peak, "steering_angle_rms": rms}
+
+
+def _steering_rate_stream(spool: "_Spool", name: str) -> dict[str, Any]:
+    rms, peak = _rms_and_peak(spool, name)
+    return {"steering_rate_peak": peak, "steering_rate_rms": rms}
+
+
+def _control_stream(spool: "_Spool", name: str) -> dict[str, Any]:
+    sums = _sums(spool, name)
+    duration = spool.last_time - spool.first_time
+    return {"control_effort": sums["f2"] if spool.rows >= 2 else None,
+            "control_peak": sums["max_abs"],
+            "control_rms": _sqrt_or_none(_time_average(sums["f2"], duration))}
+
+
+#: :data:`_MEASURES` of a spooled signal (the spool, the signal's column).
+_STREAM_MEASURES: dict[str, Callable[["_Spool", str], dict[str, Any]]] = {
+    "heading_error": _heading_stream, "steering_angle": _steering_angle_stream,
+    "steering_rate": _steering_rate_stream, "control": _control_stream}
+
+
+def _saturation_stream(spool: "_Spool", sat: dict[str, Any]) -> dict[str, Any]:
+    sums = _sums(spool, sat["signal"], squares=False,
+                 threshold=sat["limit"] - sat["tolerance"])
+    return {"saturated_time": sums["sat"],
+            "saturated_fraction": _time_average(sums["sat"],
+                                                spool.last_time - spool.first_time)}
+
+
 def _stream_metrics(spool: "_Spool", spec: dict[str, Any], finite: dict[str, bool],
                     path_finite: dict[str, bool]) -> dict[str, Any]:
     band = spec["settle_band"]
     settle_after = spec.get("settle_after")
-    duration = spool.last_time - spool.first_time
-    n = spool.rows
-    result: dict[str, Any] = {"duration": duration}
-    lateral_names = ("max", "mean", "rms", "signed_mean", "std", "settling_time",
-                     "settled_max", "settled_mean", "settled_rms", "settled_signed_mean",
-                     "settled_std", "overshoot", "overshoot_ratio")
-
-    def skip(names: Iterable[str]) -> None:
-        result.update({name: None for name in names})
-
+    result: dict[str, Any] = {"duration": spool.last_time - spool.first_time}
     if "lateral_error" in spec:
         name = spec["lateral_error"]
-        if finite[name]:
-            result.update(_lateral_stream("lateral_error", spool, name, band, settle_after))
-        else:
-            skip(f"lateral_error_{m}" for m in lateral_names)
+        result.update(_measured(finite[name], [f"lateral_error_{m}" for m in _LATERAL_NAMES],
+                                lambda: _lateral_stream("lateral_error", spool, name, band,
+                                                        settle_after)))
     if "reference" in spec:
-        if path_finite["xy"] and path_finite["e"]:
-            result.update(_lateral_stream("path_error", spool, "path_error", band,
-                                          settle_after))
-        else:
-            skip(f"path_error_{m}" for m in lateral_names)
-
-    def rms_and_peak(key: str, rms_name: str, peak_name: str,
-                     order: str) -> dict[str, Any] | None:
-        name = spec[key]
-        if not finite[name]:
-            skip([rms_name, peak_name] if order == "rms" else [peak_name, rms_name])
-            return None
-        sums = _sums(spool, name)
-        values = {rms_name: _sqrt_or_none(_time_average(sums["f2"], duration)),
-                  peak_name: sums["max_abs"]}
-        for key_name in ([rms_name, peak_name] if order == "rms" else [peak_name, rms_name]):
-            result[key_name] = values[key_name]
-        return sums
-
-    if "heading_error" in spec:
-        rms_and_peak("heading_error", "heading_error_rms", "heading_error_max", "rms")
-    if "steering_angle" in spec:
-        rms_and_peak("steering_angle", "steering_angle_rms", "steering_angle_peak", "peak")
-    if "steering_rate" in spec:
-        rms_and_peak("steering_rate", "steering_rate_rms", "steering_rate_peak", "peak")
-    if "control" in spec:
-        name = spec["control"]
-        if finite[name]:
-            sums = _sums(spool, name)
-            result["control_effort"] = sums["f2"] if n >= 2 else None
-            result["control_peak"] = sums["max_abs"]
-            result["control_rms"] = _sqrt_or_none(_time_average(sums["f2"], duration))
-        else:
-            skip(["control_effort", "control_peak", "control_rms"])
+        result.update(_measured(path_finite["xy"] and path_finite["e"],
+                                [f"path_error_{m}" for m in _LATERAL_NAMES],
+                                lambda: _lateral_stream("path_error", spool, "path_error",
+                                                        band, settle_after)))
+    for key, names in _SIGNAL_METRICS.items():
+        if key in spec:
+            result.update(_measured(finite[spec[key]], names,
+                                    partial(_STREAM_MEASURES[key], spool, spec[key])))
     if "saturation" in spec:
         sat = spec["saturation"]
-        name = sat["signal"]
-        if finite[name]:
-            sums = _sums(spool, name, squares=False,
-                         threshold=sat["limit"] - sat["tolerance"])
-            result["saturated_time"] = sums["sat"]
-            result["saturated_fraction"] = _time_average(sums["sat"], duration)
-        else:
-            skip(["saturated_fraction", "saturated_time"])
+        result.update(_measured(finite[sat["signal"]], ["saturated_fraction", "saturated_time"],
+                                partial(_saturation_stream, spool, sat)))
     return result

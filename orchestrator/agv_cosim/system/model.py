@@ -239,59 +239,13 @@ _SCHEMA_PROBLEM = re.compile(r"[A-Z]+ \(line \d+, column \d+\): ")
 def _parse_model(path: Path) -> ModelInfo:
     """Map fmpy's ModelDescription (``fmpy.read_model_description``, schema and fmpy's
     own checks on) onto a :class:`ModelInfo`; fmpy's errors become one line."""
-    from fmpy.model_description import ValidationError, read_model_description
-    from lxml.etree import XMLSyntaxError
-
-    def broken(reason: object) -> ModelError:
-        reason = " ".join(str(reason).split())
-        return ModelError(f"broken FMU (modelDescription.xml: {reason}): '{path}'")
-
-    version = _fmi_version(path)
-    if version is not None and version != "2.0" and not version.startswith("3."):
-        raise ModelError(f"not an FMI 2.0 or 3.0 FMU (fmiVersion={version!r}): '{path}'")
-    try:
-        try:
-            md = read_model_description(str(path), validate=True)
-        except ValidationError as error:
-            if any(_SCHEMA_PROBLEM.match(p) for p in error.problems):
-                raise
-            # only fmpy's checks after parsing (a unit missing from UnitDefinitions, an
-            # input without start ..): accepted, as before fmpy read the description
-            md = read_model_description(str(path), validate=False)
-    except ValidationError as error:
-        first = error.problems[0] if error.problems else "failed to validate"
-        # lxml's schema problems read "ERROR (line 15, column 0): Element ..: ..."
-        first = re.sub(r"^ERROR \(line (\d+), column \d+\): ", r"line \1: ", first)
-        first = first.rstrip(".")
-        more = f" (and {len(error.problems) - 1} more)" if len(error.problems) > 1 else ""
-        raise broken(first + more) from None
-    except XMLSyntaxError as error:
-        raise broken(error) from None
-    except (IndexError, KeyError) as error:  # fmpy resolving an index / reference
-        raise broken(f"an index or value reference in ModelStructure or Dimension names "
-                     f"no variable ({type(error).__name__}: {error})") from None
-    except Exception as error:  # noqa: BLE001 - fmpy raises plain Exception too
-        text = str(error)
-        if text.startswith("Unsupported FMI version"):
-            raise ModelError(f"not an FMI 2.0 or 3.0 FMU ({text}): '{path}'") from None
-        raise broken(text or type(error).__name__) from None
+    md = _read_description(path)
     version = md.fmiVersion or ""
     version = "3.0" if version.startswith("3.") else version
     if version not in ("2.0", "3.0"):
         raise ModelError(f"not an FMI 2.0 or 3.0 FMU (fmiVersion={md.fmiVersion!r}): "
                          f"'{path}'")
-    cosim = md.coSimulation
-    me = _model_exchange(md)
-    if cosim is None or not cosim.modelIdentifier:
-        if me is None:
-            raise ModelError(f"neither a co-simulation nor a Model Exchange FMU: '{path}'")
-        cosim = None  # a model-exchange-only FMU: integrated by the orchestrator
-    identifier = cosim.modelIdentifier if cosim is not None else me.identifier  # type: ignore[union-attr]
-    for name in {identifier, me.identifier if me is not None else identifier}:
-        if not IDENTIFIER.fullmatch(name):
-            raise ModelError(f"broken FMU (modelIdentifier {name!r} is not a "
-                             "name: FMI wants a C identifier, which also names the FMU's "
-                             f"binary inside it): '{path}'")
+    cosim, me, identifier = _interfaces(md, path)
     interfaces = tuple(kind for kind, there in (("co-simulation", cosim is not None),
                                                 ("model-exchange", me is not None)) if there)
     info = ModelInfo(path=path, sha256=file_sha256(path), model_name=md.modelName or "",
@@ -305,15 +259,101 @@ def _parse_model(path: Path) -> ModelInfo:
     # fmpy appends FMI 3.0 <Alias> entries as extra variables: agv-cosim does not list them
     own = [sv for sv in md.modelVariables if getattr(sv, "alias", None) is None]
     ordered = [_variable(sv, version) for sv in own]
+    _add_variables(info, ordered)
+    _add_dependencies(info, md, ordered)
+    if cosim is None:
+        problem = model_exchange_refusal(info)
+        if problem:
+            raise ModelError(f"a model-exchange-only FMU the orchestrator cannot "
+                             f"integrate: it {problem}: '{path}'")
+    return info
+
+
+def _broken(path: Path, reason: object) -> ModelError:
+    """The error of an FMU whose model description is broken, ``reason`` on one line."""
+    reason = " ".join(str(reason).split())
+    return ModelError(f"broken FMU (modelDescription.xml: {reason}): '{path}'")
+
+
+def _read_description(path: Path) -> Any:
+    """fmpy's ModelDescription of the FMU at ``path`` (schema checked; fmpy's checks
+    made after parsing accepted); an FMI version other than 2.0/3.x and fmpy's errors
+    as one line."""
+    from fmpy.model_description import ValidationError, read_model_description
+    from lxml.etree import XMLSyntaxError
+
+    version = _fmi_version(path)
+    if version is not None and version != "2.0" and not version.startswith("3."):
+        raise ModelError(f"not an FMI 2.0 or 3.0 FMU (fmiVersion={version!r}): '{path}'")
+    try:
+        try:
+            return read_model_description(str(path), validate=True)
+        except ValidationError as error:
+            if any(_SCHEMA_PROBLEM.match(p) for p in error.problems):
+                raise
+            # only fmpy's checks after parsing (a unit missing from UnitDefinitions, an
+            # input without start ..): accepted, as before fmpy read the description
+            return read_model_description(str(path), validate=False)
+    except ValidationError as error:
+        raise _broken(path, _first_problem(error.problems)) from None
+    except XMLSyntaxError as error:
+        raise _broken(path, error) from None
+    except (IndexError, KeyError) as error:  # fmpy resolving an index / reference
+        raise _broken(path, f"an index or value reference in ModelStructure or Dimension "
+                      f"names no variable ({type(error).__name__}: {error})") from None
+    except Exception as error:  # noqa: BLE001 - fmpy raises plain Exception too
+        text = str(error)
+        if text.startswith("Unsupported FMI version"):
+            raise ModelError(f"not an FMI 2.0 or 3.0 FMU ({text}): '{path}'") from None
+        raise _broken(path, text or type(error).__name__) from None
+
+
+def _first_problem(problems: list[str]) -> str:
+    """The first of fmpy's validation ``problems`` (lxml's location shortened to the
+    line), and how many more there are."""
+    first = problems[0] if problems else "failed to validate"
+    # lxml's schema problems read "ERROR (line 15, column 0): Element ..: ..."
+    first = re.sub(r"^ERROR \(line (\d+), column \d+\): ", r"line \1: ", first)
+    first = first.rstrip(".")
+    more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+    return first + more
+
+
+def _interfaces(md: Any, path: Path) -> tuple[Any, ModelExchangeInfo | None, str]:
+    """The FMU's ``<CoSimulation>`` (None: a model-exchange-only FMU, integrated by the
+    orchestrator), its Model Exchange interface and its identifier (checked: a C
+    identifier)."""
+    cosim = md.coSimulation
+    me = _model_exchange(md)
+    if cosim is None or not cosim.modelIdentifier:
+        if me is None:
+            raise ModelError(f"neither a co-simulation nor a Model Exchange FMU: '{path}'")
+        cosim = None  # a model-exchange-only FMU: integrated by the orchestrator
+    identifier = cosim.modelIdentifier if cosim is not None else me.identifier  # type: ignore[union-attr]
+    for name in {identifier, me.identifier if me is not None else identifier}:
+        if not IDENTIFIER.fullmatch(name):
+            raise ModelError(f"broken FMU (modelIdentifier {name!r} is not a "
+                             "name: FMI wants a C identifier, which also names the FMU's "
+                             f"binary inside it): '{path}'")
+    return cosim, me, identifier
+
+
+def _add_variables(info: ModelInfo, ordered: list[Variable]) -> None:
+    """``ordered`` into ``info.variables``; each element of an output array also as its
+    own variable (recordable as its own column)."""
     for variable in ordered:
         info.variables[variable.name] = variable
         if variable.causality == "output" and variable.shape:
-            # each element of an output array is recordable as its own column
             starts = (variable.start or "").split()
             for i, ename in enumerate(element_names(variable.name, variable.shape)):
                 info.variables.setdefault(ename, replace(
                     variable, name=ename, dims=(), shape=None, element=(variable.name, i),
                     start=starts[i] if len(starts) == variable.size else None))
+
+
+def _add_dependencies(info: ModelInfo, md: Any, ordered: list[Variable]) -> None:
+    """Each output's direct dependencies (inputs) into ``info.dependencies``: those its
+    ``<Unknown>``/``<Output>`` lists, every input without the attribute or the entry."""
     input_names = [v.name for v in ordered if v.causality == "input"]
     for unknown in md.outputs:
         name = unknown.variable.name
@@ -325,12 +365,6 @@ def _parse_model(path: Path) -> ModelInfo:
     for variable in ordered:
         if variable.causality == "output" and variable.name not in info.dependencies:
             info.dependencies[variable.name] = list(input_names)
-    if cosim is None:
-        problem = model_exchange_refusal(info)
-        if problem:
-            raise ModelError(f"a model-exchange-only FMU the orchestrator cannot "
-                             f"integrate: it {problem}: '{path}'")
-    return info
 
 
 def model_exchange_refusal(info: ModelInfo) -> str:

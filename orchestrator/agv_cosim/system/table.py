@@ -37,22 +37,43 @@ class Table:
     def __init__(self, path: str | Path, interpolation: dict[str, str] | None = None) -> None:
         self.path = Path(path)
         interpolation = dict(interpolation or {})
+        rows = self._read_rows()
+        self.names = self._column_names(rows)
+        self.modes = self._modes(interpolation)
+        self.times: list[float] = []
+        self.columns: list[list[float]] = [[] for _ in self.names]
+        for number, row in enumerate(rows[1:], start=2):
+            if row:
+                self._add_row(number, row, len(rows[0]))
+        if not self.times:
+            raise TableError(f"'{self.path}': no rows")
+
+    def _read_rows(self) -> list[list[str]]:
+        """The file's rows (CSV fields), read non-blocking and at most CSV_LIMIT bytes
+        (files.read_bytes)."""
         if self.path.exists() and not self.path.is_file():  # a FIFO would block a read
             raise TableError(f"'{self.path}' is not a regular file")
-        try:  # read non-blocking and at most CSV_LIMIT bytes (files.read_bytes)
+        try:
             data = read_bytes(self.path, CSV_LIMIT)
-            rows = list(csv.reader(io.StringIO(data.decode("utf-8"), newline="")))
+            return list(csv.reader(io.StringIO(data.decode("utf-8"), newline="")))
         except OSError as error:
             raise TableError(f"cannot read '{self.path}': {error.strerror}") from None
         except UnreadableFile as error:
             raise TableError(f"'{self.path}' {error.problem}") from None
         except UnicodeDecodeError:
             raise TableError(f"'{self.path}' is not UTF-8 text") from None
+
+    def _column_names(self, rows: list[list[str]]) -> list[str]:
+        """The column names of the header ``time,<column>,...`` (distinct, non-empty)."""
         if not rows or not rows[0] or rows[0][0].strip() != "time" or len(rows[0]) < 2:
             raise TableError(f"'{self.path}': the header must be 'time,<column>,...'")
-        self.names = [name.strip() for name in rows[0][1:]]
-        if len(set(self.names)) != len(self.names) or not all(self.names):
+        names = [name.strip() for name in rows[0][1:]]
+        if len(set(names)) != len(names) or not all(names):
             raise TableError(f"'{self.path}': column names must be distinct and non-empty")
+        return names
+
+    def _modes(self, interpolation: dict[str, str]) -> list[str]:
+        """Each column's interpolation (default linear), ``interpolation`` checked."""
         unknown = set(interpolation) - set(self.names)
         if unknown:
             raise TableError(f"interpolation: no column '{sorted(unknown)[0]}' in "
@@ -61,30 +82,27 @@ class Table:
             if mode not in MODES:
                 raise TableError(f"interpolation.{name}: {mode!r} is not one of "
                                  f"{', '.join(MODES)}")
-        self.modes = [interpolation.get(name, "linear") for name in self.names]
-        self.times: list[float] = []
-        self.columns: list[list[float]] = [[] for _ in self.names]
-        for number, row in enumerate(rows[1:], start=2):
-            if not row:
-                continue
-            if len(row) != len(rows[0]):
-                raise TableError(f"'{self.path}' line {number}: {len(row)} fields, the "
-                                 f"header has {len(rows[0])}")
-            try:
-                values = [float(text) for text in row]
-            except ValueError:
-                raise TableError(f"'{self.path}' line {number}: not a number in "
-                                 f"{row!r}") from None
-            if not all(math.isfinite(v) for v in values):
-                raise TableError(f"'{self.path}' line {number}: a value is not finite")
-            if self.times and values[0] <= self.times[-1]:
-                raise TableError(f"'{self.path}' line {number}: time {values[0]!r} is not "
-                                 f"after {self.times[-1]!r} (times must increase)")
-            self.times.append(values[0])
-            for column, value in zip(self.columns, values[1:]):
-                column.append(value)
-        if not self.times:
-            raise TableError(f"'{self.path}': no rows")
+        return [interpolation.get(name, "linear") for name in self.names]
+
+    def _add_row(self, number: int, row: list[str], fields: int) -> None:
+        """The row at line ``number`` appended to the times and columns, checked: as many
+        fields as the header's ``fields``, finite numbers, its time after the last."""
+        if len(row) != fields:
+            raise TableError(f"'{self.path}' line {number}: {len(row)} fields, the "
+                             f"header has {fields}")
+        try:
+            values = [float(text) for text in row]
+        except ValueError:
+            raise TableError(f"'{self.path}' line {number}: not a number in "
+                             f"{row!r}") from None
+        if not all(math.isfinite(v) for v in values):
+            raise TableError(f"'{self.path}' line {number}: a value is not finite")
+        if self.times and values[0] <= self.times[-1]:
+            raise TableError(f"'{self.path}' line {number}: time {values[0]!r} is not "
+                             f"after {self.times[-1]!r} (times must increase)")
+        self.times.append(values[0])
+        for column, value in zip(self.columns, values[1:]):
+            column.append(value)
 
     def values_at(self, t: float, out: MutableSequence[float]) -> None:
         """Write every column's value at ``t`` [s] into ``out`` (a sequence)."""

@@ -77,7 +77,6 @@ def _objective(manifest: Manifest, table: schema.TuneTable) -> Objective:
 def _parameter(manifest: Manifest, jobs: Sequence[Job], name: str,
                bounds: schema.Bounds) -> Parameter:
     key = f"tune.parameters.{name}"
-    cname, _, pname = name.partition(".")
     low, high = bounds.min, bounds.max
     if not low < high:
         raise manifest.error(key, f"min {low!r} >= max {high!r}")
@@ -87,39 +86,57 @@ def _parameter(manifest: Manifest, jobs: Sequence[Job], name: str,
     if manifest.montecarlo is not None and name in manifest.montecarlo.names:
         raise manifest.error(key, "is sampled in [montecarlo]: a parameter is tuned or "
                              "sampled, not both")
-    starts: dict[str, Any] = {}
-    for job in jobs:
-        info = job.plan.models.get(cname)
-        if info is None:
-            known = sorted({c for j in jobs for c in j.plan.models})
-            where = "" if len(jobs) == 1 else f"run '{job.label}' has "
-            raise manifest.error(key, f"{where}no component '{cname}'"
-                                 f"{did_you_mean(cname, known)}")
-        if getattr(info, "table", None) is not None:
-            raise manifest.error(key, f"'{cname}' is a time table, which has no parameters")
-        variable = info.variables.get(pname)
-        if variable is None:
-            params = [v.name for v in info.parameters]
-            raise manifest.error(key, f"unknown parameter '{pname}' of '{cname}' "
-                                 f"({info.model_name}){did_you_mean(pname, params)}")
-        if variable.causality != "parameter":
-            raise manifest.error(key, f"'{name}' is {variable.causality}, not a parameter")
-        if variable.variability not in _SETTABLE:
-            raise manifest.error(key, f"'{name}' is a {variable.variability} parameter, "
-                                 "not tunable (only fixed and tunable parameters are set "
-                                 "for a run)")
-        if variable.unsupported("parameter") or not variable.ftype.is_float or \
-                variable.dims:
-            raise manifest.error(key, f"'{name}' is of type {variable.type}, not Real: "
-                                 "only Real parameters are tuned")
-        for edge, text in (("min", variable.min), ("max", variable.max)):
-            if text is None:
-                continue
-            limit = float(text)
-            if (edge == "min" and low < limit) or (edge == "max" and high > limit):
-                raise manifest.error(key, f"{edge} {low if edge == 'min' else high!r} is "
-                                     f"outside the FMU's range (its {edge} is {limit!r})")
-        starts[job.label] = job.parameters[cname].get(pname)
+    starts = {job.label: _start_in(manifest, jobs, job, name, low, high) for job in jobs}
+    start = _common_start(manifest, key, starts)
+    if not low <= start <= high:
+        raise manifest.error(key, f"start {float(start)!r} (the manifest's value) is "
+                             f"outside the bounds [{low!r}, {high!r}]")
+    return Parameter(name, float(start), low, high)
+
+
+def _start_in(manifest: Manifest, jobs: Sequence[Job], job: Job, name: str, low: float,
+              high: float) -> Any:
+    """The value the run ``job`` (one of ``jobs``) gives the tuned parameter ``name``
+    (component.parameter), checked: a fixed or tunable Real parameter of its FMU whose
+    declared range holds the bounds [``low``, ``high``]."""
+    key = f"tune.parameters.{name}"
+    cname, _, pname = name.partition(".")
+    info = job.plan.models.get(cname)
+    if info is None:
+        known = sorted({c for j in jobs for c in j.plan.models})
+        where = "" if len(jobs) == 1 else f"run '{job.label}' has "
+        raise manifest.error(key, f"{where}no component '{cname}'"
+                             f"{did_you_mean(cname, known)}")
+    if getattr(info, "table", None) is not None:
+        raise manifest.error(key, f"'{cname}' is a time table, which has no parameters")
+    variable = info.variables.get(pname)
+    if variable is None:
+        params = [v.name for v in info.parameters]
+        raise manifest.error(key, f"unknown parameter '{pname}' of '{cname}' "
+                             f"({info.model_name}){did_you_mean(pname, params)}")
+    if variable.causality != "parameter":
+        raise manifest.error(key, f"'{name}' is {variable.causality}, not a parameter")
+    if variable.variability not in _SETTABLE:
+        raise manifest.error(key, f"'{name}' is a {variable.variability} parameter, "
+                             "not tunable (only fixed and tunable parameters are set "
+                             "for a run)")
+    if variable.unsupported("parameter") or not variable.ftype.is_float or \
+            variable.dims:
+        raise manifest.error(key, f"'{name}' is of type {variable.type}, not Real: "
+                             "only Real parameters are tuned")
+    for edge, text in (("min", variable.min), ("max", variable.max)):
+        if text is None:
+            continue
+        limit = float(text)
+        if (edge == "min" and low < limit) or (edge == "max" and high > limit):
+            raise manifest.error(key, f"{edge} {low if edge == 'min' else high!r} is "
+                                 f"outside the FMU's range (its {edge} is {limit!r})")
+    return job.parameters[cname].get(pname)
+
+
+def _common_start(manifest: Manifest, key: str, starts: dict[str, Any]) -> Any:
+    """The one start value of ``starts`` (run label -> value), checked: the same in
+    every run, a finite number."""
     values = set(starts.values())
     if len(values) > 1:
         shown = ", ".join(f"{label}: {value!r}" for label, value in list(starts.items())[:4])
@@ -129,10 +146,7 @@ def _parameter(manifest: Manifest, jobs: Sequence[Job], name: str,
     if isinstance(start, bool) or not isinstance(start, int | float) or \
             not math.isfinite(start):
         raise manifest.error(key, f"start value {start!r} is not a finite number")
-    if not low <= start <= high:
-        raise manifest.error(key, f"start {float(start)!r} (the manifest's value) is "
-                             f"outside the bounds [{low!r}, {high!r}]")
-    return Parameter(name, float(start), low, high)
+    return start
 
 
 def check_tune(manifest: Manifest, jobs: Sequence[Job]) -> Setup:

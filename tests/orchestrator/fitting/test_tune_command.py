@@ -334,12 +334,24 @@ PAIR = '[components.pair]\nfmu = "{pair}"\n'
      "tune.generations: 0 must be >= 1"),
     (GOOD.replace("[tune]\n", "[tune]\nseed = -1\n"), {}, "tune.seed: -1 must be >= 0"),
     ("[tune]\nobjective = \"lateral_error_mean\"\n", {}, "tune.parameters: missing"),
+    (GOOD, {"extra": '[montecarlo]\nsamples = 2\nseed = 1\n[montecarlo.parameters]\n'
+                     '"gain.k" = { distribution = "uniform", low = 1.0, high = 3.0 }\n'},
+     "tune.parameters.gain.k: is sampled in [montecarlo]: a parameter is tuned or "
+     "sampled, not both"),
+    (GOOD.replace('"gain.k"', '"tab.v"'), {"table": True},
+     "tune.parameters.tab.v: 'tab' is a time table, which has no parameters"),
+    (GOOD.replace('"gain.k"', '"pair.p"'),
+     {"extra": '[variants.a]\n[variants.b]\n[variants.b.components.pair]\nfmu = "{pair}"\n'},
+     "tune.parameters.pair.p: run 'a' has no component 'pair'"),
 ])
 def test_bad_tune_input_is_one_line_exit_2(fmus, tmp_path, capsys, tune, options,
                                            expected):
-    extra = options.get("extra", "")
+    extra = options.get("extra", "").replace("{pair}", str(fmus["agv_test_pair"]))
     if options.get("pair"):
         extra = PAIR.format(pair=fmus["agv_test_pair"]) + extra
+    if options.get("table"):
+        (tmp_path / "tab.csv").write_text("time,v\n0,1\n1,2\n")
+        extra = '[components.tab]\ntable = "tab.csv"\n' + extra
     path = write(tmp_path, fmus, tune=tune, extra=extra,
                  metrics=options.get("metrics", METRICS))
     code, out, err = tune_cli([str(path), "--out", str(tmp_path / "out")], capsys)

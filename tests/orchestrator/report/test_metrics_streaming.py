@@ -155,3 +155,29 @@ def test_iter_timeseries_concatenates_to_read_timeseries(tmp_path):
     assert count_rows(cut) == 101
     cut.write_bytes(b"time,a\n")
     assert count_rows(cut) == 0
+
+
+LATERAL = ["max", "mean", "rms", "signed_mean", "std", "settling_time", "settled_max",
+           "settled_mean", "settled_rms", "settled_signed_mean", "settled_std", "overshoot",
+           "overshoot_ratio"]
+#: The keys of a result of SPEC, in order (as metrics.json and summary.csv write them).
+KEYS = ["duration", *(f"lateral_error_{m}" for m in LATERAL),
+        *(f"path_error_{m}" for m in LATERAL), "heading_error_rms", "heading_error_max",
+        "steering_angle_peak", "steering_angle_rms", "steering_rate_peak",
+        "steering_rate_rms", "control_effort", "control_peak", "control_rms"]
+
+
+@pytest.mark.parametrize("finite", [True, False])
+def test_keys_in_a_fixed_order_with_and_without_finite_samples(tmp_path, finite):
+    t, signals = _signals()
+    if not finite:  # every signal has a NaN: all its metrics None
+        signals = {name: np.where(np.arange(t.size) == 100, np.nan, values)
+                   for name, values in signals.items()}
+    saturation = ["saturated_time", "saturated_fraction"] if finite else \
+        ["saturated_fraction", "saturated_time"]
+    path = _write(tmp_path / "timeseries.csv", t, signals)
+    for result in (compute_metrics(t, signals, SPEC), compute_metrics_csv(path, SPEC)):
+        assert list(result) == KEYS + saturation
+        assert result["duration"] == t[-1] - t[0]
+        assert all((value is not None) == finite for key, value in result.items()
+                   if key != "duration"), result
