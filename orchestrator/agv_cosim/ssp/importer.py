@@ -2,7 +2,11 @@
 
 Import (:func:`load_ssp`, :func:`opened`): the archive is checked entry by entry
 (absolute paths, ``..``, drive letters and symbolic links are refused before anything is
-written), extracted, and its SSD is mapped onto the manifest's data (components,
+written) and extracted within bounds (:mod:`agv_cosim.archive`,
+:data:`~agv_cosim.archive.SSP_LIMITS`): at most 4 GiB uncompressed and 10 000 entries,
+stored or deflate only, checked from the headers before anything is written and enforced
+while writing (no entry writes more than its header declares); a refused archive leaves
+nothing of what was unpacked. Its SSD is mapped onto the manifest's data (components,
 connections, parameter values, experiment) and checked by the same schema as a manifest
 file (:func:`agv_cosim.manifest.manifest_from_data`); no manifest text is written, so
 names and values from the SSD stay data (component names must be identifiers, else
@@ -34,9 +38,7 @@ drawn in ``signals.png``. A component's ``implementation`` is its ``interface``
 import contextlib
 import json
 import math
-import re
 import shutil
-import stat
 import zipfile
 import zlib
 from collections.abc import Iterator, Mapping
@@ -45,7 +47,8 @@ from typing import Any
 from urllib.parse import unquote, urlparse
 from xml.etree import ElementTree
 
-from .. import fmitypes
+from .. import archive, fmitypes
+from ..archive import SSP_LIMITS, ArchiveRefused, Limits
 from ..errors import ManifestError, ModelError, SspError, UnreadableFile
 from ..files import XML_LIMIT, check_name, open_regular, read_bytes
 from ..lifetime import scratch_dir
@@ -74,41 +77,27 @@ _Unit = tuple[tuple[int, ...], float, float]
 _Binding = tuple[str, str, Any, str | None, _Unit | None, str]
 
 
-def _unsafe_reason(info: zipfile.ZipInfo) -> str | None:
-    name = info.filename
-    if stat.S_ISLNK(info.external_attr >> 16):
-        return "a symbolic link"
-    if name.startswith(("/", "\\")) or re.match(r"^[A-Za-z]:", name):
-        return "an absolute path"
-    if ".." in re.split(r"[\\/]", name):
-        return "a '..' path"
-    return None
-
-
-def safe_extract(archive_path: str | Path, dest: str | Path) -> None:
-    """Extract a zip archive into ``dest`` after checking every entry.
+def safe_extract(archive_path: str | Path, dest: str | Path,
+                 limits: Limits | None = None) -> None:
+    """Extract a zip archive into the existing folder ``dest`` within ``limits``
+    (default :data:`~agv_cosim.archive.SSP_LIMITS`) by :func:`agv_cosim.archive.extract`:
+    headers checked before anything is written, every entry streamed with a byte
+    budget, what was written removed on failure.
 
     Raises
     ------
     SspError
-        For an unreadable archive, or an entry with an absolute path, a drive letter,
-        a ``..`` component or a symbolic link (nothing is extracted then).
+        For an unreadable archive; an entry with an absolute path, a drive letter, a
+        ``..`` component or a symbolic link; more entries or uncompressed bytes than
+        ``limits`` (from the headers, or while writing); an entry larger than its header
+        says. Nothing this call wrote is left then.
     """
     try:
-        with open_regular(archive_path) as stream, zipfile.ZipFile(stream) as archive:
-            entries = archive.infolist()
-            for info in entries:
-                reason = _unsafe_reason(info)
-                if reason:
-                    raise SspError(archive_path, "archive", f"refused: entry "
-                                   f"'{info.filename}' is {reason}")
-            dest = Path(dest).resolve()
-            for info in entries:
-                target = (dest / info.filename).resolve()
-                if dest != target and dest not in target.parents:
-                    raise SspError(archive_path, "archive",
-                                   f"refused: entry '{info.filename}' leaves the folder")
-            archive.extractall(dest)
+        with open_regular(archive_path) as stream:
+            archive.extract(archive_path, dest, SSP_LIMITS if limits is None else limits,
+                            stream)
+    except ArchiveRefused as refused:
+        raise SspError(archive_path, "archive", refused.reason) from None
     except UnreadableFile as error:
         raise SspError(archive_path, "file", error.problem) from None
     except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, OSError) as error:
@@ -616,13 +605,26 @@ def load_ssp(path: str | Path, workdir: str | Path) -> Manifest:
         ssd = path
     else:
         unpacked = workdir / "package"
-        unpacked.mkdir(parents=True, exist_ok=True)
-        safe_extract(path, unpacked)
+        _extract_into_new(path, unpacked)
         ssd = unpacked / SSD_NAME
     data = read_ssd(path, ssd)
     manifest = manifest_from_data(data, path, _source_sha256(path), base_dir=ssd.parent)
     manifest.unpacked = unpacked.resolve() if unpacked is not None else None
     return manifest
+
+
+def _extract_into_new(path: Path, unpacked: Path) -> None:
+    """:func:`safe_extract` into ``unpacked``, made with its missing parents; those
+    folders are removed again when the archive is refused."""
+    made = [folder for folder in (unpacked, *unpacked.parents) if not folder.exists()]
+    unpacked.mkdir(parents=True, exist_ok=True)
+    try:
+        safe_extract(path, unpacked)
+    except SspError:
+        for folder in made:  # deepest first; each empty again (safe_extract undid its own)
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        raise
 
 
 @contextlib.contextmanager
