@@ -222,3 +222,23 @@ def test_normal_package_unpacks_byte_for_byte(tmp_path):
     assert (dest / "docs" / "readme.txt").read_bytes() == b""
     assert _tree(dest) == ["SystemStructure.ssd", "docs", "docs/readme.txt", "resources",
                            "resources/a.fmu", "resources/sub", "resources/sub/b.ssv"]
+
+
+def test_a_link_in_the_folder_is_never_followed(tmp_path):
+    """A symbolic link already in the folder, where an entry's folder goes: refused,
+    nothing written through it."""
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    dest = tmp_path / "dest"
+    dest.mkdir()
+    (dest / "resources").symlink_to(elsewhere)
+    path = tmp_path / "p.ssp"
+    with zipfile.ZipFile(path, "w") as out:
+        out.writestr("SystemStructure.ssd", SSD)
+        out.writestr("resources/a.fmu", b"fmu")
+    with pytest.raises(SspError) as caught:
+        importer.safe_extract(path, dest)
+    _one_line_refusal(caught.value, path, "entry 'resources/a.fmu': 'resources' is in the "
+                      "way (not a folder)")
+    assert list(elsewhere.iterdir()) == []
+    assert _tree(dest) == ["resources"]
