@@ -3,12 +3,14 @@
 An archive's entries are checked from its headers before anything is written, and
 again while they are written, since headers can lie:
 
-- before: the entry count its end record declares (read before the central directory
-  is parsed), then its central directory: at most :attr:`Limits.entries` entries, their
-  uncompressed sizes summing to at most :attr:`Limits.size` bytes, compressed with
-  *stored* or *deflate* only (the two methods FMI and SSP allow; their decompression
-  is streamed in bounded chunks), and no entry that is a symbolic link or whose name is
-  absolute, has a drive letter or a ``..`` component;
+- before: the entry count and central directory size its end record declares (read
+  before the central directory is parsed: at most :data:`DIRECTORY_ENTRY` bytes of
+  directory per entry of the limit), then its central directory: at most
+  :attr:`Limits.entries` entries, their uncompressed sizes summing to at most
+  :attr:`Limits.size` bytes, compressed with *stored* or *deflate* only (the two
+  methods FMI and SSP allow; their decompression is streamed in bounded chunks), and no
+  entry that is a symbolic link or whose name is absolute, has a drive letter or a
+  ``..`` component;
 - while writing (:func:`extract`): each entry streamed to a new file of its own (never
   over an existing one, never through a link) with a byte budget: no entry writes more
   than its header declares, and the archive no more than :attr:`Limits.size` in all.
@@ -42,6 +44,10 @@ __all__ = ["FMU_LIMITS", "SSP_LIMITS", "ArchiveRefused", "Limits", "check_entrie
 METHODS = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflate"}
 #: Bytes read and written at a time while unpacking an entry.
 CHUNK = 1 << 20
+#: Most bytes of central directory per entry of the limit (a record is 46 bytes, its
+#: name and extra fields): bounds what :mod:`zipfile` parses when an end record
+#: understates the entry count.
+DIRECTORY_ENTRY = 1024
 
 
 class Limits(NamedTuple):
@@ -73,23 +79,29 @@ def declared_entries(stream: BinaryIO) -> int | None:
     """The entry count an archive's end record declares (ZIP64's when it has one), read
     from its last 64 KiB without parsing its central directory; None when there is no
     readable end record (:mod:`zipfile` then says what is wrong)."""
+    record = _end_record(stream)
+    return None if record is None else record[0]
+
+
+def _end_record(stream: BinaryIO) -> tuple[int, int] | None:
+    """(entries, central directory bytes) the end record declares, or None."""
     end = stream.seek(0, os.SEEK_END)
-    tail_start = max(0, end - (22 + 0xFFFF))
-    stream.seek(tail_start)
+    stream.seek(max(0, end - (22 + 0xFFFF)))
     tail = stream.read()
     at = tail.rfind(_EOCD)
     if at < 0 or len(tail) - at < 22:
         return None
-    count: int = struct.unpack_from("<H", tail, at + 10)[0]
-    if count != 0xFFFF or at < 20 or tail[at - 20:at - 16] != _EOCD64_LOCATOR:
-        return count
+    count, size = struct.unpack_from("<HI", tail, at + 10)
+    if (count != 0xFFFF and size != 0xFFFFFFFF) or at < 20 or \
+            tail[at - 20:at - 16] != _EOCD64_LOCATOR:
+        return int(count), int(size)
     offset: int = struct.unpack_from("<Q", tail, at - 12)[0]
     stream.seek(offset)
     record = stream.read(56)
     if len(record) < 56 or record[:4] != _EOCD64:
         return None
-    total: int = struct.unpack_from("<Q", record, 32)[0]
-    return total
+    count, size = struct.unpack_from("<QQ", record, 32)
+    return int(count), int(size)
 
 
 def _unsafe_reason(info: zipfile.ZipInfo) -> str | None:
@@ -138,15 +150,19 @@ def open_bounded(stream: BinaryIO, name: object, limits: Limits) -> zipfile.ZipF
     Raises
     ------
     ArchiveRefused
-        Named ``name``; the declared entry count is checked before the central directory
-        is read.
+        Named ``name``; the entry count and central directory size its end record
+        declares are checked before the central directory is read.
     zipfile.BadZipFile, OSError
         Not a readable zip archive.
     """
-    declared = declared_entries(stream)
-    if declared is not None and declared > limits.entries:
-        raise ArchiveRefused(name, f"refused: {declared} entries, more than the limit of "
+    declared = _end_record(stream)
+    if declared is not None and declared[0] > limits.entries:
+        raise ArchiveRefused(name, f"refused: {declared[0]} entries, more than the limit of "
                              f"{limits.entries}")
+    if declared is not None and declared[1] > limits.entries * DIRECTORY_ENTRY:
+        raise ArchiveRefused(name, f"refused: its central directory is {declared[1]} bytes, "
+                             f"more than {DIRECTORY_ENTRY} per entry of the limit of "
+                             f"{limits.entries} entries")
     stream.seek(0)
     archive = zipfile.ZipFile(stream)
     try:

@@ -89,6 +89,27 @@ def test_too_many_entries_refused_before_the_directory_is_read(tmp_path, monkeyp
     assert _tree(dest) == []
 
 
+def test_a_central_directory_larger_than_the_limit_allows_is_refused_unread(tmp_path,
+                                                                          monkeypatch):
+    """An end record that understates the entry count cannot make zipfile parse a huge
+    central directory: its declared size is bounded too (1 KiB per entry of the limit)."""
+    path = tmp_path / "long.ssp"
+    with zipfile.ZipFile(path, "w") as out:
+        for i in range(40):
+            out.writestr(f"{i:03d}" + "n" * 3000, b"")
+    data = bytearray(path.read_bytes())
+    at = data.rfind(b"PK\x05\x06")
+    data[at + 8:at + 12] = (1).to_bytes(2, "little") * 2  # "1 entry"
+    path.write_bytes(bytes(data))
+    with open(path, "rb") as stream:
+        assert archive.declared_entries(stream) == 1
+    monkeypatch.setattr(zipfile, "ZipFile", None)  # never reached
+    with open(path, "rb") as stream, pytest.raises(
+            ArchiveRefused, match=f"central directory is {40 * (46 + 3003)} bytes, more than "
+            "1024 per entry of the limit of 100 entries"):
+        archive.open_bounded(stream, path, Limits(size=MiB, entries=100))
+
+
 def test_entry_count_of_a_zip64_end_record(tmp_path):
     """More than 65535 entries: the count is the ZIP64 end record's."""
     path = tmp_path / "zip64.zip"
