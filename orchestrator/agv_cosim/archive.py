@@ -187,6 +187,7 @@ class _Unpacking:
     def __init__(self, archive_name: object, dest: Path, limits: Limits) -> None:
         self.name, self.dest, self.limits = archive_name, dest, limits
         self.created: list[tuple[Path, bool]] = []  # (path, is a folder)
+        self.folders: set[Path] = set()  # folders made or found to be folders
         self.written = 0
 
     def refuse(self, reason: str) -> ArchiveRefused:
@@ -198,15 +199,19 @@ class _Unpacking:
         path = self.dest
         for part in parts:
             path = path / part
+            if path in self.folders:
+                continue
             try:
                 mode = os.lstat(path).st_mode
             except FileNotFoundError:
                 os.mkdir(path, 0o777)
                 self.created.append((path, True))
+                self.folders.add(path)
                 continue
             if not stat.S_ISDIR(mode):
                 raise self.refuse(f"entry '{entry}': '{part}' is in the way (not a "
                                   "folder)")
+            self.folders.add(path)
         return path
 
     def entry(self, archive: zipfile.ZipFile, info: zipfile.ZipInfo) -> None:
