@@ -12,8 +12,10 @@ again while they are written, since headers can lie:
   entry that is a symbolic link or whose name is absolute, has a drive letter or a
   ``..`` component;
 - while writing (:func:`extract`): each entry streamed to a new file of its own (never
-  over an existing one, never through a link) with a byte budget: no entry writes more
-  than its header declares, and the archive no more than :attr:`Limits.size` in all.
+  over an existing one, never through a link; a name the archive holds twice is written
+  twice, the later entry kept, as :mod:`zipfile` and fmpy do) with a byte budget: no
+  entry writes more than its header declares, and the archive no more than
+  :attr:`Limits.size` in all.
 
 A refused archive raises :class:`ArchiveRefused` (its ``reason`` names the entry and
 why); :func:`extract` then removes every file and folder it created, and only those.
@@ -188,6 +190,7 @@ class _Unpacking:
         self.name, self.dest, self.limits = archive_name, dest, limits
         self.created: list[tuple[Path, bool]] = []  # (path, is a folder)
         self.folders: set[Path] = set()  # folders made or found to be folders
+        self.files: set[Path] = set()  # files made
         self.written = 0
 
     def refuse(self, reason: str) -> ArchiveRefused:
@@ -220,13 +223,17 @@ class _Unpacking:
             self.folder(parts, info.filename)
             return
         target = self.folder(parts[:-1], info.filename) / parts[-1]
+        if target in self.files:  # a name twice in the archive: the later one is kept
+            os.unlink(target)
         flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
         try:
             fd = os.open(target, flags, 0o666)
         except FileExistsError:
             raise self.refuse(f"entry '{info.filename}': '{target}' exists already "
                               "(nothing is written over)") from None
-        self.created.append((target, False))
+        if target not in self.files:
+            self.created.append((target, False))
+            self.files.add(target)
         with os.fdopen(fd, "wb") as out, archive.open(info) as source:
             try:
                 self.copy(source, out, info)
@@ -252,7 +259,8 @@ class _Unpacking:
             out.write(chunk)
 
     def undo(self) -> None:
-        """Remove what was created, files first, then folders (deepest first)."""
+        """Remove what was created, in the reverse order of its making (what is in a
+        folder before the folder)."""
         for path, is_folder in reversed(self.created):
             try:
                 if is_folder:

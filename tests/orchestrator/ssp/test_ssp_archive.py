@@ -263,3 +263,20 @@ def test_a_link_in_the_folder_is_never_followed(tmp_path):
                       "way (not a folder)")
     assert list(elsewhere.iterdir()) == []
     assert _tree(dest) == ["resources"]
+
+
+def test_a_name_held_twice_keeps_the_later_entry(tmp_path):
+    """As zipfile and fmpy unpack it (the FMI 3.0 Reference FMU Roberts.fmu holds its
+    extra/ files twice): the later entry is kept; the file is the extraction's own, so
+    replacing it writes over nothing of the user's."""
+    path = tmp_path / "twice.ssp"
+    with zipfile.ZipFile(path, "w") as out:
+        out.writestr("SystemStructure.ssd", SSD)
+        out.writestr("extra/a.txt", b"first")
+        with pytest.warns(UserWarning, match="Duplicate name"):
+            out.writestr("extra/a.txt", b"second")
+    dest = tmp_path / "dest"
+    dest.mkdir()
+    importer.safe_extract(path, dest)
+    assert (dest / "extra" / "a.txt").read_bytes() == b"second"
+    assert _tree(dest) == ["SystemStructure.ssd", "extra", "extra/a.txt"]
