@@ -18,6 +18,7 @@ __all__ = [
     "SimulationError", "SspError", "StandaloneError", "TableError", "UnreadableFile",
     "WorkerUnfit", "closest", "did_you_mean", "error_lines", "exit_code", "kept_summary",
     "FitDataError", "FitError", "FitNotConverged", "TrialFailed", "TuneError",
+    "ArchiveRefused",
 ]
 
 #: Most problems of one manifest reported at once (one line each).
@@ -122,6 +123,15 @@ class UnreadableFile(Exception):
     def __init__(self, path: object, problem: str) -> None:
         super().__init__(f"{path}: {problem}")
         self.path, self.problem = str(path), problem
+
+
+class ArchiveRefused(ValueError):
+    """A zip archive (an SSP package, an FMU) refused before or while it is unpacked
+    (:mod:`agv_cosim.archive`): ``archive`` names it, ``reason`` says why (one line)."""
+
+    def __init__(self, archive: object, reason: str) -> None:
+        super().__init__(f"{archive}: {reason}")
+        self.archive, self.reason = str(archive), reason
 
 
 class FolderLost(Exception):

@@ -22,7 +22,7 @@ PACKAGE = "agv_cosim"
 #: on top.
 LAYERS = {
     "errors": 0, "version": 0, "fmitypes": 0, "lifetime": 0, "files": 0, "timeseries": 0,
-    "csvcolumns": 0,
+    "csvcolumns": 0, "archive": 0,
     "manifest": 1, "plan": 2, "system": 3, "execution": 4, "report": 5, "workers": 6,
     "pipeline": 7,
     "ssp": 8, "build": 8, "identification": 8, "fitting": 8, "tuning": 8, "manifest_fit": 8,

@@ -16,11 +16,11 @@ import shutil
 import stat
 import sys
 import tempfile
-import zipfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
+from ..archive import FMU_LIMITS, extract
 from ..system.model import IDENTIFIER, ModelInfo
 
 __all__ = ["MAX_MESSAGE", "FmuInstance", "extract_ahead", "keep_extractions"]
@@ -124,8 +124,10 @@ def _extract(path: str | Path, dest: str) -> None:
 
 
 def _unzip(path: str | Path, dest: str) -> None:
-    with zipfile.ZipFile(path) as archive:
-        archive.extractall(dest)
+    """Unpack the FMU at ``path`` into the existing folder ``dest`` within
+    :data:`~agv_cosim.archive.FMU_LIMITS` (:func:`agv_cosim.archive.extract`: refused
+    with :class:`~agv_cosim.archive.ArchiveRefused` beyond them, what it wrote removed)."""
+    extract(path, dest, FMU_LIMITS)
 
 
 def extract_ahead(infos: Iterable[ModelInfo]) -> None:

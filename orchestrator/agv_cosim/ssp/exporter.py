@@ -38,6 +38,7 @@ import os
 import tempfile
 import zipfile
 from collections.abc import Iterable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 from xml.etree import ElementTree
@@ -159,83 +160,133 @@ def build_ssd(name: str, models: dict[str, ModelInfo], parameters: dict[str, dic
     if description:
         system.set("description", description)
     elements = ElementTree.SubElement(system, q("ssd", "Elements"))
-    used_units = {}
-    #: SSP enumeration name -> [(item name, value text)]
-    enumerations: dict[str, list[tuple[str, str]]] = {}
+    declared = _Declared()
     for cname, info in models.items():
         comp = ElementTree.SubElement(elements, q("ssd", "Component"),
                                       {"name": cname, "source": sources[cname],
                                        "type": FMU_MIME})
-        connectors = ElementTree.SubElement(comp, q("ssd", "Connectors"))
-        fmu_units = None
-        fmu_enums = None
-        for var in info.variables.values():
-            if var.causality not in ("input", "output") or \
-                    ssp_type(var) not in TYPES + ("Enumeration",):
-                continue
-            node = ElementTree.SubElement(connectors, q("ssd", "Connector"),
-                                          {"name": var.name, "kind": var.causality})
-            kind = ElementTree.SubElement(node, q("ssc", str(ssp_type(var))))
-            if ssp_type(var) == "Enumeration":
-                # SSP names the enumeration (required), defined in ssd:Enumerations;
-                # two FMUs with one type name but other items get instance-qualified
-                # names
-                if fmu_enums is None:
-                    fmu_enums = _enumeration_types(info.path)
-                tname, items = fmu_enums.get(var.name) or (f"{cname}.{var.name}", [])
-                if enumerations.get(tname, items) != items:
-                    tname = f"{cname}.{tname}"
-                enumerations[tname] = items
-                kind.set("name", tname)
-            if var.unit:
-                kind.set("unit", var.unit)
-                if var.unit not in used_units:
-                    if fmu_units is None:
-                        fmu_units = unit_definitions(info.path)
-                    used_units[var.unit] = fmu_units.get(var.unit, {})
-        values = parameters.get(cname) or {}
-        if values:
-            bindings = ElementTree.SubElement(comp, q("ssd", "ParameterBindings"))
-            binding = ElementTree.SubElement(bindings, q("ssd", "ParameterBinding"))
-            holder = ElementTree.SubElement(binding, q("ssd", "ParameterValues"))
-            pset = ElementTree.SubElement(holder, q("ssv", "ParameterSet"),
-                                          {"version": "1.0", "name": f"{cname}"})
-            plist = ElementTree.SubElement(pset, q("ssv", "Parameters"))
-            for pname, value in values.items():
-                var = info.variables[pname]
-                param = ElementTree.SubElement(plist, q("ssv", "Parameter"), {"name": pname})
-                attrs = {"value": fmitypes.format_text(var.ftype, value)}
-                if var.ftype.is_float and var.unit:
-                    attrs["unit"] = var.unit
-                ElementTree.SubElement(param, q("ssv", str(ssp_type(var))), attrs)
+        _write_connectors(comp, cname, info, declared)
+        _write_parameters(comp, cname, info, parameters.get(cname) or {})
         if steps and cname in steps:  # a multirate component's own step
-            notes = ElementTree.SubElement(comp, q("ssd", "Annotations"))
-            hint = ElementTree.SubElement(notes, q("ssc", "Annotation"),
-                                          {"type": OSP_ANNOTATION})
-            ElementTree.SubElement(hint, q("osp", "StepSizeHint"),
-                                   {"value": number_text(steps[cname])})
-            note = ElementTree.SubElement(notes, q("ssc", "Annotation"),
-                                          {"type": AGV_ANNOTATION})
-            ElementTree.SubElement(note, q("agv", "Component"),
-                                   {"stepSize": number_text(steps[cname])})
+            _write_own_step(comp, steps[cname])
         _write_interface(comp, info)
+    _write_connections(system, connections)
+    _write_declared(root, declared)
+    _write_experiment(root, start, stop, step, algorithm, record, record_interval,
+                      {"Metrics": metrics, "Plots": plots})
+    ElementTree.indent(root)
+    return root
+
+
+@dataclass
+class _Declared:
+    """What the components' connectors use, declared once for the whole SSD: units
+    (name -> BaseUnit attributes) and SSP enumerations (name -> [(item, value text)])."""
+
+    units: dict[str, dict[str, str]] = field(default_factory=dict)
+    enumerations: dict[str, list[tuple[str, str]]] = field(default_factory=dict)
+
+
+def _write_connectors(comp: ElementTree.Element, cname: str, info: ModelInfo,
+                      declared: _Declared) -> None:
+    """The ``ssd:Connectors`` of a component: every scalar input and output of an SSP
+    type, with its type (an enumeration named), and its unit; what they use goes into
+    ``declared``."""
+    connectors = ElementTree.SubElement(comp, q("ssd", "Connectors"))
+    fmu_units = None
+    fmu_enums = None
+    for var in info.variables.values():
+        if var.causality not in ("input", "output") or \
+                ssp_type(var) not in TYPES + ("Enumeration",):
+            continue
+        node = ElementTree.SubElement(connectors, q("ssd", "Connector"),
+                                      {"name": var.name, "kind": var.causality})
+        kind = ElementTree.SubElement(node, q("ssc", str(ssp_type(var))))
+        if ssp_type(var) == "Enumeration":
+            if fmu_enums is None:
+                fmu_enums = _enumeration_types(info.path)
+            kind.set("name", _enumeration_name(cname, var.name, fmu_enums, declared))
+        if var.unit:
+            kind.set("unit", var.unit)
+            if var.unit not in declared.units:
+                if fmu_units is None:
+                    fmu_units = unit_definitions(info.path)
+                declared.units[var.unit] = fmu_units.get(var.unit, {})
+
+
+def _enumeration_name(cname: str, vname: str,
+                      fmu_enums: dict[str, tuple[str, list[tuple[str, str]]]],
+                      declared: _Declared) -> str:
+    """The SSP enumeration a connector names (required), declared in ``declared``: the
+    FMU's type name, instance-qualified when another FMU's type of that name has other
+    items."""
+    tname, items = fmu_enums.get(vname) or (f"{cname}.{vname}", [])
+    if declared.enumerations.get(tname, items) != items:
+        tname = f"{cname}.{tname}"
+    declared.enumerations[tname] = items
+    return tname
+
+
+def _write_parameters(comp: ElementTree.Element, cname: str, info: ModelInfo,
+                      values: dict[str, Any]) -> None:
+    """The component's parameter values, inline (``ssd:ParameterValues``), if any."""
+    if not values:
+        return
+    bindings = ElementTree.SubElement(comp, q("ssd", "ParameterBindings"))
+    binding = ElementTree.SubElement(bindings, q("ssd", "ParameterBinding"))
+    holder = ElementTree.SubElement(binding, q("ssd", "ParameterValues"))
+    pset = ElementTree.SubElement(holder, q("ssv", "ParameterSet"),
+                                  {"version": "1.0", "name": f"{cname}"})
+    plist = ElementTree.SubElement(pset, q("ssv", "Parameters"))
+    for pname, value in values.items():
+        var = info.variables[pname]
+        param = ElementTree.SubElement(plist, q("ssv", "Parameter"), {"name": pname})
+        attrs = {"value": fmitypes.format_text(var.ftype, value)}
+        if var.ftype.is_float and var.unit:
+            attrs["unit"] = var.unit
+        ElementTree.SubElement(param, q("ssv", str(ssp_type(var))), attrs)
+
+
+def _write_own_step(comp: ElementTree.Element, step: float) -> None:
+    """A multirate component's own step, in libcosim's annotation (``osp:StepSizeHint``)
+    and ours (``agv:Component stepSize``)."""
+    notes = ElementTree.SubElement(comp, q("ssd", "Annotations"))
+    hint = ElementTree.SubElement(notes, q("ssc", "Annotation"), {"type": OSP_ANNOTATION})
+    ElementTree.SubElement(hint, q("osp", "StepSizeHint"), {"value": number_text(step)})
+    note = ElementTree.SubElement(notes, q("ssc", "Annotation"), {"type": AGV_ANNOTATION})
+    ElementTree.SubElement(note, q("agv", "Component"), {"stepSize": number_text(step)})
+
+
+def _write_connections(system: ElementTree.Element, connections: list[Any]) -> None:
     conns = ElementTree.SubElement(system, q("ssd", "Connections"))
     for conn in connections:
         ElementTree.SubElement(conns, q("ssd", "Connection"), {
             "startElement": conn.source[0], "startConnector": conn.source[1],
             "endElement": conn.target[0], "endConnector": conn.target[1]})
-    if enumerations:
+
+
+def _write_declared(root: ElementTree.Element, declared: _Declared) -> None:
+    """``ssd:Enumerations`` and ``ssd:Units`` (those used), each sorted by name."""
+    if declared.enumerations:
         enums = ElementTree.SubElement(root, q("ssd", "Enumerations"))
-        for tname in sorted(enumerations):
+        for tname in sorted(declared.enumerations):
             enum = ElementTree.SubElement(enums, q("ssc", "Enumeration"), {"name": tname})
-            for item, value in enumerations[tname]:
+            for item, value in declared.enumerations[tname]:
                 ElementTree.SubElement(enum, q("ssc", "Item"),
                                        {"name": item, "value": value})
-    if used_units:
+    if declared.units:
         units = ElementTree.SubElement(root, q("ssd", "Units"))
-        for uname in sorted(used_units):
+        for uname in sorted(declared.units):
             unit = ElementTree.SubElement(units, q("ssc", "Unit"), {"name": uname})
-            ElementTree.SubElement(unit, q("ssc", "BaseUnit"), used_units[uname])
+            ElementTree.SubElement(unit, q("ssc", "BaseUnit"), declared.units[uname])
+
+
+def _write_experiment(root: ElementTree.Element, start: float, stop: float, step: float,
+                      algorithm: str, record: list[str] | None,
+                      record_interval: float | None,
+                      tables: dict[str, dict[str, Any] | None]) -> None:
+    """``ssd:DefaultExperiment``: start, stop, libcosim's fixed step annotation and ours
+    (algorithm, step, record interval and variables, the manifest's tables as JSON)."""
     experiment = ElementTree.SubElement(root, q("ssd", "DefaultExperiment"),
                                         {"startTime": number_text(start),
                                          "stopTime": number_text(stop)})
@@ -251,12 +302,10 @@ def build_ssd(name: str, models: dict[str, ModelInfo], parameters: dict[str, dic
         exp.set("recordInterval", number_text(record_interval))
     for item in record or ():
         ElementTree.SubElement(exp, q("agv", "Record"), {"variable": item})
-    for tag, table in (("Metrics", metrics), ("Plots", plots)):
+    for tag, table in tables.items():
         if table:  # the manifest's [metrics] / [plots] table as JSON text
             ElementTree.SubElement(exp, q("agv", tag)).text = json.dumps(
                 table, sort_keys=True)
-    ElementTree.indent(root)
-    return root
 
 
 def export_ssp(manifest: str | Path | Manifest, out_path: str | Path,

@@ -2,7 +2,11 @@
 
 Import (:func:`load_ssp`, :func:`opened`): the archive is checked entry by entry
 (absolute paths, ``..``, drive letters and symbolic links are refused before anything is
-written), extracted, and its SSD is mapped onto the manifest's data (components,
+written) and extracted within bounds (:mod:`agv_cosim.archive`,
+:data:`~agv_cosim.archive.SSP_LIMITS`): at most 4 GiB uncompressed and 10 000 entries,
+stored or deflate only, checked from the headers before anything is written and enforced
+while writing (no entry writes more than its header declares); a refused archive leaves
+nothing of what was unpacked. Its SSD is mapped onto the manifest's data (components,
 connections, parameter values, experiment) and checked by the same schema as a manifest
 file (:func:`agv_cosim.manifest.manifest_from_data`); no manifest text is written, so
 names and values from the SSD stay data (component names must be identifiers, else
@@ -34,18 +38,18 @@ drawn in ``signals.png``. A component's ``implementation`` is its ``interface``
 import contextlib
 import json
 import math
-import re
 import shutil
-import stat
 import zipfile
 import zlib
 from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 from urllib.parse import unquote, urlparse
 from xml.etree import ElementTree
 
-from .. import fmitypes
+from .. import archive, fmitypes
+from ..archive import SSP_LIMITS, ArchiveRefused, Limits
 from ..errors import ManifestError, ModelError, SspError, UnreadableFile
 from ..files import XML_LIMIT, check_name, open_regular, read_bytes
 from ..lifetime import scratch_dir
@@ -74,41 +78,27 @@ _Unit = tuple[tuple[int, ...], float, float]
 _Binding = tuple[str, str, Any, str | None, _Unit | None, str]
 
 
-def _unsafe_reason(info: zipfile.ZipInfo) -> str | None:
-    name = info.filename
-    if stat.S_ISLNK(info.external_attr >> 16):
-        return "a symbolic link"
-    if name.startswith(("/", "\\")) or re.match(r"^[A-Za-z]:", name):
-        return "an absolute path"
-    if ".." in re.split(r"[\\/]", name):
-        return "a '..' path"
-    return None
-
-
-def safe_extract(archive_path: str | Path, dest: str | Path) -> None:
-    """Extract a zip archive into ``dest`` after checking every entry.
+def safe_extract(archive_path: str | Path, dest: str | Path,
+                 limits: Limits | None = None) -> None:
+    """Extract a zip archive into the existing folder ``dest`` within ``limits``
+    (default :data:`~agv_cosim.archive.SSP_LIMITS`) by :func:`agv_cosim.archive.extract`:
+    headers checked before anything is written, every entry streamed with a byte
+    budget, what was written removed on failure.
 
     Raises
     ------
     SspError
-        For an unreadable archive, or an entry with an absolute path, a drive letter,
-        a ``..`` component or a symbolic link (nothing is extracted then).
+        For an unreadable archive; an entry with an absolute path, a drive letter, a
+        ``..`` component or a symbolic link; more entries or uncompressed bytes than
+        ``limits`` (from the headers, or while writing); an entry larger than its header
+        says. Nothing this call wrote is left then.
     """
     try:
-        with open_regular(archive_path) as stream, zipfile.ZipFile(stream) as archive:
-            entries = archive.infolist()
-            for info in entries:
-                reason = _unsafe_reason(info)
-                if reason:
-                    raise SspError(archive_path, "archive", f"refused: entry "
-                                   f"'{info.filename}' is {reason}")
-            dest = Path(dest).resolve()
-            for info in entries:
-                target = (dest / info.filename).resolve()
-                if dest != target and dest not in target.parents:
-                    raise SspError(archive_path, "archive",
-                                   f"refused: entry '{info.filename}' leaves the folder")
-            archive.extractall(dest)
+        with open_regular(archive_path) as stream:
+            archive.extract(archive_path, dest, SSP_LIMITS if limits is None else limits,
+                            stream)
+    except ArchiveRefused as refused:
+        raise SspError(archive_path, "archive", refused.reason) from None
     except UnreadableFile as error:
         raise SspError(archive_path, "file", error.problem) from None
     except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, OSError) as error:
@@ -437,6 +427,38 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
     """
     ssd_path = Path(ssd_path)
     base = ssd_path.parent.resolve()
+    root = _ssd_root(package, ssd_path)
+    system = _system(package, root)
+    ssd_units = _units(package, root, "ssd")
+    elements = _read_elements(package, base, system, ssd_units)
+    params = _bound_parameters(package, elements.fmus, elements.bound,
+                               _bindings(package, base, system, "System", ssd_units))
+    components: dict[str, dict[str, Any]] = {
+        cname: {"fmu": str(fmu), "parameters": params[cname], **elements.interfaces[cname]}
+        for cname, fmu in elements.fmus.items()}
+    for cname, own in elements.steps.items():
+        components[cname]["step"] = own
+    connections = _connections(package, system)
+    experiment = _experiment(package, root)
+    data: dict[str, Any] = {"name": _system_name(package, root, system),
+                            "description": system.get("description", ""),
+                            "simulation": experiment.simulation, "components": components,
+                            "connections": connections}
+    data.update(experiment.tables)
+    if "plots" not in data:  # a package without our [plots]: its recorded outputs
+        data["plots"] = {"signals": (experiment.record
+                                     or _real_outputs(components))[:PLOTTED]}
+    if experiment.record or experiment.interval is not None:
+        data["record"] = {}
+        if experiment.record:
+            data["record"]["variables"] = experiment.record
+        if experiment.interval is not None:
+            data["record"]["interval"] = experiment.interval
+    return data
+
+
+def _ssd_root(package: Path, ssd_path: Path) -> ElementTree.Element:
+    """The SSD's root element, an SSP 1.0 ``ssd:SystemStructureDescription``."""
     try:
         root = ElementTree.fromstring(read_bytes(ssd_path, XML_LIMIT))
     except ElementTree.ParseError as error:
@@ -448,18 +470,35 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
     if root.tag != q("ssd", "SystemStructureDescription"):
         raise SspError(package, SSD_NAME, "root is not ssd:SystemStructureDescription "
                        "(SSP 1.0)")
+    return root
+
+
+def _system(package: Path, root: ElementTree.Element) -> ElementTree.Element:
+    """The SSD's ``ssd:System`` (signal dictionaries refused)."""
     system = root.find("ssd:System", NS)
     if system is None:
         raise SspError(package, "System", "missing")
     for tag, what in (("SignalDictionaries", "signal dictionaries"),):
         if system.find(f"ssd:{tag}", NS) is not None:
             raise SspError(package, f"System: {tag}", f"{what} are not supported")
-    fmus: dict[str, Path] = {}
-    connections: list[dict[str, str]] = []
-    bound: dict[str, list[_Binding]] = {}
-    steps: dict[str, float] = {}
-    interfaces: dict[str, dict[str, Any]] = {}
-    ssd_units = _units(package, root, "ssd")
+    return system
+
+
+@dataclass
+class _Elements:
+    """The components of an ``ssd:System``, by name: FMU, parameter bindings, own step
+    (multirate components only) and ``interface``/``solver``/``tolerance`` keys."""
+
+    fmus: dict[str, Path] = field(default_factory=dict)
+    bound: dict[str, list[_Binding]] = field(default_factory=dict)
+    steps: dict[str, float] = field(default_factory=dict)
+    interfaces: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+
+def _read_elements(package: Path, base: Path, system: ElementTree.Element,
+                   ssd_units: Mapping[str | None, _Unit]) -> _Elements:
+    """Every ``ssd:Component`` of ``system`` (anything else refused; at least one)."""
+    found = _Elements()
     elements = system.find("ssd:Elements", NS)
     for node in (elements if elements is not None else []):
         tag = node.tag.split("}")[-1]
@@ -467,24 +506,24 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
             raise SspError(package, f"Elements: {tag} '{node.get('name')}'",
                            "only Component elements are supported (no nested systems or "
                            "signal dictionaries)")
-        cname, fmu, bound[cname] = _component(package, base, node, ssd_units)
-        if cname in fmus:
+        cname, fmu, found.bound[cname] = _component(package, base, node, ssd_units)
+        if cname in found.fmus:
             raise SspError(package, f"Component '{cname}'", "name used twice")
         _check_connectors(package, cname, fmu, node)
-        fmus[cname] = fmu
+        found.fmus[cname] = fmu
         own = _own_step(package, node)
         if own is not None:
-            steps[cname] = own
-        interfaces[cname] = _interface(package, cname, node)
-    if not fmus:
+            found.steps[cname] = own
+        found.interfaces[cname] = _interface(package, cname, node)
+    if not found.fmus:
         raise SspError(package, "System: Elements", "no components")
-    params = _bound_parameters(package, fmus, bound,
-                               _bindings(package, base, system, "System", ssd_units))
-    components: dict[str, dict[str, Any]] = {
-        cname: {"fmu": str(fmu), "parameters": params[cname], **interfaces[cname]}
-        for cname, fmu in fmus.items()}
-    for cname, own in steps.items():
-        components[cname]["step"] = own
+    return found
+
+
+def _connections(package: Path, system: ElementTree.Element) -> list[dict[str, str]]:
+    """The manifest's ``[[connections]]`` of ``system`` (component to component only,
+    no transformation)."""
+    connections: list[dict[str, str]] = []
     for node in system.iterfind("ssd:Connections/ssd:Connection", NS):
         ends = [node.get(a) for a in ("startElement", "startConnector", "endElement",
                                       "endConnector")]
@@ -497,7 +536,28 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
         if len(node):
             raise SspError(package, key, f"{node[0].tag.split('}')[-1]} is not supported")
         connections.append({"from": f"{ends[0]}.{ends[1]}", "to": f"{ends[2]}.{ends[3]}"})
+    return connections
 
+
+@dataclass
+class _Experiment:
+    """What ``ssd:DefaultExperiment`` and its annotations give: the master algorithm and
+    step, the recorded variables and record interval (None: not given), the
+    ``[metrics]``/``[plots]`` tables of our annotation, and the ``[simulation]`` table
+    they make."""
+
+    algorithm: str = "jacobi"
+    step: float | None = None
+    record: list[str | None] | None = None
+    interval: float | None = None
+    tables: dict[str, Any] = field(default_factory=dict)
+    simulation: dict[str, Any] = field(default_factory=dict)
+
+
+def _experiment(package: Path, root: ElementTree.Element) -> _Experiment:
+    """The SSD's ``ssd:DefaultExperiment``: start and stop, the step from libcosim's
+    annotation (``osp:FixedStepAlgorithm``) or ours, and the rest of ours, annotations
+    read in document order."""
     experiment = root.find("ssd:DefaultExperiment", NS)
     if experiment is None:
         raise SspError(package, "DefaultExperiment", "missing (start, stop and step are "
@@ -506,36 +566,56 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
     if experiment.get("stopTime") is None:
         raise SspError(package, "DefaultExperiment", "no stopTime")
     stop = _float_attr(package, "DefaultExperiment", experiment, "stopTime")
-    step, algorithm, record, interval, tables = None, "jacobi", None, None, {}
+    found = _Experiment()
     for note in experiment.iterfind("ssd:Annotations/ssc:Annotation", NS):
-        if note.get("type") == OSP_ANNOTATION and step is None:
+        if note.get("type") == OSP_ANNOTATION and found.step is None:
             fixed = note.find("osp:Algorithm/osp:FixedStepAlgorithm", NS)
             if fixed is not None:
-                step = _float_attr(package, "osp:FixedStepAlgorithm", fixed, "baseStepSize")
+                found.step = _float_attr(package, "osp:FixedStepAlgorithm", fixed,
+                                         "baseStepSize")
         elif note.get("type") == AGV_ANNOTATION:
             ours = note.find("agv:Experiment", NS)
             if ours is not None:
-                algorithm = ours.get("algorithm", algorithm)
-                if ours.get("stepSize"):
-                    step = _float_attr(package, "agv:Experiment", ours, "stepSize")
-                if ours.get("recordInterval"):
-                    interval = _float_attr(package, "agv:Experiment", ours, "recordInterval")
-                record = [r.get("variable") for r in ours.iterfind("agv:Record", NS)] or None
-                for tag in ("Metrics", "Plots"):
-                    text = ours.findtext(f"agv:{tag}", None, NS)
-                    if text is None:
-                        continue
-                    try:
-                        table = json.loads(text)
-                    except ValueError as error:
-                        raise SspError(package, f"agv:{tag}", f"not JSON: {error}") from None
-                    if not isinstance(table, dict):
-                        raise SspError(package, f"agv:{tag}", "not a JSON object")
-                    tables[tag.lower()] = table
-    if step is None:
+                _read_our_experiment(package, ours, found)
+    if found.step is None:
         raise SspError(package, "DefaultExperiment", "no step size (an "
                        "osp:FixedStepAlgorithm annotation with baseStepSize is needed)")
-    simulation = {"start": start, "stop": stop, "step": step, "algorithm": algorithm}
+    found.simulation = {"start": start, "stop": stop, "step": found.step,
+                        "algorithm": found.algorithm}
+    return found
+
+
+def _read_our_experiment(package: Path, ours: ElementTree.Element,
+                         found: _Experiment) -> None:
+    """Our ``agv:Experiment`` annotation into ``found``: algorithm, step, record
+    interval (those given), recorded variables, ``[metrics]`` and ``[plots]``."""
+    found.algorithm = ours.get("algorithm", found.algorithm)
+    if ours.get("stepSize"):
+        found.step = _float_attr(package, "agv:Experiment", ours, "stepSize")
+    if ours.get("recordInterval"):
+        found.interval = _float_attr(package, "agv:Experiment", ours, "recordInterval")
+    found.record = [r.get("variable") for r in ours.iterfind("agv:Record", NS)] or None
+    for tag in ("Metrics", "Plots"):
+        text = ours.findtext(f"agv:{tag}", None, NS)
+        if text is not None:
+            found.tables[tag.lower()] = _json_table(package, tag, text)
+
+
+def _json_table(package: Path, tag: str, text: str) -> dict[str, Any]:
+    """A manifest table carried as JSON text in our annotation (``agv:<tag>``)."""
+    try:
+        table = json.loads(text)
+    except ValueError as error:
+        raise SspError(package, f"agv:{tag}", f"not JSON: {error}") from None
+    if not isinstance(table, dict):
+        raise SspError(package, f"agv:{tag}", "not a JSON object")
+    return table
+
+
+def _system_name(package: Path, root: ElementTree.Element,
+                 system: ElementTree.Element) -> str:
+    """The system's name (the SSD's, else the system's, else the package's stem): a
+    plain file name, since it names the default output folder."""
     name = root.get("name") if root.get("name") is not None else system.get("name")
     if name is None:
         name = Path(package).stem
@@ -544,19 +624,7 @@ def read_ssd(package: Path, ssd_path: Path) -> dict[str, Any]:
     except ValueError as error:
         raise SspError(package, "SystemStructureDescription", f"{error} (it names the "
                        "default output folder results/<name>)") from None
-    data: dict[str, Any] = {"name": name,
-            "description": system.get("description", ""),
-            "simulation": simulation, "components": components, "connections": connections}
-    data.update(tables)
-    if "plots" not in data:  # a package without our [plots]: its recorded outputs
-        data["plots"] = {"signals": (record or _real_outputs(components))[:PLOTTED]}
-    if record or interval is not None:
-        data["record"] = {}
-        if record:
-            data["record"]["variables"] = record
-        if interval is not None:
-            data["record"]["interval"] = interval
-    return data
+    return name
 
 
 #: Most signals plotted from a package that names no ``[plots]`` table.
@@ -616,13 +684,26 @@ def load_ssp(path: str | Path, workdir: str | Path) -> Manifest:
         ssd = path
     else:
         unpacked = workdir / "package"
-        unpacked.mkdir(parents=True, exist_ok=True)
-        safe_extract(path, unpacked)
+        _extract_into_new(path, unpacked)
         ssd = unpacked / SSD_NAME
     data = read_ssd(path, ssd)
     manifest = manifest_from_data(data, path, _source_sha256(path), base_dir=ssd.parent)
     manifest.unpacked = unpacked.resolve() if unpacked is not None else None
     return manifest
+
+
+def _extract_into_new(path: Path, unpacked: Path) -> None:
+    """:func:`safe_extract` into ``unpacked``, made with its missing parents; those
+    folders are removed again when the archive is refused."""
+    made = [folder for folder in (unpacked, *unpacked.parents) if not folder.exists()]
+    unpacked.mkdir(parents=True, exist_ok=True)
+    try:
+        safe_extract(path, unpacked)
+    except SspError:
+        for folder in made:  # deepest first; each empty again (safe_extract undid its own)
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        raise
 
 
 @contextlib.contextmanager

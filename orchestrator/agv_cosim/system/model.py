@@ -34,8 +34,9 @@ from pathlib import Path
 from typing import Any
 
 from .. import fmitypes
+from ..archive import FMU_LIMITS, ArchiveRefused, open_bounded
 from ..errors import ModelError
-from ..files import open_regular
+from ..files import XML_LIMIT, open_regular
 from ..fmitypes import FmiType
 
 
@@ -211,12 +212,16 @@ def read_model(path: str | Path) -> ModelInfo:
     if key in _CACHE:
         return _CACHE[key]
     try:
-        with zipfile.ZipFile(path) as archive:
-            archive.getinfo("modelDescription.xml")
+        with open(path, "rb") as stream, open_bounded(stream, path, FMU_LIMITS) as archive:
+            if archive.getinfo("modelDescription.xml").file_size > XML_LIMIT:
+                raise ArchiveRefused(path, f"refused: modelDescription.xml is more than "
+                                     f"{XML_LIMIT} bytes")
             # every entry's CRC now, so a corrupt binary is named here, not mid-run
             bad = archive.testzip()
     except KeyError:
         raise ModelError(f"broken FMU (no modelDescription.xml): '{path}'") from None
+    except ArchiveRefused as refused:
+        raise ModelError(f"FMU '{path}': {refused.reason}") from None
     except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError) as error:
         reason = "not a zip archive" if "File is not a zip" in str(error) else \
             f"corrupt zip archive: {error}"
