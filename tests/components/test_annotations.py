@@ -13,10 +13,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2] / "components" / "agv_core"
 
 PENDING = {
-    "axle_pd/fuzzy_pd.py", "double_steer/double_steer.py", "double_steer/seed001_loop.py",
     "dynamic_train/dynamic_train.py", "dynamic_vehicle/dynamic_vehicle.py",
-    "dynamic_vehicle/tyres.py", "numerics/paths.py", "sensors/sensors.py",
-    "steering/actuator.py", "train/train.py", "vehicle/vehicle.py",
+    "numerics/paths.py", "sensors/sensors.py", "steering/actuator.py", "train/train.py",
 }
 
 
