@@ -419,7 +419,8 @@ class IdentifiedActuator(SteeringActuator):
 
 
 #: model letter (seed 000) -> actuator class
-MODELS: dict[str, type[SteeringActuator]] = {"a": DelayedIntegratorActuator, "b": IntegratorActuator, "c": IdentifiedActuator}
+MODELS: dict[str, type[SteeringActuator]] = {
+    "a": DelayedIntegratorActuator, "b": IntegratorActuator, "c": IdentifiedActuator}
 
 
 def make_actuator(model: str, **parameters: Any) -> SteeringActuator:
