@@ -69,7 +69,8 @@ class RefTrajectory:
                 raise ParameterError("omega", f"must be finite and non-zero, got {omega}")
             self.omega = float(omega)
             radius = self.speed / abs(self.omega)
-            self.path: CirclePath | GraphPath = CirclePath(radius, direction="ccw" if omega > 0 else "cw")
+            self.path: CirclePath | GraphPath = CirclePath(
+                radius, direction="ccw" if omega > 0 else "cw")
             self.s_start = 0.0
             self.straight = 0.0
         else:
