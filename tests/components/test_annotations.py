@@ -2,22 +2,12 @@
 scripts included) has every parameter (but self / cls) and its return annotated
 (``__init__``'s return may be left out), as tests/orchestrator/test_layering.py asks of
 agv_cosim. Read from the source (ast).
-
-PENDING names the modules not annotated yet; the test also fails when one of them has
-become fully annotated, so that the list only shrinks.
 """
 
 import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2] / "components" / "agv_core"
-
-PENDING = {
-    "axle_pd/fuzzy_pd.py", "double_steer/double_steer.py", "double_steer/seed001_loop.py",
-    "dynamic_train/dynamic_train.py", "dynamic_vehicle/dynamic_vehicle.py",
-    "dynamic_vehicle/tyres.py", "numerics/paths.py", "sensors/sensors.py",
-    "steering/actuator.py", "train/train.py", "vehicle/vehicle.py",
-}
 
 
 def bare_signatures(path):
@@ -59,12 +49,6 @@ def test_the_check_finds_a_bare_signature(tmp_path):
 
 
 def test_every_public_function_of_agv_core_is_annotated():
-    missing = [f"{name}:{line}" for name, path in modules().items() if name not in PENDING
+    missing = [f"{name}:{line}" for name, path in modules().items()
                for line in bare_signatures(path)]
     assert missing == []
-
-
-def test_the_pending_list_names_only_modules_still_to_annotate():
-    known = modules()
-    assert sorted(PENDING - set(known)) == []
-    assert sorted(name for name in PENDING if not bare_signatures(known[name])) == []

@@ -5,7 +5,7 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "ackermann.ackermann", "train.train")
+core: Any = load_core("fmi.fmi_slave", "ackermann.ackermann", "train.train")
 
 _AXLES = (1, 2, 3, 4)
 

@@ -5,7 +5,7 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "axle_pd.track_path", "numerics.paths")
+core: Any = load_core("fmi.fmi_slave", "axle_pd.track_path", "numerics.paths")
 
 _AXLES = (1, 2, 3, 4)
 
@@ -44,7 +44,7 @@ class AgvAxleErrors(core.fmi.fmi_slave.AgvSlave):
         track_path = core.axle_pd.track_path
         return track_path.PointErrors(track_path.parse_track_path(self.path), 4)
 
-    def _points(self):
+    def _points(self) -> list[tuple[float, float]]:
         return [(getattr(self, f"x{i}"), getattr(self, f"y{i}")) for i in _AXLES]
 
     def advance(self, t: float, h: float) -> None:

@@ -6,7 +6,7 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "axle_pd.fuzzy_pd", "fmi.axle_pd_fmi", "fmi.defaults")
+core: Any = load_core("fmi.fmi_slave", "axle_pd.fuzzy_pd", "fmi.axle_pd_fmi", "fmi.defaults")
 DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once): km/h, deg
     core.axle_pd.fuzzy_pd.FuzzySchedule)
 

@@ -29,8 +29,11 @@ components/README.md.
 
 import functools
 import math
+from collections.abc import Sequence
+from typing import Any, Protocol
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 from scipy.integrate import trapezoid
 
 from ..errors import ParameterError
@@ -49,8 +52,11 @@ DEFAULT_DELTA_MAX = math.radians(35.0)
 
 KMH = 3.6  # (km/h) / (m/s)
 
+#: A parsed rule table: 5 rows (e = NB..PB) of 3 output labels (v = low, mid, high).
+Rules = tuple[tuple[str, ...], ...]
 
-def parse_rules(name, text):
+
+def parse_rules(name: str, text: str) -> Rules:
     """A 5 x 3 rule table "r1c1 r1c2 r1c3; ...; r5c1 r5c2 r5c3" -> tuple of row tuples."""
     rows = [row.split() for row in str(text).split(";")]
     if len(rows) != len(INPUT_E) or any(len(r) != len(INPUT_V) for r in rows):
@@ -64,7 +70,7 @@ def parse_rules(name, text):
     return tuple(tuple(r) for r in rows)
 
 
-def _tri_memberships(x, lo, hi, n):
+def _tri_memberships(x: ArrayLike, lo: float, hi: float, n: int) -> NDArray[np.float64]:
     """Memberships (len(x), n) of n evenly spaced triangles on [lo, hi] (skfuzzy.trimf),
     x clipped to [lo, hi] as skfuzzy.control does."""
     import skfuzzy as fuzz
@@ -78,7 +84,9 @@ def _tri_memberships(x, lo, hi, n):
     return np.stack(columns, axis=1)
 
 
-def mamdani_surface(e, v, rules, e_max, v_max, out_max, out_points=3001):
+def mamdani_surface(e: ArrayLike, v: ArrayLike, rules: Sequence[Sequence[str]], e_max: float,
+                    v_max: float, out_max: float, out_points: int = 3001
+                    ) -> NDArray[np.float64]:
     """Mamdani min-max-centroid output at the points (e [m], v [km/h]).
 
     The aggregated output membership is sampled on ``out_points`` equally spaced points of
@@ -114,8 +122,9 @@ def mamdani_surface(e, v, rules, e_max, v_max, out_max, out_points=3001):
     return result
 
 
-def control_system(rules_kp, rules_kd, e_max=0.05, v_max=80.0, kp_max=1500.0, kd_max=800.0,
-                   points=601):
+def control_system(rules_kp: Sequence[Sequence[str]], rules_kd: Sequence[Sequence[str]],
+                   e_max: float = 0.05, v_max: float = 80.0, kp_max: float = 1500.0,
+                   kd_max: float = 800.0, points: int = 601) -> Any:
     """The scheduler as a scikit-fuzzy ``ControlSystem`` (its definition of record).
 
     Universes sampled with ``points`` points so that every triangle breakpoint is a sample.
@@ -128,7 +137,7 @@ def control_system(rules_kp, rules_kd, e_max=0.05, v_max=80.0, kp_max=1500.0, kd
     kp = ctrl.Consequent(np.linspace(-kp_max, kp_max, points), "kp")
     kd = ctrl.Consequent(np.linspace(-kd_max, kd_max, points), "kd")
 
-    def triangles(var, lo, hi, labels):
+    def triangles(var: Any, lo: float, hi: float, labels: Sequence[str]) -> None:
         step = (hi - lo) / (len(labels) - 1)
         for k, label in enumerate(labels):
             c = lo + k * step
@@ -147,7 +156,8 @@ def control_system(rules_kp, rules_kd, e_max=0.05, v_max=80.0, kp_max=1500.0, kd
 
 
 @functools.lru_cache(maxsize=16)
-def _grid_table(rules, e_max, v_max, out_max, e_cells, v_cells):
+def _grid_table(rules: Rules, e_max: float, v_max: float, out_max: float, e_cells: int,
+                v_cells: int) -> tuple[tuple[float, ...], ...]:
     """Surface values on the grid as nested tuples of plain floats [i_e][i_v].
 
     A pure function of its (hashable) arguments, cached per process: the four axle
@@ -178,8 +188,9 @@ class FuzzySchedule:
         Grid cells across [0, v_max]; a multiple of 2 (breakpoints every v_max/2).
     """
 
-    def __init__(self, kp_rules=DEFAULT_KP_RULES, kd_rules=DEFAULT_KD_RULES, e_max=0.05,
-                 v_max=80.0, kp_max=1500.0, kd_max=800.0, e_cells=100, v_cells=40):
+    def __init__(self, kp_rules: str = DEFAULT_KP_RULES, kd_rules: str = DEFAULT_KD_RULES,
+                 e_max: float = 0.05, v_max: float = 80.0, kp_max: float = 1500.0,
+                 kd_max: float = 800.0, e_cells: int = 100, v_cells: int = 40) -> None:
         for name, value in (("e_max", e_max), ("v_max", v_max), ("kp_max", kp_max),
                             ("kd_max", kd_max)):
             if not (math.isfinite(value) and value > 0.0):
@@ -200,17 +211,18 @@ class FuzzySchedule:
         self.kd_table = _grid_table(self.kd_rules, self.e_max, self.v_max, self.kd_max,
                                     self.e_cells, self.v_cells)
 
-    def direct(self, e, v_kmh):
+    def direct(self, e: ArrayLike, v_kmh: ArrayLike
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(Kp, Kd) evaluated without the grid (arrays), for checks."""
         return (mamdani_surface(e, v_kmh, self.kp_rules, self.e_max, self.v_max, self.kp_max),
                 mamdani_surface(e, v_kmh, self.kd_rules, self.e_max, self.v_max, self.kd_max))
 
-    def control_system(self):
+    def control_system(self) -> Any:
         """The same scheduler as a scikit-fuzzy ControlSystem."""
         return control_system(self.kp_rules, self.kd_rules, self.e_max, self.v_max,
                               self.kp_max, self.kd_max)
 
-    def gains(self, e, v_kmh):
+    def gains(self, e: float, v_kmh: float) -> tuple[float, float]:
         """(Kp [deg/m], Kd [deg s/m]) by bilinear interpolation; inputs clipped to their
         universes (as scikit-fuzzy does)."""
         fe = (min(max(e, -self.e_max), self.e_max) + self.e_max) / self.de
@@ -232,14 +244,22 @@ class FixedGains:
     Defaults: the fuzzy schedule's gains at e = 1 cm, 14 km/h (709.7, 111.8), rounded.
     """
 
-    def __init__(self, kp_deg=710.0, kd_deg=112.0):
+    def __init__(self, kp_deg: float = 710.0, kd_deg: float = 112.0) -> None:
         for name, value in (("Kp", kp_deg), ("Kd", kd_deg)):
             if not math.isfinite(value):
                 raise ParameterError(name, f"must be finite, got {value}")
         self.kp, self.kd = float(kp_deg), float(kd_deg)
 
-    def gains(self, e, v_kmh):
+    def gains(self, e: float, v_kmh: float) -> tuple[float, float]:
         return self.kp, self.kd
+
+
+class GainSource(Protocol):
+    """What :class:`AxlePD` asks of its schedule (:class:`FuzzySchedule`, :class:`FixedGains`)."""
+
+    def gains(self, e: float, v_kmh: float) -> tuple[float, float]:
+        """(Kp [deg/m], Kd [deg s/m]) at lateral error ``e`` [m] and speed ``v_kmh`` [km/h]."""
+        ...
 
 
 class AxlePD:
@@ -255,7 +275,8 @@ class AxlePD:
         Saturation [rad], 0 < delta_max < pi/2.
     """
 
-    def __init__(self, schedule, tau_d=0.05, delta_max=DEFAULT_DELTA_MAX):
+    def __init__(self, schedule: GainSource, tau_d: float = 0.05,
+                 delta_max: float = DEFAULT_DELTA_MAX) -> None:
         if not (math.isfinite(tau_d) and tau_d > 0.0):
             raise ParameterError("tau_d", f"must be positive, got {tau_d}")
         if not (0.0 < delta_max < 0.5 * math.pi):
@@ -263,11 +284,11 @@ class AxlePD:
         self.schedule = schedule
         self.tau_d = float(tau_d)
         self.delta_max = float(delta_max)
-        self.x = None          # filter state [m]; None until the first evaluation
-        self.outputs = {"delta": 0.0, "Kp": 0.0, "Kd": 0.0, "error_rate": 0.0,
+        self.x: float | None = None  # filter state [m]; None until the first evaluation
+        self.outputs: dict[str, float | bool] = {"delta": 0.0, "Kp": 0.0, "Kd": 0.0, "error_rate": 0.0,
                         "saturated": False}
 
-    def evaluate(self, e, v):
+    def evaluate(self, e: float, v: float) -> dict[str, float | bool]:
         """Outputs for lateral error ``e`` [m] and speed ``v`` [m/s] (SI gains)."""
         e = float(e)
         rate = 0.0 if self.x is None else (e - self.x) / self.tau_d
@@ -279,16 +300,16 @@ class AxlePD:
                         "saturated": delta != law}
         return self.outputs
 
-    def advance(self, e, h):
+    def advance(self, e: float, h: float) -> None:
         """Advance the derivative filter by ``h`` [s] with ``e`` [m] held."""
         e = float(e)
         if self.x is None:
             self.x = e
         self.x += -math.expm1(-h / self.tau_d) * (e - self.x)
 
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         return {"x": self.x, "outputs": dict(self.outputs)}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         self.x = None if state["x"] is None else float(state["x"])
         self.outputs = dict(state["outputs"])

@@ -25,9 +25,9 @@ Other kinds (``line``, ``circle``, ``sine``, ``scurve``, ``waypoints``) are pass
 """
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -85,7 +85,8 @@ class CurvePath(ReferencePath):
         self.th4 = self.h0 + self.sign * self.angle
 
     @staticmethod
-    def _clothoid_pos(p, th, k0, dk, length, u=None):
+    def _clothoid_pos(p: tuple[float, float], th: float, k0: float, dk: float, length: float,
+                      u: float | None = None) -> tuple[float, float]:
         """Position after ``u`` (default: all of ``length``) [m] along a clothoid from
         pose (p, th) whose curvature goes k0 -> k0 + dk over ``length``."""
         u = length if u is None else u
@@ -101,7 +102,7 @@ class CurvePath(ReferencePath):
             y += half * wi * math.sin(a)
         return (x, y)
 
-    def _pose(self, s):
+    def _pose(self, s: float) -> tuple[float, float, float, float, float]:
         """(x, y, heading, curvature, curvature_rate) at arc length s."""
         if s <= self.s1:
             return (self.p0[0] + s * math.cos(self.h0), self.p0[1] + s * math.sin(self.h0),
@@ -130,12 +131,12 @@ class CurvePath(ReferencePath):
         x, y, th, c, dc = self._pose(float(s))
         return PathProjection(float(s), x, y, th, c, dc, 0.0)
 
-    def _at(self, s, qx, qy):
+    def _at(self, s: float, qx: float, qy: float) -> PathProjection:
         x, y, th, c, dc = self._pose(s)
         off = -(qx - x) * math.sin(th) + (qy - y) * math.cos(th)
         return PathProjection(s, x, y, th, c, dc, off)
 
-    def _newton(self, qx, qy, s):
+    def _newton(self, qx: float, qy: float, s: float) -> float | None:
         for _ in range(30):
             x, y, th, c, _ = self._pose(s)
             dx, dy = x - qx, y - qy
@@ -150,8 +151,8 @@ class CurvePath(ReferencePath):
                 return s
         return None
 
-    def _global(self, qx, qy):
-        best = None
+    def _global(self, qx: float, qy: float) -> float:
+        best: tuple[float, float] | None = None
         candidates = []
         # straight before: closest point of the infinite line, clamped to s <= s1
         c0, s0 = math.cos(self.h0), math.sin(self.h0)
@@ -169,11 +170,11 @@ class CurvePath(ReferencePath):
             dist = (p.x - qx) ** 2 + (p.y - qy) ** 2
             if best is None or dist < best[0]:
                 best = (dist, s)
-        return best[1]
+        return cast(tuple[float, float], best)[1]  # three candidates: never None
 
     def project(self, x: float, y: float, s_hint: float | None = None) -> PathProjection:
         qx, qy = float(x), float(y)
-        s = None
+        s: float | None = None
         if s_hint is not None:
             s = self._newton(qx, qy, float(s_hint))
         if s is None:
@@ -213,8 +214,8 @@ class PointErrors:
 
     def __init__(self, path: ReferencePath, n: int = 4) -> None:
         self.path = path
-        self.hints = [None] * int(n)
-        self.last = [None] * int(n)
+        self.hints: list[float | None] = [None] * int(n)
+        self.last: Sequence[PathProjection | None] = [None] * int(n)
 
     def measure(self, points: Iterable[tuple[float, float]], commit: bool = False
                 ) -> list[PathProjection]:

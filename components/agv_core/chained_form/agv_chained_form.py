@@ -4,7 +4,8 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "chained_form.chained_form", "numerics.paths", "fmi.defaults")
+core: Any = load_core(
+    "fmi.fmi_slave", "chained_form.chained_form", "numerics.paths", "fmi.defaults")
 DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
     core.chained_form.chained_form.make_controller)
 

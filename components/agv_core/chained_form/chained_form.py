@@ -29,7 +29,7 @@ valid for |theta| < pi/2 and y c < 1. The steering angle is then saturated at
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from ..errors import ParameterError
 from ..numerics import paths
@@ -181,11 +181,12 @@ class ChainedFormController:
         self.sample_period = float(sample_period)
         self.path = path
         self._hold = SampleHold(self.sample_period)
-        self._s_hint = None
-        self.outputs = self._evaluate(0.0, 0.0, 0.0, 0.0)
+        self._s_hint: float | None = None
+        self.outputs: dict[str, float] = self._evaluate(0.0, 0.0, 0.0, 0.0)
 
     # ------------------------------------------------------------------ law
-    def _evaluate(self, lateral_error, heading_error, curvature, curvature_rate, s=0.0):
+    def _evaluate(self, lateral_error: float, heading_error: float, curvature: float,
+                  curvature_rate: float, s: float = 0.0) -> dict[str, float]:
         delta_law, m3, in_domain = steering_law(
             lateral_error, heading_error, curvature, curvature_rate, self.Kd, self.Kp,
             self.wheelbase, self.delta_max)
@@ -224,7 +225,8 @@ class ChainedFormController:
         return self.outputs["delta"]
 
     @staticmethod
-    def _state_inputs(lateral_error, heading_error, curvature, curvature_rate):
+    def _state_inputs(lateral_error: float, heading_error: float, curvature: float,
+                      curvature_rate: float) -> tuple[float, float, float, float]:
         return (float(lateral_error), wrap_angle(heading_error), float(curvature),
                 float(curvature_rate))
 
@@ -239,8 +241,9 @@ class ChainedFormController:
                                                   curvature_rate), self._evaluate)
         self.outputs = self._hold.value if self._hold.value is not None else self.outputs
 
-    def _from_pose(self, x, y, heading):
-        p = self.path.project(x, y, s_hint=self._s_hint)
+    def _from_pose(self, x: float, y: float, heading: float) -> dict[str, float]:
+        path = cast(paths.ReferencePath, self.path)  # checked by the caller
+        p = path.project(x, y, s_hint=self._s_hint)
         self._s_hint = float(p.s)
         return self._evaluate(float(p.offset), paths.heading_error(heading, float(p.heading)),
                               float(p.curvature), float(p.curvature_rate), s=float(p.s))

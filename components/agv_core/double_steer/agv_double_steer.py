@@ -5,7 +5,7 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "double_steer.double_steer", "fmi.defaults")
+core: Any = load_core("fmi.fmi_slave", "double_steer.double_steer", "fmi.defaults")
 DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
     core.double_steer.double_steer.DoubleSteerVehicle)
 
@@ -60,7 +60,7 @@ class AgvDoubleSteer(core.fmi.fmi_slave.AgvSlave):
         return core.double_steer.double_steer.DoubleSteerVehicle(self.wheelbase, self.x0,
                                                                  self.y0, self.yaw0)
 
-    def _wheels(self):
+    def _wheels(self) -> tuple[float, float, float, float]:
         return self.theta_f, self.v_f, self.theta_b, self.v_b
 
     def advance(self, t: float, h: float) -> None:

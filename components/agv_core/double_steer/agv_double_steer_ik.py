@@ -4,7 +4,7 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "double_steer.double_steer")
+core: Any = load_core("fmi.fmi_slave", "double_steer.double_steer")
 
 
 class AgvDoubleSteerIk(core.fmi.fmi_slave.AgvSlave):

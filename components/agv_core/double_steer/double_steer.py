@@ -42,6 +42,7 @@ which the forward kinematics maps back to u = v_c, v = 0, omega exactly.
 """
 
 import math
+from typing import Any
 
 from ..errors import ParameterError
 from ..numerics.arc import sinc as _sinc
@@ -50,13 +51,14 @@ from ..numerics.finite import finite as _finite
 TWO_PI = 2.0 * math.pi
 
 
-def _positive(name, value):
+def _positive(name: str, value: float) -> float:
     if not (math.isfinite(value) and value > 0.0):
         raise ParameterError(name, f"must be a positive number, got {value}")
     return float(value)
 
 
-def body_twist(wheelbase, theta_f, v_f, theta_b, v_b):
+def body_twist(wheelbase: float, theta_f: float, v_f: float, theta_b: float, v_b: float
+               ) -> tuple[float, float, float, float]:
     """Centroid velocity (u, v) [m/s] in the body frame and yaw rate [rad/s].
 
     Parameters
@@ -78,7 +80,8 @@ def body_twist(wheelbase, theta_f, v_f, theta_b, v_b):
     return 0.5 * (cf + cb), 0.5 * (sf + sb), (sf - sb) / wheelbase, cf - cb
 
 
-def inverse_kinematics(wheelbase, v_c, omega):
+def inverse_kinematics(wheelbase: float, v_c: float, omega: float
+                       ) -> tuple[float, float, float, float]:
     """Symmetric-steering wheel commands for a centroid speed and a yaw rate.
 
     Parameters
@@ -105,22 +108,22 @@ class InverseKinematics:
     """Stateless core of the inverse-kinematics FMU: :func:`inverse_kinematics` with a
     fixed, validated wheelbase [m]."""
 
-    def __init__(self, wheelbase=1.0):
+    def __init__(self, wheelbase: float = 1.0) -> None:
         self.wheelbase = _positive("wheelbase", wheelbase)
 
-    def command(self, v_c, omega):
+    def command(self, v_c: float, omega: float) -> tuple[float, float, float, float]:
         """(theta_f, v_f, theta_b, v_b) for ``v_c`` [m/s] and ``omega`` [rad/s]."""
         return inverse_kinematics(self.wheelbase, v_c, omega)
 
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         """No state (JSON-safe empty snapshot)."""
         return {}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         """Nothing to restore."""
 
 
-def turning_radius(wheelbase, theta_f):
+def turning_radius(wheelbase: float, theta_f: float) -> float:
     """Radius [m] of the wheels' common circle under symmetric steering, L / (2 sin theta_f).
 
     ``math.inf`` for theta_f = 0 (straight). Seed 001 eq (3).
@@ -142,18 +145,20 @@ class DoubleSteerVehicle:
         Initial body yaw psi [rad] (direction of X' from the global X axis).
     """
 
-    def __init__(self, wheelbase=1.0, x0=0.0, y0=0.0, yaw0=0.0):
+    def __init__(self, wheelbase: float = 1.0, x0: float = 0.0, y0: float = 0.0,
+                 yaw0: float = 0.0) -> None:
         self.wheelbase = _positive("wheelbase", wheelbase)
         self.x = _finite("x0", x0)
         self.y = _finite("y0", y0)
         self.yaw = _finite("yaw0", yaw0)
         self.distance = 0.0
 
-    def twist(self, theta_f, v_f, theta_b, v_b):
+    def twist(self, theta_f: float, v_f: float, theta_b: float, v_b: float
+              ) -> tuple[float, float, float, float]:
         """(u, v, omega, stretch) for these wheel inputs (see :func:`body_twist`)."""
         return body_twist(self.wheelbase, theta_f, v_f, theta_b, v_b)
 
-    def step(self, theta_f, v_f, theta_b, v_b, h):
+    def step(self, theta_f: float, v_f: float, theta_b: float, v_b: float, h: float) -> None:
         """Advance by ``h`` [s] with the wheel inputs held (exact)."""
         u, v, w, _ = self.twist(theta_f, v_f, theta_b, v_b)
         half = 0.5 * w * h
@@ -165,28 +170,28 @@ class DoubleSteerVehicle:
         self.yaw += w * h
         self.distance += math.hypot(u, v) * abs(h)
 
-    def course(self, theta_f, v_f, theta_b, v_b):
+    def course(self, theta_f: float, v_f: float, theta_b: float, v_b: float) -> float:
         """Course alpha [rad] of the centroid: yaw plus sideslip atan2(v, u) (yaw at rest)."""
         u, v, _, _ = self.twist(theta_f, v_f, theta_b, v_b)
         if u == 0.0 and v == 0.0:
             return self.yaw
         return self.yaw + math.atan2(v, u)
 
-    def front(self):
+    def front(self) -> tuple[float, float]:
         """Front wheel contact point (x, y) [m]."""
         r = 0.5 * self.wheelbase
         return self.x + r * math.cos(self.yaw), self.y + r * math.sin(self.yaw)
 
-    def rear(self):
+    def rear(self) -> tuple[float, float]:
         """Rear wheel contact point (x, y) [m]."""
         r = 0.5 * self.wheelbase
         return self.x - r * math.cos(self.yaw), self.y - r * math.sin(self.yaw)
 
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         """JSON-safe snapshot of the state."""
         return {"x": self.x, "y": self.y, "yaw": self.yaw, "distance": self.distance}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         """Restore a snapshot from :meth:`get_state`."""
         self.x, self.y = state["x"], state["y"]
         self.yaw, self.distance = state["yaw"], state["distance"]

@@ -12,12 +12,26 @@ It is used where many runs or per-step timings are needed: the PID calibration
 """
 
 import time
+from collections.abc import Mapping, Sequence
+from typing import Any, Protocol
 
+from ..ref_trajectory.ref_trajectory import RefTrajectory
 from .double_steer import DoubleSteerVehicle, inverse_kinematics
 
 
-def run_loop(controller, reference, pose0, stop, sample_time=0.2, wheelbase=1.0,
-             timing=False):
+class LoopController(Protocol):
+    """What :func:`run_loop` asks of a controller core (LtvMpc, LateralPid)."""
+
+    def update(self, t: float, x: float, y: float, heading: float, ref: Mapping[str, float]
+               ) -> dict[str, Any]: ...
+
+    def step(self, t: float, h: float, x: float, y: float, heading: float,
+             ref: Mapping[str, float]) -> None: ...
+
+
+def run_loop(controller: LoopController, reference: RefTrajectory, pose0: Sequence[float],
+             stop: float, sample_time: float = 0.2, wheelbase: float = 1.0,
+             timing: bool = False) -> list[dict[str, Any]]:
     """Simulate the loop from 0 to ``stop`` [s].
 
     Parameters

@@ -5,7 +5,7 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "dynamic_train.dynamic_train", "ackermann.ackermann",
+core: Any = load_core("fmi.fmi_slave", "dynamic_train.dynamic_train", "ackermann.ackermann",
                  "fmi.defaults")
 _MODULE = core.dynamic_train.dynamic_train
 DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
@@ -147,7 +147,7 @@ class AgvDynamicTrain(core.fmi.fmi_slave.AgvSlave):
         train.start(self.v0 + self.dv, deltas, pairs)  # moving before the start
         return train
 
-    def _steering(self):
+    def _steering(self) -> tuple[list[float], tuple[tuple[float, float], ...] | None]:
         if self.steering_input == "wheels":
             pairs = tuple((getattr(self, f"delta{i}_left"), getattr(self, f"delta{i}_right"))
                           for i in _AXLES)

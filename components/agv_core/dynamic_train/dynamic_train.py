@@ -70,6 +70,8 @@ rates), as in the dynamic single-track vehicle.
 """
 
 import math
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any, Self, cast
 
 from ..ackermann.ackermann import wheel_angles
 from ..dynamic_vehicle.dynamic_vehicle import WheelLiftError
@@ -79,8 +81,19 @@ from ..errors import ParameterError
 from ..numerics.ode import rk4_doubling
 from ..train.train import Train, TrainGeometry
 
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+
 G = 9.81  # [m/s^2]
 AXLES = 4
+
+#: Four floats: w' = (v1', r1', r2', r3'), or one value per axle.
+Four = tuple[float, float, float, float]
+#: (left, right) wheel angles [rad] of axles 1-4.
+WheelPairs = tuple[tuple[float, ...], ...]
+#: What _wheel_accelerations' inner evaluation gives: (w', wheel loads, wheel forces).
+_Evaluation = tuple[Four, list[float], list[float]]
 
 
 class TrainDynamics:
@@ -110,9 +123,11 @@ class TrainDynamics:
         (a_i, +-d/2) with their own wheel angles and loads.
     """
 
-    def __init__(self, geometry, mass_end=12000.0, mass_float=6000.0, inertia_end=120000.0,
-                 inertia_float=44000.0, cg_end=6.5, cornering_coefficient=6.875, mu=0.8,
-                 tyre="fiala", cg_height=1.2, lumped_axles=False):
+    def __init__(self, geometry: TrainGeometry, mass_end: float = 12000.0,
+                 mass_float: float = 6000.0, inertia_end: float = 120000.0,
+                 inertia_float: float = 44000.0, cg_end: float = 6.5,
+                 cornering_coefficient: float = 6.875, mu: float = 0.8, tyre: str = "fiala",
+                 cg_height: float = 1.2, lumped_axles: bool = False) -> None:
         self.g = geometry
         self.m_e = _positive("mass_end", mass_end)
         self.m_f = _positive("mass_float", mass_float)
@@ -147,18 +162,18 @@ class TrainDynamics:
         if self.h > 0.0 and not geometry.d > 0.0 and not self.lumped:
             raise ParameterError("cg_height", "needs a track d > 0 for the load transfer")
 
-    def wheel_loads(self, ay_head, ay_tail):
+    def wheel_loads(self, ay_head: float, ay_tail: float) -> list[float]:
         """Vertical loads [N] of the eight wheels (axle 1 left, 1 right, ..., 4 right) for
         the lateral accelerations [m/s^2] of the head and tail cars' centres of gravity:
         half the static axle load -+ Fz_i a_y h / (g d) (left -, right +)."""
-        out = []
+        out: list[float] = []
         for i in range(AXLES):
             shift = self.transfer[i] * (ay_head if i < 2 else ay_tail)
             half = 0.5 * self.loads[i]
             out.extend((half - shift, half + shift))
         return out
 
-    def wheel_force(self, slip, load):
+    def wheel_force(self, slip: float, load: float) -> float:
         """Lateral force [N] of one wheel at ``slip`` [rad] with vertical ``load`` [N]:
         cornering stiffness c Fz, friction limit mu Fz (0 for a lifted wheel)."""
         if not load > 0.0:
@@ -167,7 +182,7 @@ class TrainDynamics:
             return fiala_force(slip, self.c_alpha * load, self.mu * load)
         return linear_force(slip, self.c_alpha * load)
 
-    def force(self, i, slip):
+    def force(self, i: int, slip: float) -> float:
         """Lateral force [N] of axle ``i`` (0-3) at ``slip`` [rad]."""
         if self.tyre == "fiala":
             return fiala_force(slip, self.stiffness[i], self.limits[i])
@@ -190,8 +205,10 @@ class DynamicTrain:
         Local error bound per step of every state, relative to 1 + |state|.
     """
 
-    def __init__(self, dynamics, x1=0.0, y1=0.0, psi1=0.0, psi2=0.0, psi3=0.0, v1=0.0,
-                 r1=0.0, r2=0.0, r3=0.0, kinematic_below=0.1, tolerance=1e-9):
+    def __init__(self, dynamics: TrainDynamics, x1: float = 0.0, y1: float = 0.0,
+                 psi1: float = 0.0, psi2: float = 0.0, psi3: float = 0.0, v1: float = 0.0,
+                 r1: float = 0.0, r2: float = 0.0, r3: float = 0.0,
+                 kinematic_below: float = 0.1, tolerance: float = 1e-9) -> None:
         for name, value in (("x1", x1), ("y1", y1), ("psi1", psi1), ("psi2", psi2),
                             ("psi3", psi3), ("v1", v1), ("r1", r1), ("r2", r2), ("r3", r3)):
             if not math.isfinite(value):
@@ -208,22 +225,28 @@ class DynamicTrain:
         self.v1, self.r1, self.r2, self.r3 = float(v1), float(r1), float(r2), float(r3)
         self.distance = 0.0
         self.u1 = 0.0
-        self.deltas = (0.0, 0.0, 0.0, 0.0)
-        self.wheels = None
+        self.deltas: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+        self.wheels: WheelPairs | None = None
         self.substeps = 1
+        self._pairs: WheelPairs | None
+        self._pairs_key: tuple[float, ...] | None
         self._pairs, self._pairs_key = None, None
+        self._current_key: tuple[Any, ...] | None
+        self._current_value: tuple[Four, tuple[float, ...], list[float], list[float]] | None
         self._current_key, self._current_value = None, None
 
     @classmethod
-    def straight(cls, dynamics, x_front=0.0, y_front=0.0, heading=0.0, kinematic_below=0.1,
-                 tolerance=1e-9):
+    def straight(cls, dynamics: TrainDynamics, x_front: float = 0.0, y_front: float = 0.0,
+                 heading: float = 0.0, kinematic_below: float = 0.1,
+                 tolerance: float = 1e-9) -> Self:
         """A straight train along ``heading`` with axle 1's centre at (x_front, y_front)."""
         a1 = dynamics.g.axle_offsets[0]
         return cls(dynamics, x_front - a1 * math.cos(heading), y_front - a1 * math.sin(heading),
                    heading, heading, heading, kinematic_below=kinematic_below,
                    tolerance=tolerance)
 
-    def start(self, u1, deltas, wheels=None):
+    def start(self, u1: float, deltas: Sequence[float], wheels: WheelPairs | None = None
+              ) -> None:
         """Set the inputs held before the first step and the speeds to the kinematic
         train's no-slip rates for them (a train started on an arc is already turning)."""
         self.u1, self.deltas = float(u1), tuple(float(d) for d in deltas)
@@ -231,10 +254,11 @@ class DynamicTrain:
         self.v1, self.r1, self.r2, self.r3 = self.kinematic_speeds()
 
     # ------------------------------------------------------------------ kinematic train
-    def _kinematic(self):
+    def _kinematic(self) -> Train:
         return Train(self.g, self.x1, self.y1, self.psi1, self.psi2, self.psi3)
 
-    def kinematic_speeds(self, u1=None, deltas=None):
+    def kinematic_speeds(self, u1: float | None = None, deltas: Sequence[float] | None = None
+                         ) -> Four:
         """(v1, r1, r2, r3) of the kinematic train at the current pose."""
         u1 = self.u1 if u1 is None else u1
         deltas = self.deltas if deltas is None else deltas
@@ -243,11 +267,12 @@ class DynamicTrain:
         _, omega1, rate2, omega3 = kin.car_rates(u1, deltas)
         return vyj, omega1, rate2, omega3
 
-    def is_kinematic(self, u1=None):
+    def is_kinematic(self, u1: float | None = None) -> bool:
         return abs(self.u1 if u1 is None else u1) < self.kinematic_below
 
     # ------------------------------------------------------------------ dynamics
-    def tail_velocity(self, psi1, psi2, psi3, v1, r2, u1=None):
+    def tail_velocity(self, psi1: float, psi2: float, psi3: float, v1: float, r2: float,
+                      u1: float | None = None) -> tuple[float, float]:
         """(u3, v3): J2's velocity in the tail-car frame [m/s]."""
         u1 = self.u1 if u1 is None else u1
         lm = self.g.Lm
@@ -257,7 +282,8 @@ class DynamicTrain:
         return (u1 * c13 - v1 * s13 + lm * r2 * math.sin(d23),
                 u1 * s13 + v1 * c13 - lm * r2 * math.cos(d23))
 
-    def axle_slips(self, state=None):
+    def axle_slips(self, state: Sequence[float] | None = None
+                   ) -> tuple[Four, float, float]:
         """Slip angles [rad] of axles 1-4 and (u3, v3) for the state (default: current)."""
         if state is None:
             state = self.state_vector()
@@ -271,7 +297,7 @@ class DynamicTrain:
                  math.atan2(v3 + a[2] * r3, u3) - dl[2], math.atan2(v3 + a[3] * r3, u3) - dl[3]),
                 u3, v3)
 
-    def wheel_pairs(self):
+    def wheel_pairs(self) -> WheelPairs:
         """(left, right) wheel angles [rad] of axles 1-4: the recorded wheel inputs, else
         the Ackermann angles of the axle angles about the car's hinge baseline."""
         if self.wheels is not None:
@@ -281,9 +307,9 @@ class DynamicTrain:
             a, d = self.g.axle_offsets, self.g.d
             self._pairs = tuple(wheel_angles(key[i], a[i], d) for i in range(AXLES))
             self._pairs_key = key
-        return self._pairs
+        return cast(WheelPairs, self._pairs)
 
-    def wheel_slips(self, state):
+    def wheel_slips(self, state: Sequence[float]) -> tuple[list[float], float, float]:
         """Slip angles [rad] of the eight wheels (axle 1 left, 1 right, ...): wheel at body
         (a_i, +-d/2), velocity (u_c - r_c y, v_c + r_c a_i) in its car's frame, minus the
         wheel's angle; and (u3, v3)."""
@@ -301,7 +327,7 @@ class DynamicTrain:
             slips.append(math.atan2(vy, u + r * half) - right)
         return slips, u3, v3
 
-    def accelerations(self, state):
+    def accelerations(self, state: Sequence[float]) -> tuple[Four, Sequence[float]]:
         """w' = (v1', r1', r2', r3') and the axle forces [N] (the sum of each axle's
         wheel forces, or the lumped axle force) for the state vector
         (X, Y, psi1, psi2, psi3, v1, r1, r2, r3), with the held inputs."""
@@ -309,7 +335,8 @@ class DynamicTrain:
             return self._lumped_accelerations(state)
         return self._wheel_accelerations(state)[:2]
 
-    def _wheel_accelerations(self, state):
+    def _wheel_accelerations(self, state: Sequence[float]
+                             ) -> tuple[Four, tuple[float, ...], list[float], list[float]]:
         """Two tyres per axle: (w', axle forces, wheel loads, wheel forces). The loads
         depend on the cars' lateral accelerations, which depend on the forces: iterated
         to a fixed point (1e-12 relative; one pass for cg_height = 0)."""
@@ -318,7 +345,7 @@ class DynamicTrain:
         slips, u3, _ = self.wheel_slips(state)
         pairs = self.wheel_pairs()
         half = 0.5 * self.g.d
-        def evaluate(ayh, ayt):
+        def evaluate(ayh: float, ayt: float) -> _Evaluation:
             loads = d.wheel_loads(ayh, ayt)
             forces = [d.wheel_force(s, fz) for s, fz in zip(slips, loads)]
             q1 = q2 = q3 = q4 = 0.0
@@ -344,11 +371,12 @@ class DynamicTrain:
         axle = tuple(forces[2 * i] + forces[2 * i + 1] for i in range(AXLES))
         return wdot, axle, loads, forces
 
-    def _fixed_point(self, state, evaluate, ayh, ayt, wdot):
+    def _fixed_point(self, state: Sequence[float], evaluate: Callable[[float, float], _Evaluation],
+                     ayh: float, ayt: float, wdot: Four) -> tuple[float, float]:
         """(a_y head, a_y tail) [m/s^2] with evaluate(a_y) giving back the same lateral
         accelerations (1e-12 relative): fixed-point iteration, then Newton's method with a
         difference Jacobian where it does not contract (the map is linear in the loads)."""
-        def tol(x):
+        def tol(x: float) -> float:
             return 1e-12 * (1.0 + abs(x))
 
         for _ in range(8):
@@ -376,7 +404,7 @@ class DynamicTrain:
             wdot = evaluate(ayh, ayt)[0]
         raise FloatingPointError("lateral load transfer found no fixed point")
 
-    def _car_lateral(self, state, wdot):
+    def _car_lateral(self, state: Sequence[float], wdot: Sequence[float]) -> tuple[float, float]:
         """Lateral accelerations [m/s^2] of the head and tail cars' centres of gravity in
         their frames for the state and w' (u1 held)."""
         _, _, p1, p2, p3, v1, r1, r2, r3 = state
@@ -388,7 +416,7 @@ class DynamicTrain:
                 + lm * r2 * r2 * math.sin(p2 - p3) + g3 * dr3)
         return head, tail
 
-    def _lumped_accelerations(self, state):
+    def _lumped_accelerations(self, state: Sequence[float]) -> tuple[Four, list[float]]:
         d, dl, a, lm = self.d, self.deltas, self.g.axle_offsets, self.g.Lm
         _, _, p1, p2, p3, _, _, _, _ = state
         slips, _, _ = self.axle_slips(state)
@@ -401,7 +429,7 @@ class DynamicTrain:
         q4 = a[2] * f2 * k2 + a[3] * f3 * k3
         return self._solve(state, (q1, q2, q3, q4)), forces
 
-    def _solve(self, state, q):
+    def _solve(self, state: Sequence[float], q: Four) -> Four:
         """w' from M(q) w' = Q - h for the generalised forces ``q`` (u1 held)."""
         _, _, p1, p2, p3, v1, r1, r2, r3 = state
         d, u1, lm = self.d, self.u1, self.g.Lm
@@ -448,7 +476,7 @@ class DynamicTrain:
         x2 = (b2 - M12 * x1) / M22
         return (x1, x2, x3, x4)
 
-    def rates(self, state):
+    def rates(self, state: Sequence[float]) -> list[float]:
         """Right-hand side of the ODE for the state vector, inputs held."""
         _, _, p1, _, _, v1, r1, r2, r3 = state
         (dv1, dr1, dr2, dr3), _ = self.accelerations(state)
@@ -456,11 +484,12 @@ class DynamicTrain:
         u1 = self.u1
         return [u1 * c - v1 * s, u1 * s + v1 * c, r1, r2, r3, dv1, dr1, dr2, dr3]
 
-    def state_vector(self):
+    def state_vector(self) -> list[float]:
         return [self.x1, self.y1, self.psi1, self.psi2, self.psi3, self.v1, self.r1, self.r2,
                 self.r3]
 
-    def step(self, u1, deltas, h, wheels=None):
+    def step(self, u1: float, deltas: Sequence[float], h: float,
+             wheels: Sequence[Sequence[float]] | None = None) -> None:
         """Advance by ``h`` [s] with head-car speed ``u1`` [m/s] and axle angles ``deltas``
         [rad] held; ``wheels`` (optional 4 (left, right) pairs [rad]) turns each axle's two
         tyres (without it: the Ackermann angles of ``deltas`` about the car's hinge
@@ -492,7 +521,7 @@ class DynamicTrain:
                 self.check_contact()
         self.distance += abs(u1) * h
 
-    def check_contact(self):
+    def check_contact(self) -> None:
         """Raise :class:`~agv_core.dynamic_vehicle.dynamic_vehicle.WheelLiftError` naming
         the wheel when a wheel's load is <= 0 (the car starts to tip over)."""
         for k, load in enumerate(self.wheel_loads()):
@@ -502,22 +531,22 @@ class DynamicTrain:
                                      f"load {load:.1f} N): the car tips over")
 
     # ------------------------------------------------------------------ outputs
-    def hinge2(self):
+    def hinge2(self) -> tuple[float, float]:
         """Hinge J2 [m]."""
         return (self.x1 - self.g.Lm * math.cos(self.psi2),
                 self.y1 - self.g.Lm * math.sin(self.psi2))
 
-    def axle_points(self):
+    def axle_points(self) -> tuple[tuple[float, float], ...]:
         """Centres of axles 1-4 [m]: ((x1, y1), ..., (x4, y4))."""
         return self._kinematic().axle_points()
 
-    def car_speeds(self):
+    def car_speeds(self) -> tuple[float, float, float, float, float, float]:
         """(u1, v_J1, r1, u3, v_J2, r3): each end car's hinge velocity in its frame [m/s]
         and its yaw rate [rad/s]."""
         u3, v3 = self.tail_velocity(self.psi1, self.psi2, self.psi3, self.v1, self.r2)
         return self.u1, self.v1, self.r1, u3, v3, self.r3
 
-    def axle_forces(self):
+    def axle_forces(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
         """(slips [rad], forces [N]) of axles 1-4 for the last inputs and current state:
         the axle centre's slip against the axle angle, and the lumped axle force or the
         sum of the axle's two wheel forces; zero in the kinematic regime."""
@@ -528,16 +557,17 @@ class DynamicTrain:
             return slips, tuple(self.d.force(i, s) for i, s in enumerate(slips))
         return slips, self._current()[1]
 
-    def _current(self):
+    def _current(self) -> tuple[Four, tuple[float, ...], list[float], list[float]]:
         """_wheel_accelerations for the current state and inputs (kept until they change:
         the outputs read it several times per step)."""
         key = (tuple(self.state_vector()), self.u1, self.deltas, self.wheels)
         if self._current_key != key:
             self._current_value = self._wheel_accelerations(list(key[0]))
             self._current_key = key
-        return self._current_value
+        return cast(tuple[Four, tuple[float, ...], list[float], list[float]],
+                    self._current_value)
 
-    def wheel_loads(self):
+    def wheel_loads(self) -> list[float]:
         """Vertical loads [N] of the eight wheels (axle 1 left, 1 right, ..., 4 right) for
         the last inputs and the current state (static in the kinematic regime and with
         lumped axles)."""
@@ -545,7 +575,7 @@ class DynamicTrain:
             return self.d.wheel_loads(0.0, 0.0)
         return self._current()[2]
 
-    def lateral_accelerations(self):
+    def lateral_accelerations(self) -> tuple[float, float]:
         """Lateral accelerations [m/s^2] of the head and tail cars' centres of gravity,
         each in its car's frame, positive left (kinematic regime: w' taken as 0)."""
         v1, r1, r2, r3 = self.v1, self.r1, self.r2, self.r3
@@ -558,7 +588,7 @@ class DynamicTrain:
         return self._car_lateral([0.0, 0.0, self.psi1, self.psi2, self.psi3, v1, r1, r2, r3],
                                  wdot)
 
-    def wheel_states(self):
+    def wheel_states(self) -> list[tuple[float, float]]:
         """Per wheel (axle 1 left, 1 right, ..., 4 right): (speed [m/s], slip [rad]) as the
         kinematic train defines them, from the dynamic state: wheel at body (a_i, +-d/2),
         velocity (u_c - r_c (+-d/2), v_c + r_c a_i) in its car's frame; wheel angle = the
@@ -585,14 +615,14 @@ class DynamicTrain:
         return out
 
     # ------------------------------------------------------------------ state
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         return {"q": [self.x1, self.y1, self.psi1, self.psi2, self.psi3],
                 "w": [self.v1, self.r1, self.r2, self.r3], "distance": self.distance,
                 "u1": self.u1, "deltas": list(self.deltas),
                 "wheels": None if self.wheels is None else [list(w) for w in self.wheels],
                 "substeps": self.substeps}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         self.x1, self.y1, self.psi1, self.psi2, self.psi3 = (float(v) for v in state["q"])
         self.v1, self.r1, self.r2, self.r3 = (float(v) for v in state["w"])
         self.distance = float(state["distance"])
@@ -603,11 +633,12 @@ class DynamicTrain:
         self.substeps = int(state["substeps"])
 
 
-def _cross(r, f):
+def _cross(r: Sequence[float], f: Sequence[float]) -> float:
     return r[0] * f[1] - r[1] * f[0]
 
 
-def steady_circle(dynamics, radius, u1, phi=0.0, iterations=60):
+def steady_circle(dynamics: TrainDynamics, radius: float, u1: float, phi: float = 0.0,
+                  iterations: int = 60) -> dict[str, Any]:
     """Steady turn on a circle: every axle centre at ``radius`` [m] (positive: left turn,
     centre at the origin), the head car at longitudinal speed ``u1`` [m/s] > 0.
 
@@ -723,7 +754,8 @@ def steady_circle(dynamics, radius, u1, phi=0.0, iterations=60):
     loads = d.wheel_loads(ay_head, ay_tail)
     heading = (p1, p1, p3, p3)
 
-    def wheels(dl):
+    def wheels(dl: "Sequence[float] | NDArray[np.float64]"
+               ) -> list[tuple[tuple[float, float], tuple[float, float], float, float]]:
         """World force vectors, points and slips of the eight wheels for axle angles."""
         out = []
         for i in range(AXLES):
@@ -740,7 +772,7 @@ def steady_circle(dynamics, radius, u1, phi=0.0, iterations=60):
                 out.append(((-f * math.sin(ang), f * math.cos(ang)), (px, py), slip, f))
         return out
 
-    def residual(z):
+    def residual(z: "NDArray[np.float64]") -> list[float]:
         dl, lam1, lam2, drive = z[:4], z[4:6], z[6:8], z[8]
         force = [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]
         moment = [0.0, 0.0, 0.0]

@@ -5,7 +5,7 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "dynamic_vehicle.dynamic_vehicle", "fmi.defaults")
+core: Any = load_core("fmi.fmi_slave", "dynamic_vehicle.dynamic_vehicle", "fmi.defaults")
 _MODULE = core.dynamic_vehicle.dynamic_vehicle
 DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
     _MODULE.DynamicVehicle, _MODULE.SingleTrackParameters)

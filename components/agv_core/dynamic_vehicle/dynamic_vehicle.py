@@ -56,6 +56,8 @@ driving faster than u_k is refused (the slip angles as defined assume forward mo
 """
 
 import math
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.linalg import expm
@@ -79,8 +81,16 @@ class DriveLimitError(ModelLimitError):
 G = 9.81  # [m/s^2] gravity
 ITERATIONS = 100  # bound on the fixed-point iterations of load transfer and drive force
 
+#: Four floats: one per wheel (front left, front right, rear left, rear right).
+Four = tuple[float, float, float, float]
+#: Exact discretisation (Phi, Gamma) of the linear model (:meth:`DynamicVehicle.discretisation`).
+Discretisation = tuple[tuple[tuple[float, ...], ...], tuple[float, ...]]
+#: What the load-transfer evaluation of :meth:`DynamicVehicle._tyres` finds: (loads, F_fl,
+#: F_fr, F_f, F_r, F_x front, F_x rear, F_y).
+_Found = tuple[Four, float, float, float, float, float, float, float]
 
-def positive(name, value):
+
+def positive(name: str, value: float) -> float:
     """``value`` as a float if positive and finite; else ParameterError naming ``name``."""
     if not (math.isfinite(value) and value > 0.0):
         raise ParameterError(name, f"must be positive and finite, got {value}")
@@ -118,10 +128,11 @@ class SingleTrackParameters:
         friction (the model without combined slip).
     """
 
-    def __init__(self, wheelbase=1.0, mass=400.0, yaw_inertia=120.0, cg_to_rear=0.5,
-                 cornering_stiffness_front=13500.0, cornering_stiffness_rear=13500.0,
-                 mu=0.8, tyre="fiala", cg_height=0.3, track=0.8, layout="four",
-                 drive="rear"):
+    def __init__(self, wheelbase: float = 1.0, mass: float = 400.0, yaw_inertia: float = 120.0,
+                 cg_to_rear: float = 0.5, cornering_stiffness_front: float = 13500.0,
+                 cornering_stiffness_rear: float = 13500.0, mu: float = 0.8,
+                 tyre: str = "fiala", cg_height: float = 0.3, track: float = 0.8,
+                 layout: str = "four", drive: str = "rear") -> None:
         self.L = positive("wheelbase", wheelbase)
         self.m = positive("mass", mass)
         self.Iz = positive("yaw_inertia", yaw_inertia)
@@ -162,7 +173,7 @@ class SingleTrackParameters:
         #: transfer and combined slip
         self.static = self.h == 0.0 and drive == "ideal"
 
-    def wheel_loads(self, ax, ay):
+    def wheel_loads(self, ax: float, ay: float) -> Four:
         """Vertical loads [N] (front left, front right, rear left, rear right) for the
         accelerations ``ax``, ``ay`` [m/s^2] of G in the body frame: longitudinal transfer
         m a_x h / L from the front to the rear axle, lateral transfer share m a_y h / t
@@ -174,14 +185,14 @@ class SingleTrackParameters:
         dyf, dyr = self.share_f * lat, self.share_r * lat
         return (0.5 * fzf - dyf, 0.5 * fzf + dyf, 0.5 * fzr - dyr, 0.5 * fzr + dyr)
 
-    def wheel_names(self):
+    def wheel_names(self) -> tuple[str, str, str, str]:
         """Names of the four load entries of :meth:`wheel_loads` (layout "three": the
         front wheel twice)."""
         if self.layout == "three":
             return ("front", "front", "rear left", "rear right")
         return ("front left", "front right", "rear left", "rear right")
 
-    def lateral_tip_acceleration(self):
+    def lateral_tip_acceleration(self) -> float:
         """Lateral acceleration [m/s^2] (a_x = 0) at which the first wheel lifts: the
         inner wheel of axle k when share_k m a_y h / t = Fz_k / 2, so g (t / 2) / h for
         four wheels and g d / h for one front wheel, d = t a / (2 L) the lateral distance
@@ -194,11 +205,12 @@ class SingleTrackParameters:
                   if share > 0.0]
         return min(limits)
 
-    def understeer_gradient(self):
+    def understeer_gradient(self) -> float:
         """K_us = (m / L) (b / C_f - a / C_r) [rad/(m/s^2)]: steady delta = L/R + K_us a_y."""
         return self.m / self.L * (self.b / self.Cf - self.a / self.Cr)
 
-    def lateral_matrices(self, u):
+    def lateral_matrices(self, u: float) -> tuple[tuple[tuple[float, float], tuple[float, float]],
+                                                  tuple[float, float]]:
         """(A, B) of the linear lateral dynamics d/dt [vy, r] = A [vy, r] + B delta at
         speed ``u`` [m/s] > 0, as nested tuples."""
         m, Iz, a, b, Cf, Cr = self.m, self.Iz, self.a, self.b, self.Cf, self.Cr
@@ -233,8 +245,10 @@ class DynamicVehicle:
         (no-slip) values, so a vehicle started on an arc is already turning.
     """
 
-    def __init__(self, params, x0=0.0, y0=0.0, heading0=0.0, reference_point="front",
-                 linear=False, kinematic_below=0.1, tolerance=1e-9, alpha0=0.0, speed0=0.0):
+    def __init__(self, params: SingleTrackParameters, x0: float = 0.0, y0: float = 0.0,
+                 heading0: float = 0.0, reference_point: str = "front", linear: bool = False,
+                 kinematic_below: float = 0.1, tolerance: float = 1e-9, alpha0: float = 0.0,
+                 speed0: float = 0.0) -> None:
         if reference_point not in REFERENCE_POINTS:
             raise ParameterError("reference_point",
                                  f"must be one of {REFERENCE_POINTS}, got '{reference_point}'")
@@ -259,12 +273,13 @@ class DynamicVehicle:
             self.X, self.Y = x0 - L * math.cos(self.psi), y0 - L * math.sin(self.psi)
         self.distance = 0.0
         self.substeps = 1
-        self._discrete = {}  # (u, h) -> exact discretisation of the linear model
+        # (u, h) -> exact discretisation of the linear model
+        self._discrete: dict[tuple[float, float], Discretisation] = {}
         self.alpha, self.u = 0.0, 0.0
         self.vy, self.r = 0.0, 0.0
         self.start(alpha0, speed0)
 
-    def start(self, alpha, speed):
+    def start(self, alpha: float, speed: float) -> None:
         """Set the inputs held before the first step and the lateral state to their
         kinematic (no-slip) values."""
         self._check_inputs(alpha, speed)
@@ -274,40 +289,42 @@ class DynamicVehicle:
 
     # ------------------------------------------------------------------ geometry
     @property
-    def heading(self):
+    def heading(self) -> float:
         return self.psi
 
     @property
-    def x(self):
+    def x(self) -> float:
         return self.rear()[0] if self.reference_point == "rear" else self.front()[0]
 
     @property
-    def y(self):
+    def y(self) -> float:
         return self.rear()[1] if self.reference_point == "rear" else self.front()[1]
 
-    def rear(self):
+    def rear(self) -> tuple[float, float]:
         """Position of the rear-axle centre (x, y) [m]."""
         return self.X, self.Y
 
-    def front(self):
+    def front(self) -> tuple[float, float]:
         """Position of the front-wheel centre (x, y) [m]."""
         L = self.p.L
         if self.linear:
             return self.X + L, self.Y + L * self.psi
         return self.X + L * math.cos(self.psi), self.Y + L * math.sin(self.psi)
 
-    def kinematic_yaw_rate(self, alpha, u):
+    def kinematic_yaw_rate(self, alpha: float, u: float) -> float:
         """The kinematic model's yaw rate [rad/s]: u tan(alpha) / L (linear: u alpha / L)."""
         if self.linear:
             return u * alpha / self.p.L
         return u * math.tan(alpha) / self.p.L
 
-    def is_kinematic(self, u=None):
+    def is_kinematic(self, u: float | None = None) -> bool:
         """True when speed ``u`` (default: the last applied) runs the kinematic model."""
         return abs(self.u if u is None else u) < self.kinematic_below
 
     # ------------------------------------------------------------------ tyres
-    def lateral(self, alpha=None, u=None, vy=None, r=None):
+    def lateral(self, alpha: float | None = None, u: float | None = None,
+                vy: float | None = None, r: float | None = None
+                ) -> tuple[float, float, float, float, float, float]:
         """(slip_f, slip_r [rad], F_f, F_r [N], vy' [m/s^2], r' [rad/s^2]) for the given
         inputs and lateral state (default: the last applied inputs, the current state).
 
@@ -337,7 +354,8 @@ class DynamicVehicle:
         ffc = ff * math.cos(alpha)
         return slip_f, slip_r, ff, fr, (ffc + fr) / p.m - u * r, (p.a * ffc - p.b * fr) / p.Iz
 
-    def _wheel_force(self, slip, stiffness, static_load, load, fx):
+    def _wheel_force(self, slip: float, stiffness: float, static_load: float, load: float,
+                     fx: float) -> float:
         """Lateral force [N] of one wheel with vertical ``load`` [N] and longitudinal force
         ``fx`` [N]: cornering stiffness and friction limit in proportion to the load (the
         axle's ``stiffness`` at its ``static_load``), the limit derated by ``fx``."""
@@ -348,7 +366,8 @@ class DynamicVehicle:
             return linear_force(slip, c)
         return fiala_force(slip, c, combined_limit(self.p.mu * load, fx))
 
-    def _tyres(self, alpha, u, vy, r, slip_f, slip_r):
+    def _tyres(self, alpha: float, u: float, vy: float, r: float, slip_f: float, slip_r: float
+               ) -> tuple[float, float, float, float, Four, float, float, float]:
         """Forces with load transfer and combined slip (module docstring): (F_f, F_r
         [N] lateral per axle, vy' [m/s^2], r' [rad/s^2], loads (4) [N], F_x front,
         F_x rear [N] per axle, a_y [m/s^2]). The lateral load transfer depends on a_y,
@@ -360,11 +379,11 @@ class DynamicVehicle:
         drag = -m * r * vy              # m a_x: the body force that holds u (u' = 0)
         scale = mu * m * G
 
-        def evaluate(ay, fxf):
+        def evaluate(ay: float, fxf: float) -> tuple[float, _Found]:
             """Forces for the lateral acceleration ``ay`` that sets the load transfer."""
             loads = p.wheel_loads(-r * vy, ay)
 
-            def front(fx):
+            def front(fx: float) -> tuple[float, float]:
                 return (self._wheel_force(slip_f, p.Cf, p.Fzf, loads[0], 0.5 * fx),
                         self._wheel_force(slip_f, p.Cf, p.Fzf, loads[1], 0.5 * fx))
 
@@ -397,7 +416,8 @@ class DynamicVehicle:
         return ff, fr, fy / m - u * r, mz / p.Iz, loads, fxf, fxr, ay
 
     @staticmethod
-    def _bisect_ay(evaluate, ay, fxf):
+    def _bisect_ay(evaluate: Callable[[float, float], tuple[float, _Found]], ay: float,
+                   fxf: float) -> tuple[float, _Found]:
         """Fixed point of a_y -> evaluate(a_y)[0] by bisection when the iteration does not
         contract (a wheel near lift or drive spin switching its force on and off): the
         new a_y is bounded, so a bracket is found by widening; the forces returned are
@@ -421,7 +441,8 @@ class DynamicVehicle:
         return evaluate(lo, fxf)
 
     @staticmethod
-    def _front_drive(front, drag, cos_d, sin_d, guess, scale):
+    def _front_drive(front: Callable[[float], tuple[float, float]], drag: float, cos_d: float,
+                     sin_d: float, guess: float, scale: float) -> float:
         """The driven front axle's longitudinal force x [N] solving
         x cos(delta) = drag + F_f(x) sin(delta) (``front(x)``: the two wheels' lateral
         forces): fixed-point iteration from ``guess``, bisection when it does not
@@ -446,7 +467,7 @@ class DynamicVehicle:
                 break
         return 0.5 * (lo + hi)
 
-    def tyre_state(self):
+    def tyre_state(self) -> dict[str, Any]:
         """Loads, drive and friction use for the last inputs and the current state:
         dict with ``loads`` (front left, front right, rear left, rear right [N]; one front
         wheel: its two halves), ``drive_front``, ``drive_rear`` (longitudinal force of
@@ -457,6 +478,7 @@ class DynamicVehicle:
         force (friction use from the lateral forces alone)."""
         p = self.p
         half = (0.5 * p.Fzf, 0.5 * p.Fzf, 0.5 * p.Fzr, 0.5 * p.Fzr)
+        shares: Four | None
         if self.is_kinematic() or self.linear:
             loads, fxf, fxr = half, 0.0, 0.0
             ff = fr = 0.0
@@ -488,7 +510,7 @@ class DynamicVehicle:
                 "friction_front": max(use[0], use[1]), "friction_rear": max(use[2], use[3]),
                 "tip_margin": min(load / static for load, static in zip(loads, half))}
 
-    def check_contact(self):
+    def check_contact(self) -> None:
         """Raise :class:`WheelLiftError` naming the wheel when a wheel's load is <= 0, and
         :class:`DriveLimitError` when the driven axle's force per wheel exceeds mu Fz
         (the speed cannot be held), for the last inputs and the current state."""
@@ -510,21 +532,21 @@ class DynamicVehicle:
                     f"{self.u:.3f} m/s, more than its wheels' friction "
                     f"2 x mu Fz = {2.0 * p.mu * min(loads):.1f} N")
 
-    def lateral_acceleration(self, dvy=None):
+    def lateral_acceleration(self, dvy: float | None = None) -> float:
         """a_y = vy' + u r [m/s^2] of G in the body frame (last inputs, current state;
         ``dvy``: vy' if already computed by :meth:`lateral`). Kinematic regime: u r."""
         if dvy is None:
             dvy = self.lateral()[4]
         return dvy + self.u * self.r
 
-    def sideslip(self):
+    def sideslip(self) -> float:
         """Sideslip angle of G [rad]: atan2(vy, u) (linear model: vy / u; 0 at rest)."""
         if self.linear:
             return self.vy / self.u if self.u != 0.0 else 0.0
         return math.atan2(self.vy, self.u) if self.u != 0.0 else 0.0
 
     # ------------------------------------------------------------------ dynamics
-    def _check_inputs(self, alpha, u):
+    def _check_inputs(self, alpha: float, u: float) -> None:
         if not (abs(alpha) < 0.5 * math.pi):
             raise FloatingPointError(f"steering angle alpha={alpha} rad is not within +/-pi/2")
         if not math.isfinite(u):
@@ -533,7 +555,7 @@ class DynamicVehicle:
             raise ValueError(f"speed {u} m/s: reverse driving faster than kinematic_below = "
                              f"{self.kinematic_below} m/s is not modelled")
 
-    def step(self, alpha, v, h):
+    def step(self, alpha: float, v: float, h: float) -> None:
         """Advance by ``h`` [s] with steering ``alpha`` [rad] and speed ``v`` [m/s] held."""
         self._check_inputs(alpha, v)
         self.alpha, self.u = float(alpha), float(v)
@@ -547,7 +569,7 @@ class DynamicVehicle:
             self._nonlinear_step(h)
             self.check_contact()
 
-    def _kinematic_step(self, h):
+    def _kinematic_step(self, h: float) -> None:
         u, alpha = self.u, self.alpha
         w = self.kinematic_yaw_rate(alpha, u)
         if self.linear:
@@ -563,7 +585,7 @@ class DynamicVehicle:
         self.vy = self.p.b * w
         self.distance += abs(u) * h
 
-    def discretisation(self, u, h):
+    def discretisation(self, u: float, h: float) -> Discretisation:
         """Exact discretisation (Phi, Gamma) of the linear model's z = [Y, psi, vy, r] at
         speed ``u`` over ``h``: z(t+h) = Phi z(t) + Gamma delta (nested tuples)."""
         key = (u, h)
@@ -584,7 +606,7 @@ class DynamicVehicle:
         self._discrete[key] = found
         return found
 
-    def _linear_step(self, h):
+    def _linear_step(self, h: float) -> None:
         phi, gamma = self.discretisation(self.u, h)
         z = (self.Y, self.psi, self.vy, self.r)
         d = self.alpha
@@ -594,7 +616,7 @@ class DynamicVehicle:
         self.X += self.u * h
         self.distance += abs(self.u) * h
 
-    def rates(self, state):
+    def rates(self, state: Sequence[float]) -> list[float]:
         """Right-hand side of the nonlinear model for [X, Y, psi, vy, r, distance] with
         the held inputs (self.alpha, self.u)."""
         _, _, psi, vy, r, _ = state
@@ -604,20 +626,20 @@ class DynamicVehicle:
         c, s = math.cos(psi), math.sin(psi)
         return [u * c - vr * s, u * s + vr * c, r, dvy, dr, math.hypot(u, vr)]
 
-    def _nonlinear_step(self, h):
+    def _nonlinear_step(self, h: float) -> None:
         y = [self.X, self.Y, self.psi, self.vy, self.r, self.distance]
         y, self.substeps = rk4_doubling(self.rates, y, h, self.tolerance,
                                         start=max(1, self.substeps // 2))
         self.X, self.Y, self.psi, self.vy, self.r, self.distance = y
 
     # ------------------------------------------------------------------ state
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         """JSON-safe snapshot of the state."""
         return {"X": self.X, "Y": self.Y, "psi": self.psi, "vy": self.vy, "r": self.r,
                 "distance": self.distance, "alpha": self.alpha, "u": self.u,
                 "substeps": self.substeps}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         """Restore a snapshot from :meth:`get_state`."""
         self.X, self.Y, self.psi = state["X"], state["Y"], state["psi"]
         self.vy, self.r = state["vy"], state["r"]

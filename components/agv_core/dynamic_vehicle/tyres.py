@@ -29,12 +29,12 @@ J. Dyn. Sys. Meas. Control 136(5), 2014). The cornering stiffness is unchanged.
 import math
 
 
-def linear_force(slip, stiffness):
+def linear_force(slip: float, stiffness: float) -> float:
     """Linear tyre: F = -C alpha [N] for slip ``alpha`` [rad], ``stiffness`` C [N/rad]."""
     return -stiffness * slip
 
 
-def fiala_force(slip, stiffness, limit):
+def fiala_force(slip: float, stiffness: float, limit: float) -> float:
     """Fiala (brush) tyre force [N] for slip ``alpha`` [rad].
 
     Parameters
@@ -61,7 +61,7 @@ def fiala_force(slip, stiffness, limit):
     return -stiffness * sigma * (1.0 - a + a * a / 3.0)
 
 
-def combined_limit(limit, longitudinal):
+def combined_limit(limit: float, longitudinal: float) -> float:
     """Lateral friction limit [N] left on the friction circle of radius ``limit`` = mu Fz
     [N] by the longitudinal force ``longitudinal`` = F_x [N]: sqrt(limit^2 - F_x^2), 0
     when |F_x| >= limit (the wheel spins or locks: no lateral force)."""
@@ -71,7 +71,7 @@ def combined_limit(limit, longitudinal):
     return math.sqrt(rest) if rest > 0.0 else 0.0
 
 
-def sliding_slip(stiffness, limit):
+def sliding_slip(stiffness: float, limit: float) -> float:
     """Slip angle [rad] at which the Fiala tyre reaches full sliding: atan(3 mu Fz / C)."""
     return math.atan(3.0 * limit / stiffness)
 

@@ -18,7 +18,7 @@ class ActuatorSlave(AgvSlave):
     """Common FMU interface of the steering actuators (see agv_core.actuator)."""
 
     #: "a", "b" or "c" (agv_core.actuator.MODELS)
-    model = None
+    model: Any = None  # "a", "b" or "c": set by the slave script
     #: inputs that ``alpha_rate`` depends on directly
     rate_depends_on = ()
     #: Reference: a 1 V step of u at 0.5 s (mode 'command'), 2 s at 1 ms, which resolves

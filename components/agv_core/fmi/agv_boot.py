@@ -24,8 +24,13 @@ changing BOOT_ABI.
 
 import importlib.util
 import sys
+from importlib.machinery import ModuleSpec
 from pathlib import Path
 from types import ModuleType
+from typing import TYPE_CHECKING, Any, cast
+
+if TYPE_CHECKING:
+    from importlib.abc import Loader
 
 #: 3: the bundle's folder is resources/agv_core_bundle (2: resources/agv_core, still read)
 BOOT_ABI = 3
@@ -40,7 +45,7 @@ BUNDLE_FOLDERS = ("agv_core_bundle", "agv_core")
 # its globals freed after one or two instantiations, and the host fails or crashes. Every
 # execution of a slave script calls load_core, which keeps one more reference here, so the
 # stray decrement is balanced (one list slot per instantiation).
-_PINNED_GLOBALS = []
+_PINNED_GLOBALS: list[dict[str, Any]] = []
 
 
 def load_core(*submodules: str) -> ModuleType:
@@ -70,13 +75,13 @@ def load_core(*submodules: str) -> ModuleType:
             if loaded.startswith(prefix) and hasattr(sub, "__path__"):
                 sub.__path__[:] = [str(root.joinpath(*loaded[len(prefix):].split(".")))]
     else:
-        spec = importlib.util.spec_from_file_location(
+        spec = cast(ModuleSpec, importlib.util.spec_from_file_location(  # a file: a spec
             name, root / "__init__.py", submodule_search_locations=[str(root)]
-        )
+        ))
         module = importlib.util.module_from_spec(spec)
         sys.modules[name] = module
         try:
-            spec.loader.exec_module(module)
+            cast("Loader", spec.loader).exec_module(module)  # a file's spec has a loader
         except BaseException:
             del sys.modules[name]
             raise

@@ -36,7 +36,7 @@ wrappers' double release of a failed slave (pythonfmu3 0.3.4 has pythonfmu 0.7's
 
 from collections.abc import Sequence
 from math import isfinite
-from typing import Any
+from typing import Any, cast
 from xml.etree.ElementTree import Element
 
 from pythonfmu3 import Boolean, Float64, Fmi3Causality, Fmi3Slave, Fmi3Variability, Int32, String
@@ -81,12 +81,13 @@ class AgvSlave(SlaveLogic, Fmi3Slave):
         if self.resources is not None:
             finalize_at_exit(self.resources, self.modelName)
 
-    def _initial_dependencies(self, name):
+    def _initial_dependencies(self, name: str) -> tuple[str, ...]:
         # the independent variable is a known in Initialization Mode too (its start time);
         # conservatively, every initial output depends on it
         return (*super()._initial_dependencies(name), "time")
 
-    def _variable(self, kind, name, causality, variability, description, unit):
+    def _variable(self, kind: Any, name: str, causality: Any, variability: Any,
+                  description: str, unit: str | None) -> Any:
         extra = {"unit": unit} if kind is Float64 else {}
         return kind(name, causality=causality, variability=variability,
                     description=description, **extra)
@@ -153,4 +154,4 @@ class AgvSlave(SlaveLogic, Fmi3Slave):
             annotations = Element("Annotations")
             annotations.append(annotation)
             root.append(annotations)
-        return root
+        return cast(Element, root)  # pythonfmu's tree (the library has no types)

@@ -34,6 +34,7 @@ failed slave is in :mod:`agv_core.fmi.slave_base`.
 
 from collections.abc import Sequence
 from math import isfinite
+from typing import cast
 from xml.etree.ElementTree import Element, SubElement
 
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real, String
@@ -155,7 +156,7 @@ class AgvSlave(SlaveLogic, Fmi2Slave):
             initial = SubElement(structure, "InitialUnknowns")
             for unknown in outputs:
                 name = self.vars[int(unknown.get("index")) - 1].name
-                deps = sorted(index[d] for d in self._initial_dependencies(name))
+                known = sorted(index[d] for d in self._initial_dependencies(name))
                 SubElement(initial, "Unknown", index=unknown.get("index"),
-                           dependencies=" ".join(map(str, deps)))
-        return root
+                           dependencies=" ".join(map(str, known)))
+        return cast(Element, root)  # pythonfmu's tree (the library has no types)

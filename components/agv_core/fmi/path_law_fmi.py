@@ -48,7 +48,7 @@ class PathLawSlave(AgvSlave):
                    "left (source 'sensor', e.g. AgvVisionSensor.lateral_error)")
         self.input("theta_meas", 0.0, "rad", "Heading error of the vehicle, vehicle minus path "
                    "(source 'sensor', e.g. AgvVisionSensor.heading_error)")
-        inputs = ("x", "y", "heading", "s_meas", "e_meas", "theta_meas")
+        inputs: tuple[str, ...] = ("x", "y", "heading", "s_meas", "e_meas", "theta_meas")
         if self.uses_speed:
             self.input("dv", 0.0, "m/s", "Speed added to the parameter speed (the "
                        "vehicle's v0 + dv)")
@@ -110,12 +110,14 @@ class PathLawSlave(AgvSlave):
         """Copy the extra outputs from the core's result ``out`` (override)."""
 
     # ------------------------------------------------------------------ FMI
-    def _speed(self):
+    def _speed(self) -> float:
         return self.speed + self.dv if self.uses_speed else 0.0
 
-    def _pose(self):
+    def _pose(self) -> tuple[float, float, float]:
         if self.source == "sensor":
-            return self.core.pose_from_path(self.s_meas, self.e_meas, self.theta_meas)
+            pose: tuple[float, float, float] = self.core.pose_from_path(
+                self.s_meas, self.e_meas, self.theta_meas)
+            return pose
         return self.x, self.y, self.heading
 
     def advance(self, t: float, h: float) -> None:

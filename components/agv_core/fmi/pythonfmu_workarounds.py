@@ -59,10 +59,10 @@ from pathlib import Path
 from typing import Any
 
 #: Objects of failed slaves, kept for the wrappers' second release (entry 1).
-KEPT_FOR_PYTHONFMU = []
+KEPT_FOR_PYTHONFMU: list[Any] = []
 
 #: Loaded pythonfmu3 libraries to finalise at exit: library path -> ctypes handle (entry 2).
-_WRAPPERS_TO_FINALIZE = {}
+_WRAPPERS_TO_FINALIZE: dict[str, ctypes.CDLL] = {}
 
 
 def keep_for_pythonfmu(slave: Any) -> None:
@@ -70,7 +70,7 @@ def keep_for_pythonfmu(slave: Any) -> None:
     KEPT_FOR_PYTHONFMU.extend((type(slave), slave, slave.log_queue))
 
 
-def _finalize_wrappers():
+def _finalize_wrappers() -> None:
     for library in _WRAPPERS_TO_FINALIZE.values():
         library.finalizePythonInterpreter()
 

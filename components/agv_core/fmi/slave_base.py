@@ -13,9 +13,9 @@ typed get/set methods (which call ``_fresh_outputs`` / ``_inputs_set``), and the
 
 import json
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, NoReturn, TypeVar, cast
 from xml.etree.ElementTree import Element, SubElement
 
 from .. import __version__
@@ -42,6 +42,8 @@ VAR_REAL, VAR_INTEGER, VAR_BOOLEAN, VAR_STRING = range(4)
 #: output (never), a fixed parameter (until initialisation mode ends), a tunable one.
 SET_NEVER, SET_INPUT, SET_OUTPUT, SET_FIXED, SET_TUNABLE = range(5)
 
+_T = TypeVar("_T")
+
 
 class CallRefused(Exception):
     """A call the FMU refuses because FMI forbids it (a non-finite input, a state that
@@ -55,16 +57,17 @@ class CallRefused(Exception):
     fmi_error = True
 
 
-def _canonical(value):
+def _canonical(value: Any) -> str:
     """``value`` as canonical JSON text (sorted keys, exact floats, NaN spelt out)."""
     return json.dumps(value, sort_keys=True, allow_nan=True)
 
 
-def _first_not_finite(value, where="core"):
+def _first_not_finite(value: Any, where: str = "core") -> str | None:
     """Where the first number in ``value`` (nested lists and dicts) is NaN or infinite,
     or None."""
     if isinstance(value, float) and not math.isfinite(value):
         return where
+    items: Iterable[tuple[Any, Any]]
     if isinstance(value, dict):
         items = value.items()
     elif isinstance(value, (list, tuple)):
@@ -101,45 +104,64 @@ class SlaveLogic:
     author = "agv-cosim"
     license = "MIT"
     version = __version__
-    description = None
-    default_experiment = None
-    reference_inputs = {}
+    description: str | None = None
+    default_experiment: Any = None
+    reference_inputs: Mapping[str, Sequence[tuple[float, float]]] = {}
 
     # supplied by the adapter
     #: the wrapper library's name, for messages
-    _TOOL = None
+    _TOOL: str | None = None
     #: the Real (FMI 2.0) / Float64 (FMI 3.0) variable class, which needs a unit
-    _REAL = None
+    _REAL: Any = None
     #: variable class -> Python type of its value
-    _PYTYPE = {}
+    _PYTYPE: dict[Any, Any] = {}
     #: causality and variability enum members
+    _INPUT: Any
+    _OUTPUT: Any
+    _PARAMETER: Any
+    _CONTINUOUS: Any
+    _DISCRETE: Any
+    _FIXED: Any
+    _TUNABLE: Any
     _INPUT = _OUTPUT = _PARAMETER = _CONTINUOUS = _DISCRETE = _FIXED = _TUNABLE = None
     #: status of a logged error
-    _ERROR = None
+    _ERROR: Any = None
     #: the Real getter and setter the bridge's fast path stands for (_fmi_real_access)
-    _FAST_METHODS = ()
+    _FAST_METHODS: tuple[str, ...] = ()
+
+    # given by the library's slave class (pythonfmu's Fmi2Slave, pythonfmu3's Fmi3Slave)
+    resources: str | None
+    vars: dict[int, Any]
+    modelName: str
+    instance_name: str
+    if TYPE_CHECKING:
+        def register_variable(self, var: Any) -> None: ...
+
+        def log(self, msg: str, status: Any = None) -> None: ...
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        self._units = {}
-        self._dependencies = {}
-        self._input_names = []
-        self._core_inputs = set()
-        self._output_names = []
-        self._parameter_names = []
+        self._units: dict[str, str] = {}
+        self._dependencies: dict[str, tuple[str, ...]] = {}
+        self._input_names: list[str] = []
+        self._core_inputs: set[str] = set()
+        self._output_names: list[str] = []
+        self._parameter_names: list[str] = []
         self._stale = False
         self._initializing = False
         self._terminated = False
         #: value reference -> name of every Real input (the finite check of a set)
-        self._real_inputs = None
+        self._real_inputs: dict[int, str] | None = None
         #: publish after a step at the next read (set at exit from initialisation)
         self._lazy_step = False
-        self._real_names = None  # value reference -> attribute (the adapter's fast get/set)
-        self.core = None
+        #: value reference -> attribute (the adapter's fast get/set)
+        self._real_names: dict[int, str] | None = None
+        self._quiet_inputs: frozenset[int]  # set with _real_names
+        self.core: Any = None
         self.time = 0.0
         self._check_bundle()
 
-    def _check_bundle(self):
+    def _check_bundle(self) -> None:
         """Refuse to run another build's slave code in this FMU's name.
 
         pythonfmu imports a slave module once per process by file name, so a second FMU
@@ -161,12 +183,14 @@ class SlaveLogic:
                 f"{self._TOOL} loads one slave module per name per process")
 
     # ------------------------------------------------------------------ declaration
-    def _variable(self, kind, name, causality, variability, description, unit):
+    def _variable(self, kind: Any, name: str, causality: Any, variability: Any,
+                  description: str, unit: str | None) -> Any:
         """The adapter's variable object (override where the library takes a unit)."""
         return kind(name, causality=causality, variability=variability,
                     description=description)
 
-    def _declare(self, kind, name, causality, variability, start, unit, description):
+    def _declare(self, kind: Any, name: str, causality: Any, variability: Any, start: Any,
+                 unit: str | None, description: str) -> None:
         if kind not in self._PYTYPE:
             raise ValueError(f"variable '{name}': unsupported kind {kind!r}")
         if not description:
@@ -274,7 +298,7 @@ class SlaveLogic:
         self._stale = False
         return True
 
-    def _step_failed(self, t, error):
+    def _step_failed(self, t: float, error: Exception) -> NoReturn:
         """Report ``error`` from the step that starts at ``t`` [s] and raise: a
         :class:`~agv_core.errors.ModelLimitError` (the model cannot go on) as a refusal
         (Error), anything else as a failure (Fatal)."""
@@ -283,19 +307,19 @@ class SlaveLogic:
             self._refuse(message)
         self._fail(message)
 
-    def _guarded(self, call, *args):
+    def _guarded(self, call: Callable[..., _T], *args: Any) -> _T:
         try:
             return call(*args)
         except Exception:
             self._keep_for_pythonfmu()
             raise
 
-    def _inputs_set(self, setter, vrs, values):
+    def _inputs_set(self, setter: Callable[..., Any], vrs: Any, values: Any) -> None:
         """Call the library's ``setter``; outputs are re-published before the next read."""
         self._guarded(setter, vrs, values)
         self._stale = True
 
-    def _fresh_outputs(self):
+    def _fresh_outputs(self) -> None:
         """Make the outputs current before a read (called by the adapter's getters)."""
         if self.core is None:
             if self._initializing:
@@ -307,11 +331,11 @@ class SlaveLogic:
                 self._outputs_failed(error)
             self._stale = False
 
-    def _outputs_failed(self, error):
+    def _outputs_failed(self, error: Exception) -> NoReturn:
         """Report ``error`` from a publication of the outputs and raise."""
         self._fail(f"outputs at t={self.time:.9g} s failed: {type(error).__name__}: {error}")
 
-    def _initial_outputs(self):
+    def _initial_outputs(self) -> None:
         """Outputs in initialisation mode, from the parameters and inputs set so far.
 
         FMI lets a master read outputs (the InitialUnknowns) before leaving
@@ -328,26 +352,26 @@ class SlaveLogic:
         finally:
             self.core = None
 
-    def _fail(self, message):
+    def _fail(self, message: str) -> NoReturn:
         text = f"{self.modelName} '{self.instance_name}': {message}"
         self.log(text, self._ERROR)
         self._keep_for_pythonfmu()
         raise RuntimeError(text)
 
-    def _refusal(self, message):
+    def _refusal(self, message: str) -> CallRefused:
         """The :class:`CallRefused` for ``message``, logged with error status."""
         text = f"{self.modelName} '{self.instance_name}': {message}"
         self.log(text, self._ERROR)
         return CallRefused(text)
 
-    def _refuse(self, message):
+    def _refuse(self, message: str) -> NoReturn:
         """Refuse the call under way: log ``message`` and raise :class:`CallRefused`."""
         error = self._refusal(message)
         self._keep_for_pythonfmu()
         raise error
 
     # ------------------------------------------------------------------ input checks
-    def _check_finite_inputs(self, vrs, values):
+    def _check_finite_inputs(self, vrs: Sequence[int], values: Sequence[float]) -> None:
         """Refuse a set that gives a Real input a value that is not finite (NaN, inf),
         naming the input; nothing of the set is applied. Called by the adapters' Real
         setters when the values' sum is not finite (a sum is finite when every term is;
@@ -363,13 +387,13 @@ class SlaveLogic:
                 self._refuse(f"input '{name}' set to {value!r}: an input must be a finite "
                              f"number; refused, '{name}' keeps {getattr(self, name)!r}")
 
-    def _keep_for_pythonfmu(self):
+    def _keep_for_pythonfmu(self) -> None:
         """Balance the wrapper's double release before an exception leaves (see
         pythonfmu_workarounds.py, entry 1)."""
         keep_for_pythonfmu(self)
 
     # ------------------------------------------------------------------ fast Real access
-    def _map_real_names(self):
+    def _map_real_names(self) -> dict[int, str]:
         """Value reference -> attribute name of every Real that the library reads and
         writes as a plain attribute of this slave (no nested name, not a constant, not an
         array); also the value references of the inputs no output depends on directly."""
@@ -383,7 +407,7 @@ class SlaveLogic:
                                        and v.name not in used)
         return self._real_names
 
-    def _fmi_real_access(self):
+    def _fmi_real_access(self) -> tuple[dict[int, str], frozenset[int]]:
         """``(names, quiet)`` for the FMU bridge (components/fmu_loader/agv_fmu_bridge.c),
         which then reads and writes these Reals without calling get/set methods.
 
@@ -396,7 +420,7 @@ class SlaveLogic:
         names = self._real_names or self._map_real_names()
         return dict(names), self._quiet_inputs
 
-    def _fmi_step_access(self):
+    def _fmi_step_access(self) -> bool:
         """True if the FMU bridge may step this slave without calling ``do_step``: it then
         does what :meth:`do_step` does (``advance(t, h)``, ``time = t + h``, then with
         ``_lazy_step`` ``_stale = True``, else ``publish()`` and ``_stale = False``; an
@@ -404,15 +428,16 @@ class SlaveLogic:
         overrides ``do_step``."""
         return type(self).do_step is SlaveLogic.do_step
 
-    def _fmi_variables(self):
+    def _fmi_variables(self) -> tuple[tuple[int, str, int, int], ...]:
         """For the FMU bridge's checks of every get and set: ``((value reference, name,
         type code, set code), ...)`` of every variable (the ``VAR_*`` and ``SET_*``
         codes above). The bridge refuses a value reference that is not a variable of
         the call's type, a set of an output, of the independent variable, of a fixed
         parameter after initialisation mode, and every set after initialisation in
         anything but an input or a tunable parameter."""
-        types = {float: VAR_REAL, int: VAR_INTEGER, bool: VAR_BOOLEAN, str: VAR_STRING}
-        rows = []
+        types: dict[Any, int] = {float: VAR_REAL, int: VAR_INTEGER, bool: VAR_BOOLEAN,
+                                 str: VAR_STRING}
+        rows: list[tuple[int, str, int, int]] = []
         for vr, v in self.vars.items():
             kind = types.get(self._PYTYPE.get(type(v)))
             if kind is None:
@@ -433,7 +458,7 @@ class SlaveLogic:
         return tuple(rows)
 
     # ------------------------------------------------------------------ state
-    def _mode(self):
+    def _mode(self) -> str:
         """The state-machine mode a saved state records (one of STATE_MODES)."""
         if self._terminated:
             return "terminated"
@@ -441,7 +466,7 @@ class SlaveLogic:
             return "step"
         return "initialization" if self._initializing else "instantiated"
 
-    def _get_fmu_state(self):
+    def _get_fmu_state(self) -> dict[str, Any]:
         if self.core is not None and self._stale:
             self._fresh_outputs()  # the outputs the state holds are those a read shows
         variables = {v.name: v.getter() for v in self.vars.values()}
@@ -450,17 +475,17 @@ class SlaveLogic:
                 "core": core_state}
 
     @staticmethod
-    def _fmu_state_from_bytes(data):
+    def _fmu_state_from_bytes(data: bytes) -> Any:
         try:
             return json.loads(bytes(data).decode("utf-8"))
         except ValueError as error:  # UnicodeDecodeError is one
             raise CallRefused(f"a state that does not belong to this FMU: not a serialised "
                               f"state ({type(error).__name__}: {error})") from None
 
-    def _set_fmu_state(self, state):
+    def _set_fmu_state(self, state: Any) -> None:
         self._guarded(self._restore, state)
 
-    def _restore(self, state):
+    def _restore(self, state: Any) -> None:
         """Restore ``state`` (from ``_get_fmu_state``), or refuse it whole.
 
         A state belongs to this FMU when it has exactly the keys of STATE_KEYS, a known
@@ -481,10 +506,10 @@ class SlaveLogic:
         self._lazy_step = self.lazy_publish and any(self._dependencies.values())
         self._stale = False
 
-    def _checked_state(self, state):
+    def _checked_state(self, state: Any) -> tuple[Any, dict[str, Any], str]:
         """``(core, variables, mode)`` of a state that belongs to this FMU; else
         CallRefused saying why. The slave's attributes are as they were either way."""
-        def refuse(why):
+        def refuse(why: str) -> CallRefused:
             return self._refusal(f"a state that does not belong to this FMU: {why}")
 
         if not isinstance(state, dict):
@@ -565,7 +590,7 @@ class SlaveLogic:
         return core, variables, mode
 
     # ------------------------------------------------------------------ model description
-    def _build_info(self):
+    def _build_info(self) -> Any:
         if self.resources is None:
             return None
         path = Path(self.resources) / BUILD_INFO
@@ -573,7 +598,7 @@ class SlaveLogic:
             return None
         return json.loads(path.read_text())
 
-    def _insert_unit_definitions(self, root):
+    def _insert_unit_definitions(self, root: Element) -> None:
         """Put ``<UnitDefinitions>`` of the units used right after ``<CoSimulation>``."""
         used = sorted(set(self._units.values()))
         if not used:
@@ -584,9 +609,10 @@ class SlaveLogic:
             attributes = base_unit_attributes(unit)
             if attributes:
                 SubElement(node, "BaseUnit", attributes)
-        root.insert(list(root).index(root.find("CoSimulation")) + 1, unit_defs)
+        cosimulation = cast(Element, root.find("CoSimulation"))  # in every description
+        root.insert(list(root).index(cosimulation) + 1, unit_defs)
 
-    def _initial_dependencies(self, name):
+    def _initial_dependencies(self, name: str) -> tuple[str, ...]:
         """Names of the knowns that output ``name`` depends on in initialisation mode: the
         ``dependencies`` of its InitialUnknown.
 
@@ -603,7 +629,7 @@ class SlaveLogic:
         inputs = [n for n in self._input_names if n in direct or n in self._core_inputs]
         return (*inputs, *self._parameter_names)
 
-    def _reference_inputs_element(self):
+    def _reference_inputs_element(self) -> Element | None:
         """``<ReferenceInputs>`` of ``reference_inputs`` (None if there are none)."""
         if not self.reference_inputs:
             return None

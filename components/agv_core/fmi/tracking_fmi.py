@@ -23,7 +23,7 @@ class TrackingSlave(AgvSlave):
     """Common FMU interface of the seed-001 tracking controllers."""
 
     #: exception classes of the core that are reported as an FMU error with their message
-    solve_errors = ()
+    solve_errors: tuple[type[Exception], ...] = ()
 
     #: publish shows the core's sample of ``self.time`` for the current inputs (the
     #: sample-and-hold of agv_core.numerics.sampling): a publication skipped after a step
@@ -68,7 +68,7 @@ class TrackingSlave(AgvSlave):
     def publish_extra(self, out: dict[str, Any]) -> None:
         """Copy the extra outputs from the core's result ``out`` (override)."""
 
-    def _ref(self):
+    def _ref(self) -> dict[str, float]:
         return {"x": self.x_ref, "y": self.y_ref, "heading": self.heading_ref,
                 "v": self.v_ref, "omega": self.omega_ref}
 

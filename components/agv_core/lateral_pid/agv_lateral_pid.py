@@ -4,7 +4,7 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "fmi.tracking_fmi", "lateral_pid.pid", "fmi.defaults")
+core: Any = load_core("fmi.fmi_slave", "fmi.tracking_fmi", "lateral_pid.pid", "fmi.defaults")
 DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
     core.lateral_pid.pid.LateralPid)
 

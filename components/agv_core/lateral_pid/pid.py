@@ -54,7 +54,7 @@ class LateralPid:
         self.T = float(sample_time)
         self.omega_max = float(omega_max)
         self.integral = 0.0          # I(k-1) [m s] of the last sample computed
-        self.e_prev = None           # e_lat(k-1) [m] of the last sample computed
+        self.e_prev: float | None = None  # e_lat(k-1) [m] of the last sample computed
         self._hold = SampleHold(self.T, memory=True)
 
     def compute(self, x: float, y: float, heading: float, ref: Mapping[str, float],
@@ -74,7 +74,8 @@ class LateralPid:
         out.update(v_c=float(ref["v"]), omega=omega, integral=i_new)
         return out, i_new, e
 
-    def _law(self, x, y, heading, x_r, y_r, heading_r, v_r, omega_r):
+    def _law(self, x: float, y: float, heading: float, x_r: float, y_r: float,
+             heading_r: float, v_r: float, omega_r: float) -> dict[str, Any]:
         """One sample from the held inputs and the committed sample before it."""
         prior = self._hold.prior
         self.integral, self.e_prev = ((0.0, None) if prior is None

@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 import osqp
+from numpy.typing import ArrayLike
 import scipy.sparse as sp
 
 from ..errors import ParameterError
@@ -172,13 +173,13 @@ class LtvMpc:
         self.eps = float(eps)
         self.max_iter = int(max_iter)
         self.warm_start = bool(warm_start)
-        self.u_prev = None          # u(k-1) [v_c, omega] of the last sample computed
-        self.warm = None            # its warm start (x, y): the solution before, shifted
+        self.u_prev: list[float] | None = None  # u(k-1) [v_c, omega] of the last sample
+        self.warm: Any = None       # its warm start (x, y): the solution before, shifted
         self._hold = SampleHold(self.T, memory=True)
 
     # ------------------------------------------------------------------ the QP
     def qp(self, x_err: np.ndarray, u_prev_err: np.ndarray, v_r: float, alpha_r: float,
-           u_r: Sequence[float]
+           u_r: np.ndarray
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """P, q, A, l, u of the sample's QP (dense numpy; see the module docstring)."""
         N, Nc = self.N, self.Nc
@@ -223,8 +224,8 @@ class LtvMpc:
             hi.append(self.e_max + E[pos])
         return P, qv, np.vstack(rows), np.concatenate(lo), np.concatenate(hi)
 
-    def solve(self, x_err: Sequence[float], u_prev_err: Sequence[float], v_r: float,
-              alpha_r: float, u_r: Sequence[float], warm: Any = None
+    def solve(self, x_err: ArrayLike, u_prev_err: ArrayLike, v_r: float,
+              alpha_r: float, u_r: ArrayLike, warm: Any = None
               ) -> tuple[np.ndarray, np.ndarray, int]:
         """Solve one sample's QP.
 
@@ -258,7 +259,7 @@ class LtvMpc:
 
     # ------------------------------------------------------------------ the law
     def compute(self, x: float, y: float, heading: float, ref: Mapping[str, float],
-                u_prev: Sequence[float]) -> dict[str, Any]:
+                u_prev: ArrayLike) -> dict[str, Any]:
         """One sample: the command u(k) from the pose and the reference.
 
         Parameters
@@ -292,7 +293,8 @@ class LtvMpc:
                    domega=float(du[1]), slack=float(z[-1]), iterations=iterations)
         return out
 
-    def _law(self, x, y, heading, x_r, y_r, heading_r, v_r, omega_r):
+    def _law(self, x: float, y: float, heading: float, x_r: float, y_r: float,
+             heading_r: float, v_r: float, omega_r: float) -> dict[str, Any]:
         """One sample from the held inputs, starting from the committed sample before it
         (its command is u(k-1), its shifted solution the warm start)."""
         prior = self._hold.prior
@@ -308,7 +310,8 @@ class LtvMpc:
         return {"out": out, "warm": self._next_warm}
 
     @staticmethod
-    def _inputs(x, y, heading, ref):
+    def _inputs(x: float, y: float, heading: float, ref: Mapping[str, float]
+                ) -> tuple[float, float, float, float, float, float, float, float]:
         return (float(x), float(y), float(heading), float(ref["x"]), float(ref["y"]),
                 float(ref["heading"]), float(ref["v"]), float(ref["omega"]))
 

@@ -64,7 +64,7 @@ def rk4_doubling(f: Callable[[list[float]], list[float]], y: Sequence[float], h:
         or the right-hand side keeps failing).
     """
     n = max(1, int(start))
-    failure = []
+    failure: list[ArithmeticError] = []
     coarse = _trial(f, y, h, n, failure)
     while True:
         fine = _trial(f, y, h, 2 * n, failure)
@@ -75,7 +75,7 @@ def rk4_doubling(f: Callable[[list[float]], list[float]], y: Sequence[float], h:
                 e = abs(a - b) / (15.0 * (1.0 + abs(a)))
                 if not e <= worst:       # also true for NaN: the check below fails then
                     worst = e
-        if worst <= tolerance:
+        if fine is not None and worst <= tolerance:
             return fine, 2 * n
         if n >= MAX_SUBSTEPS:
             if fine is None and failure:
@@ -87,7 +87,8 @@ def rk4_doubling(f: Callable[[list[float]], list[float]], y: Sequence[float], h:
         n, coarse = 2 * n, fine
 
 
-def _trial(f, y, h, n, failure):
+def _trial(f: Callable[[list[float]], list[float]], y: Sequence[float], h: float, n: int,
+           failure: list[ArithmeticError]) -> list[float] | None:
     """``rk4(f, y, h, n)``, or None when the right-hand side fails on the way (an
     ArithmeticError, appended to ``failure``: a trial with too few sub-steps can leave the
     model's domain, e.g. a blown-up explicit step at a stiff low speed); more sub-steps are

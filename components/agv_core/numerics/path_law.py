@@ -74,8 +74,8 @@ class PathLaw:
         self.delta_max = float(delta_max)
         self.sample_period = float(sample_period)
         self._hold = SampleHold(self.sample_period)
-        self._hints = {}
-        self.outputs = None
+        self._hints: dict[str, float] = {}
+        self.outputs: dict[str, float] | None = None  # the numbers of the last sample
 
     # ------------------------------------------------------------------ to implement
     def law(self, x: float, y: float, heading: float, v: float) -> dict[str, Any]:
@@ -91,7 +91,7 @@ class PathLaw:
         self._hints[key] = float(p.s)
         return p
 
-    def _evaluate(self, x, y, heading, v):
+    def _evaluate(self, x: float, y: float, heading: float, v: float) -> dict[str, Any]:
         out = self.law(x, y, heading, v)
         delta_law = out["delta_law"]
         delta = min(max(delta_law, -self.delta_max), self.delta_max)
@@ -100,7 +100,8 @@ class PathLaw:
         return out
 
     @staticmethod
-    def _inputs(x, y, heading, v):
+    def _inputs(x: float, y: float, heading: float, v: float
+                ) -> tuple[float, float, float, float]:
         x, y, heading, v = float(x), float(y), float(heading), float(v)
         refuse_non_finite(x, y, heading, v)
         return x, y, heading, v

@@ -36,13 +36,17 @@ rounding (better than 1e-12 m).
 
 import csv
 import math
+import os
+from collections.abc import Collection, Mapping, Sequence
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple, cast
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ParameterError
-from .angles import TWO_PI, heading_error  # noqa: F401 - heading_error: part of this API
+from .angles import TWO_PI
+from .angles import heading_error as heading_error  # part of this API
 from .finite import finite
 
 
@@ -85,7 +89,7 @@ class ReferencePath:
 
     length = math.inf
 
-    def project(self, x, y, s_hint=None):
+    def project(self, x: float, y: float, s_hint: float | None = None) -> PathProjection:
         """Closest path point to (x, y) [m].
 
         Parameters
@@ -103,11 +107,12 @@ class ReferencePath:
         """
         raise NotImplementedError
 
-    def point(self, s):
+    def point(self, s: float) -> PathProjection:
         """The path point at arc length ``s`` [m] (offset 0)."""
         raise NotImplementedError
 
-    def polyline(self, s0, s1, ds):
+    def polyline(self, s0: float, s1: float, ds: float
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Points from ``s0`` to ``s1`` [m] every ``ds`` [m] (end included), for plots.
 
         Returns
@@ -143,23 +148,24 @@ class LinePath(ReferencePath):
     query point: the reference jumps when the vehicle passes ``step_at``.
     """
 
-    def __init__(self, x0=0.0, y0=0.0, heading=0.0, step_at=None, step=0.0):
+    def __init__(self, x0: float = 0.0, y0: float = 0.0, heading: float = 0.0,
+                 step_at: float | None = None, step: float = 0.0) -> None:
         self.x0, self.y0, self.heading = float(x0), float(y0), float(heading)
         self.step_at = None if step_at is None else float(step_at)
         self.step = float(step)
         self._c, self._s = math.cos(self.heading), math.sin(self.heading)
 
-    def _lateral(self, s):
+    def _lateral(self, s: float) -> float:
         return self.step if self.step_at is not None and s >= self.step_at else 0.0
 
-    def point(self, s):
+    def point(self, s: float) -> PathProjection:
         s = float(s)
         lat = self._lateral(s)
         return PathProjection(s, self.x0 + s * self._c - lat * self._s,
                               self.y0 + s * self._s + lat * self._c, self.heading, 0.0, 0.0,
                               0.0)
 
-    def project(self, x, y, s_hint=None):
+    def project(self, x: float, y: float, s_hint: float | None = None) -> PathProjection:
         dx, dy = float(x) - self.x0, float(y) - self.y0
         s = dx * self._c + dy * self._s
         n = -dx * self._s + dy * self._c
@@ -185,7 +191,8 @@ class CirclePath(ReferencePath):
         Tangent heading at the start point [rad].
     """
 
-    def __init__(self, radius, cx=None, cy=None, direction="ccw", heading=0.0):
+    def __init__(self, radius: float, cx: float | None = None, cy: float | None = None,
+                 direction: str = "ccw", heading: float = 0.0) -> None:
         if not (radius > 0 and math.isfinite(radius)):
             raise ParameterError("path", f"circle radius must be positive, got {radius}")
         if direction not in ("ccw", "cw"):
@@ -199,21 +206,21 @@ class CirclePath(ReferencePath):
         nx, ny = -math.sin(h), math.cos(h)   # left normal at the start
         if cx is None:
             cx, cy = self.sign * self.radius * nx, self.sign * self.radius * ny
-        self.cx, self.cy = float(cx), float(cy)
+        self.cx, self.cy = float(cx), float(cast(float, cy))  # cy is given with cx
         # polar angle of the start point seen from the centre
         self.phi0 = math.atan2(-self.sign * ny, -self.sign * nx)
 
-    def _at(self, s, offset):
+    def _at(self, s: float, offset: float) -> PathProjection:
         phi = self.phi0 + self.sign * s / self.radius
         heading = phi + self.sign * math.pi / 2
         return PathProjection(s, self.cx + self.radius * math.cos(phi),
                               self.cy + self.radius * math.sin(phi), heading,
                               self.sign / self.radius, 0.0, offset)
 
-    def point(self, s):
+    def point(self, s: float) -> PathProjection:
         return self._at(float(s), 0.0)
 
-    def project(self, x, y, s_hint=None):
+    def project(self, x: float, y: float, s_hint: float | None = None) -> PathProjection:
         dx, dy = float(x) - self.cx, float(y) - self.cy
         r = math.hypot(dx, dy)
         phi = math.atan2(dy, dx)
@@ -227,25 +234,30 @@ class CirclePath(ReferencePath):
 
 
 # ---------------------------------------------------------------------- graph paths
+#: (f, f', f'', f''') of a graph piece at x (arrays of x's shape).
+_Derivatives = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                     NDArray[np.float64]]
+
 class _LinePiece:
     """y = yr + m (x - xr) on [a, b] in x; arc length sr at the anchor x = xr."""
 
-    def __init__(self, a, b, xr, yr, slope, sr):
+    def __init__(self, a: float, b: float, xr: float, yr: float, slope: float, sr: float
+                 ) -> None:
         self.a, self.b, self.xr, self.yr, self.m, self.sr = a, b, xr, yr, slope, sr
         self.q = math.sqrt(1.0 + slope * slope)
 
-    def derivs(self, x):
+    def derivs(self, x: ArrayLike) -> _Derivatives:
         x = np.asarray(x, dtype=float)
         z = np.zeros_like(x)
         return self.yr + self.m * (x - self.xr), z + self.m, z, z
 
-    def s_of_x(self, x):
+    def s_of_x(self, x: float) -> float:
         return self.sr + (x - self.xr) * self.q
 
-    def x_of_s(self, s):
+    def x_of_s(self, s: float) -> float:
         return self.xr + (s - self.sr) / self.q
 
-    def closest(self, px, py, lo, hi):
+    def closest(self, px: float, py: float, lo: float, hi: float) -> float:
         t = ((px - self.xr) + self.m * (py - self.yr)) / (1.0 + self.m * self.m)
         return min(max(self.xr + t, lo), hi)
 
@@ -253,7 +265,8 @@ class _LinePiece:
 class _SinePiece:
     """y = y0 + A sin(k (x - a)) on [a, inf); arc length sa at x = a."""
 
-    def __init__(self, a, y0, amplitude, wavelength, sa):
+    def __init__(self, a: float, y0: float, amplitude: float, wavelength: float, sa: float
+                 ) -> None:
         self.a, self.b, self.y0, self.amp, self.sa = a, math.inf, y0, amplitude, sa
         self.wavelength = wavelength
         self.k = TWO_PI / wavelength
@@ -261,19 +274,19 @@ class _SinePiece:
         self.q = math.sqrt(1.0 + mk * mk)
         self.par = mk * mk / (1.0 + mk * mk)
 
-    def derivs(self, x):
+    def derivs(self, x: ArrayLike) -> _Derivatives:
         ph = self.k * (np.asarray(x, dtype=float) - self.a)
         sn, cs = np.sin(ph), np.cos(ph)
         ak = self.amp * self.k
         return (self.y0 + self.amp * sn, ak * cs, -ak * self.k * sn,
                 -ak * self.k * self.k * cs)
 
-    def s_of_x(self, x):
+    def s_of_x(self, x: float) -> float:
         from scipy.special import ellipeinc  # only sine paths need scipy
 
         return self.sa + self.q / self.k * float(ellipeinc(self.k * (x - self.a), self.par))
 
-    def x_of_s(self, s):
+    def x_of_s(self, s: float) -> float:
         target = s - self.sa
         x = self.a + target / self.q * (self.q + 1.0) / 2.0   # mean slope guess
         for _ in range(60):
@@ -284,7 +297,7 @@ class _SinePiece:
                 break
         return x
 
-    def closest(self, px, py, lo, hi):
+    def closest(self, px: float, py: float, lo: float, hi: float) -> float:
         span = hi - lo
         spacing = self.wavelength / 128.0
         n = int(min(max(math.ceil(span / spacing), 8), 4096))
@@ -295,18 +308,22 @@ class _SinePiece:
         return _refine(self, px, py, a, b, xs[i])
 
 
-def _g(piece, px, py, x):
-    f, fp, fpp, _ = piece.derivs(x)
-    f, fp, fpp = float(f), float(fp), float(fpp)
+#: A piece of a :class:`GraphPath`.
+_Piece = _LinePiece | _SinePiece
+
+
+def _g(piece: _Piece, px: float, py: float, x: float) -> tuple[float, float]:
+    fa, fpa, fppa, _ = piece.derivs(x)
+    f, fp, fpp = float(fa), float(fpa), float(fppa)
     return (x - px) + (f - py) * fp, 1.0 + fp * fp + (f - py) * fpp
 
 
-def _dist2(piece, px, py, x):
+def _dist2(piece: _Piece, px: float, py: float, x: float) -> float:
     f = float(piece.derivs(x)[0])
     return (x - px) ** 2 + (f - py) ** 2
 
 
-def _refine(piece, px, py, a, b, x):
+def _refine(piece: _Piece, px: float, py: float, a: float, b: float, x: float) -> float:
     """Minimise the distance on [a, b] from x: Newton on g with a bisection safeguard."""
     ga, _ = _g(piece, px, py, a)
     gb, _ = _g(piece, px, py, b)
@@ -344,27 +361,28 @@ class GraphPath(ReferencePath):
         Typical feature length [m] setting the search window with a hint.
     """
 
-    def __init__(self, pieces, wavelength):
+    def __init__(self, pieces: Sequence[_Piece], wavelength: float) -> None:
         self.pieces = pieces
         self.wavelength = float(wavelength)
 
-    def _piece_x(self, x):
+    def _piece_x(self, x: float) -> _Piece:
         for piece in self.pieces:
             if x <= piece.b:
                 return piece
         return self.pieces[-1]
 
-    def _piece_s(self, s):
+    def _piece_s(self, s: float) -> _Piece:
         for piece in self.pieces:
             if piece.b == math.inf or s <= piece.s_of_x(piece.b):
                 return piece
         return self.pieces[-1]
 
-    def x_of_s(self, s):
+    def x_of_s(self, s: float) -> float:
         """x [m] of the path point at arc length s [m]."""
         return self._piece_s(float(s)).x_of_s(float(s))
 
-    def _at_x(self, x, piece=None, px=None, py=None):
+    def _at_x(self, x: float, piece: _Piece | None = None, px: float | None = None,
+              py: float | None = None) -> PathProjection:
         piece = piece or self._piece_x(x)
         f, fp, fpp, fppp = (float(v) for v in piece.derivs(x))
         q2 = 1.0 + fp * fp
@@ -373,18 +391,19 @@ class GraphPath(ReferencePath):
         heading = math.atan(fp)
         offset = 0.0
         if px is not None:
+            py = cast(float, py)  # given with px
             normal = -(px - x) * math.sin(heading) + (py - f) * math.cos(heading)
             offset = math.copysign(math.hypot(px - x, py - f), normal)
         x = float(x)
         return PathProjection(float(piece.s_of_x(x)), x, f, heading, curvature,
                               dc_dx / math.sqrt(q2), offset)
 
-    def point(self, s):
+    def point(self, s: float) -> PathProjection:
         x = self.x_of_s(s)
         p = self._at_x(x)
         return p._replace(s=float(s))
 
-    def project(self, x, y, s_hint=None):
+    def project(self, x: float, y: float, s_hint: float | None = None) -> PathProjection:
         px, py = float(x), float(y)
         if s_hint is None:
             d0 = abs(py - float(self._piece_x(px).derivs(px)[0]))
@@ -393,7 +412,7 @@ class GraphPath(ReferencePath):
             hint = self.point(s_hint)
             w = 2.0 * math.hypot(px - hint.x, py - hint.y) + self.wavelength / 4.0
             xa, xb = self.x_of_s(s_hint - w), self.x_of_s(s_hint + w)
-        best = None
+        best: tuple[float, float, _Piece] | None = None
         for piece in self.pieces:
             lo, hi = max(piece.a, xa), min(piece.b, xb)
             if lo > hi:
@@ -402,10 +421,12 @@ class GraphPath(ReferencePath):
             d2 = _dist2(piece, px, py, c)
             if best is None or d2 < best[0]:
                 best = (d2, c, piece)
+        best = cast(tuple[float, float, _Piece], best)  # the pieces cover every x
         return self._at_x(best[1], best[2], px, py)
 
 
-def sine_path(amplitude, wavelength, x0=0.0, y0=0.0):
+def sine_path(amplitude: float, wavelength: float, x0: float = 0.0, y0: float = 0.0
+              ) -> GraphPath:
     """:class:`GraphPath` y = y0 + A sin(2 pi (x - x0) / W), x >= x0, tangent before."""
     _check_wave(amplitude, wavelength)
     x0, y0 = finite("x0", x0, "path"), finite("y0", y0, "path")
@@ -414,7 +435,7 @@ def sine_path(amplitude, wavelength, x0=0.0, y0=0.0):
                       _SinePiece(x0, y0, amplitude, wavelength, 0.0)], wavelength)
 
 
-def scurve_path(straight, amplitude, wavelength):
+def scurve_path(straight: float, amplitude: float, wavelength: float) -> GraphPath:
     """:class:`GraphPath` y = 0 for x < L0, then y = A sin(2 pi (x - L0) / W)."""
     _check_wave(amplitude, wavelength)
     if not (straight >= 0 and math.isfinite(straight)):
@@ -423,7 +444,7 @@ def scurve_path(straight, amplitude, wavelength):
                       _SinePiece(straight, 0.0, amplitude, wavelength, straight)], wavelength)
 
 
-def _check_wave(amplitude, wavelength):
+def _check_wave(amplitude: float, wavelength: float) -> None:
     if not (wavelength > 0 and math.isfinite(wavelength)):
         raise ParameterError("path", f"wavelength must be positive, got {wavelength}")
     if not math.isfinite(amplitude):
@@ -448,7 +469,7 @@ class WaypointPath(ReferencePath):
     the straight extensions.
     """
 
-    def __init__(self, x, y):
+    def __init__(self, x: ArrayLike, y: ArrayLike) -> None:
         self.vx, self.vy = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
         if self.vx.shape != self.vy.shape or self.vx.ndim != 1 or self.vx.size < 2:
             raise ParameterError("path", "waypoints need at least two vertices (x, y)")
@@ -472,7 +493,8 @@ class WaypointPath(ReferencePath):
             kappa[0], kappa[-1] = kappa[1], kappa[-2]
         self.kappa = kappa
 
-    def _at(self, i, t, px=None, py=None):
+    def _at(self, i: int, t: float, px: float | None = None, py: float | None = None
+            ) -> PathProjection:
         """Point on segment i (extended) at distance t [m] from its start vertex."""
         i = int(i)
         h = float(self.headings[i])
@@ -486,16 +508,17 @@ class WaypointPath(ReferencePath):
         c = float(self.kappa[i] + rate * u)
         offset = 0.0
         if px is not None:
+            py = cast(float, py)  # given with px
             normal = -(px - x) * sh + (py - y) * ch
             offset = math.copysign(math.hypot(px - x, py - y), normal)
         return PathProjection(s, float(x), float(y), h, c, float(rate), offset)
 
-    def point(self, s):
+    def point(self, s: float) -> PathProjection:
         s = float(s)
         i = int(np.clip(np.searchsorted(self.sv, s, side="right") - 1, 0, self.seg.size - 1))
         return self._at(i, s - float(self.sv[i]))
 
-    def project(self, x, y, s_hint=None):
+    def project(self, x: float, y: float, s_hint: float | None = None) -> PathProjection:
         px, py = float(x), float(y)
         idx = np.arange(self.seg.size)
         if s_hint is not None:
@@ -514,7 +537,8 @@ class WaypointPath(ReferencePath):
         return self._at(idx[j], float(t[j]), px, py)
 
 
-def load_waypoints(file, base_dir=None):
+def load_waypoints(file: str | os.PathLike[str], base_dir: str | os.PathLike[str] | None = None
+                   ) -> WaypointPath:
     """Read a CSV with header ``x,y`` into a :class:`WaypointPath`."""
     path = Path(file)
     if base_dir is not None and not path.is_absolute():
@@ -543,7 +567,7 @@ def load_waypoints(file, base_dir=None):
 
 # ---------------------------------------------------------------------- parsing
 #: kind -> (required keys, optional keys with defaults)
-_KINDS = {
+_KINDS: dict[str, tuple[tuple[str, ...], dict[str, Any]]] = {
     "line": ((), {"x0": 0.0, "y0": 0.0, "heading": 0.0, "step_at": None, "step": None}),
     "circle": (("radius",), {"cx": None, "cy": None, "direction": "ccw", "heading": 0.0}),
     "sine": (("amplitude", "wavelength"), {"x0": 0.0, "y0": 0.0}),
@@ -555,7 +579,7 @@ _TEXT_KEYS = {"direction", "file"}
 FILE_KEYS = {"waypoints": ("file",)}
 
 
-def _file_items(spec):
+def _file_items(spec: object) -> tuple[str, list[str], tuple[str, ...]] | None:
     """``(head, items, keys)`` of a path string naming files: the text before its ``:``,
     its ``key=value`` items as written, the keys of its kind that name a file; None for
     any other value. Nothing is read."""
@@ -568,7 +592,7 @@ def _file_items(spec):
     return head, body.split(","), keys
 
 
-def path_files(spec):
+def path_files(spec: object) -> list[str]:
     """The file names the path string ``spec`` names (a ``waypoints`` file), as written,
     in order; empty for a path string of another kind or any other value. Nothing is
     read: :func:`parse_path` reads them (relative to its ``base_dir``)."""
@@ -583,7 +607,7 @@ def path_files(spec):
     return names
 
 
-def rebase_path(spec, base_dir):
+def rebase_path(spec: str, base_dir: str | os.PathLike[str]) -> str:
     """``spec`` with each relative file name it names (:func:`path_files`) joined to
     ``base_dir``, its other items as written: ``parse_path(rebase_path(spec, d))``
     reads the files ``parse_path(spec, d)`` reads, from any working folder. A value that
@@ -606,7 +630,9 @@ def rebase_path(spec, base_dir):
     return f"{head}:{','.join(out)}"
 
 
-def parse_items(spec, kind, body, required, optional, text_keys=_TEXT_KEYS):
+def parse_items(spec: str, kind: str, body: str, required: Sequence[str],
+                optional: Mapping[str, Any], text_keys: Collection[str] = _TEXT_KEYS
+                ) -> dict[str, Any]:
     """The ``key=value,...`` ``body`` of the path string ``spec`` of ``kind``, as a dict.
 
     ``required`` names the keys that must be given, ``optional`` maps the others to their
@@ -614,7 +640,7 @@ def parse_items(spec, kind, body, required, optional, text_keys=_TEXT_KEYS):
     ParameterError("path", ...) naming the culprit. Path kinds defined elsewhere (seed
     003's ``curve:``, axle_pd/track_path.py) parse with it too.
     """
-    values = {}
+    values: dict[str, Any] = {}
     for item in (body.split(",") if body.strip() else []):
         key, eq, text = item.partition("=")
         key, text = key.strip(), text.strip()
@@ -642,7 +668,7 @@ def parse_items(spec, kind, body, required, optional, text_keys=_TEXT_KEYS):
     return dict(optional, **values)
 
 
-def parse_path(spec, base_dir=None):
+def parse_path(spec: str, base_dir: str | os.PathLike[str] | None = None) -> ReferencePath:
     """Build a :class:`ReferencePath` from ``kind:key=value,...`` (see module docstring).
 
     Parameters
@@ -681,7 +707,9 @@ def parse_path(spec, base_dir=None):
     return load_waypoints(args["file"], base_dir)
 
 
-def project_trajectory(path, xs, ys, s_hint=None):
+def project_trajectory(path: ReferencePath, xs: Sequence[float] | NDArray[np.float64],
+                       ys: Sequence[float] | NDArray[np.float64], s_hint: float | None = None
+                       ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Project a trajectory onto ``path``, point by point, in order.
 
     Each point is projected with the previous point's arc length as the hint (the first

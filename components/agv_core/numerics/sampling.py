@@ -79,12 +79,12 @@ class SampleHold:
         self.memory = bool(memory)
         if self.memory and not self.period > 0.0:
             raise ValueError("a law with memory needs a sample period > 0")
-        self.value = None    # the value shown (held, or tentative at an instant)
-        self.index = None    # k of the held (or tentative) sample; None before any
-        self.inputs = None   # the inputs ``value`` was computed from
-        self.prior = None    # the sample before ``index`` (memory=True); None before
+        self.value: Any = None    # the value shown (held, or tentative at an instant)
+        self.index: int | None = None  # k of the held (or tentative) sample; None before any
+        self.inputs: tuple[Any, ...] | None = None  # the inputs ``value`` was computed from
+        self.prior: Any = None    # the sample before ``index`` (memory=True); None before
 
-    def _evaluate(self, law, inputs, index):
+    def _evaluate(self, law: Callable[..., Any], inputs: Sequence[Any], index: int) -> Any:
         if self.index is not None and index != self.index:
             self.prior = self.value          # a new instant: the held sample is now past
         self.value = law(*inputs)

@@ -56,7 +56,7 @@ m ``gain_quantum`` (cache key (m, n)). Either way the gain used is a pure functi
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -70,7 +70,7 @@ DEFAULT_PATH = "sine:amplitude=2,wavelength=18.84955592153876"
 
 
 def future_point(x: float, y: float, theta: float, alpha: float, speed: float,
-                 wheelbase: float, tau: float) -> tuple[float, float]:
+                 wheelbase: float, tau: float) -> tuple[float, float, float, float]:
     """Future point Q after ``tau`` at constant steering angle (seed 004 eq 5).
 
     Second-order Taylor expansion in ``tau`` of the exact arc; the position error is
@@ -190,7 +190,7 @@ def lq_gain(theta_p: float, alpha_p: float, speed: float, wheelbase: float,
     return np.asarray(K), np.asarray(P)
 
 
-def _rotation(theta):
+def _rotation(theta: float) -> np.ndarray:
     c, s = math.cos(theta), math.sin(theta)
     T = np.eye(4)
     T[:2, :2] = ((c, -s), (s, c))
@@ -223,7 +223,13 @@ class DiscretePath:
         self.ds = float(ds)
         self.wheelbase = float(wheelbase)
         self.chunk = int(chunk)
+        #: (x, y, theta, alpha) arrays: of the whole path (key None) or of chunk k
+        self._chunks: dict[int | None, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
         self._chunks = {}
+        #: the path source (None for vertex arrays)
+        self.path: Any
+        #: number of vertices (None: unbounded, built in chunks)
+        self.count: int | None
         if isinstance(source, tuple):
             x, y = (np.asarray(a, dtype=float) for a in source)
             if x.shape != y.shape or x.ndim != 1 or x.size < 3:
@@ -240,12 +246,12 @@ class DiscretePath:
             else:
                 self.count = None
 
-    def _set_arrays(self, x, y):
+    def _set_arrays(self, x: np.ndarray, y: np.ndarray) -> None:
         theta, alpha = discretise(x, y, self.wheelbase)
         self.count = x.size
         self._chunks[None] = (x, y, theta, alpha)
 
-    def _sample(self, i0, i1):
+    def _sample(self, i0: int, i1: int) -> tuple[np.ndarray, np.ndarray]:
         """Vertices i0..i1 (inclusive) of the path source, at s = i ds."""
         n = i1 - i0 + 1
         xs, ys = self.path.polyline(i0 * self.ds, i1 * self.ds, self.ds)
@@ -257,7 +263,7 @@ class DiscretePath:
             raise ValueError(f"path polyline gave {xs.size} vertices, expected {n}")
         return xs[:n], ys[:n]
 
-    def _chunk(self, k):
+    def _chunk(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         data = self._chunks.get(k)
         if data is None:
             lo = k * self.chunk - 1
@@ -314,7 +320,7 @@ class DiscretePath:
             if not at_edge:
                 break
             centre = i0 + j
-        best = None
+        best: tuple[float, float, float, float, float] | None = None
         for a in (j - 1, j):
             b = a + 1
             if a < 0 or b >= vx.size:
@@ -329,7 +335,8 @@ class DiscretePath:
                 theta = vth[a] + f * wrap_angle(vth[b] - vth[a])
                 alpha = val[a] + f * (val[b] - val[a])
                 best = (dist, px, py, theta, alpha)
-        _, px, py, theta, alpha = best
+        _, px, py, theta, alpha = cast(tuple[float, float, float, float, float],
+                                       best)  # a window holds a segment: never None
         return {"index": i0 + j, "x": float(px), "y": float(py),
                 "theta": float(theta), "alpha": float(alpha)}
 
@@ -413,8 +420,8 @@ class PreviewLQ:
         except Exception as error:  # noqa: BLE001 - any failure of the path is a bad path
             raise ParameterError("path", f"cannot discretise: {type(error).__name__}: "
                                          f"{error}") from error
-        self._gains = {}
-        self.hint = None
+        self._gains: dict[tuple[int, int], np.ndarray] = {}
+        self.hint: int | None = None
         self._hold = SampleHold(self.sample_period)
 
     # ------------------------------------------------------------------ gain
@@ -435,7 +442,7 @@ class PreviewLQ:
             k_u = k_u @ _rotation(theta_p).T
         return k_u
 
-    def _node(self, theta_n, alpha_n):
+    def _node(self, theta_n: int, alpha_n: int) -> np.ndarray:
         key = (theta_n, alpha_n)
         k_u = self._gains.get(key)
         if k_u is None:
@@ -486,12 +493,13 @@ class PreviewLQ:
         self.hint = hint
         return self.law(x, y, heading_meas, alpha)
 
-    def _residual(self, x, y, heading, alpha, hint):
+    def _residual(self, x: float, y: float, heading: float, alpha: float, hint: int | None
+                  ) -> float:
         self.hint = hint  # every trial starts its search from the same vertex
         return self.law(x, y, heading, alpha, clip=False)["alpha_ref"] - alpha
 
     def law(self, x: float, y: float, heading: float, alpha: float, clip: bool = True
-            ) -> dict[str, Any]:
+            ) -> dict[str, float]:
         """Eqs 5 and 12 for the pose (x, y [m], heading [rad]) and steering angle
         ``alpha`` [rad]: alpha_ref = alpha_p + tau k_u . dx (clipped if ``clip``).
 

@@ -4,8 +4,9 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "fmi.path_law_fmi", "fmi.defaults", "pure_pursuit.pure_pursuit")
-DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
+core: Any = load_core(
+    "fmi.fmi_slave", "fmi.path_law_fmi", "fmi.defaults", "pure_pursuit.pure_pursuit")
+DEFAULTS: dict[str, Any] = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
     core.pure_pursuit.pure_pursuit.make_controller)
 
 

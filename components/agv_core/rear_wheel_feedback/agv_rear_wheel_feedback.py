@@ -5,9 +5,9 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "fmi.path_law_fmi", "fmi.defaults",
+core: Any = load_core("fmi.fmi_slave", "fmi.path_law_fmi", "fmi.defaults",
                  "rear_wheel_feedback.rear_wheel_feedback")
-DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
+DEFAULTS: dict[str, Any] = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
     core.rear_wheel_feedback.rear_wheel_feedback.make_controller)
 
 

@@ -22,15 +22,18 @@ the yaw rate omega_r = kappa_r v_r [rad/s].
 """
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 from ..errors import ParameterError
-from ..numerics.paths import CirclePath, sine_path
+from ..numerics.paths import CirclePath, GraphPath, sine_path
+
+if TYPE_CHECKING:
+    from ..numerics.paths import _SinePiece
 
 KINDS = ("circle", "scurve")
 
 
-class RefSample(dict):
+class RefSample(dict[str, float]):
     """One reference sample: keys x, y, heading [m, m, rad], v [m/s], omega [rad/s],
     curvature [1/m], s [m] (arc length from the trajectory's start)."""
 
@@ -66,7 +69,8 @@ class RefTrajectory:
                 raise ParameterError("omega", f"must be finite and non-zero, got {omega}")
             self.omega = float(omega)
             radius = self.speed / abs(self.omega)
-            self.path = CirclePath(radius, direction="ccw" if omega > 0 else "cw")
+            self.path: CirclePath | GraphPath = CirclePath(
+                radius, direction="ccw" if omega > 0 else "cw")
             self.s_start = 0.0
             self.straight = 0.0
         else:
@@ -103,8 +107,8 @@ class RefTrajectory:
         """Time [s] of the first curvature maximum (S-curve), None for the circle."""
         if self.kind == "circle":
             return None
-        crest = self.path.pieces[1].s_of_x(self.path.pieces[1].a
-                                           + self.path.pieces[1].wavelength / 4.0)
+        sine = cast("_SinePiece", cast(GraphPath, self.path).pieces[1])  # the S-curve's sine
+        crest = sine.s_of_x(sine.a + sine.wavelength / 4.0)
         return (crest - self.s_start) / self.speed
 
     def get_state(self) -> dict[str, Any]:

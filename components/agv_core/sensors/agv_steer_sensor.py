@@ -5,7 +5,7 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "sensors.sensors")
+core: Any = load_core("fmi.fmi_slave", "sensors.sensors")
 
 
 class AgvSteerSensor(core.fmi.fmi_slave.AgvSlave):

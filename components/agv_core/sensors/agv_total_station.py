@@ -5,7 +5,7 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "sensors.sensors", "fmi.defaults")
+core: Any = load_core("fmi.fmi_slave", "sensors.sensors", "fmi.defaults")
 DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
     core.sensors.sensors.TotalStation)
 

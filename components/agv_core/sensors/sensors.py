@@ -43,31 +43,36 @@ the other parameters are.
 
 import math
 from collections import deque
+from collections.abc import Sequence
+from typing import Any, cast
 
 import numpy as np
 
 from ..errors import ParameterError
-from ..numerics.paths import heading_error
+from ..numerics.paths import PathProjection, ReferencePath, heading_error
 from ..numerics.sampling import TIME_EPS, at_instant, in_step
 
 #: Time tolerance [s] for matching sample instants to communication points: the one
 #: tolerance of agv_core.numerics.sampling.
 EPS = TIME_EPS
 
+#: The values of one sample, in the sensor's documented order (also its noise).
+Values = tuple[float, ...]
 
-def _nonneg(name, value):
+
+def _nonneg(name: str, value: float) -> float:
     if not (value >= 0.0 and math.isfinite(value)):
         raise ParameterError(name, f"must be finite and >= 0, got {value}")
     return float(value)
 
 
-def _seed(seed):
+def _seed(seed: float) -> int:
     if int(seed) != seed or seed < 0:
         raise ParameterError("seed", f"must be a non-negative integer, got {seed}")
     return int(seed)
 
 
-def _quantize(value, resolution):
+def _quantize(value: float, resolution: float) -> float:
     """Round ``value`` to the nearest multiple of ``resolution`` (none when 0)."""
     if resolution <= 0.0:
         return value
@@ -77,34 +82,38 @@ def _quantize(value, resolution):
 class _Sampled:
     """Capture schedule, latency line and random generator of a sampled sensor."""
 
-    def __init__(self, latency, seed, t0, draws=True):
+    def __init__(self, latency: float, seed: float, t0: float, draws: bool = True) -> None:
         self.latency = _nonneg("latency", latency)
         self.rng = np.random.default_rng(_seed(seed))
         #: False for a sensor without random spread: it never uses its generator
         self.draws = bool(draws)
         self.t0 = float(t0)
-        self.pending = deque()       # (t_available, t_capture, values)
-        self.current = None          # (t_capture, values) of the newest available sample
-        self.initial = None
+        #: (t_available, t_capture, values) of the samples captured and not yet shown
+        self.pending: deque[tuple[float, float, Values]] = deque()
+        #: (t_capture, values) of the newest available sample
+        self.current: tuple[float, Values] | None = None
+        self.initial: tuple[float, Values] | None = None
         #: (instant [s], generator state before the draw, noise) of a tentative sample
-        self._drawn = None
+        #: (the generator's state is a mapping, None for a noise-only stream)
+        self._drawn: tuple[float, Any, Values] | None = None
         #: False during a dropout: samples due then are drawn (so the random stream
         #: after the dropout is the same as without it) but lost, and the last one
         #: received stays shown
         self.available = True
 
     # hooks -----------------------------------------------------------------
-    def _next_time(self):
+    def _next_time(self) -> float:
         raise NotImplementedError
 
-    def _advance_schedule(self):
+    def _advance_schedule(self) -> None:
         raise NotImplementedError
 
-    def _noise(self):
+    def _noise(self) -> Values:
         """Draw the noise of one sample (a tuple, in the class's documented order)."""
         raise NotImplementedError
 
-    def _sample(self, inputs, noise, commit=False):
+    def _sample(self, inputs: Sequence[float], noise: Values | None, commit: bool = False
+                ) -> Values:
         """Sample values for ``inputs`` plus ``noise`` (None: noise-free); ``commit`` for
         a captured (not tentative) one."""
         raise NotImplementedError
@@ -116,7 +125,7 @@ class _Sampled:
     #: (reading that state costs more than the draws)
     NOISE_ONLY_STREAM = False
 
-    def _tentative_noise(self, t_k):
+    def _tentative_noise(self, t_k: float) -> Values | None:
         """The noise of the sample of instant ``t_k``, drawn once and kept (None: the
         sensor draws nothing)."""
         if not self.draws:
@@ -133,7 +142,7 @@ class _Sampled:
         self._drawn = drawn = (t_k, state, self._noise())
         return drawn[2]
 
-    def _undo_tentative(self):
+    def _undo_tentative(self) -> None:
         """Put back the numbers of a tentative sample that will not be committed next
         (a noise-only stream keeps them: they are its next numbers)."""
         if self._drawn is not None and not self.NOISE_ONLY_STREAM:
@@ -141,10 +150,10 @@ class _Sampled:
             self._drawn = None
 
     # timing ----------------------------------------------------------------
-    def _due(self, t):
+    def _due(self, t: float) -> bool:
         return at_instant(self._next_time(), t)
 
-    def step(self, t, h, *inputs):
+    def step(self, t: float, h: float, *inputs: float) -> None:
         """Advance from ``t`` to ``t + h`` [s] with ``inputs`` held."""
         if self.initial is None:
             self.initial = (self.t0, self._sample(inputs, None))
@@ -158,6 +167,7 @@ class _Sampled:
         while self._next_time() < end - EPS:
             t_k = self._next_time()
             if in_step(t_k, t, h):  # agv_core.numerics.sampling's rule (instants before t: skipped)
+                noise: Values | None
                 drawn = self._drawn
                 if drawn is not None:
                     self._drawn = None
@@ -174,7 +184,7 @@ class _Sampled:
             _, t_k, values = self.pending.popleft()
             self.current = (t_k, values)
 
-    def output(self, t, *inputs):
+    def output(self, t: float, *inputs: float) -> tuple[float, Values]:
         """(t_capture, values) the sensor shows at ``t`` [s] for the current inputs."""
         if self.available and self.latency <= EPS and self._due(t):
             # the step from t commits these same numbers
@@ -186,7 +196,7 @@ class _Sampled:
         return self.t0, self._sample(inputs, None)
 
     # state -----------------------------------------------------------------
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         """JSON-safe snapshot of the internal state."""
         drawn, ahead = self._drawn, None
         if drawn is None or self.NOISE_ONLY_STREAM:
@@ -201,7 +211,7 @@ class _Sampled:
                 "initial": None if self.initial is None else [self.initial[0],
                                                               list(self.initial[1])]}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         """Restore a snapshot from :meth:`get_state`."""
         self.rng.bit_generator.state = state["rng"]
         self.t0 = float(state["t0"])
@@ -249,8 +259,9 @@ class VisionSensor(_Sampled):
 
     NOISE_ONLY_STREAM = True
 
-    def __init__(self, path, frame_period=0.04, latency=0.04, noise_lateral=0.002,
-                 noise_heading=0.004, seed=0, t0=0.0):
+    def __init__(self, path: ReferencePath, frame_period: float = 0.04, latency: float = 0.04,
+                 noise_lateral: float = 0.002, noise_heading: float = 0.004, seed: int = 0,
+                 t0: float = 0.0) -> None:
         self.path = path
         self.frame_period = _nonneg("frame_period", frame_period)
         self.noise_lateral = _nonneg("noise_lateral", noise_lateral)
@@ -260,19 +271,23 @@ class VisionSensor(_Sampled):
         p = self.frame_period
         self.next_k = 0 if p == 0.0 else math.ceil((self.t0 - EPS) / p)
         self.next_t = self.t0
-        self.s_hint = None
+        self.s_hint: float | None = None
+        self._projected: tuple[float | None, float | None, float | None,
+                               PathProjection | None]
         self._projected = (None, None, None, None)  # x, y, s_hint, projection of the last
 
-    def _next_time(self):
+    def _next_time(self) -> float:
         return self.next_t if self.frame_period == 0.0 else self.next_k * self.frame_period
 
-    def _advance_schedule(self):
+    def _advance_schedule(self) -> None:
         if self.frame_period == 0.0:
             self.next_t = math.inf      # one capture per step; step() sets the next one
         else:
             self.next_k += 1
 
-    def step(self, t, h, x, y, heading):
+    # the pose is _Sampled.step's inputs
+    def step(self, t: float, h: float, x: float, y: float,  # type: ignore[override]
+             heading: float) -> None:
         """Advance from ``t`` to ``t + h`` [s] with the pose held."""
         if self.frame_period == 0.0:
             self.next_t = t
@@ -281,12 +296,13 @@ class VisionSensor(_Sampled):
         else:
             super().step(t, h, x, y, heading)
 
-    def _noise(self):
+    def _noise(self) -> tuple[float, float]:
         normal = self.rng.standard_normal
         lateral = self.noise_lateral * normal()
         return lateral, self.noise_heading * normal()
 
-    def _sample(self, inputs, noise, commit=False):
+    def _sample(self, inputs: Sequence[float], noise: Values | None, commit: bool = False
+                ) -> tuple[float, float, float, float, float]:
         x, y, heading = inputs
         # a tentative sample and its commit project the same pose (the very same float
         # objects, so the same values and signs of zero): project once
@@ -295,6 +311,7 @@ class VisionSensor(_Sampled):
         if not (x is px and y is py and hint is ph):
             p = self.path.project(x, y, hint)
             self._projected = (x, y, hint, p)
+        p = cast(PathProjection, p)  # kept for this very pose, or new
         if commit:
             self.s_hint = p.s
         lateral, head = p.offset, heading_error(heading, p.heading)
@@ -303,17 +320,17 @@ class VisionSensor(_Sampled):
             head += noise[1]
         return (lateral, head, p.s, p.curvature, p.curvature_rate)
 
-    def measure(self, t, x, y, heading):
+    def measure(self, t: float, x: float, y: float, heading: float) -> Values:
         """Outputs at ``t`` [s]: (lateral_error [m], heading_error [rad], s [m],
         curvature [1/m], curvature_rate [1/m^2])."""
         return self.output(t, x, y, heading)[1]
 
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         state = super().get_state()
         state.update(next_k=self.next_k, next_t=self.next_t, s_hint=self.s_hint)
         return state
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         super().set_state(state)
         self.next_k, self.next_t, self.s_hint = state["next_k"], state["next_t"], \
             state["s_hint"]
@@ -347,8 +364,8 @@ class TotalStation(_Sampled):
     station with jitter are those of a noisy one; none when both are 0).
     """
 
-    def __init__(self, mean_interval=0.65, jitter=0.15, latency=0.1, noise=0.003, seed=0,
-                 t0=0.0):
+    def __init__(self, mean_interval: float = 0.65, jitter: float = 0.15, latency: float = 0.1,
+                 noise: float = 0.003, seed: int = 0, t0: float = 0.0) -> None:
         if not (mean_interval > 0.0 and math.isfinite(mean_interval)):
             raise ParameterError("mean_interval", f"must be positive, got {mean_interval}")
         self.mean_interval = float(mean_interval)
@@ -360,28 +377,29 @@ class TotalStation(_Sampled):
         super().__init__(latency, seed, t0, draws=self.noise > 0.0 or self.jitter > 0.0)
         self.next_t = self.t0
 
-    def _next_time(self):
+    def _next_time(self) -> float:
         return self.next_t
 
-    def _advance_schedule(self):
+    def _advance_schedule(self) -> None:
         if self.draws:
             self.next_t += self.mean_interval + self.jitter * (2.0 * self.rng.random() - 1.0)
         else:
             self.next_t += self.mean_interval
 
-    def _noise(self):
+    def _noise(self) -> tuple[float, float]:
         normal = self.rng.standard_normal
         nx = self.noise * normal()
         return nx, self.noise * normal()
 
-    def _sample(self, inputs, noise, commit=False):
+    def _sample(self, inputs: Sequence[float], noise: Values | None, commit: bool = False
+                ) -> tuple[float, float]:
         x, y = inputs
         if noise is not None:
             x += noise[0]
             y += noise[1]
         return (x, y)
 
-    def measure(self, t, x, y):
+    def measure(self, t: float, x: float, y: float) -> tuple[float, float, float]:
         """Outputs at ``t`` [s]: (x_meas [m], y_meas [m], fix_age [s]).
 
         ``fix_age`` is ``t`` minus the capture time of the fix shown.
@@ -389,12 +407,12 @@ class TotalStation(_Sampled):
         t_k, (xm, ym) = self.output(t, x, y)
         return xm, ym, max(t - t_k, 0.0)
 
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         state = super().get_state()
         state["next_t"] = self.next_t
         return state
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         super().set_state(state)
         self.next_t = state["next_t"]
 
@@ -424,7 +442,8 @@ class InstantSensor:
     from t commits the draw, so repeated reads give the same value.
     """
 
-    def __init__(self, drift=0.0, noise=0.0, resolution=0.0, seed=0, t0=0.0):
+    def __init__(self, drift: float = 0.0, noise: float = 0.0, resolution: float = 0.0,
+                 seed: int = 0, t0: float = 0.0) -> None:
         if not math.isfinite(drift):
             raise ParameterError("drift", f"must be finite, got {drift}")
         self.drift = float(drift)
@@ -433,9 +452,9 @@ class InstantSensor:
         self.rng = np.random.default_rng(_seed(seed))
         self.t0 = float(t0)
         #: the next normal draw, taken by a reading and not yet committed by a step
-        self._next_normal = None
+        self._next_normal: float | None = None
 
-    def measure(self, t, value):
+    def measure(self, t: float, value: float) -> float:
         """Reading at ``t`` [s] of the true ``value`` (the draw is committed by the step)."""
         noise = 0.0
         if self.noise > 0.0:
@@ -444,19 +463,19 @@ class InstantSensor:
             noise = self.noise * self._next_normal
         return _quantize(value + self.drift * (t - self.t0) + noise, self.resolution)
 
-    def step(self, t, h):
+    def step(self, t: float, h: float) -> None:
         """Commit the sample taken at ``t`` and move on to ``t + h`` [s]."""
         if self.noise > 0.0:
             if self._next_normal is None:
                 self.rng.standard_normal()
             self._next_normal = None
 
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         """JSON-safe snapshot of the internal state (a draw a reading took is kept)."""
         return {"rng": self.rng.bit_generator.state, "next_normal": self._next_normal,
                 "t0": self.t0}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         """Restore a snapshot from :meth:`get_state`."""
         self.rng.bit_generator.state = state["rng"]
         self._next_normal = state.get("next_normal")

@@ -4,8 +4,8 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "fmi.path_law_fmi", "fmi.defaults", "stanley.stanley")
-DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
+core: Any = load_core("fmi.fmi_slave", "fmi.path_law_fmi", "fmi.defaults", "stanley.stanley")
+DEFAULTS: dict[str, Any] = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
     core.stanley.stanley.make_controller)
 
 

@@ -5,7 +5,7 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "state_feedback.state_feedback", "fmi.defaults")
+core: Any = load_core("fmi.fmi_slave", "state_feedback.state_feedback", "fmi.defaults")
 DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
     core.state_feedback.state_feedback.StateFeedback)
 

@@ -25,6 +25,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..errors import ParameterError
 from ..numerics.finite import finite as _finite
@@ -155,7 +156,7 @@ def lqr_gains(V0: float, L: float, K: float, Q: Any, R: Any) -> np.ndarray:
     return np.asarray(gains, dtype=float).ravel()
 
 
-def find_wheelbase(target: Sequence[float] = PAPER_GAINS, V0: float = 1.0, K: float = 0.6,
+def find_wheelbase(target: ArrayLike = PAPER_GAINS, V0: float = 1.0, K: float = 0.6,
                    q: float | None = 20.0, r: float = 1.0,
                    bounds: tuple[float, float] = (0.2, 5.0)) -> dict[str, Any]:
     """The wheelbase L for which LQR on model b reproduces ``target`` gains.
@@ -193,7 +194,7 @@ def find_wheelbase(target: Sequence[float] = PAPER_GAINS, V0: float = 1.0, K: fl
         q = r * target[2] ** 2
     Q = np.diag([0.0, 0.0, q])
 
-    def cost(L):
+    def cost(L: float) -> float:
         return float(np.sum((lqr_gains(V0, L, K, Q, r)[:2] - target[:2]) ** 2))
 
     result = minimize_scalar(cost, bounds=bounds, method="bounded",

@@ -38,8 +38,10 @@ model c the phase margin is 63 deg (gain margin 3.6).
 """
 
 import math
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..errors import ParameterError
 from ..numerics.finite import finite as _finite
@@ -79,8 +81,9 @@ class SteeringActuator:
         limiter), > 0.
     """
 
-    def __init__(self, K=0.6, alpha0=0.0, alpha_max=0.0, rate_max=0.0, mode="command",
-                 servo_gain=10.0, servo_period=1e-3):
+    def __init__(self, K: float = 0.6, alpha0: float = 0.0, alpha_max: float = 0.0,
+                 rate_max: float = 0.0, mode: str = "command", servo_gain: float = 10.0,
+                 servo_period: float = 1e-3) -> None:
         K = _finite("K", K)
         if K <= 0.0:
             raise ParameterError("K", f"must be > 0 rad/(V.s), got {K}")
@@ -112,7 +115,7 @@ class SteeringActuator:
         self.time = 0.0
 
     # ------------------------------------------------------------------ limits
-    def _limit_rate(self, rate, alpha):
+    def _limit_rate(self, rate: float, alpha: float) -> float:
         """Rate after the rate limit and the end stops at angle ``alpha`` [rad/s]."""
         if self.rate_max > 0.0:
             rate = min(max(rate, -self.rate_max), self.rate_max)
@@ -122,25 +125,25 @@ class SteeringActuator:
                 rate = 0.0
         return rate
 
-    def _clamp(self, alpha):
+    def _clamp(self, alpha: float) -> float:
         if self.alpha_max > 0.0:
             return min(max(alpha, -self.alpha_max), self.alpha_max)
         return alpha
 
-    def _advance_constant_rate(self, rate, d):
+    def _advance_constant_rate(self, rate: float, d: float) -> None:
         """Advance alpha by ``d`` [s] at constant unlimited rate ``rate`` (exact)."""
         if self.rate_max > 0.0:
             rate = min(max(rate, -self.rate_max), self.rate_max)
         self.alpha = self._clamp(self.alpha + rate * d)
 
     # ------------------------------------------------------------------ stepping
-    def command(self, u, alpha_ref):
+    def command(self, u: float, alpha_ref: float) -> float:
         """Command [V] the actuator receives now: ``u``, or the servo's in angle mode."""
         if self.mode == "angle":
             return self.servo_gain * (alpha_ref - self.alpha)
         return u
 
-    def step(self, t, h, u=0.0, alpha_ref=0.0):
+    def step(self, t: float, h: float, u: float = 0.0, alpha_ref: float = 0.0) -> None:
         """Advance from ``t`` to ``t + h`` [s] with ``u`` [V] and ``alpha_ref`` [rad] held."""
         if h <= 0.0:
             return
@@ -153,22 +156,22 @@ class SteeringActuator:
         else:
             self._step_command(t, h, u)
 
-    def _needs_substeps(self):
+    def _needs_substeps(self) -> bool:
         return False
 
-    def _step_command(self, t, h, u):
+    def _step_command(self, t: float, h: float, u: float) -> None:
         raise NotImplementedError
 
-    def rate(self, u=0.0, alpha_ref=0.0):
+    def rate(self, u: float = 0.0, alpha_ref: float = 0.0) -> float:
         """Wheel rate d(alpha)/dt [rad/s] now, after the limits."""
         raise NotImplementedError
 
     # ------------------------------------------------------------------ state
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         """JSON-safe snapshot of the state."""
         return {"alpha": self.alpha, "time": self.time}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         """Restore a snapshot from :meth:`get_state`."""
         self.alpha = float(state["alpha"])
         self.time = float(state["time"])
@@ -177,10 +180,10 @@ class SteeringActuator:
 class IntegratorActuator(SteeringActuator):
     """Model b: ``alpha' = K u`` (seed 000 eq 8 without delay). See :class:`SteeringActuator`."""
 
-    def _step_command(self, t, h, u):
+    def _step_command(self, t: float, h: float, u: float) -> None:
         self._advance_constant_rate(self.K * u, h)
 
-    def rate(self, u=0.0, alpha_ref=0.0):
+    def rate(self, u: float = 0.0, alpha_ref: float = 0.0) -> float:
         return self._limit_rate(self.K * self.command(u, alpha_ref), self.alpha)
 
 
@@ -193,16 +196,16 @@ class DeadTime:
     ``t_i + tau``, whether or not the step divides tau.
     """
 
-    def __init__(self, tau):
+    def __init__(self, tau: float) -> None:
         self.tau = tau
         #: breakpoints [[time [s], command [V]], ...], ascending; command 0 before the first
-        self.history = []
+        self.history: list[list[float]] = []
 
     @staticmethod
-    def eps(h):
+    def eps(h: float) -> float:
         return 1e-12 + 1e-9 * h
 
-    def delayed(self, s):
+    def delayed(self, s: float) -> float:
         """Command that was applied at time ``s`` (right-continuous) [V]."""
         value = 0.0
         for time, u in self.history:
@@ -212,7 +215,7 @@ class DeadTime:
                 break
         return value
 
-    def pieces(self, t, h, u):
+    def pieces(self, t: float, h: float, u: float) -> list[tuple[float, float]]:
         """Record command ``u`` [V] held from ``t`` [s]; return the step ``(t, t + h)``
         as ``[(duration [s], delayed command [V]), ...]``, in order."""
         eps = self.eps(h)
@@ -244,7 +247,7 @@ class DeadTime:
         self.prune(t_end - tau + eps)
         return out
 
-    def prune(self, s):
+    def prune(self, s: float) -> None:
         """Drop breakpoints no longer needed after delayed time ``s``: keep the newest at
         or before ``s`` (the command in force) and all later ones."""
         keep = 0
@@ -255,7 +258,7 @@ class DeadTime:
         if keep:
             del self.history[:keep]
 
-    def now(self, time):
+    def now(self, time: float) -> float:
         """The delayed command in force at ``time`` [s] (applied at least tau earlier)."""
         return self.delayed(time - self.tau + self.eps(self.tau))
 
@@ -271,7 +274,7 @@ class DelayedIntegratorActuator(SteeringActuator):
         See :class:`SteeringActuator`.
     """
 
-    def __init__(self, tau=0.05, **kwargs):
+    def __init__(self, tau: float = 0.05, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         tau = _finite("tau", tau)
         if tau <= 0.0:
@@ -280,25 +283,25 @@ class DelayedIntegratorActuator(SteeringActuator):
         self.delay = DeadTime(tau)
 
     @property
-    def history(self):
+    def history(self) -> list[list[float]]:
         """The dead time's breakpoints [[time [s], command [V]], ...]."""
         return self.delay.history
 
-    def _step_command(self, t, h, u):
+    def _step_command(self, t: float, h: float, u: float) -> None:
         for duration, delayed in self.delay.pieces(t, h, u):
             self._advance_constant_rate(self.K * delayed, duration)
 
-    def rate(self, u=0.0, alpha_ref=0.0):
+    def rate(self, u: float = 0.0, alpha_ref: float = 0.0) -> float:
         # the delayed command at the current time was applied at least tau earlier: it is
         # in the history already and never depends on the present u / alpha_ref
         return self._limit_rate(self.K * self.delay.now(self.time), self.alpha)
 
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         state = super().get_state()
         state["history"] = [list(p) for p in self.delay.history]
         return state
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         super().set_state(state)
         self.delay.history = [[float(t), float(u)] for t, u in state["history"]]
 
@@ -334,8 +337,9 @@ class IdentifiedActuator(SteeringActuator):
         See :class:`SteeringActuator`.
     """
 
-    def __init__(self, num1=EQ6_SI_NUM[0], num0=EQ6_SI_NUM[1], den1=EQ6_DEN[1],
-                 den0=EQ6_DEN[2], tau=0.0, **kwargs):
+    def __init__(self, num1: float = EQ6_SI_NUM[0], num0: float = EQ6_SI_NUM[1],
+                 den1: float = EQ6_DEN[1], den0: float = EQ6_DEN[2], tau: float = 0.0,
+                 **kwargs: Any) -> None:
         super().__init__(**kwargs)
         import scipy.signal  # model c only: the other models do not import scipy
 
@@ -354,12 +358,12 @@ class IdentifiedActuator(SteeringActuator):
         scale = self.K / (num0 / den0)
         a, b, c, d = scipy.signal.tf2ss([scale * num1, scale * num0], [1.0, den1, den0])
         self._a, self._b, self._c = a, b.ravel(), c.ravel()
-        self.x = np.zeros(len(self._b))
-        self._cache = {}
+        self.x: NDArray[np.float64] = np.zeros(len(self._b))
+        self._cache: dict[float, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
         #: the dead time (None when tau = 0)
         self.delay = DeadTime(tau) if tau > 0.0 else None
 
-    def _discrete(self, h):
+    def _discrete(self, h: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Exact ZOH maps of [x; alpha]: (Ad [n+1 x n+1], Bd [n+1]) for step ``h``."""
         found = self._cache.get(h)
         if found is None:
@@ -377,17 +381,17 @@ class IdentifiedActuator(SteeringActuator):
             self._cache[h] = found
         return found
 
-    def _needs_substeps(self):
+    def _needs_substeps(self) -> bool:
         return self.alpha_max > 0.0 or self.rate_max > 0.0
 
-    def _step_command(self, t, h, u):
+    def _step_command(self, t: float, h: float, u: float) -> None:
         if self.delay is None:
             self._advance(h, u)
             return
         for duration, delayed in self.delay.pieces(t, h, u):
             self._advance(duration, delayed)
 
-    def _advance(self, h, u):
+    def _advance(self, h: float, u: float) -> None:
         """Advance by ``h`` [s] with command ``u`` [V] held (exact)."""
         ad, bd = self._discrete(h)
         z = ad @ np.append(self.x, 0.0) + bd * u
@@ -397,17 +401,17 @@ class IdentifiedActuator(SteeringActuator):
             increment = min(max(increment, -self.rate_max * h), self.rate_max * h)
         self.alpha = self._clamp(self.alpha + increment)
 
-    def rate(self, u=0.0, alpha_ref=0.0):
+    def rate(self, u: float = 0.0, alpha_ref: float = 0.0) -> float:
         return self._limit_rate(float(self._c @ self.x), self.alpha)
 
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         state = super().get_state()
         state["x"] = [float(v) for v in self.x]
         if self.delay is not None:
             state["history"] = [list(p) for p in self.delay.history]
         return state
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         super().set_state(state)
         self.x = np.array(state["x"], dtype=float)
         if self.delay is not None:
@@ -415,10 +419,11 @@ class IdentifiedActuator(SteeringActuator):
 
 
 #: model letter (seed 000) -> actuator class
-MODELS = {"a": DelayedIntegratorActuator, "b": IntegratorActuator, "c": IdentifiedActuator}
+MODELS: dict[str, type[SteeringActuator]] = {
+    "a": DelayedIntegratorActuator, "b": IntegratorActuator, "c": IdentifiedActuator}
 
 
-def make_actuator(model, **parameters):
+def make_actuator(model: str, **parameters: Any) -> SteeringActuator:
     """Build steering actuator ``model`` ("a", "b" or "c") with ``parameters``."""
     if model not in MODELS:
         raise ParameterError("model", f"must be one of {tuple(MODELS)}, got '{model}'")

@@ -1,8 +1,10 @@
 """FMU slave: steering actuator model b of seed 000 (agv_core.actuator)."""
 
+from typing import Any
+
 from agv_boot import load_core
 
-core = load_core("fmi.actuator_fmi")
+core: Any = load_core("fmi.actuator_fmi")
 
 
 class AgvSteeringB(core.fmi.actuator_fmi.ActuatorSlave):

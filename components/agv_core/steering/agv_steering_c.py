@@ -4,7 +4,7 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.actuator_fmi", "fmi.defaults", "steering.actuator")
+core: Any = load_core("fmi.actuator_fmi", "fmi.defaults", "steering.actuator")
 
 
 class AgvSteeringC(core.fmi.actuator_fmi.ActuatorSlave):

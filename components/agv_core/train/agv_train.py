@@ -4,7 +4,7 @@ from typing import Any
 
 from agv_boot import load_core
 
-core = load_core("fmi.fmi_slave", "train.train", "ackermann.ackermann", "fmi.defaults")
+core: Any = load_core("fmi.fmi_slave", "train.train", "ackermann.ackermann", "fmi.defaults")
 DEFAULTS = core.fmi.defaults.defaults_of(  # the core's defaults (written once)
     core.train.train.Train, core.train.train.TrainGeometry)
 

@@ -46,15 +46,21 @@ by ``tolerance`` (the test checks the sum over a run against scipy's DOP853).
 """
 
 import math
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any, Self
 
 from ..ackermann.ackermann import wheel_angles
 from ..errors import ParameterError
 from ..numerics.arc import sinc as _sinc
 
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+
 AXLES = 4
 
 
-def _positive(name, value):
+def _positive(name: str, value: float) -> float:
     if not (math.isfinite(value) and value > 0.0):
         raise ParameterError(name, f"must be a positive length in m, got {value}")
     return float(value)
@@ -75,7 +81,8 @@ class TrainGeometry:
         Hinge-to-hinge length of the floating car, > 0.
     """
 
-    def __init__(self, L1=5.0, L2=3.0, d=2.1, Lm=9.0):
+    def __init__(self, L1: float = 5.0, L2: float = 3.0, d: float = 2.1, Lm: float = 9.0
+                 ) -> None:
         self.L1 = _positive("L1", L1)
         self.L2 = _positive("L2", L2)
         if not (math.isfinite(d) and d >= 0.0):
@@ -85,7 +92,7 @@ class TrainGeometry:
         #: body position of each axle from its car's hinge (= distance to the baseline)
         self.axle_offsets = (self.L1 + self.L2, self.L2, -self.L2, -(self.L1 + self.L2))
 
-    def length(self):
+    def length(self) -> float:
         """Front axle to rear axle along a straight train [m]."""
         return 2.0 * (self.L1 + self.L2) + self.Lm
 
@@ -105,8 +112,9 @@ class Train:
         Bound on the Richardson estimate of the local error of psi2, psi3 per step [rad].
     """
 
-    def __init__(self, geometry, x1=0.0, y1=0.0, psi1=0.0, psi2=0.0, psi3=0.0,
-                 tolerance=1e-12):
+    def __init__(self, geometry: TrainGeometry, x1: float = 0.0, y1: float = 0.0,
+                 psi1: float = 0.0, psi2: float = 0.0, psi3: float = 0.0,
+                 tolerance: float = 1e-12) -> None:
         if not (math.isfinite(tolerance) and tolerance > 0.0):
             raise ParameterError("tolerance", f"must be positive, got {tolerance}")
         for name, value in (("x1", x1), ("y1", y1), ("psi1", psi1), ("psi2", psi2),
@@ -119,12 +127,13 @@ class Train:
         self.psi1, self.psi2, self.psi3 = float(psi1), float(psi2), float(psi3)
         self.distance = 0.0
         self.u1 = 0.0
-        self.deltas = (0.0, 0.0, 0.0, 0.0)
-        self.wheels = None
+        self.deltas: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+        self.wheels: tuple[tuple[float, ...], ...] | None = None
         self.substeps = 1
 
     @classmethod
-    def straight(cls, geometry, x_front=0.0, y_front=0.0, heading=0.0, tolerance=1e-12):
+    def straight(cls, geometry: TrainGeometry, x_front: float = 0.0, y_front: float = 0.0,
+                 heading: float = 0.0, tolerance: float = 1e-12) -> Self:
         """A straight train along ``heading`` [rad] with axle 1's centre at (x_front,
         y_front) [m]."""
         a1 = geometry.axle_offsets[0]
@@ -132,19 +141,20 @@ class Train:
                    heading, heading, heading, tolerance)
 
     # ------------------------------------------------------------------ kinematics
-    def head_rates(self, u1, deltas):
+    def head_rates(self, u1: float, deltas: Sequence[float]) -> tuple[float, float]:
         """(omega1 [rad/s], vy_J1 [m/s]) of the head car."""
         t1, t2 = math.tan(deltas[0]), math.tan(deltas[1])
         omega = u1 * (t1 - t2) / self.g.L1
         return omega, u1 * t2 - omega * self.g.L2
 
-    def tail_factors(self, deltas):
+    def tail_factors(self, deltas: Sequence[float]) -> tuple[float, float]:
         """(g3, k3): vy_J2 = u3 g3 and omega3 = u3 k3 for the tail car."""
         t3, t4 = math.tan(deltas[2]), math.tan(deltas[3])
         k3 = (t3 - t4) / self.g.L1
         return t3 + k3 * self.g.L2, k3
 
-    def link_rates(self, vx, vy, psi2, psi3, g3, k3):
+    def link_rates(self, vx: float, vy: float, psi2: float, psi3: float, g3: float, k3: float
+                   ) -> tuple[float, float, float]:
         """(u3 [m/s], psi2' [rad/s], psi3' [rad/s]) for J1 velocity (vx, vy) [m/s]."""
         c2, s2 = math.cos(psi2), math.sin(psi2)
         c3, s3 = math.cos(psi3), math.sin(psi3)
@@ -157,13 +167,15 @@ class Train:
         rate2 = ((-vx * s2 + vy * c2) - u3 * (-wx * s2 + wy * c2)) / self.g.Lm
         return u3, rate2, u3 * k3
 
-    def _rhs(self, t, psi2, psi3, u1, vyj, omega1, g3, k3):
+    def _rhs(self, t: float, psi2: float, psi3: float, u1: float, vyj: float, omega1: float,
+             g3: float, k3: float) -> tuple[float, float]:
         p = self.psi1 + omega1 * t
         c, s = math.cos(p), math.sin(p)
         _, r2, r3 = self.link_rates(u1 * c - vyj * s, u1 * s + vyj * c, psi2, psi3, g3, k3)
         return r2, r3
 
-    def _rk4(self, h, n, args):
+    def _rk4(self, h: float, n: int, args: tuple[float, float, float, float, float]
+             ) -> tuple[float, float]:
         p2, p3 = self.psi2, self.psi3
         dt = h / n
         f = self._rhs
@@ -177,7 +189,8 @@ class Train:
             p3 += dt * (a3 + 2.0 * b3 + 2.0 * c3 + d3) / 6.0
         return p2, p3
 
-    def step(self, u1, deltas, h, wheels=None):
+    def step(self, u1: float, deltas: Sequence[float], h: float,
+             wheels: Sequence[Sequence[float]] | None = None) -> None:
         """Advance by ``h`` [s] with speed ``u1`` [m/s] and axle angles ``deltas`` [rad]
         held. ``wheels`` (optional, 4 pairs of left/right angles [rad]) is recorded for
         the slip diagnostics only: the kinematics use the axle-equivalent ``deltas``."""
@@ -213,12 +226,12 @@ class Train:
         self.distance += abs(u1) * h
 
     # ------------------------------------------------------------------ outputs
-    def hinge2(self):
+    def hinge2(self) -> tuple[float, float]:
         """Hinge J2 [m]."""
         return (self.x1 - self.g.Lm * math.cos(self.psi2),
                 self.y1 - self.g.Lm * math.sin(self.psi2))
 
-    def axle_points(self):
+    def axle_points(self) -> tuple[tuple[float, float], ...]:
         """Centres of axles 1-4 [m], the tracking points: ((x1, y1), ..., (x4, y4))."""
         x2, y2 = self.hinge2()
         a = self.g.axle_offsets
@@ -229,7 +242,8 @@ class Train:
                 (x2 + a[2] * c3, y2 + a[2] * s3),
                 (x2 + a[3] * c3, y2 + a[3] * s3))
 
-    def car_rates(self, u1=None, deltas=None):
+    def car_rates(self, u1: float | None = None, deltas: Sequence[float] | None = None
+                  ) -> tuple[float, float, float, float]:
         """(u3 [m/s], omega1, psi2', omega3 [rad/s]) at the current pose, for the last
         applied inputs unless given."""
         u1 = self.u1 if u1 is None else u1
@@ -241,7 +255,7 @@ class Train:
                                      self.psi3, g3, k3)
         return u3, omega1, r2, r3
 
-    def wheel_states(self):
+    def wheel_states(self) -> list[tuple[float, float]]:
         """Per wheel (axle 1 left, 1 right, ..., 4 right): (speed [m/s], slip [rad]).
 
         Wheel w of axle i sits at body (a_i, +-d/2); its velocity is
@@ -272,13 +286,13 @@ class Train:
         return out
 
     # ------------------------------------------------------------------ state
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         return {"x1": self.x1, "y1": self.y1, "psi": [self.psi1, self.psi2, self.psi3],
                 "distance": self.distance, "u1": self.u1, "deltas": list(self.deltas),
                 "wheels": None if self.wheels is None else [list(w) for w in self.wheels],
                 "substeps": self.substeps}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         self.x1, self.y1 = float(state["x1"]), float(state["y1"])
         self.psi1, self.psi2, self.psi3 = (float(p) for p in state["psi"])
         self.distance = float(state["distance"])
@@ -289,7 +303,8 @@ class Train:
         self.substeps = int(state["substeps"])
 
 
-def steady_axle_angles(geometry, radius):
+def steady_axle_angles(geometry: TrainGeometry, radius: float
+                       ) -> tuple[float, float, float, float]:
     """Closed-form axle angles [rad] that keep all four axle centres on a circle of
     ``radius`` [m] (positive: left turn) in steady state.
 
@@ -301,7 +316,8 @@ def steady_axle_angles(geometry, radius):
     return (s, -s, s, -s)
 
 
-def steady_pose(geometry, radius, phi=0.0):
+def steady_pose(geometry: TrainGeometry, radius: float, phi: float = 0.0
+                ) -> tuple[float, float, float, float, float]:
     """The train on a circle centred at the origin (ccw for radius > 0): every axle centre
     at |radius|, J1 at polar angle ``phi`` [rad]. Returns (x1, y1, psi1, psi2, psi3)."""
     R = abs(radius)
@@ -321,13 +337,14 @@ def steady_pose(geometry, radius, phi=0.0):
     # tail car: centre at body (-cx, sgn cy) from J2
     psi3 = math.atan2(-y2, -x2) - math.atan2(sgn * cy, -cx)
 
-    def near(angle):   # the same direction, within pi of the floating car's heading
+    def near(angle: float) -> float:   # the same direction, within pi of the floating car's heading
         return psi2 + math.remainder(angle - psi2, 2.0 * math.pi)
 
     return x1, y1, near(psi1), psi2, near(psi3)
 
 
-def steady_offsets(geometry, radius, kp, car="head"):
+def steady_offsets(geometry: TrainGeometry, radius: float, kp: Callable[[float], float],
+                   car: str = "head") -> tuple[float, float, float, float]:
     """Steady state of one powered car on a circle under proportional axle control.
 
     Each axle i of the car obeys delta_i = -kp(e_i) e_i (kp in rad/m, a function of the
@@ -351,13 +368,13 @@ def steady_offsets(geometry, radius, kp, car="head"):
     if R <= 0.0:
         raise ValueError("steady_offsets: left turns (radius > 0) only")
 
-    def angles(e):
+    def angles(e: "Sequence[float] | NDArray[np.float64]") -> tuple[float, float]:
         r_f, r_r = R - e[0], R - e[1]
         cx = 0.5 * (a[0] + a[1]) - (r_f * r_f - r_r * r_r) / (2.0 * (a[0] - a[1]))
         cy = math.sqrt(r_f * r_f - (a[0] - cx) ** 2)
         return math.atan((a[0] - cx) / cy), math.atan((a[1] - cx) / cy)
 
-    def residual(e):
+    def residual(e: "NDArray[np.float64]") -> list[float]:
         d = angles(e)
         return [d[0] + kp(e[0]) * e[0], d[1] + kp(e[1]) * e[1]]
 

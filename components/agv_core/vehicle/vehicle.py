@@ -23,6 +23,7 @@ the small-angle geometry (x_F = x_R + L, y_F = y_R + L beta).
 """
 
 import math
+from typing import Any
 
 from ..errors import ParameterError
 from ..numerics.arc import sinc as _sinc  # the exact arc (numerics/arc.py)
@@ -47,8 +48,9 @@ class Vehicle:
         Use the small-angle linear kinematics of seed 000 model b/c.
     """
 
-    def __init__(self, wheelbase, x0=0.0, y0=0.0, heading0=0.0, reference_point="front",
-                 linear=False):
+    def __init__(self, wheelbase: float, x0: float = 0.0, y0: float = 0.0,
+                 heading0: float = 0.0, reference_point: str = "front",
+                 linear: bool = False) -> None:
         if not (wheelbase > 0.0 and math.isfinite(wheelbase)):
             raise ParameterError("wheelbase", f"must be a positive length in m, got {wheelbase}")
         if reference_point not in REFERENCE_POINTS:
@@ -67,7 +69,7 @@ class Vehicle:
         self.y = float(y0)
         self._trig = (math.nan, math.nan, math.nan)  # (heading, cos, sin) last computed
 
-    def _cos_sin(self):
+    def _cos_sin(self) -> tuple[float, float]:
         """(cos, sin) of the heading, computed once per heading value."""
         heading, c, s = self._trig
         if heading != self.heading:           # also true for a first (NaN) entry
@@ -77,7 +79,7 @@ class Vehicle:
         return c, s
 
     # ------------------------------------------------------------------ geometry
-    def rear(self):
+    def rear(self) -> tuple[float, float]:
         """Position of the rear-axle centre (x, y) [m]."""
         if self.reference_point == "rear":
             return self.x, self.y
@@ -86,7 +88,7 @@ class Vehicle:
         c, s = self._cos_sin()
         return self.x - self.wheelbase * c, self.y - self.wheelbase * s
 
-    def front(self):
+    def front(self) -> tuple[float, float]:
         """Position of the front-wheel centre (x, y) [m]."""
         if self.reference_point == "front":
             return self.x, self.y
@@ -95,14 +97,14 @@ class Vehicle:
         c, s = self._cos_sin()
         return self.x + self.wheelbase * c, self.y + self.wheelbase * s
 
-    def yaw_rate(self, alpha, v):
+    def yaw_rate(self, alpha: float, v: float) -> float:
         """dbeta/dt [rad/s] for steering angle ``alpha`` [rad] and speed ``v`` [m/s]."""
         if self.linear:
             return v * alpha / self.wheelbase
         return v * math.tan(alpha) / self.wheelbase
 
     # ------------------------------------------------------------------ dynamics
-    def step(self, alpha, v, h):
+    def step(self, alpha: float, v: float, h: float) -> None:
         """Advance by ``h`` [s] with ``alpha`` [rad] and ``v`` [m/s] held (exact)."""
         if not (abs(alpha) < math.pi / 2):
             raise FloatingPointError(f"steering angle alpha={alpha} rad is not within +/-pi/2")
@@ -129,11 +131,11 @@ class Vehicle:
         self.distance += abs(v) * h
 
     # ------------------------------------------------------------------ state
-    def get_state(self):
+    def get_state(self) -> dict[str, Any]:
         """JSON-safe snapshot of the state."""
         return {"x": self.x, "y": self.y, "heading": self.heading, "distance": self.distance}
 
-    def set_state(self, state):
+    def set_state(self, state: dict[str, Any]) -> None:
         """Restore a snapshot from :meth:`get_state`."""
         self.x = state["x"]
         self.y = state["y"]
