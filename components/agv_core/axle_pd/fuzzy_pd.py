@@ -285,8 +285,8 @@ class AxlePD:
         self.tau_d = float(tau_d)
         self.delta_max = float(delta_max)
         self.x: float | None = None  # filter state [m]; None until the first evaluation
-        self.outputs: dict[str, float | bool] = {"delta": 0.0, "Kp": 0.0, "Kd": 0.0, "error_rate": 0.0,
-                        "saturated": False}
+        self.outputs: dict[str, float | bool] = {"delta": 0.0, "Kp": 0.0, "Kd": 0.0,
+                                                 "error_rate": 0.0, "saturated": False}
 
     def evaluate(self, e: float, v: float) -> dict[str, float | bool]:
         """Outputs for lateral error ``e`` [m] and speed ``v`` [m/s] (SI gains)."""

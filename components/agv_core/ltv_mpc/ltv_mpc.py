@@ -44,8 +44,8 @@ from typing import Any
 
 import numpy as np
 import osqp
-from numpy.typing import ArrayLike
 import scipy.sparse as sp
+from numpy.typing import ArrayLike
 
 from ..errors import ParameterError
 from ..numerics.paths import heading_error
