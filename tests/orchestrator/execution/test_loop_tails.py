@@ -3,11 +3,19 @@ the recorded rows, the progress reports and the end a stop request gives, on its
 (fake record, progress and algorithm) and through both loops, with the stop request
 inside a compiled stretch and in the Python loop."""
 
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
 import pytest
 
 from agv_cosim.execution import Observer, compiled, multirate, simulate, simulation
 from agv_cosim.execution.stretch import Tail
 from agv_cosim.pipeline import prepare
+
+ROOT = Path(__file__).resolve().parents[3]
 
 
 class Calls:
@@ -189,3 +197,20 @@ def test_a_stop_request_inside_a_compiled_stretch_ends_as_in_the_python_loop(
                                                      ("steps", 503)]
     rows = [c[1] for c in calls if c[0] == "row"]
     assert [r[0] for r in rows] == pytest.approx([i / 100 for i in range(251)], abs=1e-12)
+
+
+def test_the_loops_are_within_the_complexity_limit():
+    """The single-rate loop, the multirate loop and the Model Exchange step stay at a
+    McCabe complexity of 15 or less (ruff's C901)."""
+    ruff = shutil.which("ruff", path=str(Path(sys.executable).parent)) or shutil.which("ruff")
+    if ruff is None:
+        pytest.skip("ruff is not installed")
+    execution = ROOT / "orchestrator" / "agv_cosim" / "execution"
+    done = subprocess.run(
+        [ruff, "check", "--isolated", "--select", "C901", "--output-format", "json",
+         "--config", "lint.mccabe.max-complexity = 15",
+         *(str(execution / f) for f in ("simulation.py", "multirate.py",
+                                        "model_exchange.py"))],
+        capture_output=True, text=True, check=False)
+    found = json.loads(done.stdout)
+    assert [f["message"] for f in found] == []
