@@ -172,16 +172,18 @@ def run_multirate(system: System, units: dict[str, Unit], algorithm: Algorithm,
             # the macro steps in which only the base-rate components step and exchange,
             # up to the next slow point, event, recording point or progress report, in
             # C (the calls of the Python loop below)
-            end = min(tail.end(k, scenario.next_step, steps - 1),
+            end = min(steps - 1, tail.bound,
                       *(k + (m - 1 - k % m) if k % m else k for m in slow))
+            if scenario.next_step > k + 1:
+                end = min(end, scenario.next_step - 1)
             if end > k:
-                ran = stretch(k, end)
-                k += ran
+                k += stretch(k, end)
                 if requests:  # macro step k stepped (no exchange): its stop request
-                    tail.stop(k + 1, time(k + 1), ran)
+                    tail.stop(k, time(k + 1))
                     break
                 t = time(k)
-                point(k, t, ran)
+                if k >= tail.bound:
+                    point(k, t)
                 continue
         t_next = time(k + 1)
         step(t, step_size(t, t_next))
@@ -191,10 +193,11 @@ def run_multirate(system: System, units: dict[str, Unit], algorithm: Algorithm,
             scenario.apply(k + 1)
         exchange = rates.at(k + 1)
         if requests:
-            tail.stop(k + 1, t_next)
+            tail.stop(k, t_next)
             break
         exchange.exchange(t_next)
         k += 1
-        point(k, t_next, 1)
-    tail.finish()
+        if k >= tail.bound:
+            point(k, t_next)
+    tail.finish(k)
     return tail.ended_by, tail.stop_time, bool(requests)

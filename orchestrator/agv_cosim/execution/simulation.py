@@ -125,15 +125,17 @@ def _loop(system: System, algorithm: Algorithm, stepper: Stepper, scenario: Scen
             # the macro steps up to the next event, recording point or progress report
             # in C: each of k .. end - 1 steps and exchanges (stopping after a step that
             # brought a stop request)
-            ran = stretch(k, tail.end(k, scenario.next_step, steps))
-            k += ran
+            end = tail.bound
+            if scenario.next_step > k + 1:
+                end = min(end, scenario.next_step - 1)
+            k += stretch(k, end)
             if requests:  # macro step k stepped (no exchange): its stop request
-                tail.stop(k + 1, time(k + 1), ran)
+                tail.stop(k, time(k + 1))
                 break
-            if ran:
-                t = time(k)
-                point(k, t, ran)
-                continue
+            t = time(k)
+            if k >= tail.bound:
+                point(k, t)
+            continue
         t_next = time(k + 1)
         step(t, step_size(t, t_next))
         t = t_next
@@ -141,12 +143,13 @@ def _loop(system: System, algorithm: Algorithm, stepper: Stepper, scenario: Scen
         if k + 1 == scenario.next_step and not requests:
             scenario.apply(k + 1)
         if requests:
-            tail.stop(k + 1, t_next)
+            tail.stop(k, t_next)
             break
         exchange(t_next)
         k += 1
-        point(k, t_next, 1)
-    tail.finish()
+        if k >= tail.bound:
+            point(k, t_next)
+    tail.finish(k)
     return Outcome(rows=0, ended_by=tail.ended_by, stop_time=tail.stop_time)
 
 

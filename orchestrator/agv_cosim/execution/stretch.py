@@ -64,10 +64,12 @@ class Tail:
     ``progress`` every ``progress_every`` macro steps (and the remainder at the end), and
     the end of the run a stop request gives.
 
-    A loop calls :meth:`point` once per stretch of macro steps completed with their
-    exchange (one macro step in Python, or a compiled stretch), :meth:`stop` when a stop
-    request came, :meth:`finish` when it leaves; :meth:`end` bounds a compiled stretch so
-    that it ends at the next recording point or progress report.
+    k counts the macro steps completed with their exchange (the loop is at t_k).
+    :attr:`bound` is the next k at which the tail has work (a recording point, a
+    progress report, or the last step): a loop calls :meth:`point` when it reaches it,
+    and ends a compiled stretch there; between two bounds it calls nothing.
+    :meth:`stop` ends the run on a stop request, :meth:`finish` tells the progress not
+    yet told.
 
     ``requests``: the steppers' stop requests (the list a step appends to);
     ``algorithm_at(k)``: the algorithm whose :meth:`~.algorithm.Algorithm.last` exchange
@@ -81,52 +83,46 @@ class Tail:
         self.steps, self.every, self.record = steps, every, record
         self.progress, self.progress_every = progress, progress_every
         self.requests, self.algorithm_at = requests, algorithm_at
-        #: macro steps done since the last progress report
-        self.done = 0
+        #: k of the last progress report
+        self.reported = 0
         #: ``Outcome.ended_by`` and ``Outcome.stop_time`` (set by :meth:`stop`)
         self.ended_by: str | None = None
         self.stop_time: float | None = None
+        #: the next k at which :meth:`point` has work
+        self.bound = self._next(0)
 
-    def end(self, k: int, next_event: int, last: int) -> int:
-        """The end (exclusive) of a stretch of macro steps from k: at most ``last``, at
-        the next recording point, progress report, and before the scenario's next event
-        step ``next_event`` when it lies ahead (that macro step runs in Python)."""
-        every = self.every
-        end = min(last, k + every - k % every,
-                  k + self.progress_every - self.done if self.progress else last)
-        if next_event > k + 1:
-            end = min(end, next_event - 1)
-        return end
+    def _next(self, k: int) -> int:
+        """The first recording point, progress report or the last step after k."""
+        bound = k + self.every - k % self.every
+        if self.progress and self.reported + self.progress_every < bound:
+            bound = self.reported + self.progress_every
+        return min(bound, self.steps)
 
-    def point(self, k: int, t: float, ran: int) -> None:
-        """``ran`` more macro steps completed with their exchange, the last to t_k = ``t``:
-        the row when t_k is a recording point, the progress report when one is due."""
+    def point(self, k: int, t: float) -> None:
+        """At t_k = ``t``, k = :attr:`bound`: the row when t_k is a recording point, the
+        progress report when one is due."""
         if k % self.every == 0 or k == self.steps:
             self.record(t)
-        if self.progress:
-            self.done += ran
-            if self.done >= self.progress_every:
-                self.report()
+        if self.progress and k - self.reported >= self.progress_every:
+            self.report(k)
+        self.bound = self._next(k)
 
-    def stop(self, k: int, t: float, ran: int = 0) -> None:
-        """The macro step to t_k = ``t`` brought a stop request (after ``ran`` macro steps
-        completed with their exchange): the outcome, and when the FMU that asked reached
-        t_k the last exchange and its row."""
+    def stop(self, k: int, t: float) -> None:
+        """The macro step from t_k to ``t`` = t_{k+1} brought a stop request: the outcome,
+        and when the FMU that asked reached t_{k+1} the last exchange and its row."""
         requests = self.requests
-        if self.progress:
-            self.done += ran
         self.ended_by, self.stop_time = ended(requests[0])
         if reached(requests[0], t):
-            self.algorithm_at(k).last(t, {n for n, _ in requests})
+            self.algorithm_at(k + 1).last(t, {n for n, _ in requests})
             self.record(t)
 
-    def report(self) -> None:
-        """The macro steps done since the last report, to every progress observer."""
+    def report(self, k: int) -> None:
+        """The macro steps completed since the last report, to every progress observer."""
         for report in self.progress:
-            report(self.done)
-        self.done = 0
+            report(k - self.reported)
+        self.reported = k
 
-    def finish(self) -> None:
-        """The macro steps not yet reported, when the loop ends."""
-        if self.progress and self.done:
-            self.report()
+    def finish(self, k: int) -> None:
+        """The loop ends with k macro steps completed: the progress not yet told."""
+        if self.progress and k > self.reported:
+            self.report(k)

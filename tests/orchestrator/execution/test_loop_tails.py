@@ -45,74 +45,84 @@ def _tail(calls: Calls, *, steps: int = 10, every: int = 3, progress_every: int 
                 progress_every, [] if requests is None else requests, calls.algorithm_at)
 
 
+def _run(tail: Tail, points: list[int]) -> None:
+    """A loop reaching each k of ``points`` in turn (a stretch or one macro step each),
+    calling the tail where its bound says."""
+    for k in points:
+        assert k <= tail.bound  # a stretch never runs past the bound
+        if k >= tail.bound:
+            tail.point(k, k / 10)
+
+
 def test_the_tail_records_every_recording_point_and_the_last():
     calls = Calls()
     tail = _tail(calls, progress=False)
-    for k in range(1, 11):
-        tail.point(k, k / 10, 1)
+    assert tail.bound == 3
+    _run(tail, list(range(1, 11)))
     assert calls.seen == [("row", 0.3), ("row", 0.6), ("row", 0.9), ("row", 1.0)]
+    assert tail.bound == 10  # the last step: nothing after it
 
 
 def test_the_tail_reports_the_progress_when_due_and_the_rest_at_the_end():
-    """Stretches of 3 and 1 steps make a report of 4; the 2 after it are told at the end."""
+    """Stretches to 3 and 4 make a report of 4; the 2 after it are told at the end."""
     calls = Calls()
     tail = _tail(calls, every=100, steps=100)
-    tail.point(3, 0.3, 3)
-    assert calls.seen == []
-    tail.point(4, 0.4, 1)
-    assert calls.seen == [("steps", 4)] and tail.done == 0
-    tail.point(6, 0.6, 2)
-    tail.finish()
+    assert tail.bound == 4
+    _run(tail, [3, 4])
+    assert calls.seen == [("steps", 4)] and tail.bound == 8
+    _run(tail, [6])
+    tail.finish(6)
     assert calls.seen == [("steps", 4), ("steps", 2)]
-    tail.finish()  # nothing left to tell
+    tail.finish(6)  # nothing left to tell
     assert calls.seen == [("steps", 4), ("steps", 2)]
 
 
 def test_the_row_comes_before_the_report_of_the_same_point():
     calls = Calls()
     tail = _tail(calls, every=4, progress_every=4)
-    for k in range(1, 5):
-        tail.point(k, k / 10, 1)
+    _run(tail, [1, 2, 3, 4])
     assert calls.seen == [("row", 0.4), ("steps", 4)]
 
 
 def test_without_progress_observers_nothing_is_counted_or_told():
     calls = Calls()
     tail = _tail(calls, every=100, steps=100, progress=False)
-    tail.point(50, 5.0, 50)
-    tail.finish()
-    assert calls.seen == [] and tail.done == 0
+    assert tail.bound == 100
+    _run(tail, [50])
+    tail.finish(50)
+    assert calls.seen == []
 
 
 def test_a_stop_request_reached_at_the_point_ends_with_the_last_exchange_and_row():
+    """6 macro steps completed, the 7th (to 0.7 s) brought the request of d and e, both
+    at 0.7 s: the last exchange is the algorithm's at t_7."""
     calls = Calls()
     tail = _tail(calls, every=100, steps=100, requests=[("d", 0.7), ("e", 0.7)])
-    tail.stop(7, 0.7, ran=6)
+    tail.stop(6, 0.7)
     assert (tail.ended_by, tail.stop_time) == ("d requested stop at t=0.7 s", 0.7)
     assert calls.seen == [("at", 7), ("last", 0.7, ["d", "e"]), ("row", 0.7)]
-    tail.finish()  # the 6 macro steps completed before it are told
+    tail.finish(6)  # the 6 macro steps completed before it are told
     assert calls.seen[-1] == ("steps", 6)
 
 
 def test_a_stop_request_before_the_point_ends_without_a_row():
     calls = Calls()
-    tail = _tail(calls, every=100, steps=100, requests=[("d", 0.6)])
-    tail.stop(7, 0.7)
-    tail.finish()
+    tail = _tail(calls, every=100, steps=100, requests=[("d", 0.6)], progress=False)
+    tail.stop(6, 0.7)
+    tail.finish(6)
     assert (tail.ended_by, tail.stop_time) == ("d requested stop at t=0.6 s", 0.6)
     assert calls.seen == []
 
 
-def test_a_stretch_ends_at_the_next_row_report_event_or_limit():
+def test_the_bound_is_the_next_row_or_report_or_the_last_step():
     tail = _tail(Calls(), steps=100, every=10, progress_every=25)
-    assert tail.end(0, 0, 100) == 10  # the recording point
-    assert tail.end(3, 0, 100) == 10
-    assert tail.end(3, 7, 100) == 6  # the event's macro step runs in Python
-    assert tail.end(3, 4, 100) == 10  # the event is the next macro step: no bound
-    assert tail.end(3, 0, 8) == 8  # the caller's limit
-    tail.point(20, 2.0, 20)
-    assert tail.end(20, 0, 100) == 25  # the progress report
-    assert _tail(Calls(), steps=100, every=10, progress=False).end(3, 0, 100) == 10
+    expected = {10: 20, 20: 25, 25: 30, 30: 40, 40: 50, 50: 60}
+    for k, bound in expected.items():
+        tail.point(k, k / 10)
+        assert tail.bound == bound, k
+    tail = _tail(Calls(), steps=95, every=10, progress=False)
+    tail.point(90, 9.0)
+    assert tail.bound == 95
 
 
 STOP = """
