@@ -88,24 +88,23 @@ class Tail:
         #: ``Outcome.ended_by`` and ``Outcome.stop_time`` (set by :meth:`stop`)
         self.ended_by: str | None = None
         self.stop_time: float | None = None
-        #: the next k at which :meth:`point` has work
-        self.bound = self._next(0)
-
-    def _next(self, k: int) -> int:
-        """The first recording point, progress report or the last step after k."""
-        bound = k + self.every - k % self.every
-        if self.progress and self.reported + self.progress_every < bound:
-            bound = self.reported + self.progress_every
-        return min(bound, self.steps)
+        #: the next k at which :meth:`point` has work: the first recording point,
+        #: progress report or the last step after the k of the last :meth:`point`
+        self.bound = min(every, progress_every if progress else steps, steps)
 
     def point(self, k: int, t: float) -> None:
         """At t_k = ``t``, k = :attr:`bound`: the row when t_k is a recording point, the
-        progress report when one is due."""
-        if k % self.every == 0 or k == self.steps:
+        progress report when one is due; then the next :attr:`bound`."""
+        every, steps = self.every, self.steps
+        if k % every == 0 or k == steps:
             self.record(t)
-        if self.progress and k - self.reported >= self.progress_every:
-            self.report(k)
-        self.bound = self._next(k)
+        bound = k + every - k % every
+        if self.progress:
+            if k - self.reported >= self.progress_every:
+                self.report(k)
+            if self.reported + self.progress_every < bound:
+                bound = self.reported + self.progress_every
+        self.bound = bound if bound < steps else steps
 
     def stop(self, k: int, t: float) -> None:
         """The macro step from t_k to ``t`` = t_{k+1} brought a stop request: the outcome,
