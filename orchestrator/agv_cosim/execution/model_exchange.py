@@ -480,6 +480,32 @@ class ModelExchangeUnit(FmuUnit):
         if self.stop_time is not None:
             return 2
         end = t + h
+        self._start_step(t)
+        now, events = t, 0
+        slave = self.slave
+        while now < end and not _close(now, end):
+            t_stop, time_event = self._next_stop(now, end)
+            now, state_event = self._advance(now, t_stop, t)
+            if time_event and state_event and not _close(now, t_stop):
+                time_event = False
+            slave.setTime(now)
+            self._now = now
+            step_event = self._completed_step(now)
+            if self.stop_time is not None:
+                return 2
+            if time_event or state_event or step_event:
+                events += 1
+                self._event_in_step(now, events, t, end)
+                if self.stop_time is not None:
+                    return 2
+        if now != end:
+            slave.setTime(end)
+        self._now = end
+        return 0
+
+    def _start_step(self, t: float) -> None:
+        """Before a step from ``t``: the solver made (at the first step), and restarted
+        at ``t`` when an input changed or an event happened since the last step."""
         if self.solver is None:
             self.solver = self._make_solver(t)
             self.restart = False
@@ -491,49 +517,54 @@ class ModelExchangeUnit(FmuUnit):
         if self.restart and self.solver is not None:
             self.solver.reset(t)
         self.restart = False
-        now, events = t, 0
-        slave = self.slave
-        while now < end and not _close(now, end):
-            t_stop, time_event = end, False
-            if self.next_event is not None and (self.next_event < end
-                                                or _close(self.next_event, end)):
-                t_stop, time_event = min(max(self.next_event, now), end), True
-            state_event = False
-            if self.solver is not None and t_stop > now and not _close(t_stop, now):
-                try:
-                    now, state_event = self.solver.advance(now, t_stop)
-                except SimulationError as failed:  # the solver's reason
-                    raise SimulationError(
-                        f"component '{self.name}': the {self.solver.name} solver failed "
-                        f"at t={now!r} s (step from t={t!r} s): {failed}") from None
-            else:
-                now = t_stop
-            if time_event and state_event and not _close(now, t_stop):
-                time_event = False
-            slave.setTime(now)
-            self._now = now
-            step_event = False
-            if self.me.needs_completed_integrator_step:
-                step_event, terminate = slave.completedIntegratorStep()
-                if terminate:
-                    self.stop_time = now
-                    return 2
-            if time_event or state_event or step_event:
-                events += 1
-                if events > MAX_EVENTS_PER_STEP:
-                    raise SimulationError(
-                        f"component '{self.name}': more than {MAX_EVENTS_PER_STEP} events "
-                        f"in the step from t={t!r} s to t={end!r} s (stuck at "
-                        f"t={now!r} s)")
-                self.events += 1
-                slave.enterEventMode()
-                self._event_iteration(now)
-                if self.stop_time is not None:
-                    return 2
-                if self.solver is not None:
-                    self.solver.reset(now)
-                self.restart = False
-        if now != end:
-            slave.setTime(end)
-        self._now = end
-        return 0
+
+    def _next_stop(self, now: float, end: float) -> tuple[float, bool]:
+        """Where the solver stops next from ``now`` in a step to ``end``, and whether that
+        is the FMU's time event (within the step, or within 1e-12 of its end)."""
+        when = self.next_event
+        if when is not None and (when < end or _close(when, end)):
+            return min(max(when, now), end), True
+        return end, False
+
+    def _advance(self, now: float, t_stop: float, t: float) -> tuple[float, bool]:
+        """The states integrated from ``now`` towards ``t_stop``: where the solver stopped,
+        and whether at a state event (no solver, or no time to go: at ``t_stop``, none).
+        ``t``: the start of the communication step, for the message of a failure."""
+        if self.solver is not None and t_stop > now and not _close(t_stop, now):
+            try:
+                found: tuple[float, bool] = self.solver.advance(now, t_stop)
+                return found
+            except SimulationError as failed:  # the solver's reason
+                raise SimulationError(
+                    f"component '{self.name}': the {self.solver.name} solver failed "
+                    f"at t={now!r} s (step from t={t!r} s): {failed}") from None
+        return t_stop, False
+
+    def _completed_step(self, now: float) -> Any:
+        """``completedIntegratorStep`` at ``now`` when the FMU needs it: whether it asks
+        for event mode (a step event); a termination it asks for is a stop request at
+        ``now`` (:attr:`stop_time`)."""
+        if not self.me.needs_completed_integrator_step:
+            return False
+        step_event, terminate = self.slave.completedIntegratorStep()
+        if terminate:
+            self.stop_time = now
+        return step_event
+
+    def _event_in_step(self, now: float, events: int, t: float, end: float) -> None:
+        """The ``events``-th event in the step from ``t`` to ``end``, at ``now``: event
+        mode, the event iteration and the solver restarted there (unless the FMU asked
+        to stop: :attr:`stop_time`); more than :data:`MAX_EVENTS_PER_STEP` fail the run."""
+        if events > MAX_EVENTS_PER_STEP:
+            raise SimulationError(
+                f"component '{self.name}': more than {MAX_EVENTS_PER_STEP} events "
+                f"in the step from t={t!r} s to t={end!r} s (stuck at "
+                f"t={now!r} s)")
+        self.events += 1
+        self.slave.enterEventMode()
+        self._event_iteration(now)
+        if self.stop_time is not None:
+            return
+        if self.solver is not None:
+            self.solver.reset(now)
+        self.restart = False

@@ -59,7 +59,7 @@ from .algorithm import Algorithm, Stepper, algorithm_for
 from .grid import Grid
 from .pacing import Pacer
 from .scenario import Scenario
-from .stretch import compiled_stretch, ended, reached
+from .stretch import Tail, compiled_stretch
 from .track import Track
 from .units import Unit
 
@@ -143,7 +143,7 @@ def run_multirate(system: System, units: dict[str, Unit], algorithm: Algorithm,
     them (``stopped``: an FMU asked to end the run).
     """
 
-    steps, every = system.steps, system.record_every
+    steps = system.steps
     grid = Grid(system.start, system.stop, steps, system.step)
     time, step_size = grid.time, grid.step_size
     rates = _Rates(system, units, algorithm, track, fast)
@@ -163,38 +163,27 @@ def run_multirate(system: System, units: dict[str, Unit], algorithm: Algorithm,
     step = step_due if pace is None else pace.wrap(step_due)
     stretch = _fast_stretch(rates, grid, pace)
     slow = sorted({m for m in rates.multiple.values() if m > 1})
-    done = 0
+    tail = Tail(steps, system.record_every, record, progress, every_progress, requests,
+                rates.at)
+    point = tail.point
     t = system.start
-    ended_by: str | None = None
-    stop_time: float | None = None
     while k < steps:
         if stretch is not None and k + 1 != scenario.next_step:
             # the macro steps in which only the base-rate components step and exchange,
             # up to the next slow point, event, recording point or progress report, in
             # C (the calls of the Python loop below)
-            end = min(steps - 1, k + every - k % every,
-                      k + every_progress - done if progress else steps,
+            end = min(steps - 1, tail.bound,
                       *(k + (m - 1 - k % m) if k % m else k for m in slow))
             if scenario.next_step > k + 1:
                 end = min(end, scenario.next_step - 1)
             if end > k:
-                ran = stretch(k, end)
-                k += ran
-                done += ran if progress else 0
+                k += stretch(k, end)
                 if requests:  # macro step k stepped (no exchange): its stop request
-                    t = time(k + 1)
-                    ended_by, stop_time = ended(requests[0])
-                    if reached(requests[0], t):
-                        rates.at(k + 1).last(t, {n for n, _ in requests})
-                        record(t)
+                    tail.stop(k, time(k + 1))
                     break
                 t = time(k)
-                if k % every == 0:
-                    record(t)
-                if progress and done >= every_progress:
-                    for report in progress:
-                        report(done)
-                    done = 0
+                if k >= tail.bound:
+                    point(k, t)
                 continue
         t_next = time(k + 1)
         step(t, step_size(t, t_next))
@@ -204,23 +193,11 @@ def run_multirate(system: System, units: dict[str, Unit], algorithm: Algorithm,
             scenario.apply(k + 1)
         exchange = rates.at(k + 1)
         if requests:
-            ended_by, stop_time = ended(requests[0])
-            if reached(requests[0], t_next):
-                exchange.last(t_next, {n for n, _ in requests})
-                record(t_next)
+            tail.stop(k, t_next)
             break
         exchange.exchange(t_next)
-        if (k + 1) % every == 0 or k + 1 == steps:
-            record(t_next)
-        if progress:
-            done += 1
-            if done >= every_progress:
-                for report in progress:
-                    report(done)
-                done = 0
         k += 1
-    if progress and done:
-        for report in progress:
-            report(done)
-    return ended_by, stop_time, bool(requests)
-
+        if k >= tail.bound:
+            point(k, t_next)
+    tail.finish(k)
+    return tail.ended_by, tail.stop_time, bool(requests)

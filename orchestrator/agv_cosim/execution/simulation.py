@@ -33,7 +33,7 @@ from .multirate import multiples, run_multirate
 from .observers import Observer
 from .pacing import Pacer
 from .scenario import Scenario
-from .stretch import compiled_stretch, ended, reached
+from .stretch import Tail, compiled_stretch
 from .track import INITIALISATION, INSTANTIATION, PHASES, PROPAGATION, Track
 from .units import Unit, build_units, enter_initialisation
 
@@ -109,14 +109,15 @@ def _loop(system: System, algorithm: Algorithm, stepper: Stepper, scenario: Scen
           track: Track, pace: Pacer | None = None) -> Outcome:
     """The communication points after the first (t_k of :class:`.grid.Grid`): step,
     events, exchange, record."""
-    steps, every = system.steps, system.record_every
+    steps = system.steps
     grid = Grid(system.start, system.stop, steps, system.step)
     time, step_size = grid.time, grid.step_size
     requests = stepper.requests
     step = stepper.step if pace is None else pace.wrap(stepper.step)
     stretch = compiled_stretch(algorithm, stepper, grid, pace)
-    done = 0
-    outcome = Outcome(rows=0)
+    tail = Tail(steps, system.record_every, record, progress, PROGRESS_EVERY, requests,
+                lambda _: algorithm)
+    exchange, point = algorithm.exchange, tail.point
     t = system.start
     k = 0
     while k < steps:
@@ -124,29 +125,17 @@ def _loop(system: System, algorithm: Algorithm, stepper: Stepper, scenario: Scen
             # the macro steps up to the next event, recording point or progress report
             # in C: each of k .. end - 1 steps and exchanges (stopping after a step that
             # brought a stop request)
-            end = min(steps, k + every - k % every,
-                      k + PROGRESS_EVERY - done if progress else steps)
+            end = tail.bound
             if scenario.next_step > k + 1:
                 end = min(end, scenario.next_step - 1)
-            ran = stretch(k, end)
-            k += ran
-            done += ran if progress else 0
-            if ran and not requests:
-                t = time(k)
-                if k % every == 0 or k == steps:
-                    record(t)
-                if progress and done >= PROGRESS_EVERY:
-                    for report in progress:
-                        report(done)
-                    done = 0
-                continue
-            if requests:  # macro step k stepped (no exchange): its stop request below
-                t = time(k + 1)
-                outcome.ended_by, outcome.stop_time = ended(requests[0])
-                if reached(requests[0], t):
-                    algorithm.last(t, {n for n, _ in requests})
-                    record(t)
+            k += stretch(k, end)
+            if requests:  # macro step k stepped (no exchange): its stop request
+                tail.stop(k, time(k + 1))
                 break
+            t = time(k)
+            if k >= tail.bound:
+                point(k, t)
+            continue
         t_next = time(k + 1)
         step(t, step_size(t, t_next))
         t = t_next
@@ -154,26 +143,14 @@ def _loop(system: System, algorithm: Algorithm, stepper: Stepper, scenario: Scen
         if k + 1 == scenario.next_step and not requests:
             scenario.apply(k + 1)
         if requests:
-            outcome.ended_by, outcome.stop_time = ended(requests[0])
-            algorithm_last = reached(requests[0], t_next)
-            if algorithm_last:
-                algorithm.last(t_next, {n for n, _ in requests})
-                record(t_next)
+            tail.stop(k, t_next)
             break
-        algorithm.exchange(t_next)
-        if (k + 1) % every == 0 or k + 1 == steps:
-            record(t_next)
-        if progress:
-            done += 1
-            if done >= PROGRESS_EVERY:
-                for report in progress:
-                    report(done)
-                done = 0
+        exchange(t_next)
         k += 1
-    if progress and done:
-        for report in progress:
-            report(done)
-    return outcome
+        if k >= tail.bound:
+            point(k, t_next)
+    tail.finish(k)
+    return Outcome(rows=0, ended_by=tail.ended_by, stop_time=tail.stop_time)
 
 
 def simulate(system: System, observers: Iterable[Observer] = (), *,
