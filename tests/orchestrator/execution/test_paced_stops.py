@@ -82,8 +82,12 @@ def test_a_paced_run_stopped_at_its_limit_keeps_its_pacing_figures(chain, tmp_pa
 
 
 INTERRUPTED = """
-import sys
+import signal, sys
 from agv_cosim import cli
+# a command started from a shell: Ctrl-C's default disposition, whatever this test
+# process inherited (a parent that ignores or blocks SIGINT passes that on)
+signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+signal.signal(signal.SIGINT, signal.default_int_handler)
 sys.exit(cli.main(["run", sys.argv[1], "--out", sys.argv[2], "--real-time", "10",
                    "--no-init"]))
 """

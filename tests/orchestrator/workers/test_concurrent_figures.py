@@ -120,6 +120,10 @@ def task(seconds):
     time.sleep(seconds)
     return os.getpid()
 
+# a command started from a shell: Ctrl-C's default disposition, whatever this test
+# process inherited (a parent that ignores or blocks SIGINT passes that on)
+signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+signal.signal(signal.SIGINT, signal.default_int_handler)
 signal.signal(signal.SIGALRM, lambda *_: os.killpg(0, signal.SIGINT))  # as Ctrl-C does
 signal.setitimer(signal.ITIMER_REAL, 0.5)
 try:
